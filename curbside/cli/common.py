@@ -1,0 +1,78 @@
+"""What every console command shares: logging set-up and the exit-status contract.
+
+Exit 0 on success; 2 on bad usage or bad input, with one line on stderr naming the file and the
+problem; 1 on an internal error. ``CURBSIDE_DEBUG=1`` shows tracebacks.
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import os
+import sys
+from collections.abc import Callable, Sequence
+
+from curbside.errors import CurbsideInputError
+
+
+class _ArgumentParser(argparse.ArgumentParser):
+    """argparse that reports usage errors as one line and exit status 2."""
+
+    def error(self, message: str) -> None:  # type: ignore[override]
+        sys.stderr.write(f"{self.prog}: {message}\n")
+        raise SystemExit(2)
+
+
+def make_parser(prog: str, description: str) -> argparse.ArgumentParser:
+    """A parser with ``-v/--verbose`` and one-line usage errors."""
+    parser = _ArgumentParser(prog=prog, description=description)
+    parser.add_argument("-v", "--verbose", action="count", default=0, help="more log output")
+    return parser
+
+
+def run_cli(
+    prog: str,
+    parser: argparse.ArgumentParser,
+    argv: Sequence[str] | None,
+) -> int:
+    """Parse ``argv``, call ``args.func(args)`` and map exceptions onto exit statuses.
+
+    Parameters
+    ----------
+    prog
+        Program name used as the message prefix.
+    parser
+        Parser whose sub-commands set ``func`` with ``set_defaults``.
+    argv
+        Arguments (``None``: ``sys.argv[1:]``).
+
+    Returns
+    -------
+    int
+        The exit status.
+    """
+    args = parser.parse_args(argv)
+    level = logging.WARNING - 10 * min(args.verbose, 2)
+    logging.basicConfig(level=level, format="%(levelname)s %(name)s: %(message)s")
+    func: Callable[[argparse.Namespace], int | None] | None = getattr(args, "func", None)
+    if func is None:
+        parser.print_help(sys.stderr)
+        return 2
+    debug = os.environ.get("CURBSIDE_DEBUG") == "1"
+    try:
+        return int(func(args) or 0)
+    except CurbsideInputError as exc:
+        if debug:
+            raise
+        sys.stderr.write(f"{prog}: error: {exc}\n")
+        return 2
+    except KeyboardInterrupt:
+        sys.stderr.write(f"{prog}: interrupted\n")
+        return 130
+    except Exception as exc:  # noqa: BLE001 - the contract: internal errors exit 1, one line
+        if debug:
+            raise
+        sys.stderr.write(
+            f"{prog}: internal error: {type(exc).__name__}: {exc} (CURBSIDE_DEBUG=1 for a traceback)\n"
+        )
+        return 1

@@ -1,0 +1,29 @@
+"""``osmseg``: derive, show and compare map layers.
+
+Sub-commands live one per module (``osmseg_build``, ``osmseg_show``, ``osmseg_compare``); each
+exposes ``register(subparsers)``.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+from curbside.cli import osmseg_build, osmseg_compare, osmseg_show
+from curbside.cli.common import make_parser, run_cli
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Entry point of the ``osmseg`` console script."""
+    parser = make_parser(
+        "osmseg",
+        "OpenStreetMap -> building, street, crosswalk and sidewalk-segment polygons. "
+        "Map data © OpenStreetMap contributors (ODbL).",
+    )
+    sub = parser.add_subparsers(title="commands", metavar="COMMAND")
+    for module in (osmseg_build, osmseg_show, osmseg_compare):
+        module.register(sub)
+    return run_cli("osmseg", parser, argv)
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

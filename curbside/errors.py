@@ -1,0 +1,22 @@
+"""Errors that the command-line tools report as one line with exit status 2."""
+
+from __future__ import annotations
+
+from os import PathLike
+
+
+class CurbsideInputError(Exception):
+    """Bad usage or bad input: a file, an argument or data that cannot be used.
+
+    Parameters
+    ----------
+    source
+        The file or argument at fault (``"--bbox"``, a path...).
+    problem
+        What is wrong with it, in one short sentence.
+    """
+
+    def __init__(self, source: str | PathLike[str], problem: str) -> None:
+        self.source = str(source)
+        self.problem = problem
+        super().__init__(f"{self.source}: {problem}")

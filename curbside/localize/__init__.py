@@ -1,0 +1,1 @@
+"""localize: sessions, inertial odometry (PDR, RoNIN) and the map-aware particle filter."""

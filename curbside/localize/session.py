@@ -1,0 +1,225 @@
+"""The session folder of SPEC.md: the one model every reader converts into.
+
+A session is a folder of CSV files (``imu.csv``, ``velocity.csv``, ``steps.csv``, ``gnss.csv``,
+``waypoints.csv``) and an optional ``meta.json``. :func:`read_session` validates what it reads and
+raises :class:`~curbside.errors.CurbsideInputError` (one line, naming the file) on bad input;
+:func:`write_session` writes a folder atomically.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pandas as pd
+
+from curbside.errors import CurbsideInputError
+from curbside.io import atomic_path
+
+#: Required and optional columns per file, in SPEC order.
+COLUMNS: dict[str, tuple[tuple[str, ...], tuple[str, ...]]] = {
+    "imu": (("t", "ax", "ay", "az", "gx", "gy", "gz"), ("qx", "qy", "qz", "qw")),
+    "velocity": (("t", "ve", "vn"), ()),
+    "steps": (("t",), ()),
+    "gnss": (("t", "lat", "lon", "accuracy_m"), ()),
+    "waypoints": (("t", "lat", "lon"), ()),
+}
+
+#: Columns that may hold NaN without the file being rejected (a missing accuracy = invalid fix).
+NULLABLE: dict[str, tuple[str, ...]] = {"gnss": ("accuracy_m",)}
+
+
+@dataclass
+class Session:
+    """One recording: what a walker's phone logged, plus ground truth when there is some.
+
+    Every table has a ``t`` column in seconds on the session's single clock, strictly increasing.
+
+    Attributes
+    ----------
+    name
+        Folder name or an identifier.
+    imu
+        ``t,ax,ay,az,gx,gy,gz[,qx,qy,qz,qw]``: phone frame, m/s^2 with gravity, rad/s; ``q`` the
+        device-to-world (game rotation vector) quaternion.
+    velocity
+        ``t,ve,vn``: world-frame horizontal velocity in m/s (e.g. RoNIN output).
+    steps
+        ``t``: footstep times.
+    gnss
+        ``t,lat,lon,accuracy_m``: fixes; accuracy <= 0 or NaN means invalid.
+    waypoints
+        ``t,lat,lon``: ground-truth taps.
+    meta
+        ``meta.json`` contents, e.g. ``{"start": {"lat":.., "lon":.., "heading_deg":..}}``.
+    """
+
+    name: str = "session"
+    imu: pd.DataFrame | None = None
+    velocity: pd.DataFrame | None = None
+    steps: pd.DataFrame | None = None
+    gnss: pd.DataFrame | None = None
+    waypoints: pd.DataFrame | None = None
+    meta: dict[str, Any] = field(default_factory=dict)
+
+    def tables(self) -> dict[str, pd.DataFrame]:
+        """The tables that are present, by file stem."""
+        out = {}
+        for key in COLUMNS:
+            table = getattr(self, key)
+            if table is not None:
+                out[key] = table
+        return out
+
+    @property
+    def start_pose(self) -> dict[str, float] | None:
+        """The known start pose ``{"lat", "lon", "heading_deg"}`` from ``meta.json``, if any."""
+        start = self.meta.get("start")
+        return start if isinstance(start, dict) else None
+
+    def time_span(self) -> tuple[float, float]:
+        """Earliest and latest ``t`` over all tables."""
+        ts = [tab["t"].to_numpy() for tab in self.tables().values() if len(tab)]
+        if not ts:
+            raise ValueError(f"session {self.name!r} holds no data")
+        return float(min(t[0] for t in ts)), float(max(t[-1] for t in ts))
+
+
+def validate_table(kind: str, table: pd.DataFrame, source: str | Path) -> pd.DataFrame:
+    """Check one table against the schema and return it with float columns in SPEC order.
+
+    Parameters
+    ----------
+    kind
+        File stem: ``imu``, ``velocity``, ``steps``, ``gnss`` or ``waypoints``.
+    table
+        The table read from ``source``.
+    source
+        File name used in error messages.
+
+    Raises
+    ------
+    CurbsideInputError
+        Missing columns, non-numeric values, NaN/inf where not allowed, empty table, or ``t`` not
+        strictly increasing (duplicated or out-of-order timestamps), lat/lon out of range.
+    """
+    required, optional = COLUMNS[kind]
+    table = table.rename(columns=lambda c: str(c).strip())
+    missing = [c for c in required if c not in table.columns]
+    if missing:
+        raise CurbsideInputError(source, f"missing column(s) {missing}; expected {list(required)}")
+    present_optional = [c for c in optional if c in table.columns]
+    if present_optional and len(present_optional) != len(optional):
+        raise CurbsideInputError(source, f"partial quaternion columns {present_optional}")
+    cols = list(required) + present_optional
+    if len(table) == 0:
+        raise CurbsideInputError(source, "no rows")
+    try:
+        out = table[cols].apply(pd.to_numeric, errors="raise").astype(float)
+    except (ValueError, TypeError) as exc:
+        raise CurbsideInputError(source, f"non-numeric value ({exc})") from None
+    strict = [c for c in cols if c not in NULLABLE.get(kind, ())]
+    values = out[strict].to_numpy()
+    if not np.isfinite(values).all():
+        row, col = np.argwhere(~np.isfinite(values))[0]
+        raise CurbsideInputError(
+            source, f"NaN or infinite {strict[col]!r} at data row {row + 1}"
+        )
+    dt = np.diff(out["t"].to_numpy())
+    if (dt <= 0).any():
+        i = int(np.argmax(dt <= 0))
+        what = "duplicated" if dt[i] == 0 else "out-of-order"
+        raise CurbsideInputError(
+            source, f"{what} timestamp t={out['t'].iat[i + 1]!r} at data row {i + 2}"
+        )
+    if "lat" in out:
+        if not ((out["lat"].abs() <= 90).all() and (out["lon"].abs() <= 180).all()):
+            raise CurbsideInputError(source, "lat/lon outside WGS84 degree ranges")
+    return out.reset_index(drop=True)
+
+
+def _read_csv(path: Path) -> pd.DataFrame:
+    try:
+        return pd.read_csv(path, skipinitialspace=True)
+    except (pd.errors.ParserError, pd.errors.EmptyDataError, UnicodeDecodeError) as exc:
+        raise CurbsideInputError(path, f"malformed CSV ({str(exc).splitlines()[0]})") from None
+
+
+def read_session(folder: str | Path) -> Session:
+    """Read and validate a SPEC session folder.
+
+    Parameters
+    ----------
+    folder
+        Directory holding any of ``imu.csv``, ``velocity.csv``, ``steps.csv``, ``gnss.csv``,
+        ``waypoints.csv``, ``meta.json``.
+
+    Returns
+    -------
+    Session
+
+    Raises
+    ------
+    CurbsideInputError
+        The folder is missing or holds none of the files; any file is malformed.
+    """
+    folder = Path(folder)
+    if not folder.is_dir():
+        raise CurbsideInputError(folder, "no such session folder")
+    session = Session(name=folder.name)
+    for kind in COLUMNS:
+        path = folder / f"{kind}.csv"
+        if path.is_file():
+            setattr(session, kind, validate_table(kind, _read_csv(path), path))
+    meta_path = folder / "meta.json"
+    if meta_path.is_file():
+        try:
+            meta = json.loads(meta_path.read_text(encoding="utf-8"))
+        except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+            raise CurbsideInputError(meta_path, f"malformed JSON ({exc})") from None
+        if not isinstance(meta, dict):
+            raise CurbsideInputError(meta_path, "expected a JSON object")
+        session.meta = meta
+        start = meta.get("start")
+        if start is not None:
+            keys = ("lat", "lon", "heading_deg")
+            if not isinstance(start, dict) or not all(
+                isinstance(start.get(k), int | float) and np.isfinite(start.get(k)) for k in keys
+            ):
+                raise CurbsideInputError(
+                    meta_path, "'start' must be {\"lat\": .., \"lon\": .., \"heading_deg\": ..}"
+                )
+    if not session.tables():
+        raise CurbsideInputError(
+            folder, "not a session folder: none of imu.csv, velocity.csv, gnss.csv, steps.csv"
+        )
+    return session
+
+
+def write_session(session: Session, folder: str | Path) -> Path:
+    """Write ``session`` as a SPEC folder, atomically (nothing is left behind on failure).
+
+    Parameters
+    ----------
+    session
+        The session; each present table is validated before anything is written.
+    folder
+        Destination directory; replaced if it exists.
+
+    Returns
+    -------
+    pathlib.Path
+        ``folder``.
+    """
+    folder = Path(folder)
+    tables = {k: validate_table(k, t, f"{session.name}/{k}.csv") for k, t in session.tables().items()}
+    with atomic_path(folder) as tmp:
+        tmp.mkdir()
+        for kind, table in tables.items():
+            table.to_csv(tmp / f"{kind}.csv", index=False, float_format="%.10g")
+        if session.meta:
+            (tmp / "meta.json").write_text(json.dumps(session.meta, indent=2), encoding="utf-8")
+    return folder

@@ -1,0 +1,182 @@
+"""The map-layer schema of SPEC.md: read, validate and write GeoJSON map layers.
+
+A map is one FeatureCollection in WGS84 whose features carry ``properties.class`` in
+:data:`CLASSES`; ``sidewalk`` features also carry ``segment_id``, ``street`` and ``side``. A top-level
+``"curbside"`` member holds metadata. In memory a map is a :class:`MapLayers`: a GeoDataFrame in the
+local UTM CRS plus that metadata.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import geopandas as gpd
+import numpy as np
+import shapely
+
+from curbside.errors import CurbsideInputError
+from curbside.io import atomic_path
+from curbside.projection import WGS84, utm_crs_for
+
+CLASSES: tuple[str, ...] = ("building", "street", "crosswalk", "sidewalk")
+SIDEWALK_COLUMNS: tuple[str, ...] = ("segment_id", "street", "side")
+
+
+@dataclass
+class MapLayers:
+    """Map layers in a local metric CRS.
+
+    Attributes
+    ----------
+    gdf
+        One row per polygon: ``class``, ``geometry`` and, for sidewalks, ``segment_id``, ``street``,
+        ``side`` (null elsewhere). CRS: local UTM.
+    meta
+        The ``"curbside"`` metadata member (``source``, ``bbox``, ``generator``, ``params``...).
+    """
+
+    gdf: gpd.GeoDataFrame
+    meta: dict[str, Any] = field(default_factory=dict)
+
+    @property
+    def crs(self):
+        """The metric CRS of :attr:`gdf`."""
+        return self.gdf.crs
+
+    def layer(self, cls: str) -> gpd.GeoDataFrame:
+        """Rows of one class (``building``, ``street``, ``crosswalk`` or ``sidewalk``)."""
+        return self.gdf[self.gdf["class"] == cls]
+
+    def union(self, cls: str) -> shapely.Geometry:
+        """Union of all polygons of one class (an empty polygon when there are none)."""
+        geoms = self.layer(cls).geometry.values
+        return shapely.union_all(geoms) if len(geoms) else shapely.Polygon()
+
+
+def _empty_gdf(crs) -> gpd.GeoDataFrame:
+    return gpd.GeoDataFrame(
+        {"class": [], "segment_id": [], "street": [], "side": []}, geometry=[], crs=crs
+    )
+
+
+def from_wgs84(gdf: gpd.GeoDataFrame, meta: dict[str, Any] | None = None) -> MapLayers:
+    """Project a WGS84 layer table to its local UTM zone and wrap it as :class:`MapLayers`."""
+    if len(gdf) == 0:
+        raise ValueError("empty map")
+    minx, miny, maxx, maxy = gdf.total_bounds
+    crs = utm_crs_for((minx + maxx) / 2, (miny + maxy) / 2)
+    out = gdf.to_crs(crs)
+    for col in ("segment_id", "street", "side"):
+        if col not in out:
+            out[col] = None
+    return MapLayers(out.reset_index(drop=True), dict(meta or {}))
+
+
+def read_map(path: str | Path) -> MapLayers:
+    """Read and validate a map GeoJSON (the automatic OSM map or a hand-labelled one).
+
+    Parameters
+    ----------
+    path
+        A GeoJSON FeatureCollection in WGS84 following SPEC.md.
+
+    Returns
+    -------
+    MapLayers
+        Projected to the local UTM zone; invalid polygons repaired with ``make_valid``.
+
+    Raises
+    ------
+    CurbsideInputError
+        Missing or unreadable file, not a FeatureCollection, unknown classes, coordinates that are
+        not lon/lat degrees, no polygons.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise CurbsideInputError(path, "no such map file")
+    try:
+        doc = json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise CurbsideInputError(path, f"not readable as GeoJSON ({exc})") from None
+    if not isinstance(doc, dict) or doc.get("type") != "FeatureCollection":
+        raise CurbsideInputError(path, "not a GeoJSON FeatureCollection")
+    features = doc.get("features") or []
+    if not features:
+        raise CurbsideInputError(path, "the map has no features")
+    try:
+        gdf = gpd.GeoDataFrame.from_features(features, crs=WGS84)
+    except Exception as exc:  # noqa: BLE001 - shapely/geopandas raise many types for bad geometry
+        raise CurbsideInputError(path, f"bad feature geometry ({exc})") from None
+    if "class" not in gdf:
+        raise CurbsideInputError(path, "features lack properties.class")
+    unknown = sorted(set(gdf["class"].dropna().astype(str)) - set(CLASSES))
+    if unknown or gdf["class"].isna().any():
+        raise CurbsideInputError(
+            path, f"unknown feature class(es) {unknown or ['null']}; expected one of {list(CLASSES)}"
+        )
+    gdf = gdf[~gdf.geometry.is_empty & gdf.geometry.notna()]
+    gdf = gdf[gdf.geom_type.isin(["Polygon", "MultiPolygon"])]
+    if len(gdf) == 0:
+        raise CurbsideInputError(path, "the map has no polygons")
+    minx, miny, maxx, maxy = gdf.total_bounds
+    if not (-180 <= minx <= maxx <= 180 and -90 <= miny <= maxy <= 90):
+        raise CurbsideInputError(
+            path, "coordinates are not WGS84 lon/lat degrees (GeoJSON must be EPSG:4326)"
+        )
+    gdf = gdf.set_geometry(shapely.make_valid(gdf.geometry.values))
+    meta = doc.get("curbside") if isinstance(doc.get("curbside"), dict) else {}
+    return from_wgs84(gdf, meta)
+
+
+def _clean(value: Any) -> Any:
+    if value is None or (isinstance(value, float) and math.isnan(value)):
+        return None
+    if isinstance(value, np.generic):
+        return value.item()
+    return value
+
+
+def to_geojson(layers: MapLayers, precision: int = 7) -> dict[str, Any]:
+    """The map as a GeoJSON dict in WGS84, with the ``"curbside"`` metadata member."""
+    gdf = layers.gdf.to_crs(WGS84)
+    geoms = shapely.set_precision(gdf.geometry.values, 10.0 ** -precision)
+    geoms = shapely.make_valid(geoms)
+    features = []
+    for cls, geom, seg, street, side in zip(
+        gdf["class"], geoms, gdf["segment_id"], gdf["street"], gdf["side"], strict=True
+    ):
+        if geom is None or geom.is_empty:
+            continue
+        props: dict[str, Any] = {"class": cls}
+        if cls == "sidewalk":
+            props.update(segment_id=_clean(seg), street=_clean(street), side=_clean(side))
+        features.append(
+            {"type": "Feature", "properties": props, "geometry": shapely.geometry.mapping(geom)}
+        )
+    return {"type": "FeatureCollection", "curbside": layers.meta, "features": features}
+
+
+def write_map(layers: MapLayers, path: str | Path) -> Path:
+    """Write the map as GeoJSON (atomically: a temporary file renamed into place).
+
+    Parameters
+    ----------
+    layers
+        The map.
+    path
+        Destination ``.geojson``.
+
+    Returns
+    -------
+    pathlib.Path
+        ``path``.
+    """
+    path = Path(path)
+    doc = to_geojson(layers)
+    with atomic_path(path) as tmp:
+        tmp.write_text(json.dumps(doc, separators=(",", ":"), ensure_ascii=False), encoding="utf-8")
+    return path
