@@ -135,9 +135,8 @@ def validate_table(kind: str, table: pd.DataFrame, source: str | Path) -> pd.Dat
         raise CurbsideInputError(
             source, f"{what} timestamp t={out['t'].iat[i + 1]!r} at data row {i + 2}"
         )
-    if "lat" in out:
-        if not ((out["lat"].abs() <= 90).all() and (out["lon"].abs() <= 180).all()):
-            raise CurbsideInputError(source, "lat/lon outside WGS84 degree ranges")
+    if "lat" in out and not ((out["lat"].abs() <= 90).all() and (out["lon"].abs() <= 180).all()):
+        raise CurbsideInputError(source, "lat/lon outside WGS84 degree ranges")
     return out.reset_index(drop=True)
 
 
