@@ -9,7 +9,6 @@ TORCH_VERSION := 2.13.0
 
 $(BIN)/python:
 	$(PY) -m venv $(VENV)
-	$(BIN)/pip install -q --upgrade pip
 
 # torch first, pinned to the CPU wheel, so pip never resolves the multi-GB CUDA build.
 $(STAMP): $(BIN)/python pyproject.toml
