@@ -32,3 +32,181 @@ default_jaywalk_weight: float = 0.4
 
 #: Map-likelihood raster resolution in metres per cell.
 raster_resolution_m: float = 0.5
+
+# --- Footstep detection and pedestrian dead reckoning (curbside.localize.steps, .pdr) ---------------
+
+#: Low-pass cut-off (Hz) applied to the accelerometer magnitude before peak picking; walking is 1.5-2.5 Hz.
+step_lowpass_hz: float = 3.0
+
+#: Shortest time (s) between two footsteps (a fast walk is ~0.4 s per step).
+step_min_interval_s: float = 0.3
+
+#: A peak counts as a footstep when it rises this many times the local standard deviation above the mean.
+step_threshold_sigma: float = 0.5
+
+#: Below this local standard deviation (m/s^2) of the filtered magnitude the walker stands still.
+step_still_std_ms2: float = 0.4
+
+#: Window (s) of the local mean and standard deviation used by the adaptive threshold.
+step_window_s: float = 2.0
+
+#: Weinberg step-length constant K (m per (m/s^2)^(1/4)): step = K * (a_max - a_min)^(1/4), where a is
+#: the low-passed accelerometer magnitude over the step. Calibrated on 38 IPIN 2023 trials (docs/sessions.md).
+pdr_weinberg_k: float = 0.447
+
+#: Longest step interval (s) used for the heading average; a longer gap between steps is a stop.
+pdr_max_step_interval_s: float = 1.5
+
+# --- RoNIN inertial odometry and IMU preprocessing (curbside.localize.imu, curbside.localize.ronin) ---
+
+#: Lowest IMU rate (Hz) accepted for learned odometry; slower logs cannot resolve footsteps.
+imu_min_rate_hz: float = 20.0
+
+#: Longest IMU gap (s) bridged by linear interpolation; longer gaps split the recording.
+imu_max_interp_gap_s: float = 0.5
+
+#: A flat-topped channel counts as saturated only above these magnitudes (2 g; 4 rad/s).
+imu_saturation_floor_accel_ms2: float = 19.6
+imu_saturation_floor_gyro_rads: float = 4.0
+
+#: RoNIN input rate (Hz), window length and stride (samples), as published.
+ronin_rate_hz: float = 200.0
+ronin_window: int = 200
+ronin_stride: int = 10
+
+#: Weights loaded by ``ronin_velocity`` when no model is given (state_dict + JSON config beside it).
+ronin_default_weights: Path = Path(__file__).parent / "localize" / "ronin" / "weights" / "ronin_compact.pt"
+
+# --- Particle filter and GNSS fusion (curbside.localize.filter, pipeline) -----------------------------
+# The paper gives N=500, the jaywalking weight 0.4 and "sigma proportional to the accuracy"; the other
+# values are ours, chosen for a phone carried by a walker (documented in docs/filter.md).
+
+#: Position noise per footstep: sigma = max(floor, fraction * step length), metres, east and north.
+filter_step_noise_fraction: float = 0.15
+filter_step_noise_floor_m: float = 0.05
+
+#: Heading-drift random walk per footstep, degrees (one sigma).
+filter_theta_noise_deg: float = 0.5
+
+#: Initial spread around a known start pose: position sigma (m) and drift sigma (degrees).
+filter_init_position_sigma_m: float = 1.0
+filter_init_theta_sigma_deg: float = 5.0
+
+#: Drift sigma (degrees) when starting from a GNSS fix without a start pose; None spreads theta over
+#: the full circle (right for a game-rotation-vector velocity, whose yaw reference is arbitrary).
+filter_gnss_init_theta_sigma_deg: float | None = None
+
+#: After a collapse, particles are re-seeded around the last estimate with this sigma (metres).
+filter_recovery_sigma_m: float = 5.0
+
+#: Resampling policy: "always" (every footstep, the paper's choice) or "ess" (below a fraction of N).
+filter_resample: str = "always"
+filter_ess_fraction: float = 0.5
+
+#: GNSS likelihood sigma = factor * reported accuracy (Android/iOS report a ~68 % radius, which would
+#: be about 0.66 sigma for a 2-D Gaussian; 1.0 also absorbs optimistic and correlated urban errors).
+gnss_sigma_factor: float = 1.0
+
+#: Fixes reporting a worse accuracy than this (metres) make no update.
+gnss_max_accuracy_m: float = 50.0
+
+#: A fix is interpolated at a footstep when both bracketing fixes are this close in time (s) ...
+gnss_interp_max_gap_s: float = 2.0
+#: ... else the latest earlier fix is used if not older than this (s); staler: no update.
+gnss_max_fix_age_s: float = 3.0
+
+#: Footstep cadence (s) assumed when neither steps.csv nor imu.csv gives footsteps.
+default_step_cadence_s: float = 0.5
+
+#: A start pose inside a building is moved to the nearest free cell within this distance (m).
+filter_max_start_snap_m: float = 30.0
+
+# --- osmseg show / compare / import-datasf (helper A2) ---------------------------------------------
+
+#: Spacing (m) of the points sampled along class boundaries for ``osmseg compare``'s boundary distance.
+compare_boundary_step_m: float = 1.0
+
+#: ``osmseg compare`` looks for the nearest outline up to this far (m) outside the common extent.
+compare_edge_margin_m: float = 25.0
+
+#: DataSF footprints from different tiles overlapping with at least this IoU are one building twice.
+datasf_duplicate_iou: float = 0.9
+
+#: Polygon parts (m^2) below this left by repairing DataSF's self-intersecting rings are dropped.
+datasf_min_area_m2: float = 1.0
+
+#: GPX files rarely carry an accuracy radius; when a point has <hdop>, accuracy_m = hdop * this
+#: user-equivalent range error (m). Without <hdop> the accuracy is NaN: the fix is invalid.
+gpx_uere_m: float = 5.0
+
+# ---------------------------------------------------------------------------------------------------
+# evaluate: ground truth, metrics, simulator (helper E). Sources of each value in docs/evaluate.md.
+# ---------------------------------------------------------------------------------------------------
+
+#: Storey height used when an OSM building has ``building:levels`` but no ``height`` (metres).
+evaluate_level_height_m: float = 3.5
+#: Height of an OSM building with neither ``height`` nor ``building:levels`` (metres; ~3 storeys).
+evaluate_default_height_m: float = 10.0
+#: OSM ``highway`` values whose centrelines count as carriageways for mid-block (jaywalk) crossings.
+evaluate_road_classes: tuple[str, ...] = (
+    "primary", "primary_link", "secondary", "secondary_link", "tertiary", "tertiary_link",
+    "residential", "unclassified", "living_street", "service", "busway",
+)
+#: Metrics: a ground truth farther than this from every sidewalk polygon is "on a crossing" (metres).
+evaluate_on_sidewalk_m: float = 1.5
+#: Metrics: on a crossing, sidewalk segments within this much of the nearest one count as joined (m).
+evaluate_crossing_slack_m: float = 6.0
+#: Metrics: RoNIN's relative-trajectory-error window (seconds).
+evaluate_rte_window_s: float = 60.0
+
+# --- osmseg build: derivation rules and widths (helper A1) -------------------------------------------
+# Documented with their sources in docs/osmseg.md.
+
+#: Carriageway width (m, curb to curb) per ``highway`` class when a way has neither ``width`` nor ``lanes``.
+default_carriageway_width_m: dict[str, float] = {
+    "motorway": 11.0, "motorway_link": 5.0, "trunk": 11.0, "trunk_link": 5.0,
+    "primary": 13.0, "primary_link": 5.0, "secondary": 12.0, "secondary_link": 5.0,
+    "tertiary": 10.0, "tertiary_link": 5.0, "residential": 8.0, "unclassified": 7.0,
+    "living_street": 6.0, "service": 5.0, "busway": 7.0,
+}  # fmt: skip
+
+#: Width of one traffic lane (m) when the width comes from ``lanes`` (osm2streets uses 3.0 m too).
+lane_width_m: float = 3.0
+
+#: Width (m) of one side's on-street parking by ``parking:*`` orientation or ``parking:lane:*`` value.
+parking_width_m: dict[str, float] = {"parallel": 2.2, "lane": 2.2, "diagonal": 4.5, "perpendicular": 5.0}
+
+#: Width (m) of one painted cycle lane (``cycleway*=lane``).
+cycle_lane_width_m: float = 1.5
+
+#: ``highway`` classes whose sidewalks become ``sidewalk`` segments (motorways, service roads and
+#: busways have none).
+sidewalk_highways: frozenset[str] = frozenset({
+    "trunk", "trunk_link", "primary", "primary_link", "secondary", "secondary_link",
+    "tertiary", "tertiary_link", "residential", "unclassified", "living_street",
+})  # fmt: skip
+
+#: Depth (m) of a derived sidewalk, curb to building line, where no building is closer.
+sidewalk_depth_m: float = 5.0
+
+#: Width (m) of a separately mapped sidewalk (``footway=sidewalk``) without a ``width`` tag.
+mapped_sidewalk_width_m: float = 2.0
+
+#: How far (m) from a road's centreline a mapped sidewalk may lie and still set that side's curb.
+mapped_sidewalk_search_m: float = 25.0
+
+#: Width (m) of a crosswalk without a ``width`` tag (US crosswalks: 3 m / 10 ft).
+crosswalk_width_m: float = 3.0
+
+#: How far (m) crosswalks reach past the curb so that they join the sidewalk on both ends.
+crosswalk_overlap_m: float = 0.5
+
+#: Width (m) of a walkable passage carved through a building by a footway, corridor or platform
+#: without a ``width`` tag (roads use their carriageway width).
+passage_width_m: float = 3.0
+
+#: What ``crossing=unmarked`` becomes: ``"crosswalk"`` or ``"street"``.
+unmarked_crossing_as: str = "crosswalk"
+
+#: Polygons smaller than this (m^2) are dropped as slivers.
+min_polygon_area_m2: float = 0.5

@@ -1,9 +1,111 @@
-"""``localize ronin`` sub-command(s)."""
+"""``localize ronin``, ``localize train-ronin`` and ``localize ronin-eval``: learned inertial odometry."""
 
 from __future__ import annotations
 
 import argparse
+import json
+import logging
+import sys
+from pathlib import Path
+
+from curbside import settings
+from curbside.errors import CurbsideInputError
+from curbside.io import atomic_path
+
+logger = logging.getLogger(__name__)
+
+
+def _ronin(args: argparse.Namespace) -> int:
+    from curbside.localize.ronin.infer import load_model, ronin_velocity
+    from curbside.localize.session import read_session
+
+    session = read_session(args.session)
+    if session.imu is None:
+        raise CurbsideInputError(Path(args.session) / "imu.csv", "no such file: RoNIN needs imu.csv")
+    velocity = ronin_velocity(session.imu, load_model(args.weights), source=str(Path(args.session) / "imu.csv"))
+    out = Path(args.output) if args.output else Path(args.session) / "velocity.csv"
+    with atomic_path(out) as tmp:
+        velocity.to_csv(tmp, index=False, float_format="%.6f")
+    sys.stdout.write(f"{out}: {len(velocity)} velocities over {velocity['t'].iat[-1] - velocity['t'].iat[0]:.1f} s\n")
+    return 0
+
+
+def _recordings(args: argparse.Namespace):
+    from curbside.localize.ronin.data import prepare_recordings
+
+    return prepare_recordings(args.ms_indoor, args.ipin, args.ronin_h5, args.prepared, progress=True)
+
+
+def _train(args: argparse.Namespace) -> int:
+    from curbside.localize.ronin.data import WindowSet
+    from curbside.localize.ronin.train import TrainOptions, train
+
+    recordings = _recordings(args)
+    options = TrainOptions(arch=args.arch, epochs=args.epochs, windows_per_epoch=args.windows_per_epoch,
+                           batch_size=args.batch_size, lr=args.lr, seed=args.seed, device=args.device,
+                           num_threads=args.threads)
+    sets = {split: WindowSet.build([r for r in recordings if r.split == split], settings.ronin_window,
+                                   settings.ronin_stride, settings.ronin_rate_hz) for split in ("train", "val")}
+    if len(sets["train"]) == 0:
+        raise CurbsideInputError("training data", "no labelled training windows")
+    extra = {"sources": sorted({r.source for r in recordings}),
+             "recordings": {s: sum(r.split == s for r in recordings) for s in ("train", "val", "test")},
+             "train_windows": len(sets["train"]), "val_windows": len(sets["val"])}
+    history = train(sets["train"], sets["val"], options, args.output, checkpoint=args.checkpoint, extra=extra)
+    best = min(history, key=lambda h: h["val_loss"])
+    sys.stdout.write(f"{args.output}: best epoch {best['epoch']} val MSE {best['val_loss']:.4f} (m/s)^2\n")
+    return 0
+
+
+def _evaluate(args: argparse.Namespace) -> int:
+    from curbside.localize.ronin.evaluate import evaluate_recordings, format_summary
+    from curbside.localize.ronin.infer import load_model
+
+    recordings = [r for r in _recordings(args) if r.split == args.split]
+    if not recordings:
+        raise CurbsideInputError("--split", f"no {args.split!r} recordings in the data given")
+    report = evaluate_recordings(recordings, load_model(args.weights), with_pdr=not args.no_pdr)
+    if args.output:
+        with atomic_path(args.output) as tmp:
+            tmp.write_text(json.dumps(report, indent=1), encoding="utf-8")
+    sys.stdout.write(format_summary(report))
+    return 0
+
+
+def _add_data_args(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--ms-indoor", metavar="H5", help="ms-indoor-2020.h5 (Indoor Location Competition 2.0 paths)")
+    p.add_argument("--ipin", metavar="H5", help="ipin2023-t3.h5 (IPIN 2023 Track 3 trials)")
+    p.add_argument("--ronin-h5", metavar="DIR", help="folder of RoNIN-layout sequences (*/data.hdf5)")
+    p.add_argument("--prepared", metavar="NPZ",
+                   help="cache of the prepared recordings: read when it exists, else written after reading")
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
-    """Add this module's sub-command(s) to ``subparsers``."""
+    """Add ``ronin``, ``train-ronin`` and ``ronin-eval``."""
+    p = subparsers.add_parser("ronin", help="write velocity.csv from a session's imu.csv with the RoNIN model")
+    p.add_argument("session", metavar="SESSION", help="session folder holding imu.csv")
+    p.add_argument("-o", "--output", metavar="CSV", help="output file (default SESSION/velocity.csv)")
+    p.add_argument("--weights", metavar="PT", help="weights .pt with its .json (default: the bundled model)")
+    p.set_defaults(func=_ronin)
+
+    p = subparsers.add_parser("train-ronin", help="train a RoNIN model from HDF5 datasets")
+    _add_data_args(p)
+    p.add_argument("--arch", choices=["compact", "resnet18"], default="compact")
+    p.add_argument("--epochs", type=int, default=12)
+    p.add_argument("--windows-per-epoch", type=int, default=120_000)
+    p.add_argument("--batch-size", type=int, default=256)
+    p.add_argument("--lr", type=float, default=1e-3)
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--device", default="cpu", help="torch device (cpu, cuda)")
+    p.add_argument("--threads", type=int, default=2, help="CPU threads for torch")
+    p.add_argument("--checkpoint", metavar="PT", help="resumable checkpoint, written every epoch")
+    p.add_argument("-o", "--output", metavar="PT", required=True, help="best weights (config .json beside)")
+    p.set_defaults(func=_train)
+
+    p = subparsers.add_parser("ronin-eval", help="RoNIN and PDR figures on held-out recordings")
+    _add_data_args(p)
+    p.add_argument("--weights", metavar="PT", help="weights .pt (default: the bundled model)")
+    p.add_argument("--split", default="test", choices=["test", "val", "train"])
+    p.add_argument("--no-pdr", action="store_true", help="skip the PDR baseline")
+    p.add_argument("-o", "--output", metavar="JSON", help="write the full report here")
+    p.set_defaults(func=_evaluate)

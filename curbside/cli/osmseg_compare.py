@@ -1,9 +1,62 @@
-"""``osmseg compare`` sub-command(s)."""
+"""``osmseg compare`` (two maps, class by class) and ``osmseg import-datasf`` (DataSF footprints)."""
 
 from __future__ import annotations
 
 import argparse
+import logging
+
+from curbside.cli.osmseg_show import add_bbox_option
+from curbside.osmseg.build import check_bbox
+from curbside.osmseg.compare import compare_maps, format_comparison, write_comparison
+from curbside.osmseg.datasf import read_datasf
+from curbside.osmseg.mapio import read_map, write_map
+from curbside.osmseg.summary import class_summary, format_summary
+
+log = logging.getLogger(__name__)
+
+
+def _compare(args: argparse.Namespace) -> int:
+    a, b = read_map(args.a), read_map(args.b)
+    result = compare_maps(a, b, name_b=args.b)
+    print(format_comparison(result, args.a, args.b))
+    if args.json:
+        write_comparison(result, args.json, args.a, args.b)
+        log.info("wrote %s", args.json)
+    return 0
+
+
+def _import_datasf(args: argparse.Namespace) -> int:
+    bbox = check_bbox(args.bbox) if args.bbox is not None else None
+    layers = read_datasf(args.tiles, bbox=bbox, fill_holes=args.fill_holes)
+    write_map(layers, args.output)
+    print(format_summary(class_summary(layers).loc[["building"]]))
+    log.info("wrote %s", args.output)
+    return 0
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
-    """Add this module's sub-command(s) to ``subparsers``."""
+    """Add ``osmseg compare`` and ``osmseg import-datasf`` to ``subparsers``."""
+    compare = subparsers.add_parser(
+        "compare",
+        help="compare two maps class by class (area, IoU, boundary distance, counts)",
+        description="Compare map B with map A per class over the overlap of their extents: areas, IoU, "
+        "mean symmetric boundary distance, polygon counts. Any GeoJSON of the curbside schema.",
+    )
+    compare.add_argument("a", help="map A (GeoJSON)")
+    compare.add_argument("b", help="map B (GeoJSON)")
+    compare.add_argument("--json", metavar="OUT", help="also write the figures to this JSON file")
+    compare.set_defaults(func=_compare)
+
+    datasf = subparsers.add_parser(
+        "import-datasf",
+        help="convert DataSF building-footprint TopoJSON tiles to a building-only map",
+        description="Read DataSF 2013 building footprints (TopoJSON tiles) into a map GeoJSON with the "
+        "building class only, e.g. for `osmseg compare map.geojson datasf.geojson`.",
+    )
+    datasf.add_argument("tiles", nargs="+", metavar="TILE", help="TopoJSON tile(s)")
+    add_bbox_option(datasf, "keep the footprints that intersect this WGS84 box")
+    datasf.add_argument(
+        "--fill-holes", action="store_true", help="drop inner rings (light wells, courtyards)"
+    )
+    datasf.add_argument("-o", "--output", required=True, help="output map GeoJSON")
+    datasf.set_defaults(func=_import_datasf)

@@ -1,9 +1,42 @@
-"""``osmseg show`` sub-command(s)."""
+"""``osmseg show``: render a map to a PNG or an interactive HTML page."""
 
 from __future__ import annotations
 
 import argparse
+import logging
+
+from curbside.osmseg.build import check_bbox
+from curbside.osmseg.mapio import read_map
+from curbside.osmseg.plot import output_format, render_map
+
+log = logging.getLogger(__name__)
+
+
+def add_bbox_option(parser: argparse.ArgumentParser, help_text: str) -> None:
+    """Add ``--bbox W S E N`` (WGS84 degrees) to a sub-command."""
+    parser.add_argument(
+        "--bbox", nargs=4, type=float, metavar=("W", "S", "E", "N"), default=None, help=help_text
+    )
+
+
+def _show(args: argparse.Namespace) -> int:
+    output_format(args.output)
+    bbox = check_bbox(args.bbox) if args.bbox is not None else None
+    layers = read_map(args.map)
+    path = render_map(layers, args.output, bbox=bbox)
+    log.info("wrote %s", path)
+    return 0
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
-    """Add this module's sub-command(s) to ``subparsers``."""
+    """Add ``osmseg show`` to ``subparsers``."""
+    parser = subparsers.add_parser(
+        "show",
+        help="render a map to PNG (matplotlib) or HTML (folium, no tile server)",
+        description="Render map layers (any GeoJSON of the curbside schema) to a PNG or an interactive "
+        "HTML map; the format follows the output's extension.",
+    )
+    parser.add_argument("map", help="map GeoJSON (osmseg build output or hand-labelled)")
+    parser.add_argument("-o", "--output", required=True, help="output file: .png or .html")
+    add_bbox_option(parser, "show only this WGS84 window")
+    parser.set_defaults(func=_show)

@@ -143,7 +143,10 @@ def _clean(value: Any) -> Any:
 def to_geojson(layers: MapLayers, precision: int = 7) -> dict[str, Any]:
     """The map as a GeoJSON dict in WGS84, with the ``"curbside"`` metadata member."""
     gdf = layers.gdf.to_crs(WGS84)
-    geoms = shapely.set_precision(gdf.geometry.values, 10.0 ** -precision)
+    # Reprojection can make a valid metric polygon self-touch in degrees; snap-rounding needs valid input,
+    # and the "structure" repair keeps polygons polygonal (no stray collapsed lines).
+    valid = shapely.make_valid(gdf.geometry.values, method="structure", keep_collapsed=False)
+    geoms = shapely.set_precision(valid, 10.0 ** -precision)
     geoms = shapely.make_valid(geoms)
     features = []
     for cls, geom, seg, street, side in zip(

@@ -1,0 +1,101 @@
+"""Fused (GNSS + PDR/RoNIN + particle filter, no map) vs raw GNSS on the 43 IPIN 2023 trials.
+
+Error = horizontal distance between a method's position, linearly interpolated at each surveyed
+waypoint's time (POSI), and the waypoint. Both methods are scored on the same waypoints: those inside
+the span of the trial's valid fixes (the same rule as the dataset README's GNSS statistics). The
+filter starts from the first waypoint and the heading towards the second (``meta.json``'s start pose,
+the paper's setting); ``--no-start-pose`` starts it from the first usable fix instead.
+
+Usage::
+
+    python benchmarks/ipin_fused_vs_gnss.py ../shared/data/ipin2023/ipin2023-t3.h5 [--seed 0]
+        [--particles 500] [--modes gnss fused inertial] [--trials N] [--no-start-pose] [--csv out.csv]
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import sys
+
+import numpy as np
+import pandas as pd
+from tqdm import tqdm
+
+from curbside.localize.pipeline import track_session, valid_fixes
+from curbside.localize.readers.ipin import list_trials, read_trial
+from curbside.projection import LocalFrame
+
+
+def waypoint_errors(track: pd.DataFrame, waypoints: pd.DataFrame, frame: LocalFrame) -> np.ndarray:
+    """Distance (m) from the track, interpolated at each waypoint time, to the waypoint (NaN outside)."""
+    wx, wy = frame.to_xy(waypoints["lon"].to_numpy(), waypoints["lat"].to_numpy())
+    tw = waypoints["t"].to_numpy()
+    t = track["t"].to_numpy()
+    if len(t) == 0:
+        return np.full(len(tw), np.nan)
+    tx, ty = frame.to_xy(track["lon"].to_numpy(), track["lat"].to_numpy())
+    err = np.hypot(np.interp(tw, t, tx) - wx, np.interp(tw, t, ty) - wy)
+    err[(tw < t[0]) | (tw > t[-1])] = np.nan
+    return err
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("h5", help="ipin2023-t3.h5")
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--particles", type=int, default=500)
+    parser.add_argument("--modes", nargs="+", default=["gnss", "fused", "inertial"])
+    parser.add_argument("--velocity-source", default="auto")
+    parser.add_argument("--trials", type=int, default=None, help="only the first N trials")
+    parser.add_argument("--no-start-pose", action="store_true")
+    parser.add_argument("--csv", help="write per-waypoint errors here")
+    args = parser.parse_args(argv)
+    logging.basicConfig(level=logging.ERROR)
+
+    rows = []
+    trials = list_trials(args.h5)[: args.trials]
+    for trial in tqdm(trials, unit="trial", file=sys.stderr):
+        session = read_trial(args.h5, trial)
+        start = session.meta["start"]
+        frame = LocalFrame.around(start["lon"], start["lat"])
+        tf = valid_fixes(session.gnss, frame)[0]
+        errors = {}
+        for mode in args.modes:
+            try:
+                track = track_session(
+                    session, None, mode, particles=args.particles, seed=args.seed,
+                    velocity_source=args.velocity_source, use_start_pose=not args.no_start_pose,
+                ).track
+            except Exception as exc:  # noqa: BLE001 - report and go on with the other trials
+                print(f"{trial} {mode}: {exc}", file=sys.stderr)
+                continue
+            errors[mode] = waypoint_errors(track, session.waypoints, frame)
+        tw = session.waypoints["t"].to_numpy()
+        scored = (tw >= tf[0]) & (tw <= tf[-1]) if len(tf) else np.zeros(len(tw), bool)
+        for mode, err in errors.items():
+            for k in np.flatnonzero(scored):
+                rows.append({"trial": session.name, "group": session.name[:15], "mode": mode,
+                             "waypoint": int(k), "error_m": err[k]})
+    df = pd.DataFrame(rows)
+    if args.csv:
+        df.to_csv(args.csv, index=False)
+    df["set"] = np.select(
+        [df["trial"].str.match(r"TrainingTrial0"), df["trial"].str.match(r"TrainingTrial2")],
+        ["floor 0 (01-05)", "floor -2 (21-27)"], "floor changes (51-53)",
+    )
+    summary = []
+    for name, part in [("all trials", df), *df.groupby("set")]:
+        for mode, g in part.groupby("mode"):
+            e = g["error_m"].dropna()
+            summary.append({"set": name, "mode": mode, "waypoints": len(e),
+                            "median_m": e.median(), "p90_m": e.quantile(0.9), "mean_m": e.mean()})
+    table = pd.DataFrame(summary).pivot(index="set", columns="mode", values=["median_m", "p90_m"])
+    print(f"IPIN 2023: error at surveyed waypoints (m), seed {args.seed}, N={args.particles}, "
+          f"{len(trials)} trials, {df['waypoint'].groupby(df['mode']).size().max()} waypoints per mode")
+    print(table.round(1).to_string())
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

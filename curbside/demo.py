@@ -1,0 +1,131 @@
+"""The end-to-end demo run by ``make demo``: ``python -m curbside.demo --out out``.
+
+The demo is a list of stages (:data:`STAGES`) run in order on a shared :class:`DemoContext`; each stage
+returns the files it wrote, by name. Later stages (simulate sessions, track them, evaluate) append
+themselves to the list. Stage 1 builds the default map from the bundled OpenStreetMap extract, writes
+``map.geojson``, ``map.png`` and ``map.html`` and prints the per-class summary.
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from tqdm import tqdm
+
+from curbside.cli.common import make_parser, run_cli
+from curbside.osmseg.build import build_map
+from curbside.osmseg.mapio import write_map
+from curbside.osmseg.plot import save_html, save_png
+from curbside.osmseg.summary import class_summary, format_summary
+
+log = logging.getLogger(__name__)
+
+
+@dataclass
+class DemoContext:
+    """What the stages share.
+
+    Attributes
+    ----------
+    out_dir
+        Folder every stage writes into.
+    results
+        In-memory results handed from stage to stage (``"map"``: the :class:`MapLayers`...).
+    """
+
+    out_dir: Path
+    results: dict[str, Any] = field(default_factory=dict)
+
+
+@dataclass(frozen=True)
+class Stage:
+    """One step of the demo: a name and a function of the context returning ``{name: path written}``."""
+
+    name: str
+    run: Callable[[DemoContext], dict[str, Path]]
+
+
+def build_default_map(ctx: DemoContext) -> dict[str, Path]:
+    """Build the default area from the bundled extract and write ``map.geojson``."""
+    ctx.results["map"] = build_map()
+    return {"map_geojson": write_map(ctx.results["map"], ctx.out_dir / "map.geojson")}
+
+
+def render_map_files(ctx: DemoContext) -> dict[str, Path]:
+    """Render the map to ``map.png`` and ``map.html``."""
+    layers = ctx.results["map"]
+    return {
+        "map_png": save_png(layers, ctx.out_dir / "map.png"),
+        "map_html": save_html(layers, ctx.out_dir / "map.html"),
+    }
+
+
+def print_map_summary(ctx: DemoContext) -> dict[str, Path]:
+    """Print the per-class counts and areas of the map."""
+    summary = class_summary(ctx.results["map"])
+    ctx.results["map_summary"] = summary
+    print(f"Map layers ({ctx.results['map'].meta.get('source', 'unknown source')}):")
+    print(format_summary(summary))
+    return {}
+
+
+#: The demo's stages, in order. Later stages append themselves here.
+STAGES: list[Stage] = [
+    Stage("build the default map", build_default_map),
+    Stage("render the map", render_map_files),
+    Stage("summarise the map", print_map_summary),
+]
+
+
+def run_demo(out_dir: str | Path, stages: Sequence[Stage] | None = None) -> dict[str, Path]:
+    """Run the demo's stages in order.
+
+    Parameters
+    ----------
+    out_dir
+        Output folder (created if missing).
+    stages
+        The stages to run (default: :data:`STAGES`).
+
+    Returns
+    -------
+    dict[str, pathlib.Path]
+        Every file written, by name (``map_geojson``, ``map_png``, ``map_html``...).
+    """
+    ctx = DemoContext(Path(out_dir))
+    ctx.out_dir.mkdir(parents=True, exist_ok=True)
+    written: dict[str, Path] = {}
+    for stage in tqdm(list(stages or STAGES), desc="demo", unit="stage", disable=None):
+        started = time.perf_counter()
+        paths = stage.run(ctx)
+        written.update(paths)
+        log.info("%s: %.1f s", stage.name, time.perf_counter() - started)
+        for name, path in paths.items():
+            log.info("  wrote %s: %s", name, path)
+    return written
+
+
+def _main(args: argparse.Namespace) -> int:
+    written = run_demo(args.out)
+    print("Wrote:")
+    for name, path in written.items():
+        print(f"  {name:12s} {path}")
+    return 0
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Entry point of ``python -m curbside.demo``."""
+    parser = make_parser("curbside.demo", "Build the default map, render it and summarise it.")
+    parser.add_argument("--out", default="out", help="output folder (default: out)")
+    parser.set_defaults(func=_main, verbose=1)  # the demo logs its stages at INFO level
+    return run_cli("curbside.demo", parser, argv)
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

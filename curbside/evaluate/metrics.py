@@ -1,0 +1,251 @@
+"""The paper's metrics, with SPEC names: Correct Sidewalk Assignment, Euclidean and along/across error.
+
+Definitions (the paper's, made precise where it is silent):
+
+- **Correct Sidewalk Assignment** (``csa``). The estimate and the ground truth at each footstep are each
+  assigned to their nearest ``sidewalk`` polygon (STRtree nearest). A step is correct when both give
+  the same ``segment_id``. *On a crossing* -- the ground truth is more than
+  ``settings.evaluate_on_sidewalk_m`` (1.5 m) from every sidewalk polygon (a crosswalk, a jaywalk,
+  the carriageway) -- the step counts as correct when the estimate's segment is one of the segments
+  the crossing joins, taken as every segment within ``settings.evaluate_crossing_slack_m`` (6 m) of
+  the nearest one's distance (both kerbs of the street being crossed). These steps are counted
+  (``n_crossing_steps``) so the rule's weight is visible.
+- **Euclidean error**: distance between estimate and ground truth; mean, median, 90th percentile.
+- **Along/across-street error**: the error vector decomposed against the street direction at the
+  ground-truth location. The map holds polygons, not centrelines, so the street direction is the long
+  axis (minimum rotated rectangle) of the sidewalk segment nearest to the ground truth; a sidewalk
+  segment is one side of one street along one block, so its long axis follows that street.
+- **ATE / RTE** (RoNIN, Herath et al. 2020): RMSE of positions over the whole walk, and RMSE of the
+  displacement error over windows of ``settings.evaluate_rte_window_s`` (60 s).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import pandas as pd
+import shapely
+
+from curbside import settings
+from curbside.errors import CurbsideInputError
+from curbside.osmseg.mapio import MapLayers
+
+#: SPEC metric names, in report order.
+METRIC_NAMES: tuple[str, ...] = (
+    "csa",
+    "euclid_mean_m",
+    "euclid_median_m",
+    "euclid_p90_m",
+    "along_median_m",
+    "across_median_m",
+    "along_p90_m",
+    "across_p90_m",
+)
+
+
+@dataclass
+class SidewalkIndex:
+    """Sidewalk segments of a map with an STRtree and each segment's long-axis direction.
+
+    Attributes
+    ----------
+    geoms
+        Sidewalk polygons (local metric CRS).
+    segment_ids
+        ``segment_id`` per polygon, as strings.
+    axis
+        ``(n, 2)`` unit vectors along each segment's long axis.
+    """
+
+    geoms: np.ndarray
+    segment_ids: np.ndarray
+    axis: np.ndarray
+
+    def __post_init__(self) -> None:
+        self.tree = shapely.STRtree(self.geoms)
+
+    @classmethod
+    def from_layers(cls, layers: MapLayers) -> SidewalkIndex:
+        """Index the ``sidewalk`` layer of a map.
+
+        Raises
+        ------
+        CurbsideInputError
+            The map has no sidewalk segments (a hand-labelled map may omit them: evaluate with a
+            reference map that has them).
+        """
+        sw = layers.layer("sidewalk")
+        sw = sw[sw.geometry.notna() & ~sw.geometry.is_empty]
+        if len(sw) == 0:
+            raise CurbsideInputError(
+                layers.meta.get("source", "map"), "no sidewalk segments to evaluate against"
+            )
+        geoms = sw.geometry.values
+        ids = sw["segment_id"].astype(str).to_numpy()
+        return cls(np.asarray(geoms), ids, long_axes(np.asarray(geoms)))
+
+    def nearest(self, xy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Index of, and distance to, the nearest segment for each point of an ``(n, 2)`` array."""
+        points = shapely.points(np.asarray(xy, float))
+        (src, idx), dist = self.tree.query_nearest(points, return_distance=True, all_matches=False)
+        out_idx = np.empty(len(points), np.int64)
+        out_dist = np.empty(len(points))
+        out_idx[src] = idx
+        out_dist[src] = dist
+        return out_idx, out_dist
+
+
+def long_axes(polygons: np.ndarray) -> np.ndarray:
+    """Unit vector along the long side of each polygon's minimum rotated rectangle.
+
+    Parameters
+    ----------
+    polygons
+        Shapely polygons.
+
+    Returns
+    -------
+    numpy.ndarray
+        ``(n, 2)``; ``(1, 0)`` for a degenerate polygon.
+    """
+    env = shapely.oriented_envelope(polygons)
+    coords, owner = shapely.get_coordinates(env, return_index=True)
+    first = np.searchsorted(owner, np.arange(len(polygons)))
+    has3 = np.bincount(owner, minlength=len(polygons)) >= 3
+    first = np.where(has3, first, 0)
+    last = len(coords) - 1
+    p0, p1, p2 = coords[first], coords[np.minimum(first + 1, last)], coords[np.minimum(first + 2, last)]
+    e1, e2 = p1 - p0, p2 - p1
+    longer = np.where((np.hypot(*e1.T) >= np.hypot(*e2.T))[:, None], e1, e2)
+    norm = np.hypot(*longer.T)
+    good = has3 & (norm > 0)
+    axis = np.tile([1.0, 0.0], (len(polygons), 1))
+    axis[good] = longer[good] / norm[good, None]
+    return axis
+
+
+def step_errors(est_xy: np.ndarray, gt_xy: np.ndarray, index: SidewalkIndex | None) -> pd.DataFrame:
+    """Per-footstep errors of an estimated track against ground truth.
+
+    Parameters
+    ----------
+    est_xy, gt_xy
+        ``(n, 2)`` metres in the same local frame. Rows of ``est_xy`` holding NaN (no estimate, e.g.
+        no GNSS fix yet) are kept and flagged ``missing``; they count as incorrect for ``csa`` and are
+        left out of the distance statistics.
+    index
+        The sidewalk segments; ``None`` gives Euclidean errors only (maps without sidewalks, IPIN).
+
+    Returns
+    -------
+    pandas.DataFrame
+        ``euclid_m, along_m, across_m, gt_segment, est_segment, on_crossing, correct, missing``.
+    """
+    est_xy = np.asarray(est_xy, float).reshape(-1, 2)
+    gt_xy = np.asarray(gt_xy, float).reshape(-1, 2)
+    missing = ~np.isfinite(est_xy).all(axis=1)
+    err = est_xy - gt_xy
+    out = pd.DataFrame({"euclid_m": np.hypot(err[:, 0], err[:, 1]), "missing": missing})
+    if index is None:
+        return out
+    gt_idx, gt_dist = index.nearest(gt_xy)
+    axis = index.axis[gt_idx]
+    out["along_m"] = np.abs(err[:, 0] * axis[:, 0] + err[:, 1] * axis[:, 1])
+    out["across_m"] = np.abs(err[:, 0] * axis[:, 1] - err[:, 1] * axis[:, 0])
+    est_seg = np.full(len(est_xy), None, dtype=object)
+    if (~missing).any():
+        est_idx, _ = index.nearest(est_xy[~missing])
+        est_seg[~missing] = index.segment_ids[est_idx]
+    gt_seg = index.segment_ids[gt_idx]
+    correct = est_seg == gt_seg
+    on_crossing = gt_dist > settings.evaluate_on_sidewalk_m
+    rows = np.flatnonzero(on_crossing & ~missing)
+    if len(rows):
+        points = shapely.points(gt_xy[rows])
+        src, tgt = index.tree.query(
+            points, predicate="dwithin", distance=gt_dist[rows] + settings.evaluate_crossing_slack_m
+        )
+        joined = index.segment_ids[tgt] == est_seg[rows][src]
+        hit = np.zeros(len(rows), bool)
+        np.logical_or.at(hit, src, joined)
+        correct[rows] = hit
+    out["gt_segment"] = gt_seg
+    out["est_segment"] = est_seg
+    out["on_crossing"] = on_crossing
+    out["correct"] = correct.astype(bool) & ~missing
+    return out
+
+
+def summarize(errors: pd.DataFrame) -> dict[str, float]:
+    """The SPEC metrics of a table of step errors (one session or many pooled).
+
+    Parameters
+    ----------
+    errors
+        Output of :func:`step_errors`, possibly concatenated over sessions.
+
+    Returns
+    -------
+    dict
+        :data:`METRIC_NAMES` (NaN where undefined) plus ``n_steps``, ``n_missing`` and
+        ``n_crossing_steps``.
+    """
+    ok = ~errors["missing"].to_numpy(bool)
+    e = errors["euclid_m"].to_numpy(float)[ok]
+
+    def stat(values: np.ndarray, kind: str) -> float:
+        if len(values) == 0:
+            return float("nan")
+        if kind == "mean":
+            return float(np.mean(values))
+        return float(np.percentile(values, 50 if kind == "median" else 90))
+
+    out: dict[str, float] = {
+        "csa": float(errors["correct"].mean()) if "correct" in errors and len(errors) else float("nan"),
+        "euclid_mean_m": stat(e, "mean"),
+        "euclid_median_m": stat(e, "median"),
+        "euclid_p90_m": stat(e, "p90"),
+    }
+    for comp in ("along", "across"):
+        values = errors[f"{comp}_m"].to_numpy(float)[ok] if f"{comp}_m" in errors else np.array([])
+        out[f"{comp}_median_m"] = stat(values, "median")
+        out[f"{comp}_p90_m"] = stat(values, "p90")
+    out = {name: out[name] for name in METRIC_NAMES}
+    out["n_steps"] = len(errors)
+    out["n_missing"] = int((~ok).sum())
+    out["n_crossing_steps"] = int(errors["on_crossing"].sum()) if "on_crossing" in errors else 0
+    return out
+
+
+def ate_m(est_xy: np.ndarray, gt_xy: np.ndarray) -> float:
+    """Absolute trajectory error: RMSE of the position error over the walk (NaN rows skipped)."""
+    err = np.asarray(est_xy, float) - np.asarray(gt_xy, float)
+    sq = np.sum(err**2, axis=1)
+    sq = sq[np.isfinite(sq)]
+    return float(np.sqrt(sq.mean())) if len(sq) else float("nan")
+
+
+def rte_m(t: np.ndarray, est_xy: np.ndarray, gt_xy: np.ndarray, window_s: float | None = None) -> float:
+    """Relative trajectory error: RMSE of the displacement error over windows of ``window_s``.
+
+    For each step ``i`` the window ends at the first step ``j`` with ``t[j] >= t[i] + window_s``. A
+    walk shorter than the window gives the displacement error over the whole walk scaled to the
+    window length, as RoNIN does.
+    """
+    window_s = settings.evaluate_rte_window_s if window_s is None else window_s
+    t = np.asarray(t, float)
+    est_xy = np.asarray(est_xy, float)
+    gt_xy = np.asarray(gt_xy, float)
+    if len(t) < 2:
+        return float("nan")
+    j = np.searchsorted(t, t + window_s)
+    valid = j < len(t)
+    if not valid.any():
+        d = (est_xy[-1] - est_xy[0]) - (gt_xy[-1] - gt_xy[0])
+        return float(np.hypot(*d) * window_s / max(t[-1] - t[0], 1e-9))
+    i = np.flatnonzero(valid)
+    d = (est_xy[j[i]] - est_xy[i]) - (gt_xy[j[i]] - gt_xy[i])
+    sq = np.sum(d**2, axis=1)
+    sq = sq[np.isfinite(sq)]
+    return float(np.sqrt(sq.mean())) if len(sq) else float("nan")

@@ -1,0 +1,250 @@
+"""Run the paper's three methods over many sessions, maps and parameters, in parallel with dask.
+
+One :class:`RunSpec` is one track: a session, a map, a method and the filter parameters. A run
+reads its inputs itself (sessions and maps are paths, so a task is small to ship to a worker), tracks
+with :func:`curbside.localize.pipeline.track_session`, and scores every footstep against the ground
+truth (:mod:`curbside.evaluate.metrics`). Each run is seeded, so the results do not depend on which
+worker ran what: a dask run equals a serial one.
+"""
+
+from __future__ import annotations
+
+import functools
+import logging
+from dataclasses import asdict, dataclass, replace
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pandas as pd
+import pyproj
+from tqdm.auto import tqdm
+
+from curbside import settings
+from curbside.errors import CurbsideInputError
+from curbside.evaluate import metrics
+from curbside.evaluate.groundtruth import groundtruth_at
+from curbside.localize.session import read_session
+from curbside.osmseg.mapio import MapLayers, read_map
+from curbside.projection import LocalFrame
+
+log = logging.getLogger(__name__)
+
+METHODS: tuple[str, ...] = ("gnss", "inertial", "fused")
+#: The paper's names for the methods.
+METHOD_LABELS: dict[str, str] = {"gnss": "GNSS", "inertial": "RoNIN+PF", "fused": "GNSS+RoNIN+PF"}
+
+
+@dataclass(frozen=True)
+class RunSpec:
+    """One track to compute and score.
+
+    Attributes
+    ----------
+    session
+        Session folder.
+    method
+        ``gnss``, ``inertial`` or ``fused``.
+    map_path
+        Map used by the filter (``None``: no map likelihood; always ``None`` for ``gnss``).
+    map_name
+        Label of the map source in reports.
+    metrics_map
+        Map whose sidewalk segments score the run (``None``: distances only).
+    jaywalk_weight, particles, gnss_sigma_factor
+        Filter parameters (``gnss_sigma_factor`` ``None``: the filter's default).
+    seed
+        Filter seed.
+    snapshot_times
+        Times (s) at which to keep the particle cloud (Fig. 3); empty for none.
+    velocity_source
+        ``auto``, ``file``, ``ronin`` or ``pdr``.
+    """
+
+    session: str
+    method: str
+    map_path: str | None = None
+    map_name: str = "none"
+    metrics_map: str | None = None
+    jaywalk_weight: float = settings.default_jaywalk_weight
+    particles: int = settings.default_particles
+    gnss_sigma_factor: float | None = None
+    seed: int = 0
+    snapshot_times: tuple[float, ...] = ()
+    velocity_source: str = "auto"
+
+    def key(self) -> dict[str, Any]:
+        """The grouping columns of this run."""
+        return {
+            "map": self.map_name,
+            "method": self.method,
+            "jaywalk_weight": self.jaywalk_weight,
+            "particles": self.particles,
+            "gnss_sigma_factor": self.gnss_sigma_factor,
+        }
+
+
+@functools.lru_cache(maxsize=8)
+def _map(path: str) -> MapLayers:
+    return read_map(path)
+
+
+@functools.lru_cache(maxsize=8)
+def _index(path: str) -> metrics.SidewalkIndex:
+    return metrics.SidewalkIndex.from_layers(_map(path))
+
+
+def run_one(spec: RunSpec) -> dict[str, Any]:
+    """Track and score one :class:`RunSpec` (the unit of work sent to dask workers).
+
+    Returns
+    -------
+    dict
+        ``spec`` (dict), ``path`` (route name), ``metrics`` (SPEC names), ``ate_m``, ``rte_m``,
+        ``errors`` (per-footstep DataFrame), ``track`` (``t, x_m, y_m, gt_x_m, gt_y_m``),
+        ``snapshots`` (list of ``{"t", "x", "y"}`` clouds), ``recoveries``, ``velocity_source``.
+    """
+    from curbside.localize.filter import FilterConfig
+    from curbside.localize.pipeline import track_session
+
+    session = read_session(spec.session)
+    if session.waypoints is None:
+        raise CurbsideInputError(spec.session, "no waypoints.csv: nothing to score against")
+    layers = _map(spec.map_path) if spec.map_path and spec.method != "gnss" else None
+    config = FilterConfig()
+    if spec.gnss_sigma_factor is not None:
+        config = replace(config, gnss_sigma_factor=float(spec.gnss_sigma_factor))
+    result = track_session(
+        session,
+        layers,
+        spec.method,
+        config=config,
+        particles=spec.particles,
+        jaywalk_weight=spec.jaywalk_weight,
+        seed=spec.seed,
+        velocity_source=spec.velocity_source,
+        save_particles=bool(spec.snapshot_times) and spec.method != "gnss",
+        progress=False,
+    )
+    track = result.track
+    if spec.metrics_map:
+        frame = LocalFrame(pyproj.CRS(_map(spec.metrics_map).crs))
+    else:
+        frame = LocalFrame.around(float(session.waypoints["lon"].iat[0]), float(session.waypoints["lat"].iat[0]))
+    ex, ey = frame.to_xy(track["lon"].to_numpy(), track["lat"].to_numpy())
+    t = track["t"].to_numpy(float)
+    gx, gy = groundtruth_at(session.waypoints, t, frame)
+    est = np.column_stack([ex, ey])
+    gt = np.column_stack([gx, gy])
+    index = _index(spec.metrics_map) if spec.metrics_map else None
+    errors = metrics.step_errors(est, gt, index)
+    snapshots = []
+    if result.snapshots is not None and spec.snapshot_times:
+        snap = result.snapshots
+        ox, oy = snap["origin"]
+        for want in spec.snapshot_times:
+            k = int(np.argmin(np.abs(snap["t"] - want)))
+            px, py = snap["x"][k] + ox, snap["y"][k] + oy
+            if layers is not None and spec.metrics_map and _map(spec.metrics_map).crs != layers.crs:
+                lon, lat = LocalFrame(pyproj.CRS(layers.crs)).to_lonlat(px, py)
+                px, py = frame.to_xy(lon, lat)
+            snapshots.append({"t": float(snap["t"][k]), "x": np.asarray(px, np.float32), "y": np.asarray(py, np.float32)})
+    sim = session.meta.get("simulation", {}) if isinstance(session.meta, dict) else {}
+    return {
+        "spec": asdict(spec),
+        "session": Path(spec.session).name,
+        "path": sim.get("route", Path(spec.session).name),
+        "metrics": metrics.summarize(errors),
+        "ate_m": metrics.ate_m(est, gt),
+        "rte_m": metrics.rte_m(t, est, gt),
+        "errors": errors,
+        "track": pd.DataFrame({"t": t, "x_m": ex, "y_m": ey, "gt_x_m": gx, "gt_y_m": gy}),
+        "snapshots": snapshots,
+        "recoveries": int(result.recoveries),
+        "velocity_source": result.velocity_source,
+    }
+
+
+def run_all(
+    specs: list[RunSpec],
+    workers: int = 1,
+    scheduler: str | None = None,
+    progress: bool | None = None,
+) -> list[dict[str, Any]]:
+    """Run many specs, serially or on a dask.distributed cluster; results come back in ``specs`` order.
+
+    Parameters
+    ----------
+    specs
+        The runs.
+    workers
+        Worker processes of a local cluster; ``1`` (and no ``scheduler``) runs serially in-process.
+    scheduler
+        Address of an existing dask scheduler (``tcp://host:8786``); overrides ``workers``.
+    progress
+        tqdm bar (``None``: only on a terminal).
+
+    Returns
+    -------
+    list of dict
+        :func:`run_one` outputs.
+    """
+    disable = (not progress) if progress is not None else None
+    if scheduler is None and workers <= 1:
+        return [run_one(s) for s in tqdm(specs, desc="evaluate", unit="run", disable=disable)]
+    from dask.distributed import Client, LocalCluster, as_completed
+
+    cluster = None
+    if scheduler is None:
+        cluster = LocalCluster(
+            n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=None
+        )
+        client = Client(cluster)
+    else:
+        client = Client(scheduler)
+    try:
+        futures = client.map(run_one, specs, pure=False)
+        order = {f.key: i for i, f in enumerate(futures)}
+        out: list[dict[str, Any] | None] = [None] * len(specs)
+        for future in tqdm(as_completed(futures), total=len(futures), desc="evaluate", unit="run", disable=disable):
+            out[order[future.key]] = future.result()
+        return out  # type: ignore[return-value]
+    finally:
+        client.close()
+        if cluster is not None:
+            cluster.close()
+
+
+def pool(results: list[dict[str, Any]], by: tuple[str, ...]) -> pd.DataFrame:
+    """Metrics pooled over all footsteps of the runs sharing the ``by`` columns.
+
+    Parameters
+    ----------
+    results
+        :func:`run_one` outputs.
+    by
+        Columns among ``map, method, jaywalk_weight, particles, gnss_sigma_factor, path, session``.
+
+    Returns
+    -------
+    pandas.DataFrame
+        One row per group: ``by`` columns, the SPEC metrics, ``ate_m`` and ``rte_m`` (means over
+        runs), ``n_runs``.
+    """
+    rows = []
+    keys = [
+        {**RunSpec(**r["spec"]).key(), "path": r["path"], "session": r["session"]} for r in results
+    ]
+    frame = pd.DataFrame(keys)
+    frame["gnss_sigma_factor"] = frame["gnss_sigma_factor"].astype(object)
+    groups = frame.groupby(list(by), sort=False, dropna=False).indices
+    for group, idx in groups.items():
+        group = group if isinstance(group, tuple) else (group,)
+        errs = pd.concat([results[i]["errors"] for i in idx], ignore_index=True)
+        row = dict(zip(by, group, strict=True))
+        row.update(metrics.summarize(errs))
+        row["ate_m"] = float(np.nanmean([results[i]["ate_m"] for i in idx]))
+        row["rte_m"] = float(np.nanmean([results[i]["rte_m"] for i in idx]))
+        row["n_runs"] = len(idx)
+        rows.append(row)
+    return pd.DataFrame(rows)

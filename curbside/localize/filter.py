@@ -1,0 +1,778 @@
+"""The map-aware particle filter of Dubiner, Ren & Manduchi, built from small components that compose.
+
+Read it top to bottom:
+
+1. :class:`FilterConfig`: every parameter, defaults from :mod:`curbside.settings`.
+2. :class:`ParticleSet`: the state. Per particle ``x``, ``y`` (metres east/north in the map's local
+   UTM CRS), ``theta`` (heading drift, radians, counter-clockwise) and a log-weight.
+3. :class:`InertialPredictor`: at a footstep, rotate the step's inertial displacement by each
+   particle's ``theta``, add it, and add Gaussian noise to ``x``, ``y`` and ``theta``.
+4. :class:`MapLikelihood`: log-weight by the map class under each particle, looked up in a raster
+   (0 in buildings, ``jaywalk_weight`` on the street, 1 elsewhere).
+5. :class:`GnssLikelihood`: log of an isotropic Gaussian centred on a fix, sigma proportional to the
+   reported accuracy.
+6. :func:`normalise_log_weights`: weights stay in the log domain (products of many likelihoods never
+   underflow) and are normalised with the log-sum-exp trick.
+7. :class:`SystematicResampler`: seeded, vectorised systematic resampling.
+8. The fast path: the same arithmetic fused into two numba kernels (one pass over the particles
+   for predict + map + GNSS, one for normalise + estimate + resample). The numpy components above
+   are the reference; the tests check that both paths give the same particles from the same draws.
+9. :class:`Tracker`: the streaming API a navigation app calls once per footstep; it composes the
+   components, recovers from collapse and returns an :class:`Estimate`. Batch runs
+   (:mod:`curbside.localize.pipeline`) drive the same class.
+
+Nothing is allocated per step: every array is preallocated for the particle count. One update at
+N=500 costs tens of microseconds (``benchmarks/bench_filter.py``).
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from dataclasses import dataclass, field
+
+import numba
+import numpy as np
+import pyproj
+
+from curbside import settings
+from curbside.errors import CurbsideInputError
+from curbside.localize.maplikelihood import (
+    BUILDING,
+    CROSSWALK,
+    FREE,
+    SIDEWALK,
+    STREET,
+    MapRaster,
+    RasterLookup,
+    load_or_build_raster,
+)
+from curbside.osmseg.mapio import MapLayers
+from curbside.projection import LocalFrame
+
+logger = logging.getLogger(__name__)
+
+RESAMPLE_POLICIES = ("always", "ess")
+BACKENDS = ("numba", "numpy")
+
+
+@dataclass(frozen=True)
+class FilterConfig:
+    """Parameters of the particle filter (see ``docs/filter.md`` for the reasoning behind each).
+
+    Attributes
+    ----------
+    n_particles
+        Number of particles N (the paper: 500).
+    jaywalk_weight
+        Weight of a particle on street surface outside crosswalks, in [0, 1] (the paper: 0.4).
+    step_noise_fraction, step_noise_floor_m
+        Position noise per footstep, east and north: sigma = max(floor, fraction * step length).
+    theta_noise_deg
+        Heading-drift random walk per footstep (one sigma).
+    init_position_sigma_m, init_theta_sigma_deg
+        Spread around a known start pose.
+    gnss_init_theta_sigma_deg
+        Drift spread when starting from a GNSS fix; ``None`` for the full circle.
+    recovery_sigma_m
+        Spread of particles re-seeded around the last estimate after a collapse.
+    gnss_sigma_factor
+        GNSS likelihood sigma = factor * reported accuracy.
+    gnss_max_accuracy_m
+        Fixes with a worse reported accuracy make no update.
+    resample
+        ``"always"`` (every footstep, as the paper) or ``"ess"`` (when the effective sample size drops
+        below ``ess_fraction * n_particles``).
+    ess_fraction
+        Threshold of the ``"ess"`` policy.
+    raster_resolution_m
+        Cell size of the map raster.
+    max_start_snap_m
+        A start pose in a building moves to the nearest free cell within this distance.
+    backend
+        ``"numba"`` (fused kernels, the default) or ``"numpy"`` (the reference components).
+    """
+
+    n_particles: int = field(default_factory=lambda: settings.default_particles)
+    jaywalk_weight: float = field(default_factory=lambda: settings.default_jaywalk_weight)
+    step_noise_fraction: float = field(default_factory=lambda: settings.filter_step_noise_fraction)
+    step_noise_floor_m: float = field(default_factory=lambda: settings.filter_step_noise_floor_m)
+    theta_noise_deg: float = field(default_factory=lambda: settings.filter_theta_noise_deg)
+    init_position_sigma_m: float = field(default_factory=lambda: settings.filter_init_position_sigma_m)
+    init_theta_sigma_deg: float = field(default_factory=lambda: settings.filter_init_theta_sigma_deg)
+    gnss_init_theta_sigma_deg: float | None = field(
+        default_factory=lambda: settings.filter_gnss_init_theta_sigma_deg
+    )
+    recovery_sigma_m: float = field(default_factory=lambda: settings.filter_recovery_sigma_m)
+    gnss_sigma_factor: float = field(default_factory=lambda: settings.gnss_sigma_factor)
+    gnss_max_accuracy_m: float = field(default_factory=lambda: settings.gnss_max_accuracy_m)
+    resample: str = field(default_factory=lambda: settings.filter_resample)
+    ess_fraction: float = field(default_factory=lambda: settings.filter_ess_fraction)
+    raster_resolution_m: float = field(default_factory=lambda: settings.raster_resolution_m)
+    max_start_snap_m: float = field(default_factory=lambda: settings.filter_max_start_snap_m)
+    backend: str = "numba"
+
+    def __post_init__(self) -> None:
+        if int(self.n_particles) < 1:
+            raise ValueError(f"n_particles must be at least 1, got {self.n_particles}")
+        if not 0.0 <= self.jaywalk_weight <= 1.0:
+            raise ValueError(f"jaywalk_weight must lie in [0, 1], got {self.jaywalk_weight}")
+        if self.resample not in RESAMPLE_POLICIES:
+            raise ValueError(f"resample must be one of {RESAMPLE_POLICIES}, got {self.resample!r}")
+        if self.backend not in BACKENDS:
+            raise ValueError(f"backend must be one of {BACKENDS}, got {self.backend!r}")
+        if not self.gnss_sigma_factor > 0:
+            raise ValueError(f"gnss_sigma_factor must be positive, got {self.gnss_sigma_factor}")
+
+
+class ParticleSet:
+    """The particles: preallocated ``(N,)`` float64 arrays.
+
+    Attributes
+    ----------
+    x, y
+        Metres east and north in the local CRS.
+    theta
+        Heading drift, radians: the inertial velocity is rotated counter-clockwise by it.
+    log_weight
+        Unnormalised log-weights (``-inf`` = weight 0).
+    """
+
+    def __init__(self, n: int) -> None:
+        self.x = np.zeros(n)
+        self.y = np.zeros(n)
+        self.theta = np.zeros(n)
+        self.log_weight = np.full(n, -math.log(n))
+
+    def __len__(self) -> int:
+        return len(self.x)
+
+
+class InertialPredictor:
+    """Motion model: displacement rotated by each particle's drift, plus Gaussian noise.
+
+    At each footstep ``theta`` first takes its random-walk increment, then every particle moves by the
+    step's displacement ``(dx, dy)`` rotated by its own ``theta``, plus isotropic position noise with
+    sigma ``max(step_noise_floor_m, step_noise_fraction * |(dx, dy)|)``: the error of an inertial step
+    grows with its length (scale error), and the floor keeps standing-still clouds alive.
+
+    Parameters
+    ----------
+    config
+        Noise parameters.
+    rng
+        The filter's seeded generator.
+    """
+
+    def __init__(self, config: FilterConfig, rng: np.random.Generator) -> None:
+        n = config.n_particles
+        self.rng = rng
+        self.noise_fraction = config.step_noise_fraction
+        self.noise_floor_m = config.step_noise_floor_m
+        self.theta_sigma = math.radians(config.theta_noise_deg)
+        self._noise = np.empty((3, n))
+        self.cos_theta = np.empty(n)
+        self.sin_theta = np.empty(n)
+        self._tmp = np.empty(n)
+
+    def predict(self, particles: ParticleSet, dx: float, dy: float) -> None:
+        """Move ``particles`` in place by the step displacement ``(dx, dy)`` metres (east, north).
+
+        Leaves ``cos_theta`` / ``sin_theta`` of the new drift angles for the estimate.
+        """
+        sigma_xy = max(self.noise_floor_m, self.noise_fraction * math.hypot(dx, dy))
+        noise, c, s, tmp = self._noise, self.cos_theta, self.sin_theta, self._tmp
+        self.rng.standard_normal(out=noise)
+        noise[:2] *= sigma_xy
+        noise[2] *= self.theta_sigma
+        particles.theta += noise[2]
+        np.cos(particles.theta, out=c)
+        np.sin(particles.theta, out=s)
+        # x += dx cos - dy sin + noise;  y += dx sin + dy cos + noise
+        np.multiply(c, dx, out=tmp)
+        particles.x += tmp
+        np.multiply(s, dy, out=tmp)
+        particles.x -= tmp
+        particles.x += noise[0]
+        np.multiply(s, dx, out=tmp)
+        particles.y += tmp
+        np.multiply(c, dy, out=tmp)
+        particles.y += tmp
+        particles.y += noise[1]
+
+
+class MapLikelihood:
+    """Log-likelihood of each particle's position given the map: a lookup in the class raster.
+
+    Weights: 0 in a building, ``jaywalk_weight`` on street surface, 1 on crosswalks, sidewalks, free
+    space and anywhere outside the raster.
+
+    Parameters
+    ----------
+    raster
+        The map rasterised by :func:`curbside.localize.maplikelihood.load_or_build_raster`.
+    jaywalk_weight
+        Weight on street surface, in [0, 1].
+    """
+
+    def __init__(self, raster: MapRaster, jaywalk_weight: float) -> None:
+        weights = np.ones(BUILDING + 1)
+        weights[[FREE, SIDEWALK, CROSSWALK]] = 1.0
+        weights[STREET] = jaywalk_weight
+        weights[BUILDING] = 0.0
+        with np.errstate(divide="ignore"):
+            self.log_table = np.log(weights)
+        self.raster = raster
+        self.lookup = RasterLookup(raster)
+
+    def log_likelihood(self, x: np.ndarray, y: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
+        """Log-weight (``-inf`` in buildings) of each point ``(x, y)``."""
+        codes = self.lookup.codes_at(x, y)
+        return np.take(self.log_table, codes, out=out)
+
+
+@dataclass(frozen=True)
+class GnssFix:
+    """One GNSS fix in the tracker's local frame.
+
+    Attributes
+    ----------
+    x, y
+        Metres east/north in the local CRS.
+    accuracy_m
+        Reported horizontal accuracy radius; not positive or not finite = invalid.
+    """
+
+    x: float
+    y: float
+    accuracy_m: float
+
+
+class GnssLikelihood:
+    """Log of a bivariate isotropic Gaussian centred on the fix, sigma = factor * accuracy.
+
+    Parameters
+    ----------
+    sigma_factor
+        Multiplies the reported accuracy radius.
+    max_accuracy_m
+        Fixes reporting a worse (larger) accuracy make no update.
+    """
+
+    def __init__(self, sigma_factor: float, max_accuracy_m: float) -> None:
+        self.sigma_factor = sigma_factor
+        self.max_accuracy_m = max_accuracy_m
+
+    def accepts(self, fix: GnssFix | None) -> bool:
+        """Whether ``fix`` is valid (finite position, accuracy > 0 and finite) and accurate enough."""
+        return (
+            fix is not None
+            and math.isfinite(fix.x)
+            and math.isfinite(fix.y)
+            and math.isfinite(fix.accuracy_m)
+            and 0.0 < fix.accuracy_m < self.max_accuracy_m
+        )
+
+    def log_likelihood(
+        self, x: np.ndarray, y: np.ndarray, fix: GnssFix, out: np.ndarray, tmp: np.ndarray
+    ) -> np.ndarray:
+        """Log-density of each particle position under the fix's Gaussian (written into ``out``)."""
+        sigma = self.sigma_factor * fix.accuracy_m
+        np.subtract(x, fix.x, out=out)
+        np.square(out, out=out)
+        np.subtract(y, fix.y, out=tmp)
+        np.square(tmp, out=tmp)
+        out += tmp
+        out *= -0.5 / (sigma * sigma)
+        out -= math.log(2.0 * math.pi * sigma * sigma)
+        return out
+
+
+def normalise_log_weights(log_weight: np.ndarray, out: np.ndarray) -> bool:
+    """Normalised linear weights from log-weights (log-sum-exp); ``False`` when they collapsed.
+
+    Parameters
+    ----------
+    log_weight
+        Unnormalised log-weights; modified in place to the normalised log-weights.
+    out
+        Receives the linear weights (summing to 1).
+
+    Returns
+    -------
+    bool
+        ``False`` when every weight is zero or any is NaN (nothing is written then).
+    """
+    peak = log_weight.max()
+    if not math.isfinite(peak):
+        return False
+    log_weight -= peak
+    np.exp(log_weight, out=out)
+    total = out.sum()
+    out /= total
+    log_weight -= math.log(total)
+    return True
+
+
+def effective_sample_size(weights: np.ndarray) -> float:
+    """Kish's effective sample size ``1 / sum(w^2)`` of normalised weights."""
+    return 1.0 / float(np.dot(weights, weights))
+
+
+def systematic_indices(weights: np.ndarray, u0: float, out: np.ndarray | None = None) -> np.ndarray:
+    """Systematic resampling: indices drawn at the positions ``(u0 + k) / N``, ``k = 0..N-1``.
+
+    The same rule as :func:`filterpy.monte_carlo.systematic_resample` (which draws ``u0`` from the
+    global numpy RNG), vectorised with a binary search.
+
+    Parameters
+    ----------
+    weights
+        Normalised weights, shape ``(N,)``.
+    u0
+        The one uniform draw in [0, 1).
+    out
+        Optional ``intp`` buffer for the indices.
+
+    Returns
+    -------
+    numpy.ndarray
+        ``(N,)`` indices into ``weights``.
+    """
+    n = len(weights)
+    positions = (np.arange(n) + u0) / n
+    cumulative = np.cumsum(weights)
+    idx = np.searchsorted(cumulative, positions, side="right")
+    # Rounding can leave the cumulative sum a hair below 1.
+    return np.minimum(idx, n - 1, out=out)
+
+
+class SystematicResampler:
+    """Seeded systematic resampling of a :class:`ParticleSet`, with preallocated buffers.
+
+    Parameters
+    ----------
+    n
+        Number of particles.
+    rng
+        The filter's seeded generator (one uniform per resampling).
+    """
+
+    def __init__(self, n: int, rng: np.random.Generator) -> None:
+        self.rng = rng
+        self._ramp = np.arange(n, dtype=float)
+        self._positions = np.empty(n)
+        self._cumulative = np.empty(n)
+        self._idx = np.empty(n, dtype=np.intp)
+        self._spare = np.empty(n)
+        self._log_uniform = -math.log(n)
+        self._last = n - 1
+
+    def resample(self, particles: ParticleSet, weights: np.ndarray) -> np.ndarray:
+        """Replace ``particles`` by a systematic resample under ``weights``; reset weights to uniform.
+
+        Returns the indices drawn (a reused buffer).
+        """
+        np.add(self._ramp, self.rng.random(), out=self._positions)
+        self._positions /= len(weights)
+        np.cumsum(weights, out=self._cumulative)
+        idx = self._idx
+        idx[...] = np.searchsorted(self._cumulative, self._positions, side="right")
+        np.minimum(idx, self._last, out=idx)
+        for name in ("x", "y", "theta"):
+            current = getattr(particles, name)
+            np.take(current, idx, out=self._spare)
+            setattr(particles, name, self._spare)
+            self._spare = current
+        particles.log_weight.fill(self._log_uniform)
+        return idx
+
+# -- The fast path: the components above, fused into two passes over the particles ------------------
+# Same draws, same formulas, same order of the random numbers; only the loops are compiled. No
+# fastmath: the weights rely on -inf.
+
+
+@numba.njit(cache=True, nogil=True)
+def _predict_and_weigh(
+    x, y, theta, log_weight, cos_theta, sin_theta, noise, dx, dy, sigma_xy, sigma_theta,
+    use_map, padded, inv_res, x_offset, y_offset, col_max, row_max, stride, log_table,
+    use_fix, fix_x, fix_y, fix_scale, fix_log_norm,
+):  # pragma: no cover - compiled
+    for i in range(x.shape[0]):
+        th = theta[i] + sigma_theta * noise[2, i]
+        theta[i] = th
+        c = math.cos(th)
+        s = math.sin(th)
+        cos_theta[i] = c
+        sin_theta[i] = s
+        xi = x[i] + c * dx - s * dy + sigma_xy * noise[0, i]
+        yi = y[i] + s * dx + c * dy + sigma_xy * noise[1, i]
+        x[i] = xi
+        y[i] = yi
+        lw = log_weight[i]
+        if use_map:
+            fx = min(max(xi * inv_res - x_offset, 0.0), col_max)
+            fy = min(max(yi * inv_res - y_offset, 0.0), row_max)
+            lw += log_table[padded[int(fy) * stride + int(fx)]]
+        if use_fix:
+            ex = xi - fix_x
+            ey = yi - fix_y
+            lw += (ex * ex + ey * ey) * fix_scale + fix_log_norm
+        log_weight[i] = lw
+
+
+@numba.njit(cache=True, nogil=True)
+def _normalise_and_estimate(log_weight, weights, x, y, cos_theta, sin_theta):  # pragma: no cover
+    n = log_weight.shape[0]
+    peak = -math.inf
+    for i in range(n):
+        lw = log_weight[i]
+        if lw != lw:
+            return False, 0.0, 0.0, 0.0, 0.0
+        peak = max(peak, lw)
+    if peak == -math.inf:
+        return False, 0.0, 0.0, 0.0, 0.0
+    total = 0.0
+    for i in range(n):
+        w = math.exp(log_weight[i] - peak)
+        weights[i] = w
+        total += w
+    log_total = math.log(total)
+    ex = ey = ec = es = sq = 0.0
+    for i in range(n):
+        w = weights[i] / total
+        weights[i] = w
+        log_weight[i] = log_weight[i] - peak - log_total
+        ex += w * x[i]
+        ey += w * y[i]
+        ec += w * cos_theta[i]
+        es += w * sin_theta[i]
+        sq += w * w
+    return True, ex, ey, math.atan2(es, ec), 1.0 / sq
+
+
+@numba.njit(cache=True, nogil=True)
+def _systematic_resample(weights, u0, x, y, theta, x_out, y_out, theta_out):  # pragma: no cover
+    # One merge pass: position k goes to the first particle whose cumulative weight exceeds it.
+    n = weights.shape[0]
+    j = 0
+    cumulative = weights[0]
+    for k in range(n):
+        position = (k + u0) / n
+        while position >= cumulative and j < n - 1:
+            j += 1
+            cumulative += weights[j]
+        x_out[k] = x[j]
+        y_out[k] = y[j]
+        theta_out[k] = theta[j]
+
+
+@dataclass(frozen=True)
+class Estimate:
+    """The filter's output at one footstep.
+
+    Attributes
+    ----------
+    t
+        Time, seconds on the session clock.
+    x, y
+        Weighted mean position, metres in the local CRS.
+    theta
+        Weighted circular mean of the heading drift, radians.
+    n_eff
+        Effective sample size before resampling.
+    recovered
+        Whether the particle cloud collapsed at this step and was re-seeded.
+    frame
+        The local frame, for :attr:`lat` / :attr:`lon`.
+    """
+
+    t: float
+    x: float
+    y: float
+    theta: float
+    n_eff: float
+    recovered: bool
+    frame: LocalFrame | None = field(default=None, repr=False, compare=False)
+
+    @property
+    def lat(self) -> float:
+        """Latitude, WGS84 degrees."""
+        return float(self.frame.to_lonlat(self.x, self.y)[1])
+
+    @property
+    def lon(self) -> float:
+        """Longitude, WGS84 degrees."""
+        return float(self.frame.to_lonlat(self.x, self.y)[0])
+
+
+class Tracker:
+    """Streaming particle filter: start it, then call :meth:`step` once per footstep.
+
+    Parameters
+    ----------
+    map_layers
+        The map (rasterised once, cached on disk), an already built :class:`MapRaster`, or ``None``
+        to run without a map likelihood.
+    config
+        Filter parameters (defaults from :mod:`curbside.settings`).
+    seed
+        Seed of the filter's random generator: same seed and inputs, same estimates.
+    frame
+        Local metric frame. Default: the map's CRS; without a map, set by :meth:`start_at_lonlat` or
+        given here.
+
+    Examples
+    --------
+    >>> tracker = Tracker(read_map("map.geojson"), FilterConfig(n_particles=500), seed=1)
+    >>> tracker.start_at_lonlat(t0, lat, lon, heading_offset_rad=0.0)
+    >>> est = tracker.step(t1, velocity_en=(1.1, 0.2), dt=0.55, gnss_fix=tracker.fix(lat, lon, 6.0))
+    """
+
+    def __init__(
+        self,
+        map_layers: MapLayers | MapRaster | None = None,
+        config: FilterConfig | None = None,
+        seed: int | None = 0,
+        frame: LocalFrame | None = None,
+    ) -> None:
+        self.config = config or FilterConfig()
+        n = int(self.config.n_particles)
+        self.rng = np.random.default_rng(seed)
+        if isinstance(map_layers, MapLayers):
+            raster = load_or_build_raster(map_layers, self.config.raster_resolution_m)
+        else:
+            raster = map_layers
+        self.map_likelihood = MapLikelihood(raster, self.config.jaywalk_weight) if raster else None
+        if frame is None and raster is not None:
+            frame = LocalFrame(pyproj.CRS.from_wkt(raster.crs))
+        self.frame = frame
+        self.predictor = InertialPredictor(self.config, self.rng)
+        self.gnss_likelihood = GnssLikelihood(self.config.gnss_sigma_factor, self.config.gnss_max_accuracy_m)
+        self.resampler = SystematicResampler(n, self.rng)
+        self.particles = ParticleSet(n)
+        self.started = False
+        self.last_estimate: Estimate | None = None
+        self.last_fix: GnssFix | None = None
+        self.recoveries = 0
+        self._weights = np.empty(n)
+        self._loglik = np.empty(n)
+        self._tmp = np.empty(n)
+        self._ess_threshold = self.config.ess_fraction * n
+        self._fast = self.config.backend == "numba"
+        self._spare = (np.empty(n), np.empty(n), np.empty(n))
+        lookup = self.map_likelihood.lookup if self.map_likelihood is not None else None
+        self._map_args = (
+            (True, lookup.padded, lookup.inv_res, lookup.x_offset, lookup.y_offset, lookup.col_max,
+             lookup.row_max, lookup.stride, self.map_likelihood.log_table)
+            if lookup is not None
+            else (False, np.zeros(1, np.uint8), 1.0, 0.0, 0.0, 0.0, 0.0, 1, np.zeros(BUILDING + 1))
+        )
+
+    # -- starting -----------------------------------------------------------------------------------
+
+    def fix(self, lat: float, lon: float, accuracy_m: float) -> GnssFix:
+        """A :class:`GnssFix` from WGS84 degrees, in this tracker's frame."""
+        if self.frame is None:
+            self.frame = LocalFrame.around(lon, lat)
+        x, y = self.frame.to_xy(lon, lat)
+        return GnssFix(float(x), float(y), float(accuracy_m))
+
+    def start_at_lonlat(self, t: float, lat: float, lon: float, heading_offset_rad: float = 0.0) -> Estimate:
+        """Start from a known pose given in WGS84 (see :meth:`start_at_pose`)."""
+        if self.frame is None:
+            self.frame = LocalFrame.around(lon, lat)
+        x, y = self.frame.to_xy(lon, lat)
+        return self.start_at_pose(t, float(x), float(y), heading_offset_rad)
+
+    def start_at_pose(self, t: float, x: float, y: float, heading_offset_rad: float = 0.0) -> Estimate:
+        """Start from a known pose: particles around ``(x, y)`` with drift around ``heading_offset_rad``.
+
+        A pose inside a building is moved to the nearest free raster cell, with a warning.
+
+        Raises
+        ------
+        CurbsideInputError
+            The pose lies in a building with no free cell within ``config.max_start_snap_m``.
+        """
+        if self.map_likelihood is not None:
+            raster = self.map_likelihood.raster
+            if raster.codes_at(np.array([x]), np.array([y]))[0] == BUILDING:
+                snapped = raster.nearest_code_other_than(x, y, BUILDING, self.config.max_start_snap_m)
+                if snapped is None:
+                    raise CurbsideInputError(
+                        "start pose",
+                        f"inside a building with no free space within {self.config.max_start_snap_m:g} m",
+                    )
+                logger.warning(
+                    "start pose lies inside a building: starting from the nearest free cell, %.1f m away",
+                    math.hypot(snapped[0] - x, snapped[1] - y),
+                )
+                x, y = snapped
+        self._seed(x, y, self.config.init_position_sigma_m, heading_offset_rad,
+                   math.radians(self.config.init_theta_sigma_deg))
+        return self._update(t)
+
+    def start_at_fix(self, t: float, fix: GnssFix) -> Estimate:
+        """Start from a GNSS fix: particles spread by the fix's sigma, drift over the configured spread."""
+        if not self.gnss_likelihood.accepts(fix):
+            raise ValueError(f"cannot start from an invalid or inaccurate fix {fix}")
+        sigma = self.gnss_likelihood.sigma_factor * fix.accuracy_m
+        theta_sigma = self.config.gnss_init_theta_sigma_deg
+        self._seed(fix.x, fix.y, sigma, 0.0, None if theta_sigma is None else math.radians(theta_sigma))
+        self.last_fix = fix
+        return self._update(t)
+
+    def _seed(self, x: float, y: float, sigma_m: float, theta: float, theta_sigma: float | None) -> None:
+        p, n = self.particles, len(self.particles)
+        p.x[:] = x + sigma_m * self.rng.standard_normal(n)
+        p.y[:] = y + sigma_m * self.rng.standard_normal(n)
+        if theta_sigma is None:
+            p.theta[:] = self.rng.uniform(-math.pi, math.pi, n)
+        else:
+            p.theta[:] = theta + theta_sigma * self.rng.standard_normal(n)
+        np.cos(p.theta, out=self.predictor.cos_theta)
+        np.sin(p.theta, out=self.predictor.sin_theta)
+        p.log_weight.fill(-math.log(n))
+        if self.map_likelihood is not None:
+            p.log_weight += self.map_likelihood.log_likelihood(p.x, p.y, out=self._loglik)
+        self.started = True
+
+    # -- one footstep -------------------------------------------------------------------------------
+
+    def step(
+        self,
+        t: float,
+        velocity_en: tuple[float, float] | np.ndarray | None = None,
+        dt: float | None = None,
+        displacement_en: tuple[float, float] | np.ndarray | None = None,
+        gnss_fix: GnssFix | None = None,
+    ) -> Estimate | None:
+        """Advance the filter by one footstep.
+
+        Parameters
+        ----------
+        t
+            Time of the footstep, seconds.
+        velocity_en, dt
+            Mean inertial velocity (east, north; m/s) over the step and the step's duration (s) ...
+        displacement_en
+            ... or the step's displacement (east, north; metres) directly.
+        gnss_fix
+            A fix valid at ``t`` (invalid or inaccurate fixes are ignored).
+
+        Returns
+        -------
+        Estimate or None
+            ``None`` while the tracker has not started (no start pose and no usable fix yet); a usable
+            fix before the start starts the tracker there.
+        """
+        if displacement_en is not None:
+            dx, dy = float(displacement_en[0]), float(displacement_en[1])
+        elif velocity_en is not None and dt is not None:
+            dx, dy = float(velocity_en[0]) * dt, float(velocity_en[1]) * dt
+        else:
+            raise ValueError("step() needs velocity_en and dt, or displacement_en")
+        if not (math.isfinite(dx) and math.isfinite(dy)):
+            raise ValueError(f"non-finite inertial displacement ({dx}, {dy}) at t={t}")
+        use_fix = self.gnss_likelihood.accepts(gnss_fix)
+        if not self.started:
+            return self.start_at_fix(t, gnss_fix) if use_fix else None
+        p = self.particles
+        if self._fast:
+            self._predict_and_weigh_fast(dx, dy, gnss_fix if use_fix else None)
+        else:
+            self.predictor.predict(p, dx, dy)
+            if self.map_likelihood is not None:
+                p.log_weight += self.map_likelihood.log_likelihood(p.x, p.y, out=self._loglik)
+            if use_fix:
+                p.log_weight += self.gnss_likelihood.log_likelihood(
+                    p.x, p.y, gnss_fix, self._loglik, self._tmp
+                )
+        if use_fix:
+            self.last_fix = gnss_fix
+        return self._update(t)
+
+    def _predict_and_weigh_fast(self, dx: float, dy: float, fix: GnssFix | None) -> None:
+        pred, p = self.predictor, self.particles
+        sigma_xy = max(pred.noise_floor_m, pred.noise_fraction * math.hypot(dx, dy))
+        self.rng.standard_normal(out=pred._noise)
+        if fix is None:
+            fix_args = (False, 0.0, 0.0, 0.0, 0.0)
+        else:
+            sigma = self.gnss_likelihood.sigma_factor * fix.accuracy_m
+            fix_args = (True, fix.x, fix.y, -0.5 / (sigma * sigma), -math.log(2.0 * math.pi * sigma * sigma))
+        _predict_and_weigh(
+            p.x, p.y, p.theta, p.log_weight, pred.cos_theta, pred.sin_theta, pred._noise, dx, dy,
+            sigma_xy, pred.theta_sigma, *self._map_args, *fix_args,
+        )
+
+    def _normalise_and_estimate(self) -> tuple[bool, float, float, float, float]:
+        """``(ok, x, y, theta, n_eff)`` after normalising the weights in place."""
+        p, w = self.particles, self._weights
+        c, s = self.predictor.cos_theta, self.predictor.sin_theta
+        if self._fast:
+            return _normalise_and_estimate(p.log_weight, w, p.x, p.y, c, s)
+        if not normalise_log_weights(p.log_weight, w):
+            return False, 0.0, 0.0, 0.0, 0.0
+        theta = math.atan2(float(np.dot(w, s)), float(np.dot(w, c)))
+        return True, float(np.dot(w, p.x)), float(np.dot(w, p.y)), theta, effective_sample_size(w)
+
+    def _update(self, t: float) -> Estimate:
+        """Normalise, recover from a collapse, estimate, resample."""
+        ok, x, y, theta, n_eff = self._normalise_and_estimate()
+        if not ok:
+            self._recover(t)  # leaves finite weights, so the second pass succeeds
+            _, x, y, theta, n_eff = self._normalise_and_estimate()
+        estimate = Estimate(t, x, y, theta, n_eff, not ok, self.frame)
+        if self.config.resample == "always" or n_eff < self._ess_threshold:
+            self._resample()
+        self.last_estimate = estimate
+        return estimate
+
+    def _resample(self) -> None:
+        p = self.particles
+        if not self._fast:
+            self.resampler.resample(p, self._weights)
+            return
+        x_out, y_out, theta_out = self._spare
+        _systematic_resample(self._weights, self.rng.random(), p.x, p.y, p.theta, x_out, y_out, theta_out)
+        self._spare = (p.x, p.y, p.theta)
+        p.x, p.y, p.theta = x_out, y_out, theta_out
+        p.log_weight.fill(-math.log(len(p)))
+
+    def _recover(self, t: float) -> None:
+        """Re-seed a collapsed cloud around the last estimate and the latest good fix; never NaN.
+
+        Half the particles go around the cloud's predicted centre (where the last estimate has moved
+        to), half around the latest usable fix (all of them when one of the two is missing). Drift
+        angles are kept: the heading belief is still informative. Weights then come from the map
+        alone; if even that kills every particle, they are made uniform.
+        """
+        self.recoveries += 1
+        p, n = self.particles, len(self.particles)
+        centres = []
+        cx, cy = float(np.mean(p.x)), float(np.mean(p.y))
+        if math.isfinite(cx) and math.isfinite(cy):
+            centres.append((cx, cy, self.config.recovery_sigma_m))
+        elif self.last_estimate is not None:
+            centres.append((self.last_estimate.x, self.last_estimate.y, self.config.recovery_sigma_m))
+        fix = self.last_fix
+        if fix is not None:
+            centres.append((fix.x, fix.y, self.gnss_likelihood.sigma_factor * fix.accuracy_m))
+        if not centres:
+            centres.append((0.0, 0.0, self.config.recovery_sigma_m))
+        which = np.arange(n) % len(centres)
+        cxs, cys, sig = (np.array(v)[which] for v in zip(*centres, strict=True))
+        p.x[:] = cxs + sig * self.rng.standard_normal(n)
+        p.y[:] = cys + sig * self.rng.standard_normal(n)
+        bad_theta = ~np.isfinite(p.theta)
+        p.theta[bad_theta] = 0.0
+        np.cos(p.theta, out=self.predictor.cos_theta)
+        np.sin(p.theta, out=self.predictor.sin_theta)
+        p.log_weight.fill(-math.log(n))
+        if self.map_likelihood is not None:
+            p.log_weight += self.map_likelihood.log_likelihood(p.x, p.y, out=self._loglik)
+        if not np.isfinite(p.log_weight.max()):
+            p.log_weight.fill(-math.log(n))
+        logger.warning("particle cloud collapsed at t=%.2f s: re-seeded (%d so far)", t, self.recoveries)

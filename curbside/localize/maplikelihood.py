@@ -1,0 +1,367 @@
+"""Map layers rasterised once into a grid of class codes, cached on disk, looked up by index math.
+
+The particle filter weighs every particle at every footstep by the class of the map under it. Testing
+particles against polygons is far too slow for that (see ``benchmarks/bench_filter.py``), so the map is
+rasterised once into a ``uint8`` grid of class codes and a lookup becomes two multiplications, a clip
+and a gather.
+
+Rasterisation is a vectorised scanline fill with the non-zero winding rule: every polygon edge is
+intersected with the horizontal line through the centres of each cell row it spans, each crossing
+adds the edge's direction (+1 down, -1 up) to a per-row difference array, and a cumulative sum along
+the row gives each cell centre's winding number; a cell is inside when that number is non-zero.
+Rings are first oriented (exteriors counter-clockwise, holes clockwise) so holes cancel and
+overlapping polygons of one class simply add up. Only numpy arithmetic over all edges at once; no
+polygon is tested per cell.
+
+Class codes increase with precedence, so the grid is the element-wise maximum of the class masks:
+``building`` overrides everything, ``crosswalk`` overrides ``street`` and ``sidewalk``, and
+``sidewalk`` overrides ``street`` (a sidewalk drawn over the carriageway edge is walkable).
+
+Rasters are cached under ``settings.cache_dir / "rasters"`` as ``.npz`` files named by a SHA-256 of
+the map content (CRS, classes and WKB of every polygon), the resolution and the rasteriser version.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import logging
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import pyproj
+import shapely
+from tqdm.auto import tqdm
+
+from curbside import settings
+from curbside.io import atomic_path
+from curbside.osmseg.mapio import MapLayers
+
+logger = logging.getLogger(__name__)
+
+#: Class codes in order of precedence (a higher code wins where polygons overlap).
+FREE, STREET, SIDEWALK, CROSSWALK, BUILDING = 0, 1, 2, 3, 4
+CLASS_CODES: dict[str, int] = {
+    "street": STREET, "sidewalk": SIDEWALK, "crosswalk": CROSSWALK, "building": BUILDING
+}
+
+#: Bumped whenever the rasteriser's output changes, so stale cache files are not reused.
+RASTER_FORMAT_VERSION = 1
+
+#: Rows rasterised at once: bounds the difference array's memory (rows x columns x 4 bytes).
+_ROW_BLOCK = 512
+
+
+@dataclass(frozen=True)
+class MapRaster:
+    """A grid of class codes over a map's extent in its local metric CRS.
+
+    Cell ``(i, j)`` covers ``x0 + j * resolution_m <= x < x0 + (j + 1) * resolution_m`` and the same in
+    ``y`` with row ``i`` (row 0 is the southern edge).
+
+    Attributes
+    ----------
+    codes
+        ``(rows, cols)`` ``uint8`` class codes (:data:`FREE`, :data:`STREET`, :data:`SIDEWALK`,
+        :data:`CROSSWALK`, :data:`BUILDING`).
+    x0, y0
+        South-west corner of the grid, metres in :attr:`crs`.
+    resolution_m
+        Cell size, metres.
+    crs
+        The map's metric CRS (WKT), for checks when a raster is reused.
+    """
+
+    codes: np.ndarray
+    x0: float
+    y0: float
+    resolution_m: float
+    crs: str
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        """``(rows, cols)``."""
+        return self.codes.shape
+
+    @property
+    def bounds(self) -> tuple[float, float, float, float]:
+        """``(xmin, ymin, xmax, ymax)`` of the grid, metres."""
+        rows, cols = self.codes.shape
+        return (self.x0, self.y0, self.x0 + cols * self.resolution_m, self.y0 + rows * self.resolution_m)
+
+    def contains(self, x: np.ndarray | float, y: np.ndarray | float) -> np.ndarray:
+        """Whether points lie inside the grid's extent."""
+        xmin, ymin, xmax, ymax = self.bounds
+        x, y = np.asarray(x, float), np.asarray(y, float)
+        return (x >= xmin) & (x < xmax) & (y >= ymin) & (y < ymax)
+
+    def codes_at(self, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+        """Class code under each point; :data:`FREE` outside the grid.
+
+        Parameters
+        ----------
+        x, y
+            Metres in :attr:`crs`, any matching shapes.
+
+        Returns
+        -------
+        numpy.ndarray
+            ``uint8`` codes, the shape of ``x``.
+        """
+        lookup = RasterLookup(self)
+        return lookup.codes_at(np.asarray(x, float), np.asarray(y, float))
+
+    def nearest_code_other_than(
+        self, x: float, y: float, avoid: int, max_distance_m: float
+    ) -> tuple[float, float] | None:
+        """Centre of the cell nearest to ``(x, y)`` whose code is not ``avoid``.
+
+        Searches a square window of half-size ``max_distance_m``; returns ``None`` when every cell in
+        it holds ``avoid``. A point outside the grid is returned unchanged (outside is free).
+        """
+        if not bool(self.contains(x, y)):
+            return (x, y)
+        res = self.resolution_m
+        rows, cols = self.codes.shape
+        half = int(np.ceil(max_distance_m / res))
+        i0, j0 = int((y - self.y0) // res), int((x - self.x0) // res)
+        ilo, ihi = max(i0 - half, 0), min(i0 + half + 1, rows)
+        jlo, jhi = max(j0 - half, 0), min(j0 + half + 1, cols)
+        ii, jj = np.nonzero(self.codes[ilo:ihi, jlo:jhi] != avoid)
+        if len(ii) == 0:
+            return None
+        cx = self.x0 + (jj + jlo + 0.5) * res
+        cy = self.y0 + (ii + ilo + 0.5) * res
+        k = int(np.argmin((cx - x) ** 2 + (cy - y) ** 2))
+        return float(cx[k]), float(cy[k])
+
+
+class RasterLookup:
+    """Index math from points to class codes, with preallocated buffers for a fixed particle count.
+
+    The grid is padded with one ring of :data:`FREE` cells so that clipping an index into the padded
+    grid sends every point outside the map to a free cell, without a mask.
+
+    Parameters
+    ----------
+    raster
+        The map raster.
+    """
+
+    def __init__(self, raster: MapRaster) -> None:
+        rows, cols = raster.codes.shape
+        self.raster = raster
+        self.padded = np.pad(raster.codes, 1, constant_values=FREE).ravel()
+        self.inv_res = 1.0 / raster.resolution_m
+        # Index in the padded grid = (x - (x0 - res)) / res, i.e. x * inv_res - offset.
+        self.x_offset = (raster.x0 - raster.resolution_m) * self.inv_res
+        self.y_offset = (raster.y0 - raster.resolution_m) * self.inv_res
+        self.col_max = cols + 1.5
+        self.row_max = rows + 1.5
+        self.stride = cols + 2
+        self._n = -1
+
+    def _buffers(self, n: int) -> None:
+        if n != self._n:
+            self._fx = np.empty(n)
+            self._fy = np.empty(n)
+            self._flat = np.empty(n, dtype=np.intp)
+            self._iy = np.empty(n, dtype=np.intp)
+            self._codes = np.empty(n, dtype=np.uint8)
+            self._n = n
+
+    def codes_at(self, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+        """Class codes under ``x, y`` (1-D or any shape); a view into a reused buffer for 1-D input."""
+        shape = x.shape
+        x, y = x.ravel(), y.ravel()
+        self._buffers(len(x))
+        fx, fy = self._fx, self._fy
+        np.multiply(x, self.inv_res, out=fx)
+        fx -= self.x_offset
+        np.clip(fx, 0.0, self.col_max, out=fx)  # truncation below is floor for values >= 0
+        np.multiply(y, self.inv_res, out=fy)
+        fy -= self.y_offset
+        np.clip(fy, 0.0, self.row_max, out=fy)
+        flat, iy = self._flat, self._iy
+        flat[...] = fx
+        iy[...] = fy
+        iy *= self.stride
+        flat += iy
+        np.take(self.padded, flat, out=self._codes)
+        return self._codes.reshape(shape)
+
+
+def map_hash(layers: MapLayers, resolution_m: float) -> str:
+    """SHA-256 hex digest of a map's content and the raster parameters (the cache key)."""
+    digest = hashlib.sha256()
+    digest.update(f"v{RASTER_FORMAT_VERSION};res={resolution_m!r};".encode())
+    digest.update(pyproj.CRS(layers.crs).to_wkt().encode())
+    digest.update(repr(sorted(CLASS_CODES.items())).encode())
+    for cls in layers.gdf["class"].astype(str):
+        digest.update(cls.encode())
+    for wkb in shapely.to_wkb(layers.gdf.geometry.values, output_dimension=2):
+        digest.update(wkb)
+    return digest.hexdigest()
+
+
+def _crossings(
+    geoms: np.ndarray, x0: float, y0: float, res: float, rows: int
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Row, crossing abscissa (in cells) and winding direction of every edge/row-centre crossing."""
+    polys = shapely.orient_polygons(shapely.get_parts(geoms))
+    rings = np.concatenate([shapely.get_exterior_ring(polys), *_interiors(polys)])
+    coords, ring_of = shapely.get_coordinates(rings, return_index=True)
+    same_ring = ring_of[1:] == ring_of[:-1]
+    a, b = coords[:-1][same_ring], coords[1:][same_ring]
+    # Row coordinates: cell row i has its centre at v = i + 0.5 where v = (y - y0) / res.
+    va, vb = (a[:, 1] - y0) / res, (b[:, 1] - y0) / res
+    ua, ub = (a[:, 0] - x0) / res, (b[:, 0] - x0) / res
+    lo, hi = np.minimum(va, vb), np.maximum(va, vb)
+    # Half-open [lo, hi): a vertex shared by two edges is counted once; horizontal edges never cross.
+    first = np.clip(np.ceil(lo - 0.5), 0, rows).astype(np.intp)
+    stop = np.clip(np.ceil(hi - 0.5), 0, rows).astype(np.intp)
+    counts = np.maximum(stop - first, 0)
+    edge = np.repeat(np.arange(len(counts)), counts)
+    starts = np.cumsum(counts) - counts
+    row = first[edge] + (np.arange(len(edge)) - starts[edge])
+    v = row + 0.5
+    ua, ub, va, vb = ua[edge], ub[edge], va[edge], vb[edge]
+    u = ua + (v - va) * (ub - ua) / (vb - va)
+    direction = np.where(vb < va, 1, -1).astype(np.int32)
+    return row, u, direction
+
+
+def _interiors(polys: np.ndarray) -> list[np.ndarray]:
+    counts = shapely.get_num_interior_rings(polys)
+    if counts.sum() == 0:
+        return []
+    owner = np.repeat(np.arange(len(polys)), counts)
+    index = np.arange(counts.sum()) - np.repeat(np.cumsum(counts) - counts, counts)
+    return [shapely.get_interior_ring(polys[owner], index)]
+
+
+def rasterize_mask(
+    geoms: np.ndarray, x0: float, y0: float, res: float, shape: tuple[int, int]
+) -> np.ndarray:
+    """Boolean mask of the cells whose centre lies inside any of ``geoms`` (non-zero winding).
+
+    Parameters
+    ----------
+    geoms
+        Polygons and multipolygons (metres).
+    x0, y0
+        South-west corner of the grid.
+    res
+        Cell size.
+    shape
+        ``(rows, cols)``.
+
+    Returns
+    -------
+    numpy.ndarray
+        ``bool`` array of ``shape``.
+    """
+    rows, cols = shape
+    mask = np.zeros(shape, dtype=bool)
+    if len(geoms) == 0:
+        return mask
+    row, u, direction = _crossings(np.asarray(geoms), x0, y0, res, rows)
+    # The crossing affects every cell whose centre (j + 0.5) lies right of it.
+    col = np.clip(np.ceil(u - 0.5), 0, cols).astype(np.intp)
+    order = np.argsort(row, kind="stable")
+    row, col, direction = row[order], col[order], direction[order]
+    block_starts = np.arange(0, rows, _ROW_BLOCK)
+    bounds = np.searchsorted(row, np.append(block_starts, rows))
+    for k, r0 in enumerate(block_starts):
+        s, e = bounds[k], bounds[k + 1]
+        if s == e:
+            continue
+        nrows = min(_ROW_BLOCK, rows - r0)
+        flat = (row[s:e] - r0) * (cols + 1) + col[s:e]
+        diff = np.bincount(flat, weights=direction[s:e], minlength=nrows * (cols + 1))
+        winding = np.cumsum(diff.reshape(nrows, cols + 1), axis=1)
+        mask[r0 : r0 + nrows] = winding[:, :cols] != 0
+    return mask
+
+
+def rasterize_map(
+    layers: MapLayers, resolution_m: float | None = None, margin_m: float = 0.0
+) -> MapRaster:
+    """Rasterise map layers into class codes (no cache; see :func:`load_or_build_raster`).
+
+    Parameters
+    ----------
+    layers
+        The map, in its local metric CRS.
+    resolution_m
+        Cell size (default ``settings.raster_resolution_m``).
+    margin_m
+        Free border added around the map's bounds.
+
+    Returns
+    -------
+    MapRaster
+    """
+    res = float(resolution_m or settings.raster_resolution_m)
+    if not res > 0:
+        raise ValueError(f"raster resolution must be positive, got {res}")
+    minx, miny, maxx, maxy = layers.gdf.total_bounds
+    x0 = np.floor((minx - margin_m) / res) * res
+    y0 = np.floor((miny - margin_m) / res) * res
+    cols = int(np.ceil((maxx + margin_m - x0) / res))
+    rows = int(np.ceil((maxy + margin_m - y0) / res))
+    codes = np.zeros((rows, cols), dtype=np.uint8)
+    for cls, code in tqdm(sorted(CLASS_CODES.items(), key=lambda kv: kv[1]), desc="rasterising map",
+                          unit="class", leave=False, disable=None):
+        geoms = layers.layer(cls).geometry.values
+        mask = rasterize_mask(np.asarray(geoms), x0, y0, res, (rows, cols))
+        codes[mask] = code
+        logger.debug("rasterised %d %s polygons: %d cells", len(geoms), cls, int(mask.sum()))
+    return MapRaster(codes, float(x0), float(y0), res, pyproj.CRS(layers.crs).to_wkt())
+
+
+def load_or_build_raster(
+    layers: MapLayers, resolution_m: float | None = None, cache: bool = True
+) -> MapRaster:
+    """The map's raster from the disk cache, or rasterised now and stored there.
+
+    Parameters
+    ----------
+    layers
+        The map.
+    resolution_m
+        Cell size (default ``settings.raster_resolution_m``).
+    cache
+        Read and write ``settings.cache_dir / "rasters" / <hash>.npz``.
+
+    Returns
+    -------
+    MapRaster
+    """
+    res = float(resolution_m or settings.raster_resolution_m)
+    if not cache:
+        return rasterize_map(layers, res)
+    key = map_hash(layers, res)
+    path = Path(settings.cache_dir) / "rasters" / f"{key}.npz"
+    if path.is_file():
+        try:
+            with np.load(path, allow_pickle=False) as npz:
+                raster = MapRaster(
+                    npz["codes"], float(npz["x0"]), float(npz["y0"]), float(npz["resolution_m"]),
+                    str(npz["crs"]),
+                )
+            logger.info("map raster from cache %s", path)
+            return raster
+        except (OSError, KeyError, ValueError) as exc:
+            logger.warning("ignoring unreadable raster cache %s (%s)", path, exc)
+    raster = rasterize_map(layers, res)
+    try:
+        with atomic_path(path) as tmp, open(tmp, "wb") as fh:
+            np.savez_compressed(
+                fh, codes=raster.codes, x0=raster.x0, y0=raster.y0, resolution_m=raster.resolution_m,
+                crs=np.array(raster.crs),
+            )
+        logger.info("map raster %dx%d cached at %s", *raster.shape, path)
+    except OSError as exc:
+        logger.warning("could not cache the map raster at %s (%s)", path, exc)
+    return raster

@@ -1,0 +1,117 @@
+"""Readers: every supported recording format converted into a :class:`~curbside.localize.session.Session`.
+
+:func:`read_any` recognises the format from the path:
+
+- a folder with ``imu.csv``, ``gnss.csv``...: the SPEC session folder
+  (:func:`~curbside.localize.session.read_session`);
+- a ``.zip`` or a folder of Sensor Logger CSVs (``Accelerometer.csv``...):
+  :func:`curbside.localize.readers.sensorlogger.read_sensorlogger`;
+- ``FILE.h5::TRIAL``: one IPIN/GetSensorData trial (:func:`curbside.localize.readers.ipin.read_trial`);
+  ``FILE.h5`` alone when it holds a single trial;
+- a ``.gpx`` file: a GNSS-only session (:func:`curbside.localize.readers.gpx.read_gpx`).
+
+The trial separator is ``::`` (not ``#``: ``#`` starts a comment in shells and is legal in file
+names, while ``::`` in an HDF5 file name is vanishingly rare). ``docs/sessions.md`` has the details.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from curbside.errors import CurbsideInputError
+from curbside.localize.readers import gpx, ipin, sensorlogger
+from curbside.localize.session import COLUMNS, Session, read_session, validate_table
+
+#: Separator between an HDF5 file and a trial (group) name: ``file.h5::TrialName``.
+TRIAL_SEPARATOR = "::"
+
+_H5_SUFFIXES = (".h5", ".hdf5")
+
+
+def split_trial(src: str | Path) -> tuple[Path, str | None]:
+    """Split ``FILE.h5::TRIAL`` into the file and the trial (``None`` when there is no separator)."""
+    text = str(src)
+    if TRIAL_SEPARATOR in text:
+        path, trial = text.rsplit(TRIAL_SEPARATOR, 1)
+        return Path(path), trial
+    return Path(text), None
+
+
+def detect_format(src: str | Path) -> str:
+    """Name the format of ``src``: ``spec``, ``sensorlogger``, ``ipin`` or ``gpx``.
+
+    Raises
+    ------
+    CurbsideInputError
+        ``src`` does not exist or is of no known format.
+    """
+    path, trial = split_trial(src)
+    if trial is not None or path.suffix.lower() in _H5_SUFFIXES:
+        return "ipin"
+    if not path.exists():
+        raise CurbsideInputError(path, "no such file or folder")
+    if path.is_dir():
+        if any((path / f"{kind}.csv").is_file() for kind in COLUMNS):
+            return "spec"
+        if sensorlogger.looks_like_export(path):
+            return "sensorlogger"
+        raise CurbsideInputError(
+            path, "folder is neither a session folder (imu.csv, gnss.csv...) nor a Sensor Logger export"
+        )
+    suffix = path.suffix.lower()
+    if suffix == ".zip":
+        return "sensorlogger"
+    if suffix == ".gpx":
+        return "gpx"
+    raise CurbsideInputError(path, "unknown format (expected a folder, .zip, .h5[::TRIAL] or .gpx)")
+
+
+def read_any(src: str | Path, *, route: str | Path | None = None) -> Session:
+    """Read any supported recording as a session.
+
+    Parameters
+    ----------
+    src
+        A SPEC session folder, a Sensor Logger ``.zip`` or folder, ``FILE.h5::TRIAL`` (or a
+        single-trial ``FILE.h5``), or a ``.gpx`` file.
+
+    Returns
+    -------
+    Session
+
+    Raises
+    ------
+    CurbsideInputError
+        Missing source, unknown format, an ``.h5`` with several trials and none named, or any
+        problem the format's reader reports.
+    """
+    kind = detect_format(src)
+    if route is not None and kind != "sensorlogger":
+        raise CurbsideInputError(route, "a route file applies to Sensor Logger exports only")
+    if kind == "spec":
+        return read_session(src)
+    if kind == "sensorlogger":
+        session = sensorlogger.read_sensorlogger(src, route=route)
+    elif kind == "gpx":
+        session = gpx.read_gpx(src)
+    else:
+        session = _read_h5(src)
+    # Foreign readers repair what they can; the session schema (e.g. lat/lon ranges) is checked here.
+    for stem, table in session.tables().items():
+        setattr(session, stem, validate_table(stem, table, f"{src} ({stem})"))
+    return session
+
+
+def _read_h5(src: str | Path) -> Session:
+    path, trial = split_trial(src)
+    if trial is None:
+        trials = ipin.list_trials(path)
+        if len(trials) != 1:
+            raise CurbsideInputError(
+                path, f"holds {len(trials)} trials; name one as {path}{TRIAL_SEPARATOR}TRIAL"
+            )
+        trial = trials[0]
+    return ipin.read_trial(path, trial)
+
+
+__all__ = ["TRIAL_SEPARATOR", "detect_format", "read_any", "split_trial"]

@@ -1,0 +1,132 @@
+"""What every foreign-format reader does before handing a table to the session model.
+
+Foreign logs are messy in known ways: rows out of time order, exact duplicates written twice, NaN
+rows from a sensor that was not ready. These are repaired (sorted, de-duplicated, dropped) and
+counted in the log; anything that cannot be repaired (a missing column, no rows left, repeated
+timestamps carrying different values) raises :class:`~curbside.errors.CurbsideInputError`.
+"""
+
+from __future__ import annotations
+
+import logging
+from os import PathLike
+
+import numpy as np
+import pandas as pd
+
+from curbside.errors import CurbsideInputError
+
+logger = logging.getLogger(__name__)
+
+
+def tidy_table(
+    table: pd.DataFrame,
+    source: str | PathLike[str],
+    required: list[str] | tuple[str, ...],
+    nullable: tuple[str, ...] = (),
+) -> pd.DataFrame:
+    """Sort by ``t``, drop exact duplicates and NaN rows, and check what is left.
+
+    Parameters
+    ----------
+    table
+        A table with a ``t`` column (seconds) and the ``required`` columns, already renamed to
+        session column names.
+    source
+        File (or ``file::trial``) named in log lines and errors.
+    required
+        Columns that must be present, numeric and finite.
+    nullable
+        Columns that may hold NaN (e.g. a missing GNSS accuracy, which marks an invalid fix).
+
+    Returns
+    -------
+    pandas.DataFrame
+        The ``required`` columns as float, strictly increasing in ``t``, index reset.
+
+    Raises
+    ------
+    CurbsideInputError
+        A required column is missing or non-numeric, no row survives, or two rows share a
+        timestamp with different values.
+    """
+    missing = [c for c in required if c not in table.columns]
+    if missing:
+        raise CurbsideInputError(source, f"missing column(s) {missing}")
+    try:
+        out = table[list(required)].apply(pd.to_numeric, errors="raise").astype(float)
+    except (ValueError, TypeError) as exc:
+        raise CurbsideInputError(source, f"non-numeric value ({exc})") from None
+    n_in = len(out)
+    strict = [c for c in required if c not in nullable]
+    finite = np.isfinite(out[strict].to_numpy()).all(axis=1)
+    if not finite.all():
+        logger.info("%s: dropped %d row(s) holding NaN/inf", source, int((~finite).sum()))
+        out = out[finite]
+    if not out["t"].is_monotonic_increasing:
+        logger.info("%s: rows were out of time order; sorted", source)
+        out = out.sort_values("t", kind="stable")
+    duplicated = out.duplicated(keep="first")
+    if duplicated.any():
+        logger.info("%s: dropped %d exact duplicate row(s)", source, int(duplicated.sum()))
+        out = out[~duplicated]
+    if len(out) == 0:
+        raise CurbsideInputError(source, f"no usable rows (read {n_in})")
+    same_t = out["t"].duplicated(keep=False)
+    if same_t.any():
+        t = out.loc[same_t, "t"].iat[0]
+        raise CurbsideInputError(source, f"conflicting rows share timestamp t={t!r}")
+    return out.reset_index(drop=True)
+
+
+#: Standard gravity (m/s^2), the factor between accelerometers logging in g and in m/s^2.
+STANDARD_GRAVITY = 9.80665
+
+
+def accelerometer_ms2(acce: pd.DataFrame, source: str | PathLike[str], block: int = 25) -> pd.DataFrame:
+    """Check that ``ax,ay,az`` include gravity and are in m/s^2; convert from g if they are in g.
+
+    Averaged over a fraction of a second, an accelerometer that includes gravity reads about 1 g
+    whatever the phone does, while a gravity-free "user acceleration" stream averages to about 0
+    (its instantaneous magnitude, about 1 m/s^2 when walking, would pass for 1 g). So the median
+    magnitude of block means of ``block`` samples tells the cases apart: about 9.8 means m/s^2,
+    about 1 means g (converted, with a log line), anything else is an error.
+
+    Parameters
+    ----------
+    acce
+        Table with ``ax,ay,az``.
+    source
+        File named in log lines and errors.
+    block
+        Samples per block mean (25 = 0.5 s at 50 Hz).
+
+    Returns
+    -------
+    pandas.DataFrame
+        A copy with ``ax,ay,az`` in m/s^2.
+
+    Raises
+    ------
+    CurbsideInputError
+        The gravity level is neither about 1 g nor about 9.8 m/s^2.
+    """
+    xyz = acce[["ax", "ay", "az"]].to_numpy(float)
+    n_blocks = len(xyz) // block
+    if n_blocks:
+        means = xyz[: n_blocks * block].reshape(n_blocks, block, 3).mean(axis=1)
+    else:
+        means = xyz.mean(axis=0, keepdims=True)
+    level = float(np.median(np.linalg.norm(means, axis=1)))
+    out = acce.copy()
+    if 0.8 * STANDARD_GRAVITY <= level <= 1.2 * STANDARD_GRAVITY:
+        return out
+    if 0.8 <= level <= 1.2:
+        logger.info("%s: accelerometer in g (gravity level %.2f); converted to m/s^2", source, level)
+        out[["ax", "ay", "az"]] *= STANDARD_GRAVITY
+        return out
+    raise CurbsideInputError(
+        source,
+        f"accelerometer gravity level {level:.2f} is neither ~9.8 m/s^2 nor ~1 g "
+        "(gravity must be included)",
+    )

@@ -1,0 +1,158 @@
+"""GetSensorData logs of the IPIN 2023 competition (Track 3), as packed in one HDF5 file.
+
+The file (``../shared/data/ipin2023/ipin2023-t3.h5``, see its README) holds one group per trial with
+``acce``, ``gyro``, ``rotvec`` (Android rotation vector, device-to-ENU quaternion ``qx,qy,qz,qw``),
+``gnss`` and ``posi`` (surveyed waypoints) on one clock ``t_s``. A trial becomes a
+:class:`~curbside.localize.session.Session`:
+
+- ``imu``: accelerometer samples, with the gyroscope (100 Hz on the Galaxy A5) and the quaternion
+  interpolated onto them (:func:`~curbside.localize.readers._resample.merge_imu`);
+- ``gnss``: fixes without the network (cell) locations, which the logger marks with ``alt == 0``;
+  ``accuracy_m`` is Android's ``getAccuracy()``;
+- ``waypoints``: the POSI lines (``t,lat,lon``); their floors go to ``meta["waypoint_floors"]``;
+- ``meta``: ``start`` = the first POSI, heading towards the second, and its time ``t``; the device,
+  the floors visited and the source.
+
+A trial is addressed as ``FILE.h5::TRIAL`` (see :func:`curbside.localize.readers.read_any`);
+``TRIAL`` is the group name or the part after ``IPIN2023_T3_``, e.g. ``TrainingTrial01_repetition01``.
+"""
+
+from __future__ import annotations
+
+import logging
+from pathlib import Path
+
+import h5py
+import numpy as np
+import pandas as pd
+import pyproj
+
+from curbside.errors import CurbsideInputError
+from curbside.localize.readers._resample import merge_imu
+from curbside.localize.readers._tidy import accelerometer_ms2, tidy_table
+from curbside.localize.session import Session
+
+logger = logging.getLogger(__name__)
+
+_GEOD = pyproj.Geod(ellps="WGS84")
+_REQUIRED = ("acce", "gyro", "rotvec", "gnss", "posi")
+
+
+def _open(path: str | Path) -> h5py.File:
+    path = Path(path)
+    if not path.is_file():
+        raise CurbsideInputError(path, "no such file")
+    try:
+        return h5py.File(path, "r")
+    except OSError as exc:
+        raise CurbsideInputError(path, f"not a readable HDF5 file ({exc})") from None
+
+
+def list_trials(path: str | Path) -> list[str]:
+    """Names of the trial groups in an IPIN HDF5 file, in file order.
+
+    Parameters
+    ----------
+    path
+        The ``.h5`` file.
+
+    Returns
+    -------
+    list of str
+        Group names, e.g. ``IPIN2023_T3_TrainingTrial01_repetition01``.
+
+    Raises
+    ------
+    CurbsideInputError
+        Missing or unreadable file, or no group holding the IPIN datasets.
+    """
+    with _open(path) as f:
+        names = [n for n, g in f.items() if isinstance(g, h5py.Group) and all(k in g for k in _REQUIRED)]
+    if not names:
+        raise CurbsideInputError(path, f"no trial groups with datasets {list(_REQUIRED)}")
+    return names
+
+
+def _resolve(f: h5py.File, path: str | Path, trial: str) -> str:
+    if trial in f:
+        return trial
+    matches = [n for n in f if n.endswith("_" + trial)]
+    if len(matches) == 1:
+        return matches[0]
+    raise CurbsideInputError(f"{path}::{trial}", "no such trial (see `localize convert FILE.h5 --list`)")
+
+
+def _table(g: h5py.Group, name: str, columns: list[str], source: str) -> pd.DataFrame:
+    data = g[name][:]
+    # float32 -> float64 through the shortest decimal repr, so 0.0679 stays 0.0679 in the CSV.
+    data = data.astype(str).astype(float) if data.dtype == np.float32 else np.asarray(data, dtype=float)
+    if data.ndim != 2 or data.shape[1] < len(columns):
+        raise CurbsideInputError(
+            source, f"dataset {name!r} has shape {data.shape}, expected (N, >={len(columns)})"
+        )
+    return pd.DataFrame(data[:, : len(columns)], columns=columns)
+
+
+def read_trial(path: str | Path, trial: str) -> Session:
+    """Read one IPIN trial as a session.
+
+    Parameters
+    ----------
+    path
+        The ``.h5`` file.
+    trial
+        Group name, or its suffix after ``IPIN2023_T3_``.
+
+    Returns
+    -------
+    Session
+        ``imu``, ``gnss``, ``waypoints`` and ``meta`` (start pose, device, floors, source).
+
+    Raises
+    ------
+    CurbsideInputError
+        Missing/unreadable file, unknown trial, missing or malformed datasets, no usable rows.
+    """
+    with _open(path) as f:
+        name = _resolve(f, path, trial)
+        source = f"{Path(path).name}::{name}"
+        g = f[name]
+        missing = [k for k in _REQUIRED if k not in g]
+        if missing:
+            raise CurbsideInputError(source, f"missing dataset(s) {missing}")
+        acce = _table(g, "acce", ["t", "ax", "ay", "az"], source)
+        gyro = _table(g, "gyro", ["t", "gx", "gy", "gz"], source)
+        quat = _table(g, "rotvec", ["t", "qx", "qy", "qz", "qw"], source)
+        gnss = _table(g, "gnss", ["t", "lat", "lon", "alt", "bearing", "accuracy_m"], source)
+        posi = _table(g, "posi", ["t", "lat", "lon", "floor"], source)
+        attrs = dict(g.attrs)
+
+    acce = accelerometer_ms2(tidy_table(acce, f"{source}/acce", acce.columns), f"{source}/acce")
+    gyro = tidy_table(gyro, f"{source}/gyro", gyro.columns)
+    quat = tidy_table(quat, f"{source}/rotvec", quat.columns)
+    imu = merge_imu(acce, gyro, quat, source)
+
+    network = gnss["alt"] == 0
+    if network.any():
+        logger.info("%s: dropped %d network (alt == 0) fix(es)", source, int(network.sum()))
+    gnss = tidy_table(gnss[~network], f"{source}/gnss", ["t", "lat", "lon", "accuracy_m"],
+                      nullable=("accuracy_m",)) if (~network).any() else None
+    posi = tidy_table(posi, f"{source}/posi", ["t", "lat", "lon", "floor"])
+    waypoints = posi[["t", "lat", "lon"]]
+
+    meta: dict = {
+        "source": {"format": "ipin2023-h5", "file": Path(path).name, "trial": name},
+        "device": f"{attrs.get('device_manufacturer', '')} {attrs.get('device_model', '')}".strip(),
+        "floors": [int(x) for x in np.atleast_1d(attrs.get("floors", posi["floor"].unique()))],
+        "waypoint_floors": [int(x) for x in posi["floor"]],
+    }
+    if len(posi) >= 2:
+        lon, lat = posi["lon"].to_numpy(), posi["lat"].to_numpy()
+        heading, _, _ = _GEOD.inv(lon[0], lat[0], lon[1], lat[1])
+        meta["start"] = {
+            "lat": float(posi["lat"].iat[0]),
+            "lon": float(posi["lon"].iat[0]),
+            "heading_deg": float(heading % 360.0),
+            "t": float(posi["t"].iat[0]),
+        }
+    return Session(name=name.removeprefix("IPIN2023_T3_"), imu=imu, gnss=gnss, waypoints=waypoints, meta=meta)

@@ -1,0 +1,237 @@
+"""Training RoNIN: seeded, resumable, validated every epoch, best weights kept.
+
+One epoch draws ``windows_per_epoch`` labelled windows from the training recordings (without
+replacement, by a generator seeded from ``seed`` and the epoch number, so a resumed run draws the
+same windows), rotates each window and its target by a random yaw (RoNIN's augmentation: the
+network must not learn the world frame's arbitrary heading), and minimises the mean squared
+velocity error with Adam and a cosine learning-rate schedule. Validation uses held-out recordings,
+unrotated. A checkpoint (model, optimiser, schedule, history) is written after every epoch; the
+weights with the lowest validation loss are saved as a plain ``state_dict`` plus a JSON config.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import math
+import os
+import time
+from dataclasses import asdict, dataclass
+from pathlib import Path
+
+import numpy as np
+import torch
+from torch import nn
+from tqdm.auto import tqdm
+
+from curbside.io import atomic_path
+from curbside.localize.ronin.data import WindowSet
+from curbside.localize.ronin.infer import config_path_for
+from curbside.localize.ronin.model import RoninConfig, RoninResNet, count_parameters
+
+logger = logging.getLogger(__name__)
+
+
+@dataclass
+class TrainOptions:
+    """Knobs of :func:`train`.
+
+    Attributes
+    ----------
+    arch
+        ``"compact"`` or ``"resnet18"``.
+    epochs
+        Number of epochs.
+    windows_per_epoch
+        Training windows drawn per epoch (all of them when larger than the set).
+    batch_size, lr, weight_decay
+        Optimiser settings (Adam, cosine decay to ``lr / 100``).
+    seed
+        Seeds weight initialisation, window draws, yaw augmentation and dropout.
+    device
+        ``"cpu"``, ``"cuda"``...
+    num_threads
+        CPU threads for torch (2 on the shared development machine).
+    val_every
+        Use every n-th validation window (validation cost).
+    """
+
+    arch: str = "compact"
+    epochs: int = 12
+    windows_per_epoch: int = 120_000
+    batch_size: int = 256
+    lr: float = 1e-3
+    weight_decay: float = 1e-4
+    seed: int = 0
+    device: str = "cpu"
+    num_threads: int = 2
+    val_every: int = 2
+
+
+def normalisation_stats(features: np.ndarray) -> tuple[list[float], list[float]]:
+    """Per-channel mean and std that commute with yaw rotations.
+
+    Horizontal channels (x, y of the gyroscope and of the accelerometer) get mean 0 and one pooled
+    standard deviation, so that normalising then rotating equals rotating then normalising.
+    """
+    f = features.astype(np.float64)
+    mean = np.zeros(6)
+    std = np.ones(6)
+    for base in (0, 3):
+        xy = f[:, base : base + 2]
+        std[base : base + 2] = np.sqrt(np.mean(xy**2))
+        mean[base + 2] = f[:, base + 2].mean()
+        std[base + 2] = f[:, base + 2].std()
+    return mean.tolist(), np.maximum(std, 1e-6).tolist()
+
+
+def rotate_yaw(x: torch.Tensor, y: torch.Tensor, angle: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """Rotate windows ``(B, 6, W)`` and targets ``(B, 2)`` about the vertical by ``angle`` (B,) rad."""
+    c, s = torch.cos(angle), torch.sin(angle)
+    rot = torch.stack([torch.stack([c, -s], -1), torch.stack([s, c], -1)], -2)  # (B, 2, 2)
+    x = x.clone()
+    for base in (0, 3):
+        x[:, base : base + 2] = torch.einsum("bij,bjw->biw", rot, x[:, base : base + 2])
+    return x, torch.einsum("bij,bj->bi", rot, y)
+
+
+class WindowBatcher:
+    """Gathers ``(B, 6, W)`` windows and ``(B, 2)`` targets of a :class:`WindowSet` on a device."""
+
+    def __init__(self, windows: WindowSet, device: torch.device) -> None:
+        self.features = torch.from_numpy(windows.features).to(device)
+        self.starts = torch.from_numpy(windows.starts).to(device)
+        self.targets = torch.from_numpy(windows.targets).to(device)
+        self.offsets = torch.arange(windows.window, device=device)
+
+    def __len__(self) -> int:
+        return len(self.starts)
+
+    def batch(self, index: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """Windows and targets of the window numbers ``index``."""
+        rows = self.starts[index, None] + self.offsets  # (B, W)
+        return self.features[rows].permute(0, 2, 1), self.targets[index]
+
+
+def _set_determinism(seed: int, device: torch.device) -> None:
+    torch.manual_seed(seed)
+    if device.type == "cuda":
+        os.environ.setdefault("CUBLAS_WORKSPACE_CONFIG", ":4096:8")
+        torch.backends.cudnn.benchmark = False
+    torch.use_deterministic_algorithms(True, warn_only=True)
+
+
+def evaluate_loss(model: nn.Module, batcher: WindowBatcher, every: int = 1, batch_size: int = 4096) -> float:
+    """Mean squared velocity error over every ``every``-th window (no augmentation)."""
+    model.eval()
+    index = torch.arange(0, len(batcher), every, device=batcher.starts.device)
+    total, count = 0.0, 0
+    with torch.inference_mode():
+        for lo in range(0, len(index), batch_size):
+            x, y = batcher.batch(index[lo : lo + batch_size])
+            total += float(((model(x) - y) ** 2).sum())
+            count += y.numel()
+    return total / max(count, 1)
+
+
+def save_weights(model: RoninResNet, path: str | Path) -> Path:
+    """Write ``path`` (state_dict) and its JSON config beside it, atomically."""
+    path = Path(path)
+    with atomic_path(path) as tmp:
+        torch.save({k: v.detach().cpu() for k, v in model.state_dict().items()}, tmp)
+    with atomic_path(config_path_for(path)) as tmp:
+        tmp.write_text(json.dumps(model.config.to_dict(), indent=1), encoding="utf-8")
+    return path
+
+
+def train(train_set: WindowSet, val_set: WindowSet, options: TrainOptions, out: str | Path,
+          checkpoint: str | Path | None = None, extra: dict | None = None,
+          progress: bool = True) -> list[dict]:
+    """Train a RoNIN model and save the best-on-validation weights to ``out``.
+
+    Parameters
+    ----------
+    train_set, val_set
+        Windows of the training and validation recordings (split by recording).
+    options
+        See :class:`TrainOptions`.
+    out
+        Weights path (``.pt``; the config goes to ``.json`` beside it).
+    checkpoint
+        Resumable state, written after each epoch; training resumes from it when it exists.
+    extra
+        Stored in the config's ``extra`` (data sources, split...).
+    progress
+        Show tqdm bars.
+
+    Returns
+    -------
+    list of dict
+        Per epoch: ``epoch``, ``train_loss``, ``val_loss``, ``lr``, ``seconds``.
+    """
+    device = torch.device(options.device)
+    if device.type == "cpu":
+        torch.set_num_threads(options.num_threads)
+    _set_determinism(options.seed, device)
+    mean, std = normalisation_stats(train_set.features)
+    config = RoninConfig.for_arch(options.arch, window=train_set.window, rate_hz=train_set.rate_hz,
+                                  feature_mean=mean, feature_std=std,
+                                  extra={"train_options": asdict(options), **(extra or {})})
+    model = RoninResNet(config).to(device)
+    optimiser = torch.optim.Adam(model.parameters(), lr=options.lr, weight_decay=options.weight_decay)
+    schedule = torch.optim.lr_scheduler.CosineAnnealingLR(optimiser, options.epochs, eta_min=options.lr / 100)
+    history: list[dict] = []
+    best = math.inf
+    start_epoch = 0
+    if checkpoint is not None and Path(checkpoint).is_file():
+        state = torch.load(checkpoint, map_location=device, weights_only=True)
+        model.load_state_dict(state["model"])
+        optimiser.load_state_dict(state["optimiser"])
+        schedule.load_state_dict(state["schedule"])
+        history = json.loads(state["history"])
+        best = min((h["val_loss"] for h in history), default=math.inf)
+        start_epoch = len(history)
+        logger.info("resumed from %s at epoch %d", checkpoint, start_epoch)
+    logger.info("%s: %d parameters, %d train / %d val windows", options.arch, count_parameters(model),
+                len(train_set), len(val_set))
+    train_b, val_b = WindowBatcher(train_set, device), WindowBatcher(val_set, device)
+    n_draw = min(options.windows_per_epoch, len(train_b))
+    for epoch in range(start_epoch, options.epochs):
+        tic = time.perf_counter()
+        gen = torch.Generator().manual_seed(options.seed * 100_003 + epoch)
+        torch.manual_seed(options.seed * 100_003 + epoch)
+        order = torch.randperm(len(train_b), generator=gen)[:n_draw].to(device)
+        angles = (torch.rand(n_draw, generator=gen) * 2 * math.pi).to(device)
+        model.train()
+        total, seen = 0.0, 0
+        bar = tqdm(range(0, n_draw, options.batch_size), desc=f"epoch {epoch + 1}/{options.epochs}",
+                   disable=not progress, leave=False)
+        for lo in bar:
+            idx = order[lo : lo + options.batch_size]
+            x, y = rotate_yaw(*train_b.batch(idx), angles[lo : lo + options.batch_size])
+            loss = nn.functional.mse_loss(model(x), y)
+            optimiser.zero_grad(set_to_none=True)
+            loss.backward()
+            optimiser.step()
+            total += loss.item() * len(idx)
+            seen += len(idx)
+            bar.set_postfix(loss=f"{total / seen:.4f}")
+        lr = optimiser.param_groups[0]["lr"]
+        schedule.step()
+        val_loss = evaluate_loss(model, val_b, options.val_every) if len(val_b) else total / seen
+        record = {"epoch": epoch + 1, "train_loss": total / seen, "val_loss": val_loss, "lr": lr,
+                  "seconds": time.perf_counter() - tic}
+        history.append(record)
+        logger.info("epoch %d: train %.4f val %.4f (%.0f s)", epoch + 1, record["train_loss"], val_loss,
+                    record["seconds"])
+        if val_loss < best:
+            best = val_loss
+            model.config.extra["best_epoch"] = epoch + 1
+            model.config.extra["val_loss"] = val_loss
+            model.config.extra["history"] = history
+            save_weights(model, out)
+        if checkpoint is not None:
+            with atomic_path(checkpoint) as tmp:
+                torch.save({"model": model.state_dict(), "optimiser": optimiser.state_dict(),
+                            "schedule": schedule.state_dict(), "history": json.dumps(history)}, tmp)
+    return history

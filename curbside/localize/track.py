@@ -1,0 +1,110 @@
+"""Writing a track: ``track.csv``, ``track.geojson``, ``run.json`` and optional ``particles.npz``.
+
+Everything goes into one output folder, written atomically: the folder is assembled under a temporary
+name and renamed into place only when every file is complete.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pandas as pd
+
+from curbside.io import atomic_path
+from curbside.localize.pipeline import TrackResult
+
+#: Decimal places of lon/lat in ``track.geojson`` (1e-7 degree is about 1 cm).
+COORD_DECIMALS = 7
+
+
+def _json_value(value: Any) -> Any:
+    if isinstance(value, np.generic):
+        value = value.item()
+    if isinstance(value, float) and not np.isfinite(value):
+        return None
+    return value
+
+
+def track_geojson(track: pd.DataFrame, properties: dict[str, Any] | None = None) -> dict[str, Any]:
+    """The track as a GeoJSON FeatureCollection: a LineString (two rows or more), then a Point per row.
+
+    Parameters
+    ----------
+    track
+        Rows with ``t, lat, lon`` and any other columns (they become Point properties).
+    properties
+        Properties of the LineString feature (mode, seed...).
+
+    Returns
+    -------
+    dict
+        RFC 7946 GeoJSON (WGS84 lon/lat).
+    """
+    lon = np.round(track["lon"].to_numpy(float), COORD_DECIMALS)
+    lat = np.round(track["lat"].to_numpy(float), COORD_DECIMALS)
+    coords = np.column_stack([lon, lat]).tolist()
+    features: list[dict[str, Any]] = []
+    if len(coords) >= 2:  # RFC 7946: a LineString has two or more positions
+        features.append(
+            {
+                "type": "Feature",
+                "properties": {"kind": "track", **(properties or {})},
+                "geometry": {"type": "LineString", "coordinates": coords},
+            }
+        )
+    columns = [c for c in track.columns if c not in ("lat", "lon")]
+    records = track[columns].to_dict(orient="records")
+    for point, record in zip(coords, records, strict=True):
+        features.append(
+            {
+                "type": "Feature",
+                "properties": {"kind": "footstep", **{k: _json_value(v) for k, v in record.items()}},
+                "geometry": {"type": "Point", "coordinates": point},
+            }
+        )
+    return {"type": "FeatureCollection", "features": features}
+
+
+def write_track(result: TrackResult, out_dir: str | Path, run_info: dict[str, Any] | None = None) -> Path:
+    """Write a :class:`TrackResult` into ``out_dir`` (replaced if it exists), atomically.
+
+    Files: ``track.csv`` (one row per footstep), ``track.geojson``, ``run.json`` (the method, the inputs
+    used, the number of collapses and ``run_info``) and, when the result holds snapshots,
+    ``particles.npz`` (``t``, ``x``, ``y``, ``theta`` per footstep; x/y relative to ``origin``).
+
+    Parameters
+    ----------
+    result
+        The output of :func:`curbside.localize.pipeline.track_session`.
+    out_dir
+        Destination folder.
+    run_info
+        Extra parameters recorded in ``run.json`` (seed, particles, map...).
+
+    Returns
+    -------
+    pathlib.Path
+        ``out_dir``.
+    """
+    out_dir = Path(out_dir)
+    info = {
+        "mode": result.mode,
+        "velocity_source": result.velocity_source,
+        "step_source": result.step_source,
+        "rows": len(result.track),
+        "recoveries": result.recoveries,
+        **(run_info or {}),
+    }
+    with atomic_path(out_dir) as tmp:
+        tmp.mkdir()
+        result.track.to_csv(tmp / "track.csv", index=False, float_format="%.10g")
+        doc = track_geojson(result.track, {"mode": result.mode})
+        (tmp / "track.geojson").write_text(json.dumps(doc, separators=(",", ":")), encoding="utf-8")
+        (tmp / "run.json").write_text(json.dumps(info, indent=2, default=_json_value), encoding="utf-8")
+        if result.snapshots is not None:
+            with open(tmp / "particles.npz", "wb") as fh:
+                np.savez_compressed(fh, **result.snapshots)
+    return out_dir

@@ -1,0 +1,242 @@
+"""``osmseg build``: OpenStreetMap -> building, street, crosswalk and sidewalk polygons.
+
+:func:`build_map` picks the source (a file, the bundled extract or Overpass), reads it into an
+:class:`~curbside.osmseg.reader.OsmData` and runs the stages, one module each:
+:mod:`~curbside.osmseg.buildings`, :mod:`~curbside.osmseg.streets`,
+:mod:`~curbside.osmseg.crosswalks`, :mod:`~curbside.osmseg.sidewalks`. Precedence makes the classes
+disjoint: buildings (after passages are carved) win over crosswalks, crosswalks over street, and
+sidewalks take only what none of the three cover.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import sys
+from pathlib import Path
+from typing import Any
+
+import geopandas as gpd
+import numpy as np
+import pandas as pd
+import shapely
+from tqdm import tqdm
+
+import curbside
+from curbside import settings
+from curbside.errors import CurbsideInputError
+from curbside.osmseg.buildings import buildings as derive_buildings
+from curbside.osmseg.crosswalks import UNMARKED_CHOICES
+from curbside.osmseg.crosswalks import crosswalks as derive_crosswalks
+from curbside.osmseg.mapio import MapLayers
+from curbside.osmseg.reader import OsmData, read_osm_file
+from curbside.osmseg.sidewalks import sidewalk_segments
+from curbside.osmseg.streets import carriageways
+from curbside.projection import LocalFrame
+
+log = logging.getLogger(__name__)
+
+BBox = tuple[float, float, float, float]
+
+
+def check_bbox(bbox: BBox, source: str = "--bbox") -> BBox:
+    """Validate a (west, south, east, north) bbox in WGS84 degrees.
+
+    Raises
+    ------
+    CurbsideInputError
+        Not four finite numbers, W >= E or S >= N, outside lon/lat ranges, or larger than
+        ``settings.max_bbox_area_km2``.
+    """
+    try:
+        west, south, east, north = (float(v) for v in bbox)
+    except (TypeError, ValueError):
+        raise CurbsideInputError(source, "expected four numbers: west south east north") from None
+    if not all(math.isfinite(v) for v in (west, south, east, north)):
+        raise CurbsideInputError(source, "coordinates must be finite numbers")
+    if not (-180 <= west <= 180 and -180 <= east <= 180 and -90 <= south <= 90 and -90 <= north <= 90):
+        raise CurbsideInputError(source, "outside the lon/lat range (lon -180..180, lat -90..90)")
+    if west >= east:
+        raise CurbsideInputError(source, f"west ({west}) must be less than east ({east})")
+    if south >= north:
+        raise CurbsideInputError(source, f"south ({south}) must be less than north ({north})")
+    area = bbox_area_km2((west, south, east, north))
+    if area > settings.max_bbox_area_km2:
+        raise CurbsideInputError(
+            source, f"area {area:.1f} km^2 exceeds the {settings.max_bbox_area_km2:g} km^2 limit; split it"
+        )
+    return west, south, east, north
+
+
+def bbox_area_km2(bbox: BBox) -> float:
+    """Approximate area of a WGS84 bbox in km^2 (spherical Earth)."""
+    west, south, east, north = bbox
+    r_km = 6371.0088
+    band = math.sin(math.radians(north)) - math.sin(math.radians(south))
+    return r_km**2 * math.radians(east - west) * band
+
+
+def _inside(inner: BBox, outer: BBox) -> bool:
+    return outer[0] <= inner[0] and outer[1] <= inner[1] and inner[2] <= outer[2] and inner[3] <= outer[3]
+
+
+def load_osm(bbox: BBox | None, osm_file: str | Path | None) -> tuple[OsmData, BBox | None]:
+    """Read the OSM elements for a build: a file, the bundled extract, or Overpass.
+
+    Returns
+    -------
+    (OsmData, bbox)
+        ``bbox`` is the area to clip to (None: the whole file).
+    """
+    if bbox is not None:
+        bbox = check_bbox(bbox)
+    if osm_file is not None:
+        return read_osm_file(osm_file, bbox), bbox
+    if bbox is None:
+        bbox = settings.default_bbox
+    if _inside(bbox, settings.default_extract_bbox):
+        return read_osm_file(settings.default_osm_file, bbox), bbox
+    from curbside.osmseg.overpass import fetch_overpass
+
+    return fetch_overpass(bbox), bbox
+
+
+def _window(bbox: BBox | None, crs) -> shapely.Geometry | None:
+    if bbox is None:
+        return None
+    frame = LocalFrame(crs)
+    x, y = frame.to_xy(np.array([bbox[0], bbox[2], bbox[0], bbox[2]]), np.array([bbox[1], bbox[1], bbox[3], bbox[3]]))
+    return shapely.convex_hull(shapely.multipoints(np.column_stack([x, y])))
+
+
+def _layer(cls: str, geoms, crs) -> gpd.GeoDataFrame:
+    """Single polygons of one class (multi-part results exploded, slivers dropped)."""
+    parts = shapely.get_parts(shapely.make_valid(np.asarray(geoms, dtype=object)))
+    parts = parts[(shapely.get_type_id(parts) == 3) & (shapely.area(parts) >= settings.min_polygon_area_m2)]
+    return gpd.GeoDataFrame({"class": [cls] * len(parts)}, geometry=parts, crs=crs)
+
+
+def build_params(unmarked_as: str) -> dict[str, Any]:
+    """The widths and rules a build used (the ``params`` metadata member)."""
+    return {
+        "unmarked_as": unmarked_as,
+        "default_carriageway_width_m": dict(settings.default_carriageway_width_m),
+        "lane_width_m": settings.lane_width_m,
+        "parking_width_m": dict(settings.parking_width_m),
+        "cycle_lane_width_m": settings.cycle_lane_width_m,
+        "sidewalk_depth_m": settings.sidewalk_depth_m,
+        "mapped_sidewalk_width_m": settings.mapped_sidewalk_width_m,
+        "crosswalk_width_m": settings.crosswalk_width_m,
+        "crosswalk_overlap_m": settings.crosswalk_overlap_m,
+        "passage_width_m": settings.passage_width_m,
+        "sidewalk_highways": sorted(settings.sidewalk_highways),
+    }
+
+
+def derive_layers(osm: OsmData, unmarked_as: str = settings.unmarked_crossing_as) -> gpd.GeoDataFrame:
+    """Run the derivation stages on OSM elements.
+
+    Parameters
+    ----------
+    osm
+        Elements in a metric CRS.
+    unmarked_as
+        ``"crosswalk"`` or ``"street"``.
+
+    Returns
+    -------
+    geopandas.GeoDataFrame
+        Columns ``class``, ``segment_id``, ``street``, ``side``, ``geometry`` (CRS of ``osm``).
+    """
+    if unmarked_as not in UNMARKED_CHOICES:
+        raise CurbsideInputError("--unmarked-as", f"must be one of {', '.join(UNMARKED_CHOICES)}")
+    stages = tqdm(total=4, desc="osmseg build", unit="stage", disable=not sys.stderr.isatty(), leave=False)
+    with stages:
+        blds = derive_buildings(osm.areas, osm.ways)
+        building_union = shapely.union_all(blds.geometry.values)
+        stages.update()
+        cways = carriageways(osm.ways)
+        stages.update()
+        walks = shapely.difference(derive_crosswalks(osm.ways, osm.nodes, cways, unmarked_as), building_union)
+        walk_union = shapely.union_all(walks)
+        street = shapely.difference(cways.surface, shapely.union_all([building_union, walk_union]))
+        stages.update()
+        obstacles = shapely.union_all([cways.surface, building_union, walk_union])
+        segments = sidewalk_segments(cways.roads, obstacles)
+        stages.update()
+    frames = [_layer("building", blds.geometry.values, osm.crs), _layer("street", [street], osm.crs),
+              _layer("crosswalk", walks, osm.crs), segments.drop(columns="osm_id").assign(**{"class": "sidewalk"})]
+    gdf = gpd.GeoDataFrame(pd.concat(frames, ignore_index=True), geometry="geometry", crs=osm.crs)
+    for col in ("segment_id", "street", "side"):
+        if col not in gdf:
+            gdf[col] = None
+        gdf[col] = gdf[col].astype(object).where(gdf[col].notna(), None)
+    return gdf[["class", "segment_id", "street", "side", "geometry"]]
+
+
+def build_map(
+    bbox: BBox | None = None,
+    osm_file: str | Path | None = None,
+    *,
+    unmarked_as: str = settings.unmarked_crossing_as,
+) -> MapLayers:
+    """Derive map layers (building, street, crosswalk, sidewalk) from OpenStreetMap.
+
+    Parameters
+    ----------
+    bbox
+        (west, south, east, north) WGS84 degrees. ``None``: the whole ``osm_file``, or
+        ``settings.default_bbox`` when no file is given.
+    osm_file
+        ``.osm``, ``.osm.bz2``, ``.osm.gz`` or ``.osm.pbf``. ``None``: the bundled extract when the
+        bbox lies inside ``settings.default_extract_bbox``, else Overpass through osmnx.
+    unmarked_as
+        ``"crosswalk"`` (default) or ``"street"``: what unmarked crossings become.
+
+    Returns
+    -------
+    MapLayers
+        Polygons in local UTM; ``meta`` holds ``source``, ``bbox``, ``osm_timestamp``,
+        ``generator``, ``attribution`` and ``params``.
+
+    Raises
+    ------
+    CurbsideInputError
+        Bad bbox, missing / unreadable / unsupported file, or an area without OSM data.
+    """
+    if unmarked_as not in UNMARKED_CHOICES:
+        raise CurbsideInputError("--unmarked-as", f"must be one of {', '.join(UNMARKED_CHOICES)}")
+    osm, clip_bbox = load_osm(bbox, osm_file)
+    source = str(osm_file) if osm_file is not None else osm.source
+    if len(osm.ways) == 0 and len(osm.areas) == 0:
+        raise CurbsideInputError(source, "no highways or buildings in this area")
+    gdf = derive_layers(osm, unmarked_as)
+    window = _window(clip_bbox, osm.crs)
+    if window is not None:
+        gdf = gdf.set_geometry(shapely.intersection(gdf.geometry.values, window))
+        gdf = gdf[(shapely.get_type_id(gdf.geometry.values) != 7) & (gdf.area >= settings.min_polygon_area_m2)]
+        gdf = gdf.explode(index_parts=False)
+        gdf = gdf[gdf.geom_type == "Polygon"]
+        gdf = gdf[gdf.area >= settings.min_polygon_area_m2]
+        # A sidewalk cut in two by the bbox edge keeps one id per part.
+        dup = gdf["segment_id"].notna() & gdf["segment_id"].duplicated(keep=False)
+        gdf.loc[dup, "segment_id"] = (
+            gdf.loc[dup, "segment_id"] + "." + gdf[dup].groupby("segment_id").cumcount().astype(str)
+        )
+    gdf = gdf.reset_index(drop=True)
+    if len(gdf) == 0:
+        raise CurbsideInputError(source, "no buildings or streets in this area")
+    if clip_bbox is None:
+        lon, lat = LocalFrame(osm.crs).to_lonlat(*np.reshape(gdf.total_bounds, (2, 2)).T)
+        clip_bbox = (float(lon[0]), float(lat[0]), float(lon[1]), float(lat[1]))
+    meta = {
+        "source": osm.source,
+        "bbox": [round(v, 7) for v in clip_bbox],
+        "osm_timestamp": osm.timestamp,
+        "generator": f"curbside {curbside.__version__}",
+        "attribution": settings.osm_attribution,
+        "params": build_params(unmarked_as),
+    }
+    counts = gdf["class"].value_counts().to_dict()
+    log.info("built %s", ", ".join(f"{k}: {v}" for k, v in counts.items()))
+    return MapLayers(gdf, meta)

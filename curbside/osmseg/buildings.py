@@ -1,0 +1,98 @@
+"""Stage 2: impenetrable building footprints, with walkable passages carved out.
+
+A building is a ``building=*`` closed way or multipolygon relation, except structures a pedestrian
+walks under or that are not at street level (:data:`NOT_IMPENETRABLE`, underground buildings).
+Every street-level highway way that runs through a footprint -- ``tunnel=building_passage``, covered
+footways, indoor corridors, platforms and roads through a ground floor such as the Salesforce Transit
+Center's bus plaza -- carves a passage as wide as the way out of it.
+"""
+
+from __future__ import annotations
+
+import geopandas as gpd
+import numpy as np
+import shapely
+
+from curbside import settings
+from curbside.osmseg.streets import carriageway_width, ground_level
+from curbside.osmseg.tags import column, first_number, is_in, metres
+
+#: ``building`` values that are not impenetrable: open structures and non-buildings.
+NOT_IMPENETRABLE: frozenset[str] = frozenset({"roof", "carport", "canopy", "no", "bridge"})
+
+#: ``highway`` values that never carve a passage (they connect floors, not ground-floor space).
+NON_PASSAGE_HIGHWAYS: frozenset[str] = frozenset({"steps", "elevator", "escalator", "construction",
+                                                  "proposed"})  # fmt: skip
+
+
+def footprint_mask(areas: gpd.GeoDataFrame) -> np.ndarray:
+    """Mask of the areas that are impenetrable buildings.
+
+    Excluded: :data:`NOT_IMPENETRABLE` values, ``building:part``, ``location=underground``, and
+    ``layer<0`` unless the building also has a positive ``height`` or ``building:levels`` (the
+    Salesforce Transit Center is tagged ``layer=-1`` for its underground train box but stands 30 m
+    tall). ``building=construction`` stays: building sites are fenced off.
+    """
+    building = column(areas, "building")
+    layer = first_number(column(areas, "layer"))
+    above_ground = (metres(column(areas, "height")) > 0) | (first_number(column(areas, "building:levels")) > 0)
+    underground = is_in(column(areas, "location"), ["underground"]) | ((layer < 0) & ~above_ground)
+    return (
+        building.notna().to_numpy()
+        & ~is_in(building, NOT_IMPENETRABLE)
+        & column(areas, "building:part").isna().to_numpy()
+        & ~underground
+        & ~shapely.is_empty(areas.geometry.values)
+    )
+
+
+def passage_ways(ways: gpd.GeoDataFrame) -> gpd.GeoDataFrame:
+    """Street-level highway ways that may pass through buildings, with their width ``width_m``.
+
+    Roads use their carriageway width; other ways their ``width`` tag, else
+    ``settings.passage_width_m``.
+    """
+    mask = ground_level(ways) & ~is_in(column(ways, "highway"), NON_PASSAGE_HIGHWAYS)
+    candidates = ways[mask]
+    road_width, _ = carriageway_width(candidates)
+    tagged = metres(column(candidates, "width"))
+    width = np.where(np.isnan(road_width), np.where(np.isnan(tagged), settings.passage_width_m, tagged), road_width)
+    return candidates.assign(width_m=width)
+
+
+def buildings(areas: gpd.GeoDataFrame, ways: gpd.GeoDataFrame) -> gpd.GeoDataFrame:
+    """Impenetrable building footprints with passages carved out.
+
+    Parameters
+    ----------
+    areas, ways
+        Tables of an :class:`~curbside.osmseg.reader.OsmData`.
+
+    Returns
+    -------
+    geopandas.GeoDataFrame
+        ``osm_id`` and valid (Multi)Polygon ``geometry`` of each building that keeps some area,
+        and ``carved_m2``, the area its passages removed.
+    """
+    footprints = areas[footprint_mask(areas)].reset_index(drop=True)
+    geoms = shapely.make_valid(footprints.geometry.values)
+    passages = passage_ways(ways)
+    if len(passages) and len(geoms):
+        tree = shapely.STRtree(geoms)
+        way_i, _ = tree.query(passages.geometry.values, predicate="intersects")
+        through = passages.iloc[np.unique(way_i)]
+        cut = shapely.buffer(through.geometry.values, through["width_m"].to_numpy() / 2, cap_style="flat")
+        cut_union = shapely.union_all(cut)
+        hit = np.unique(tree.query(cut_union, predicate="intersects"))
+        before = shapely.area(geoms[hit])
+        geoms[hit] = shapely.difference(geoms[hit], cut_union)
+        carved = np.zeros(len(geoms))
+        carved[hit] = before - shapely.area(geoms[hit])
+    else:
+        carved = np.zeros(len(geoms))
+    out = gpd.GeoDataFrame(
+        {"osm_id": footprints["osm_id"].to_numpy(), "carved_m2": carved},
+        geometry=shapely.make_valid(geoms),
+        crs=areas.crs,
+    )
+    return out[shapely.area(out.geometry.values) >= settings.min_polygon_area_m2].reset_index(drop=True)

@@ -1,0 +1,320 @@
+"""Render map layers: a static PNG (matplotlib) or an interactive HTML map (folium, no tile server).
+
+Both renderers work on any map of the schema in :mod:`curbside.osmseg.mapio`, including hand-labelled
+maps with only some of the classes. Drawing happens in the map's local metric CRS (PNG) or in WGS84
+(HTML); the optional ``bbox`` is always given in WGS84 degrees.
+"""
+
+from __future__ import annotations
+
+import html
+import logging
+import math
+from pathlib import Path
+
+import folium
+import geopandas as gpd
+import shapely
+from matplotlib.axes import Axes
+from matplotlib.figure import Figure
+from matplotlib.patches import Patch, Rectangle
+
+from curbside import settings
+from curbside.errors import CurbsideInputError
+from curbside.io import atomic_path
+from curbside.osmseg.mapio import MapLayers, to_geojson
+from curbside.projection import WGS84
+
+log = logging.getLogger(__name__)
+
+#: Drawing style of each class: fill, outline, hatch and legend label. Drawn bottom to top in this order.
+CLASS_STYLE: dict[str, dict[str, object]] = {
+    "street": {"facecolor": "#8e9aab", "edgecolor": "none", "linewidth": 0.0, "label": "street (jaywalking)"},
+    "crosswalk": {
+        "facecolor": "#f4cf3a",
+        "edgecolor": "#b8961b",
+        "hatchcolor": "white",
+        "hatch": "////",
+        "linewidth": 0.3,
+        "label": "crosswalk",
+    },
+    "sidewalk": {
+        "facecolor": "#bfe5a6", "edgecolor": "#5f9a4a", "linewidth": 0.3, "label": "sidewalk segment"
+    },
+    "building": {"facecolor": "#6f4646", "edgecolor": "#3f2626", "linewidth": 0.2, "label": "building"},
+}
+#: Colour of the space no polygon covers (freely walkable).
+BACKGROUND = "#f3efe6"
+#: Output formats by file extension.
+FORMATS: dict[str, str] = {".png": "png", ".html": "html", ".htm": "html"}
+
+
+def _attribution(layers: MapLayers) -> str:
+    return str(layers.meta.get("attribution") or settings.osm_attribution)
+
+
+def _title(layers: MapLayers) -> str:
+    source = layers.meta.get("source")
+    if isinstance(source, list):
+        source = ", ".join(map(str, source))
+    return f"curbside map layers: {source}" if source else "curbside map layers"
+
+
+def clip_to_bbox(layers: MapLayers, bbox: tuple[float, float, float, float]) -> MapLayers:
+    """The part of a map inside a WGS84 bounding box.
+
+    Parameters
+    ----------
+    layers
+        The map.
+    bbox
+        ``(west, south, east, north)`` in degrees.
+
+    Returns
+    -------
+    MapLayers
+        Polygons clipped to the box (in the map's CRS); metadata copied, ``bbox`` replaced.
+
+    Raises
+    ------
+    CurbsideInputError
+        When no polygon of the map lies in the box.
+    """
+    box = gpd.GeoSeries([shapely.box(*bbox)], crs=WGS84).to_crs(layers.crs).iloc[0]
+    clipped = layers.gdf.clip(box)
+    clipped = clipped[clipped.geom_type.isin(["Polygon", "MultiPolygon"]) & ~clipped.is_empty]
+    if len(clipped) == 0:
+        raise CurbsideInputError("--bbox", f"{list(bbox)} contains no polygon of the map")
+    return MapLayers(clipped.reset_index(drop=True), {**layers.meta, "bbox": list(bbox)})
+
+
+def _nice_length(max_m: float) -> float:
+    """The largest 1, 2 or 5 x 10^k metres not above ``max_m``."""
+    power = 10.0 ** math.floor(math.log10(max_m))
+    return max(m * power for m in (1, 2, 5) if m * power <= max_m)
+
+
+def _scale_bar(ax: Axes, extent: tuple[float, float, float, float]) -> None:
+    minx, miny, maxx, maxy = extent
+    length = _nice_length((maxx - minx) / 5)
+    x0 = minx + 0.03 * (maxx - minx)
+    y0 = miny + 0.04 * (maxy - miny)
+    tick = 0.008 * (maxy - miny)
+    ax.plot([x0, x0 + length], [y0, y0], color="black", linewidth=2.5, solid_capstyle="butt", zorder=10)
+    ax.plot([x0, x0], [y0 - tick, y0 + tick], color="black", linewidth=1, zorder=10)
+    ax.plot([x0 + length, x0 + length], [y0 - tick, y0 + tick], color="black", linewidth=1, zorder=10)
+    label = f"{length / 1000:g} km" if length >= 1000 else f"{length:g} m"
+    ax.add_patch(
+        Rectangle(
+            (x0 - 0.1 * length, y0 - 3 * tick), 1.2 * length, 8 * tick,
+            facecolor="white", edgecolor="none", alpha=0.8, zorder=9,
+        )
+    )
+    ax.text(x0 + length / 2, y0 + 1.8 * tick, label, ha="center", va="bottom", fontsize=8, zorder=10)
+
+
+def plot_map(layers: MapLayers, ax: Axes, title: str | None = None) -> Axes:
+    """Draw a map's classes, a legend, a scale bar and the attribution on a matplotlib axes.
+
+    Parameters
+    ----------
+    layers
+        The map (local metric CRS, so the scale bar is in metres).
+    ax
+        Axes to draw on; its aspect is set to equal and its frame hidden.
+    title
+        Axes title (default: ``"curbside map layers: <source>"``).
+
+    Returns
+    -------
+    matplotlib.axes.Axes
+        ``ax``.
+    """
+    ax.set_facecolor(BACKGROUND)
+    handles = []
+    for cls, style in CLASS_STYLE.items():
+        rows = layers.layer(cls)
+        if len(rows) == 0:
+            continue
+        kwargs = {k: v for k, v in style.items() if k != "label"}
+        rows.geometry.plot(ax=ax, **kwargs)
+        handles.append(Patch(**kwargs, label=f"{style['label']} ({len(rows):,})"))
+    handles.append(Patch(facecolor=BACKGROUND, edgecolor="#999999", linewidth=0.5, label="free space"))
+    minx, miny, maxx, maxy = layers.gdf.total_bounds
+    pad = 0.01 * max(maxx - minx, maxy - miny)
+    extent = (minx - pad, miny - pad, maxx + pad, maxy + pad)
+    ax.set_xlim(extent[0], extent[2])
+    ax.set_ylim(extent[1], extent[3])
+    ax.set_aspect("equal")
+    ax.set_xticks([])
+    ax.set_yticks([])
+    ax.set_xlabel("")
+    ax.set_ylabel("")
+    for spine in ax.spines.values():
+        spine.set_edgecolor("#999999")
+    _scale_bar(ax, extent)
+    ax.legend(handles=handles, loc="upper right", fontsize=8, framealpha=0.9)
+    ax.text(
+        0.995, 0.005, _attribution(layers), transform=ax.transAxes, ha="right", va="bottom", fontsize=7,
+        bbox={"facecolor": "white", "edgecolor": "none", "alpha": 0.8, "pad": 1.5}, zorder=11,
+    )
+    ax.set_title(title or _title(layers), fontsize=11)
+    return ax
+
+
+def save_png(layers: MapLayers, path: str | Path, width_in: float = 12.0, dpi: int = 200) -> Path:
+    """Render the map to a PNG file (atomically).
+
+    Parameters
+    ----------
+    layers
+        The map.
+    path
+        Destination ``.png``.
+    width_in
+        Figure width in inches; the height follows the map's aspect ratio.
+    dpi
+        Resolution.
+
+    Returns
+    -------
+    pathlib.Path
+        ``path``.
+    """
+    minx, miny, maxx, maxy = layers.gdf.total_bounds
+    aspect = (maxy - miny) / max(maxx - minx, 1e-9)
+    fig = Figure(figsize=(width_in, min(max(width_in * aspect, 4.0), 2.5 * width_in) + 0.6), dpi=dpi)
+    ax = fig.add_axes((0.01, 0.01, 0.98, 0.94))
+    plot_map(layers, ax)
+    path = Path(path)
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, format="png", facecolor="white")
+    log.info("wrote %s", path)
+    return path
+
+
+def _style(cls: str):
+    style = CLASS_STYLE[cls]
+    stroke = style["edgecolor"] if style["edgecolor"] != "none" else style["facecolor"]
+    weight = 0.0 if cls == "street" else 1.0
+
+    def style_function(_feature: dict) -> dict:
+        return {"fillColor": style["facecolor"], "color": stroke, "weight": weight, "fillOpacity": 0.9}
+
+    return style_function
+
+
+def make_folium_map(layers: MapLayers) -> folium.Map:
+    """An interactive map with no tile server: one toggleable GeoJSON layer per class.
+
+    Sidewalk segments show ``segment_id``, ``street`` and ``side`` in a tooltip. The attribution
+    goes to Leaflet's attribution control.
+
+    Parameters
+    ----------
+    layers
+        The map.
+
+    Returns
+    -------
+    folium.Map
+    """
+    doc = to_geojson(layers)
+    west, south, east, north = layers.gdf.to_crs(WGS84).total_bounds
+    fmap = folium.Map(
+        location=[(south + north) / 2, (west + east) / 2], tiles=None, control_scale=True,
+        prefer_canvas=True, zoom_start=16, max_zoom=22,
+    )
+    fmap.get_root().header.add_child(
+        folium.Element(f"<style>.leaflet-container {{ background: {BACKGROUND}; }}</style>")
+    )
+    fmap.get_root().html.add_child(folium.Element(f"<title>{html.escape(_title(layers))}</title>"))
+    attribution = html.escape(_attribution(layers))
+    for cls, style in CLASS_STYLE.items():
+        features = [f for f in doc["features"] if f["properties"]["class"] == cls]
+        if not features:
+            continue
+        tooltip = None
+        if cls == "sidewalk":
+            tooltip = folium.GeoJsonTooltip(
+                fields=["segment_id", "street", "side"], aliases=["segment", "street", "side"]
+            )
+        label = (
+            f'<span style="color:{style["facecolor"]}">&#9632;</span> {style["label"]} ({len(features):,})'
+        )
+        folium.GeoJson(
+            {"type": "FeatureCollection", "features": features}, name=label, style_function=_style(cls),
+            tooltip=tooltip, attribution=attribution,
+        ).add_to(fmap)
+    folium.LayerControl(collapsed=False).add_to(fmap)
+    fmap.fit_bounds([[south, west], [north, east]])
+    return fmap
+
+
+def save_html(layers: MapLayers, path: str | Path) -> Path:
+    """Write the interactive map of :func:`make_folium_map` to an HTML file (atomically).
+
+    Parameters
+    ----------
+    layers
+        The map.
+    path
+        Destination ``.html``.
+
+    Returns
+    -------
+    pathlib.Path
+        ``path``.
+    """
+    fmap = make_folium_map(layers)
+    path = Path(path)
+    with atomic_path(path) as tmp:
+        fmap.save(str(tmp))
+    log.info("wrote %s", path)
+    return path
+
+
+def output_format(path: str | Path) -> str:
+    """``"png"`` or ``"html"`` from an output file's extension.
+
+    Raises
+    ------
+    CurbsideInputError
+        For any other extension.
+    """
+    suffix = Path(path).suffix.lower()
+    if suffix not in FORMATS:
+        raise CurbsideInputError(
+            path, f"unsupported output format {suffix or '(none)'!r}; use one of {sorted(FORMATS)}"
+        )
+    return FORMATS[suffix]
+
+
+def render_map(
+    layers: MapLayers, path: str | Path, bbox: tuple[float, float, float, float] | None = None
+) -> Path:
+    """Render a map to PNG or HTML, chosen by the extension of ``path``.
+
+    Parameters
+    ----------
+    layers
+        The map.
+    path
+        ``.png`` or ``.html`` / ``.htm``.
+    bbox
+        Optional WGS84 ``(west, south, east, north)`` window to show.
+
+    Returns
+    -------
+    pathlib.Path
+        ``path``.
+
+    Raises
+    ------
+    CurbsideInputError
+        Unsupported extension, or a bbox with nothing of the map in it.
+    """
+    fmt = output_format(path)
+    if bbox is not None:
+        layers = clip_to_bbox(layers, bbox)
+    return save_png(layers, path) if fmt == "png" else save_html(layers, path)

@@ -1,0 +1,204 @@
+"""Stage 5: sidewalk segments, one polygon per side of a street per block.
+
+Streets that carry sidewalks (``settings.sidewalk_highways``) are split into blocks at junctions with
+other roads. Each block side gets the band from its centreline out to the curb plus
+``settings.sidewalk_depth_m`` (at least the mapped sidewalk's width), built with a single-sided
+buffer (positive = left of the OSM way direction). Where bands of different streets meet at corners,
+the space goes to the nearest centreline (Voronoi cells of points sampled along the blocks). The
+carriageway, buildings and crosswalks are then cut out, which leaves the strip between the curb and
+the building line, split wherever a crosswalk crosses it.
+"""
+
+from __future__ import annotations
+
+import geopandas as gpd
+import numpy as np
+import pandas as pd
+import shapely
+
+from curbside import settings
+from curbside.osmseg.streets import node_keys
+from curbside.osmseg.tags import column, is_in
+
+#: ``service`` values of roads that do not end a block (driveways cross sidewalks).
+NON_BLOCK_SERVICES = ("driveway", "parking_aisle", "drive-through")
+
+_NO = ("no", "none")
+
+
+def sidewalk_sides(roads: pd.DataFrame) -> tuple[np.ndarray, np.ndarray]:
+    """Whether each road has a sidewalk on its left and right (absent tags: both sides)."""
+    main = column(roads, "sidewalk")
+    both = column(roads, "sidewalk:both")
+    left = ~(
+        is_in(main, [*_NO, "right"]) | is_in(both, _NO) | is_in(column(roads, "sidewalk:left"), _NO)
+    )
+    right = ~(
+        is_in(main, [*_NO, "left"]) | is_in(both, _NO) | is_in(column(roads, "sidewalk:right"), _NO)
+    )
+    return left, right
+
+
+def split_at_junctions(roads: gpd.GeoDataFrame, block_ends: np.ndarray) -> gpd.GeoDataFrame:
+    """Split each road at vertices it shares with another road of ``block_ends``.
+
+    Parameters
+    ----------
+    roads
+        Roads to split (LineStrings).
+    block_ends
+        LineStrings whose shared vertices end a block (``roads`` are usually among them).
+
+    Returns
+    -------
+    geopandas.GeoDataFrame
+        One row per piece: ``road`` (row of ``roads``), ``k`` (piece number along the way, from 0)
+        and the piece geometry.
+    """
+    xy, line = shapely.get_coordinates(roads.geometry.values, return_index=True)
+    end_xy, end_line = shapely.get_coordinates(block_ends, return_index=True)
+    end_counts = (
+        pd.DataFrame({"key": node_keys(end_xy), "line": end_line}).drop_duplicates().groupby("key").size()
+    )
+    keys = node_keys(xy)
+    shared = end_counts.reindex(keys).fillna(0).to_numpy() >= 2
+    first = np.r_[True, line[1:] != line[:-1]]
+    last = np.r_[line[1:] != line[:-1], True]
+    split = shared & ~first & ~last
+    # Pieces before each vertex within its line; a split vertex ends one piece and starts the next.
+    split_before = np.cumsum(split) - split
+    line_start = np.maximum.accumulate(np.where(first, np.arange(len(line)), 0))
+    local = split_before - split_before[line_start]
+    copies = 1 + split
+    xy2 = np.repeat(xy, copies, axis=0)
+    local2 = np.repeat(local, copies) + (np.arange(len(xy2)) - np.repeat(np.cumsum(copies) - copies, copies))
+    line2 = np.repeat(line, copies)
+    pieces_per_line = np.bincount(line, weights=split, minlength=len(roads)).astype(int) + 1
+    offset = np.cumsum(pieces_per_line) - pieces_per_line
+    piece = offset[line2] + local2
+    geoms = shapely.linestrings(xy2, indices=piece)
+    road = np.repeat(np.arange(len(roads)), pieces_per_line)
+    k = np.arange(len(road)) - offset[road]
+    return gpd.GeoDataFrame({"road": road, "k": k}, geometry=geoms, crs=roads.crs)
+
+
+def territories(pieces: np.ndarray, spacing_m: float = 3.0) -> np.ndarray:
+    """For each piece, the part of the plane nearer to it than to any other piece (approximately).
+
+    Voronoi cells of points sampled every ``spacing_m`` along the pieces (never at their shared
+    ends), dissolved per piece.
+    """
+    lengths = shapely.length(pieces)
+    n = np.maximum(1, np.ceil(lengths / spacing_m).astype(int))
+    idx = np.repeat(np.arange(len(pieces)), n)
+    rank = np.arange(len(idx)) - np.repeat(np.cumsum(n) - n, n)
+    points = shapely.line_interpolate_point(pieces[idx], (rank + 0.5) / n[idx] * lengths[idx])
+    xy = shapely.get_coordinates(points)
+    _, unique_first = np.unique(node_keys(xy), return_index=True)
+    keep = np.sort(unique_first)
+    xy, idx = xy[keep], idx[keep]
+    extent = shapely.box(*shapely.total_bounds(pieces)).buffer(200.0)
+    cells = shapely.get_parts(shapely.voronoi_polygons(shapely.multipoints(xy), extend_to=extent, ordered=True))
+    order = np.argsort(idx, kind="stable")
+    groups = np.split(cells[order], np.cumsum(np.bincount(idx, minlength=len(pieces)))[:-1])
+    return np.array([shapely.coverage_union_all(g) if len(g) else shapely.Polygon() for g in groups], dtype=object)
+
+
+def subtract_tiled(geoms: np.ndarray, obstacles: shapely.Geometry, tile_m: float = 150.0) -> np.ndarray:
+    """``geoms[i] - obstacles`` for many small geoms and one large obstacle geometry.
+
+    The obstacle is cut into square tiles once, so each difference only touches the tiles its
+    geometry overlaps instead of the whole obstacle.
+    """
+    if shapely.is_empty(obstacles) or len(geoms) == 0:
+        return geoms
+    minx, miny, maxx, maxy = shapely.total_bounds(geoms)
+    xs = np.arange(minx, maxx + tile_m, tile_m)
+    ys = np.arange(miny, maxy + tile_m, tile_m)
+    gx, gy = np.meshgrid(xs, ys)
+    boxes = shapely.box(gx.ravel(), gy.ravel(), gx.ravel() + tile_m, gy.ravel() + tile_m)
+    tiles = shapely.intersection(obstacles, boxes)
+    tiles = tiles[~shapely.is_empty(tiles)]
+    geom_i, tile_i = shapely.STRtree(tiles).query(geoms, predicate="intersects")
+    out = geoms.copy()
+    order = np.argsort(geom_i, kind="stable")
+    geom_i, tile_i = geom_i[order], tile_i[order]
+    rank = np.arange(len(geom_i)) - np.searchsorted(geom_i, geom_i)
+    for r in range(int(rank.max()) + 1 if len(rank) else 0):
+        sel = rank == r
+        out[geom_i[sel]] = shapely.difference(out[geom_i[sel]], tiles[tile_i[sel]])
+    return out
+
+
+def sidewalk_segments(
+    roads: gpd.GeoDataFrame, obstacles: shapely.Geometry, min_area_m2: float = 2.0
+) -> gpd.GeoDataFrame:
+    """Sidewalk segments along the roads that carry sidewalks.
+
+    Parameters
+    ----------
+    roads
+        :attr:`curbside.osmseg.streets.Carriageways.roads` (with ``half_left_m``/``half_right_m``).
+    obstacles
+        Union of carriageway, buildings and crosswalks: what a sidewalk may not overlap.
+    min_area_m2
+        Smaller leftovers (corner slivers) are dropped.
+
+    Returns
+    -------
+    geopandas.GeoDataFrame
+        ``segment_id`` (``w<way id>-<k>-<L|R>``, ``k`` counting the segments of that side along
+        the way), ``street``, ``side`` (``left``/``right``), ``osm_id`` and geometry.
+    """
+    service = column(roads, "service")
+    block_end_mask = ~is_in(service, NON_BLOCK_SERVICES)
+    carrying = roads[is_in(column(roads, "highway"), settings.sidewalk_highways)].reset_index(drop=True)
+    empty = gpd.GeoDataFrame(
+        {"segment_id": [], "street": [], "side": [], "osm_id": []}, geometry=[], crs=roads.crs
+    )
+    if len(carrying) == 0:
+        return empty
+    pieces = split_at_junctions(carrying, roads.geometry.values[block_end_mask])
+    lines = pieces.geometry.values
+    road = pieces["road"].to_numpy()
+    has_left, has_right = sidewalk_sides(carrying)
+    depth = settings.sidewalk_depth_m
+    reach_left = carrying["half_left_m"].to_numpy()[road] + depth
+    reach_right = carrying["half_right_m"].to_numpy()[road] + depth
+    own = territories(lines)
+    bands = np.concatenate(
+        [
+            shapely.buffer(lines, reach_left, single_sided=True),
+            shapely.buffer(lines, -reach_right, single_sided=True),
+        ]
+    )
+    side = np.repeat(["left", "right"], len(lines))
+    piece_of = np.tile(np.arange(len(lines)), 2)
+    present = np.concatenate([has_left[road], has_right[road]])
+    bands = shapely.intersection(bands[present], own[piece_of[present]])
+    side, piece_of = side[present], piece_of[present]
+    bands = subtract_tiled(bands, obstacles)
+    parts, part_of = shapely.get_parts(bands, return_index=True)
+    polygonal = (shapely.get_type_id(parts) == 3) & (shapely.area(parts) >= min_area_m2)
+    parts, part_of = parts[polygonal], part_of[polygonal]
+    piece = piece_of[part_of]
+    way_row = road[piece]
+    # Number the parts of one way side in order along the way.
+    along = shapely.line_locate_point(carrying.geometry.values[way_row], shapely.centroid(parts))
+    table = pd.DataFrame(
+        {"way": way_row, "side": side[part_of], "k": pieces["k"].to_numpy()[piece], "along": along}
+    )
+    table = table.sort_values(["way", "side", "k", "along"], kind="stable")
+    table["n"] = table.groupby(["way", "side"]).cumcount()
+    table = table.sort_index()
+    osm_id = carrying["osm_id"].to_numpy()[way_row]
+    segment_id = [
+        f"w{w}-{n}-{'L' if s == 'left' else 'R'}"
+        for w, n, s in zip(osm_id, table["n"].to_numpy(), table["side"].to_numpy(), strict=True)
+    ]
+    names = column(carrying, "name").to_numpy()[way_row]
+    return gpd.GeoDataFrame(
+        {"segment_id": segment_id, "street": names, "side": table["side"].to_numpy(), "osm_id": osm_id},
+        geometry=shapely.make_valid(parts),
+        crs=roads.crs,
+    )

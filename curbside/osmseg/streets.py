@@ -1,0 +1,256 @@
+"""Stage 3: carriageway (street-surface) polygons from road centrelines.
+
+Each ground-level motor road is buffered to each side by its half-width (flat ends, one single-sided
+buffer per side), junction nodes get a disk of the narrowest meeting half-width so that bends and
+crossings close, and everything is unioned. Widths come from ``width``, else ``lanes`` plus parking
+and cycle lanes, else :data:`curbside.settings.default_carriageway_width_m`. Where a sidewalk is mapped
+separately (``footway=sidewalk``) the curb on that side is put half a sidewalk width short of it, so
+the carriageway never swallows a mapped sidewalk.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import geopandas as gpd
+import numpy as np
+import pandas as pd
+import shapely
+
+from curbside import settings
+from curbside.osmseg.overlay import polygons_only, quadtree_split, subtract
+from curbside.osmseg.tags import column, first_number, is_in, metres
+
+#: ``footway`` values of separately mapped sidewalks.
+SIDEWALK_FOOTWAYS = ("sidewalk",)
+_PARKING_LANE_VALUES = {"parallel": "parallel", "marked": "parallel", "diagonal": "diagonal",
+                        "perpendicular": "perpendicular"}  # fmt: skip
+_PARKING_VALUES = {"lane": "lane", "half_on_kerb": "half"}
+
+
+def ground_level(ways: pd.DataFrame) -> np.ndarray:
+    """Mask of ways at street level: not a bridge or tunnel, ``layer`` 0 or absent, lowest level <= 1.
+
+    ``tunnel=building_passage`` counts as street level (the way passes through a building's ground
+    floor).
+    """
+    layer = first_number(column(ways, "layer"))
+    level = first_number(column(ways, "level"))
+    tunnel = column(ways, "tunnel")
+    bridge = column(ways, "bridge")
+    return (
+        (np.isnan(layer) | (layer == 0))
+        & (np.isnan(level) | (level <= 1))
+        & (tunnel.isna() | tunnel.isin(["no", "building_passage"])).to_numpy()
+        & (bridge.isna() | (bridge == "no")).to_numpy()
+    )
+
+
+def road_mask(ways: pd.DataFrame) -> np.ndarray:
+    """Mask of ways that make carriageway: motor-road classes at street level, not areas."""
+    return (
+        is_in(column(ways, "highway"), settings.default_carriageway_width_m)
+        & ~is_in(column(ways, "area"), ["yes"])
+        & ground_level(ways)
+    )
+
+
+def _lanes(ways: pd.DataFrame) -> np.ndarray:
+    lanes = first_number(column(ways, "lanes"))
+    directional = np.nansum(
+        [first_number(column(ways, k)) for k in ("lanes:forward", "lanes:backward", "lanes:both_ways")],
+        axis=0,
+    )
+    lanes = np.where(np.isnan(lanes) & (directional > 0), directional, lanes)
+    lanes[~(lanes > 0)] = np.nan
+    return lanes
+
+
+def _parking_width(ways: pd.DataFrame) -> np.ndarray:
+    def side(lane_key: str, new_key: str) -> np.ndarray:
+        old = column(ways, lane_key).map(_PARKING_LANE_VALUES)
+        new = column(ways, new_key).map(_PARKING_VALUES)
+        kind = old.where(old.notna(), new)
+        widths = {**settings.parking_width_m, "half": settings.parking_width_m["lane"] / 2}
+        return kind.map(widths).fillna(0.0).to_numpy(dtype=float)
+
+    both = side("parking:lane:both", "parking:both")
+    left = side("parking:lane:left", "parking:left")
+    right = side("parking:lane:right", "parking:right")
+    return np.where(both > 0, 2 * both, left + right)
+
+
+def _cycle_lanes(ways: pd.DataFrame) -> np.ndarray:
+    def lane(key: str) -> np.ndarray:
+        return (column(ways, key) == "lane").to_numpy()
+
+    sided = 2 * lane("cycleway:both") + lane("cycleway:left") + lane("cycleway:right")
+    oneway = is_in(column(ways, "oneway"), ["yes", "-1", "1"])
+    plain = lane("cycleway") * np.where(oneway, 1, 2)
+    return np.where(sided > 0, sided, plain).astype(float)
+
+
+def carriageway_width(ways: pd.DataFrame) -> tuple[np.ndarray, np.ndarray]:
+    """Curb-to-curb width of each road way, and whether it came from a tag (``width`` / ``lanes``).
+
+    Parameters
+    ----------
+    ways
+        A table with tag columns (:class:`~curbside.osmseg.reader.OsmData` ``ways``).
+
+    Returns
+    -------
+    width_m : numpy.ndarray
+        Metres; NaN for ways whose ``highway`` class has no default width.
+    tagged : numpy.ndarray
+        True where the width came from ``width`` or ``est_width`` (then mapped sidewalks only cap it).
+    """
+    tagged_width = metres(column(ways, "width"))
+    est = metres(column(ways, "est_width"))
+    tagged_width = np.where(np.isnan(tagged_width), est, tagged_width)
+    from_lanes = (
+        _lanes(ways) * settings.lane_width_m
+        + _parking_width(ways)
+        + _cycle_lanes(ways) * settings.cycle_lane_width_m
+    )
+    default = column(ways, "highway").map(settings.default_carriageway_width_m).to_numpy(dtype=float)
+    width = np.where(np.isnan(tagged_width), np.where(np.isnan(from_lanes), default, from_lanes), tagged_width)
+    return width, ~np.isnan(tagged_width)
+
+
+def mapped_sidewalks(ways: gpd.GeoDataFrame) -> gpd.GeoDataFrame:
+    """Separately mapped sidewalks (``footway=sidewalk``) at street level, with ``width_m``."""
+    mask = is_in(column(ways, "footway"), SIDEWALK_FOOTWAYS) & ground_level(ways)
+    out = ways[mask]
+    width = metres(column(out, "width"))
+    return out.assign(width_m=np.where(np.isnan(width), settings.mapped_sidewalk_width_m, width))
+
+
+def _side_distances(lines: np.ndarray, sidewalks: gpd.GeoDataFrame, step_m: float = 8.0) -> np.ndarray:
+    """Median distance (m) from each line to the mapped sidewalk on its left and right, NaN if none.
+
+    Casts rays perpendicular to the line every ``step_m`` (at least one, at mid-length) and takes
+    the nearest sidewalk each ray meets within ``settings.mapped_sidewalk_search_m``; the median over
+    a line's rays ignores sidewalks of cross streets met near its ends.
+    """
+    out = np.full((len(lines), 2), np.nan)
+    if len(lines) == 0 or len(sidewalks) == 0:
+        return out
+    lengths = shapely.length(lines)
+    n = np.maximum(1, (lengths // step_m).astype(int))
+    line_idx = np.repeat(np.arange(len(lines)), n)
+    rank = np.arange(len(line_idx)) - np.repeat(np.cumsum(n) - n, n)
+    along = (rank + 0.5) / n[line_idx] * lengths[line_idx]
+    geoms = lines[line_idx]
+    p = shapely.get_coordinates(shapely.line_interpolate_point(geoms, along))
+    a = shapely.get_coordinates(shapely.line_interpolate_point(geoms, np.maximum(along - 0.5, 0)))
+    b = shapely.get_coordinates(shapely.line_interpolate_point(geoms, along + 0.5))
+    tangent = b - a
+    tangent /= np.maximum(np.linalg.norm(tangent, axis=1, keepdims=True), 1e-9)
+    left_normal = np.column_stack([-tangent[:, 1], tangent[:, 0]])
+    search = settings.mapped_sidewalk_search_m
+    sw_geoms = sidewalks.geometry.values
+    tree = shapely.STRtree(sw_geoms)
+    for side, sign in enumerate((1.0, -1.0)):
+        start = p + sign * left_normal * 0.5
+        rays = shapely.linestrings(
+            np.stack([start, p + sign * left_normal * search], axis=1).reshape(-1, 2),
+            indices=np.repeat(np.arange(len(p)), 2),
+        )
+        ray_i, sw_i = tree.query(rays, predicate="intersects")
+        if len(ray_i) == 0:
+            continue
+        hits = shapely.intersection(rays[ray_i], sw_geoms[sw_i])
+        dist = shapely.distance(shapely.points(p[ray_i]), hits)
+        # The curb lies half a sidewalk width short of the sidewalk's centreline.
+        curb = dist - sidewalks["width_m"].to_numpy()[sw_i] / 2
+        per_ray = pd.Series(curb).groupby(ray_i).min()
+        per_line = per_ray.groupby(line_idx[per_ray.index.to_numpy()]).median()
+        out[per_line.index.to_numpy(), side] = per_line.to_numpy()
+    return out
+
+
+@dataclass
+class Carriageways:
+    """Road ways with their per-side half-widths and carriageway polygons.
+
+    Attributes
+    ----------
+    roads
+        The road ways (tag columns, LineString geometry) with ``half_left_m`` / ``half_right_m``
+        (left and right of the OSM way direction) and ``mapped_left`` / ``mapped_right`` (the curb
+        on that side was set from a mapped sidewalk).
+    surface
+        The carriageway as disjoint polygons (quadtree tiles of the union), before buildings and
+        crosswalks are cut out.
+    sidewalks
+        The mapped sidewalks used (``footway=sidewalk`` ways with ``width_m``).
+    """
+
+    roads: gpd.GeoDataFrame
+    surface: np.ndarray
+    sidewalks: gpd.GeoDataFrame
+
+
+def carriageways(ways: gpd.GeoDataFrame) -> Carriageways:
+    """Carriageway polygons of every street-level motor road.
+
+    Parameters
+    ----------
+    ways
+        Highway ways of an :class:`~curbside.osmseg.reader.OsmData`.
+
+    Returns
+    -------
+    Carriageways
+    """
+    roads = ways[road_mask(ways)].reset_index(drop=True)
+    sidewalks = mapped_sidewalks(ways)
+    width, tagged = carriageway_width(roads)
+    half = np.repeat((width / 2)[:, None], 2, axis=1)
+    lines = roads.geometry.values
+    to_sidewalk = _side_distances(lines, sidewalks)
+    min_half = 1.5
+    # A sidewalk far beyond the expected curb belongs to a plaza or a parallel street, not this curb.
+    plausible = to_sidewalk <= np.maximum(2 * half, half + 5.0)
+    mapped = ~np.isnan(to_sidewalk) & (to_sidewalk > min_half) & plausible
+    # A tagged width is only capped by a mapped sidewalk; an estimated one is replaced by it.
+    from_sidewalk = np.where(tagged[:, None], np.minimum(half, to_sidewalk), to_sidewalk)
+    half = np.where(mapped, from_sidewalk, half)
+    roads = roads.assign(
+        half_left_m=half[:, 0], half_right_m=half[:, 1], mapped_left=mapped[:, 0], mapped_right=mapped[:, 1]
+    )
+    left = shapely.buffer(lines, half[:, 0], single_sided=True, quad_segs=2)
+    right = shapely.buffer(lines, -half[:, 1], single_sided=True, quad_segs=2)
+    disks = junction_disks(lines, half.min(axis=1))
+    surface = quadtree_split(shapely.union_all(np.concatenate([left, right, disks])))
+    if len(sidewalks):
+        kept_clear = shapely.buffer(
+            sidewalks.geometry.values, sidewalks["width_m"].to_numpy() / 2, cap_style="flat", quad_segs=2
+        )
+        surface = polygons_only(subtract(surface, kept_clear))
+    return Carriageways(roads, surface, sidewalks)
+
+
+def node_keys(xy: np.ndarray) -> np.ndarray:
+    """Hashable keys for vertex positions (1 cm grid), used to find shared nodes."""
+    cm = np.round(xy * 100).astype(np.int64)
+    return cm[:, 0] * 2_000_000_000 + cm[:, 1]
+
+
+def junction_disks(lines: np.ndarray, radius_m: np.ndarray) -> np.ndarray:
+    """Disks at vertices shared by two or more lines, of the smallest radius among them.
+
+    They fill the wedge that flat-ended buffers leave on the outside of a bend between two ways and
+    round the inside of junctions no further than the narrowest street's half-width.
+    """
+    if len(lines) == 0:
+        return np.array([], dtype=object)
+    xy, idx = shapely.get_coordinates(lines, return_index=True)
+    keys = node_keys(xy)
+    frame = pd.DataFrame({"key": keys, "line": idx, "r": radius_m[idx]}).drop_duplicates(["key", "line"])
+    grouped = frame.groupby("key", sort=False).agg(n=("line", "size"), r=("r", "min"))
+    shared = grouped[grouped["n"] >= 2]
+    first = pd.Series(np.arange(len(keys)), index=keys).groupby(level=0).first()
+    centres = xy[first.loc[shared.index].to_numpy()]
+    return shapely.buffer(shapely.points(centres), shared["r"].to_numpy(), quad_segs=3)

@@ -1,0 +1,68 @@
+"""``localize convert``: every source format to a SPEC folder, --all, --list, and bad input."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pandas as pd
+import pytest
+
+from curbside.cli.localize import main
+from curbside.localize.session import read_session
+
+SESSIONS = Path(__file__).parent / "data" / "sessions"
+H5 = SESSIONS / "ipin2023-cut.h5"
+
+
+def test_convert_ipin_trial_with_steps_and_pdr(tmp_path, capsys):
+    dst = tmp_path / "trial"
+    assert main(["convert", f"{H5}::TrainingTrial01_repetition01", str(dst), "--steps", "--pdr"]) == 0
+    session = read_session(dst)
+    assert {"imu", "gnss", "waypoints", "steps", "velocity"} == set(session.tables())
+    assert session.meta["start"]["t"] == session.waypoints["t"].iat[0]
+    assert len(session.velocity) == len(session.steps)
+    out = capsys.readouterr().out
+    rows = {line.split()[0]: int(line.split()[1]) for line in out.splitlines() if ".csv" in line}
+    assert rows == {f"{kind}.csv": len(table) for kind, table in session.tables().items()}
+
+
+def test_convert_all_trials_and_list(tmp_path, capsys):
+    assert main(["convert", str(H5), "--list"]) == 0
+    names = capsys.readouterr().out.split()
+    assert names == ["IPIN2023_T3_TrainingTrial01_repetition01", "IPIN2023_T3_TrainingTrial23_repetition03"]
+    dst = tmp_path / "all"
+    assert main(["convert", str(H5), str(dst), "--all"]) == 0
+    expected = ["TrainingTrial01_repetition01", "TrainingTrial23_repetition03"]
+    assert sorted(p.name for p in dst.iterdir()) == expected
+    assert read_session(dst / "TrainingTrial23_repetition03").imu is not None
+
+
+@pytest.mark.parametrize("src", ["sensorlogger-ios.zip", "sensorlogger-android", "walk.gpx"])
+def test_convert_foreign_formats(tmp_path, src):
+    dst = tmp_path / "out"
+    assert main(["convert", str(SESSIONS / src), str(dst)]) == 0
+    session = read_session(dst)
+    raw_gnss = pd.read_csv(dst / "gnss.csv")
+    assert len(raw_gnss) == len(session.gnss) > 3
+    assert session.meta["source"]["file"] == src
+
+
+@pytest.mark.parametrize(
+    ("args", "message"),
+    [
+        (["{data}/walk.gpx", "{dst}", "--steps"], "need IMU data"),
+        (["{data}/nothing.zip", "{dst}"], "no such file"),
+        (["{data}/ipin2023-cut.h5", "{dst}"], "holds 2 trials"),
+        (["{data}/ipin2023-cut.h5::Nope", "{dst}"], "no such trial"),
+        (["{data}/ipin2023-cut.h5::TrainingTrial01_repetition01", "{dst}", "--all"], "drop the ::TRIAL"),
+        (["{data}/make_fixtures.py", "{dst}"], "unknown format"),
+    ],
+)
+def test_bad_input_exits_2_and_writes_nothing(tmp_path, capsys, args, message):
+    dst = tmp_path / "out"
+    argv = ["convert", *(a.format(data=SESSIONS, dst=dst) for a in args)]
+    assert main(argv) == 2
+    err = capsys.readouterr().err.strip()
+    assert message in err and len(err.splitlines()) == 1 and "Traceback" not in err
+    assert not dst.exists()
+    assert list(tmp_path.iterdir()) == []

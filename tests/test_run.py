@@ -1,0 +1,347 @@
+"""End-to-end tests of ``localize run`` and the pipeline on synthetic walks along a synthetic block.
+
+The block (local metres around a point of downtown San Francisco, UTM 10N): a street along x
+(|y| < 6 m) with a crosswalk at |x| < 3 m, sidewalks north (6..10 m, ``N``) and south (-10..-6 m,
+``S``), buildings beyond both. The walker goes east along the north sidewalk; GNSS snaps to the
+opposite sidewalk, as it often does in urban canyons.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import geopandas as gpd
+import numpy as np
+import pandas as pd
+import pytest
+import shapely
+
+from curbside import settings
+from curbside.cli.localize import main as localize_main
+from curbside.errors import CurbsideInputError
+from curbside.localize.maplikelihood import BUILDING, rasterize_map
+from curbside.localize.pipeline import (
+    InertialInput,
+    cumulative_displacement,
+    displacements_between,
+    fixes_at,
+    start_heading_offset,
+    track_session,
+)
+from curbside.localize.session import read_session
+from curbside.osmseg.mapio import MapLayers, read_map, write_map
+from curbside.projection import LocalFrame
+
+X0, Y0 = 551000.0, 4182000.0
+FRAME = LocalFrame(gpd.GeoSeries([], crs=32610).crs)
+
+
+@pytest.fixture(autouse=True)
+def _cache_in_tmp(tmp_path, monkeypatch):
+    monkeypatch.setattr(settings, "cache_dir", tmp_path / "cache")
+
+
+def block_layers() -> MapLayers:
+    def box(x0, y0, x1, y1):
+        return shapely.box(X0 + x0, Y0 + y0, X0 + x1, Y0 + y1)
+
+    rows = [
+        ("street", box(-150, -6, 150, 6), None),
+        ("crosswalk", box(-3, -6, 3, 6), None),
+        ("sidewalk", box(-150, 6, 150, 10), "N"),
+        ("sidewalk", box(-150, -10, 150, -6), "S"),
+        ("building", box(-150, 10, 150, 60), None),
+        ("building", box(-150, -60, 150, -10), None),
+    ]
+    gdf = gpd.GeoDataFrame(
+        {"class": [r[0] for r in rows], "segment_id": [r[2] for r in rows], "street": "Test St",
+         "side": None},
+        geometry=[r[1] for r in rows], crs=32610,
+    )
+    return MapLayers(gdf, {"source": "synthetic"})
+
+
+@pytest.fixture
+def map_file(tmp_path) -> Path:
+    return write_map(block_layers(), tmp_path / "block.geojson")
+
+
+def lonlat(x, y):
+    lon, lat = FRAME.to_lonlat(X0 + np.asarray(x, float), Y0 + np.asarray(y, float))
+    return lon, lat
+
+
+def truth_xy(t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The walker: east along the north sidewalk (y = 8 m) at 1.3 m/s from x = -100 m at t = 0."""
+    return -100.0 + 1.3 * t, np.full_like(t, 8.0)
+
+
+def write_walk(
+    folder: Path,
+    seed: int = 0,
+    duration_s: float = 120.0,
+    gnss_gap: tuple[float, float] | None = None,
+    start_xy: tuple[float, float] | None = (-100.0, 8.0),
+    gnss_offset_m: tuple[float, float] = (0.0, -16.0),
+) -> Path:
+    """A SPEC session: steps.csv, velocity.csv (biased, scaled, noisy), gnss.csv (biased), meta.json."""
+    rng = np.random.default_rng(seed)
+    folder.mkdir(parents=True)
+    steps = np.arange(0.0, duration_s, 0.55)
+    pd.DataFrame({"t": steps}).to_csv(folder / "steps.csv", index=False)
+    tv = np.arange(0.0, duration_s, 0.05)
+    bias = math.radians(6.0)  # inertial heading error, which the drift state has to learn
+    ve = 1.05 * 1.3 * math.cos(bias) + rng.normal(0, 0.05, len(tv))
+    vn = 1.05 * 1.3 * math.sin(bias) + rng.normal(0, 0.05, len(tv))
+    pd.DataFrame({"t": tv, "ve": ve, "vn": vn}).to_csv(folder / "velocity.csv", index=False)
+    tg = np.arange(0.0, duration_s, 1.0)
+    if gnss_gap is not None:
+        tg = tg[(tg < gnss_gap[0]) | (tg > gnss_gap[1])]
+    gx, gy = truth_xy(tg)
+    lon, lat = lonlat(gx + gnss_offset_m[0] + rng.normal(0, 3, len(tg)),
+                      gy + gnss_offset_m[1] + rng.normal(0, 3, len(tg)))
+    acc = np.full(len(tg), 10.0)
+    acc[::10] = -1.0  # invalid fixes: no update
+    gnss = pd.DataFrame({"t": tg, "lat": lat, "lon": lon, "accuracy_m": acc})
+    gnss.to_csv(folder / "gnss.csv", index=False)
+    if start_xy is not None:
+        slon, slat = lonlat(*start_xy)
+        meta = {"start": {"lat": float(slat), "lon": float(slon), "heading_deg": 90.0, "t": 0.0}}
+        (folder / "meta.json").write_text(json.dumps(meta))
+    return folder
+
+
+def errors_m(track: pd.DataFrame) -> np.ndarray:
+    tx, ty = truth_xy(track["t"].to_numpy())
+    return np.hypot(track["x_m"].to_numpy() - X0 - tx, track["y_m"].to_numpy() - Y0 - ty)
+
+
+# -- the three modes on the map -------------------------------------------------------------------------
+
+
+@pytest.fixture(scope="module")
+def walk_results(tmp_path_factory):
+    tmp = tmp_path_factory.mktemp("walks")
+    settings_cache = settings.cache_dir
+    settings.cache_dir = tmp / "cache"
+    try:
+        layers = block_layers()
+        out = {}
+        for seed in (0, 1):
+            session = read_session(write_walk(tmp / f"walk{seed}", seed=seed))
+            out[seed] = {
+                mode: track_session(session, layers, mode, seed=seed, save_particles=mode != "gnss")
+                for mode in ("gnss", "inertial", "fused")
+            }
+        return out
+    finally:
+        settings.cache_dir = settings_cache
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_fused_beats_gnss_and_stays_on_the_right_sidewalk(walk_results, seed):
+    res = walk_results[seed]
+    gnss, fused, inertial = (errors_m(res[m].track) for m in ("gnss", "fused", "inertial"))
+    assert np.median(fused) < 0.5 * np.median(gnss)
+    assert np.percentile(fused, 90) < np.percentile(gnss, 90)
+    assert np.median(inertial) < np.median(gnss)
+    on_north = (res["fused"].track["sidewalk_segment_id"] == "N").mean()
+    assert on_north > 0.9
+    assert (res["gnss"].track["sidewalk_segment_id"] == "N").mean() < 0.2
+
+
+def test_particles_never_stay_in_buildings(walk_results):
+    raster = rasterize_map(block_layers(), 0.5)
+    for mode in ("inertial", "fused"):
+        snaps = walk_results[0][mode].snapshots
+        origin = snaps["origin"]
+        x = snaps["x"].astype(float) + origin[0]
+        y = snaps["y"].astype(float) + origin[1]
+        in_building = raster.codes_at(x, y) == BUILDING
+        assert in_building.mean(axis=1).max() == 0.0
+        assert snaps["x"].shape == (len(walk_results[0][mode].track), settings.default_particles)
+
+
+def test_drift_state_learns_the_inertial_heading_error(walk_results):
+    # The first motion is aligned with the start heading (drift about -6 deg from the start).
+    theta = walk_results[0]["inertial"].track["theta_drift_deg"].to_numpy()
+    assert abs(theta[0] + 6.0) < 3.0
+    assert abs(np.median(theta[-50:]) + 6.0) < 5.0
+
+
+# -- the command ----------------------------------------------------------------------------------------
+
+
+def run_cli(*args) -> int:
+    return localize_main(["run", *map(str, args)])
+
+
+def test_cli_writes_track_files_and_same_seed_same_track(tmp_path, map_file, capsys):
+    session = write_walk(tmp_path / "walk", duration_s=40.0)
+    assert run_cli(session, "--map", map_file, "--seed", 3, "--save-particles", "-o", tmp_path / "a") == 0
+    assert run_cli(session, "--map", map_file, "--seed", 3, "-o", tmp_path / "b") == 0
+    assert run_cli(session, "--map", map_file, "--seed", 4, "-o", tmp_path / "c") == 0
+    a = (tmp_path / "a" / "track.csv").read_bytes()
+    assert a == (tmp_path / "b" / "track.csv").read_bytes()
+    assert a != (tmp_path / "c" / "track.csv").read_bytes()
+    track = pd.read_csv(tmp_path / "a" / "track.csv")
+    assert list(track.columns) == ["t", "lat", "lon", "x_m", "y_m", "theta_drift_deg", "n_eff", "recovered",
+                                   "sidewalk_segment_id"]
+    assert (np.diff(track["t"]) > 0).all() and len(track) == len(np.arange(0, 40, 0.55))
+    doc = json.loads((tmp_path / "a" / "track.geojson").read_text())
+    kinds = [f["geometry"]["type"] for f in doc["features"]]
+    assert kinds[0] == "LineString" and kinds.count("Point") == len(track)
+    with np.load(tmp_path / "a" / "particles.npz") as npz:
+        assert npz["x"].shape == (len(track), settings.default_particles)
+    info = json.loads((tmp_path / "a" / "run.json").read_text())
+    assert info["velocity_source"] == "file" and info["step_source"] == "file" and info["seed"] == 3
+    assert not (tmp_path / "b" / "particles.npz").exists()
+    assert "footsteps" in capsys.readouterr().out
+
+
+@pytest.mark.parametrize("mode", ["gnss", "inertial", "fused"])
+def test_cli_modes_without_map(tmp_path, mode):
+    session = write_walk(tmp_path / "walk", duration_s=20.0)
+    assert run_cli(session, "--mode", mode, "--particles", 100, "-o", tmp_path / "out") == 0
+    track = pd.read_csv(tmp_path / "out" / "track.csv")
+    assert len(track) > 30 and track[["lat", "lon"]].notna().all().all()
+    assert "sidewalk_segment_id" not in track
+
+
+def test_gnss_gap_of_minutes_runs_on_inertial_data(tmp_path, map_file):
+    session = read_session(write_walk(tmp_path / "walk", duration_s=220.0, gnss_gap=(20.0, 200.0)))
+    track = track_session(session, read_map(map_file), "fused", seed=0).track
+    in_gap = (track["t"] > 25) & (track["t"] < 195)
+    assert in_gap.sum() > 250
+    # Without fixes the map holds the walker on the sidewalk, and the along-street error grows only
+    # as the 5 % scale error of the velocity (234 m walked in the gap).
+    across = np.abs(track["y_m"].to_numpy() - Y0 - 8.0)
+    assert np.median(across[in_gap]) < 1.5
+    along = track["x_m"].to_numpy() - X0 - truth_xy(track["t"].to_numpy())[0]
+    assert np.abs(along[in_gap]).max() < 0.06 * 1.3 * 180 + 3.0
+    assert track["recovered"].sum() == 0
+
+
+def test_start_pose_in_building_recovers_with_a_warning(tmp_path, map_file, caplog):
+    session = read_session(write_walk(tmp_path / "walk", duration_s=20.0, start_xy=(-100.0, 14.0)))
+    track = track_session(session, read_map(map_file), "inertial", seed=0).track
+    assert "inside a building" in caplog.text
+    assert track["y_m"].iat[0] - Y0 < 10.0
+    assert (track["sidewalk_segment_id"] == "N").mean() > 0.9
+
+
+def test_gnss_start_without_start_pose(tmp_path, map_file):
+    folder = write_walk(tmp_path / "walk", duration_s=60.0, start_xy=None, gnss_offset_m=(0, 0))
+    session = read_session(folder)
+    result = track_session(session, read_map(map_file), "fused", seed=0)
+    assert np.median(errors_m(result.track)[-40:]) < 5.0
+
+
+def test_fixed_cadence_without_steps_or_imu(tmp_path):
+    folder = write_walk(tmp_path / "walk", duration_s=10.0)
+    (folder / "steps.csv").unlink()
+    result = track_session(read_session(folder), None, "inertial", seed=0)
+    assert result.step_source == "cadence"
+    np.testing.assert_allclose(np.diff(result.track["t"]), settings.default_step_cadence_s)
+
+
+# -- bad input --------------------------------------------------------------------------------------------
+
+
+def assert_exit_2(capsys, args, *words):
+    out = args[args.index("-o") + 1]
+    assert run_cli(*args) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "Traceback" not in err
+    for word in words:
+        assert word in err
+    assert not Path(out).exists()
+
+
+def test_missing_session_exits_2(tmp_path, capsys):
+    assert_exit_2(capsys, [tmp_path / "nope", "-o", tmp_path / "out"], "nope")
+
+
+def test_nan_in_velocity_exits_2(tmp_path, capsys):
+    folder = write_walk(tmp_path / "walk", duration_s=10.0)
+    v = pd.read_csv(folder / "velocity.csv")
+    v.loc[5, "ve"] = np.nan
+    v.to_csv(folder / "velocity.csv", index=False)
+    assert_exit_2(capsys, [folder, "-o", tmp_path / "out"], "velocity.csv", "row")
+
+
+def test_out_of_order_gnss_timestamps_exit_2(tmp_path, capsys):
+    folder = write_walk(tmp_path / "walk", duration_s=10.0)
+    g = pd.read_csv(folder / "gnss.csv")
+    g.loc[[3, 4], "t"] = g.loc[[4, 3], "t"].to_numpy()
+    g.to_csv(folder / "gnss.csv", index=False)
+    assert_exit_2(capsys, [folder, "-o", tmp_path / "out"], "gnss.csv", "out-of-order")
+
+
+def test_start_pose_outside_the_map_exits_2(tmp_path, map_file, capsys):
+    folder = write_walk(tmp_path / "walk", duration_s=10.0, start_xy=(3000.0, 8.0))
+    assert_exit_2(capsys, [folder, "--map", map_file, "-o", tmp_path / "out"], "meta.json", "outside")
+
+
+def test_session_outside_the_map_exits_2(tmp_path, map_file, capsys):
+    folder = write_walk(tmp_path / "walk", duration_s=10.0, start_xy=None, gnss_offset_m=(5000.0, 0.0))
+    assert_exit_2(capsys, [folder, "--map", map_file, "-o", tmp_path / "out"], "gnss.csv", "outside")
+
+
+@pytest.mark.parametrize("option", [("--jaywalk-weight", "1.5"), ("--particles", "0"), ("--mode", "best")])
+def test_bad_options_exit_2(tmp_path, capsys, option):
+    folder = write_walk(tmp_path / "walk", duration_s=5.0)
+    with pytest.raises(SystemExit) as exit_info:  # argparse usage errors exit directly
+        run_cli(folder, *option, "-o", tmp_path / "out")
+    assert exit_info.value.code == 2
+    assert option[0] in capsys.readouterr().err
+
+
+def test_missing_velocity_for_file_source_exits_2(tmp_path, capsys):
+    folder = write_walk(tmp_path / "walk", duration_s=5.0)
+    (folder / "velocity.csv").unlink()
+    assert_exit_2(capsys, [folder, "--velocity-source", "file", "-o", tmp_path / "out"], "velocity.csv")
+
+
+def test_inertial_mode_without_inertial_data_raises(tmp_path):
+    folder = write_walk(tmp_path / "walk", duration_s=5.0)
+    (folder / "velocity.csv").unlink()
+    (folder / "steps.csv").unlink()
+    with pytest.raises(CurbsideInputError, match="inertial data"):
+        track_session(read_session(folder), None, "inertial")
+    assert len(track_session(read_session(folder), None, "gnss").track) > 5
+
+
+# -- pipeline pieces --------------------------------------------------------------------------------------
+
+
+def test_fix_selection_interpolates_holds_and_expires():
+    tf = np.array([0.0, 1.0, 2.0, 10.0])
+    fixes = (tf, tf * 10.0, np.zeros(4), np.array([4.0, 6.0, 8.0, 8.0]))
+    x, _, acc = fixes_at(fixes, np.array([0.5, 2.5, 4.5, 6.0, 10.0, -1.0]), max_gap_s=2.0, max_age_s=3.0)
+    np.testing.assert_allclose(x[:3], [5.0, 20.0, 20.0])  # interpolated; held (next fix 7.5 s away)
+    np.testing.assert_allclose(acc[:2], [5.0, 8.0])
+    assert np.isnan(acc[3]) and np.isnan(x[3])  # 4 s stale, 4 s to the next fix: no update
+    assert x[4] == 100.0 and np.isnan(acc[5])
+
+
+def test_displacements_integrate_velocity_and_skip_gaps():
+    t = np.array([0.0, 1.0, 2.0, 5.0, 6.0])
+    v = pd.DataFrame({"t": t, "ve": [1.0, 1.0, 1.0, 1.0, 1.0], "vn": [0.0, 0.0, 0.0, 0.0, 2.0]})
+    knots = cumulative_displacement(InertialInput(v, "file", step_means=False))
+    d = displacements_between(knots, np.array([0.0, 2.0, 5.0, 6.0]))
+    np.testing.assert_allclose(d, [[0, 0], [2.0, 0], [0.0, 0], [1.0, 1.0]])
+    pdr = InertialInput(pd.DataFrame({"t": [0.0, 1.0, 3.0], "ve": [0.0, 2.0, 1.0], "vn": 0.0}), "pdr", True)
+    np.testing.assert_allclose(displacements_between(cumulative_displacement(pdr), np.array([0.0, 3.0])),
+                               [[0, 0], [4.0, 0]])
+
+
+def test_start_heading_offset_turns_first_motion_onto_the_heading():
+    east = np.tile([0.7, 0.0], (10, 1))
+    assert start_heading_offset(0.0, east) == pytest.approx(math.pi / 2)  # north = east turned CCW 90
+    assert start_heading_offset(90.0, east) == pytest.approx(0.0)
+    assert abs(start_heading_offset(180.0, np.tile([0.0, 0.7], (10, 1)))) == pytest.approx(math.pi)
+    assert start_heading_offset(270.0, np.tile([0.0, 0.7], (10, 1))) == pytest.approx(math.pi / 2)
+    assert start_heading_offset(45.0, np.zeros((5, 2))) == 0.0
