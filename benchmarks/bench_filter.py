@@ -34,15 +34,18 @@ import tracemalloc  # noqa: E402
 import geopandas as gpd  # noqa: E402
 import numpy as np  # noqa: E402
 import shapely  # noqa: E402
+from scipy.ndimage import maximum_filter  # noqa: E402
 
 from curbside.localize.filter import FilterConfig, GnssFix, Tracker  # noqa: E402
-from curbside.localize.maplikelihood import MapRaster, rasterize_map  # noqa: E402
+from curbside.localize.maplikelihood import BUILDING, MapRaster, rasterize_map  # noqa: E402
 from curbside.osmseg.mapio import MapLayers, read_map  # noqa: E402
 
 X0, Y0 = 551000.0, 4182000.0
 
 
-def grid_city(blocks: int = 20, block_m: float = 100.0, street_m: float = 12.0, sidewalk_m: float = 3.0) -> MapLayers:
+def grid_city(
+    blocks: int = 20, block_m: float = 100.0, street_m: float = 12.0, sidewalk_m: float = 3.0
+) -> MapLayers:
     """A synthetic downtown: square blocks of four buildings ringed by sidewalks, streets between."""
     pitch = block_m + street_m
     i, j = np.meshgrid(np.arange(blocks), np.arange(blocks))
@@ -54,7 +57,8 @@ def grid_city(blocks: int = 20, block_m: float = 100.0, street_m: float = 12.0, 
         for dx in (0, half - inner) for dy in (0, half - inner)
     ]
     outer = shapely.box(bx, by, bx + block_m, by + block_m)
-    sidewalks = shapely.difference(outer, shapely.box(bx + inner, by + inner, bx + block_m - inner, by + block_m - inner))
+    core = shapely.box(bx + inner, by + inner, bx + block_m - inner, by + block_m - inner)
+    sidewalks = shapely.difference(outer, core)
     extent = blocks * pitch
     streets = [shapely.box(X0 - street_m, Y0 + k * pitch - street_m, X0 + extent, Y0 + k * pitch)
                for k in range(blocks + 1)]
@@ -69,10 +73,10 @@ def grid_city(blocks: int = 20, block_m: float = 100.0, street_m: float = 12.0, 
 
 
 def walk(start: tuple[float, float], steps: int) -> tuple[np.ndarray, list[GnssFix | None]]:
-    """Back and forth along x at 1.3 m/s, 0.55 s per step, a fix near the truth every other step."""
+    """Circles of 5 m radius at 1.3 m/s, 0.55 s per step, a fix near the truth every other step."""
     rng = np.random.default_rng(0)
-    direction = np.where((np.arange(steps) // 60) % 2 == 0, 1.0, -1.0)
-    disp = np.column_stack([0.715 * direction, np.zeros(steps)])
+    heading = np.arange(steps) * (0.715 / 5.0)
+    disp = 0.715 * np.column_stack([np.cos(heading), np.sin(heading)])
     truth = np.asarray(start) + np.cumsum(disp, axis=0)
     fixes = [GnssFix(truth[k, 0] + rng.normal(0, 5), truth[k, 1] + rng.normal(0, 5), 8.0) if k % 2 else None
              for k in range(steps)]
@@ -87,7 +91,10 @@ def time_tracker(raster: MapRaster, n: int, backend: str, steps: int, start) -> 
     t0 = time.perf_counter()
     for k in range(steps):
         tracker.step(0.55 * k, displacement_en=disp[k], gnss_fix=fixes[k])
-    return steps / (time.perf_counter() - t0)
+    rate = steps / (time.perf_counter() - t0)
+    if tracker.recoveries:
+        print(f"  ({tracker.recoveries} collapses during the timed walk)")
+    return rate
 
 
 def time_shapely_baseline(layers: MapLayers, n: int, steps: int, start, jaywalk_weight: float = 0.4) -> float:
@@ -119,7 +126,8 @@ def time_shapely_baseline(layers: MapLayers, n: int, steps: int, start, jaywalk_
             w[:] = 1.0
         w /= w.sum()
         _estimate = (w @ x, w @ y)
-        idx = np.minimum(np.searchsorted(np.cumsum(w), (rng.random() + np.arange(n)) / n, side="right"), n - 1)
+        positions = (rng.random() + np.arange(n)) / n
+        idx = np.minimum(np.searchsorted(np.cumsum(w), positions, side="right"), n - 1)
         x, y, theta = x[idx], y[idx], theta[idx]
     return steps / (time.perf_counter() - t0)
 
@@ -147,9 +155,13 @@ def main(argv: list[str] | None = None) -> int:
     raster = rasterize_map(layers)
     print(f"map: {len(layers.gdf)} polygons, raster {raster.shape[0]} x {raster.shape[1]} cells at "
           f"{raster.resolution_m} m, rasterised in {time.perf_counter() - t0:.2f} s")
-    free = np.argwhere(raster.codes[::8, ::8] == 2)  # start on a sidewalk near the middle
-    mid = free[np.argmin(np.abs(free - np.array(raster.shape) / 16).sum(axis=1))] * 8
-    start = (raster.x0 + (mid[1] + 0.5) * raster.resolution_m, raster.y0 + (mid[0] + 0.5) * raster.resolution_m)
+    # Start near the middle, at least ~25 m from any building, so that the circles stay walkable.
+    coarse = raster.codes[::8, ::8]
+    open_space = ~maximum_filter(coarse == BUILDING, size=13) & (coarse != BUILDING)
+    free = np.argwhere(open_space)
+    mid = free[np.argmin(np.abs(free - np.array(coarse.shape) / 2).sum(axis=1))] * 8
+    res = raster.resolution_m
+    start = (raster.x0 + (mid[1] + 0.5) * res, raster.y0 + (mid[0] + 0.5) * res)
 
     print(f"{'N':>8} {'implementation':<18} {'updates/s':>11} {'ms/update':>10} {'vs shapely':>11}")
     for n, steps, base_steps in ((500, args.steps, 300), (100_000, 200, 3)):

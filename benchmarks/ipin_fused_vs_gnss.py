@@ -2,9 +2,10 @@
 
 Error = horizontal distance between a method's position, linearly interpolated at each surveyed
 waypoint's time (POSI), and the waypoint. Both methods are scored on the same waypoints: those inside
-the span of the trial's valid fixes (the same rule as the dataset README's GNSS statistics). The
-filter starts from the first waypoint and the heading towards the second (``meta.json``'s start pose,
-the paper's setting); ``--no-start-pose`` starts it from the first usable fix instead.
+the span of the trial's valid fixes (the same rule as the dataset README's GNSS statistics), except
+the first, where the filter is placed. The filter starts from the first waypoint and the heading
+towards the second (``meta.json``'s start pose, the paper's setting); ``--no-start-pose`` starts it
+from the first usable fix instead.
 
 Usage::
 
@@ -73,6 +74,7 @@ def main(argv: list[str] | None = None) -> int:
             errors[mode] = waypoint_errors(track, session.waypoints, frame)
         tw = session.waypoints["t"].to_numpy()
         scored = (tw >= tf[0]) & (tw <= tf[-1]) if len(tf) else np.zeros(len(tw), bool)
+        scored[0] = False  # the start pose: the filters are placed there
         for mode, err in errors.items():
             for k in np.flatnonzero(scored):
                 rows.append({"trial": session.name, "group": session.name[:15], "mode": mode,

@@ -176,6 +176,13 @@ lane_width_m: float = 3.0
 #: Width (m) of one side's on-street parking by ``parking:*`` orientation or ``parking:lane:*`` value.
 parking_width_m: dict[str, float] = {"parallel": 2.2, "lane": 2.2, "diagonal": 4.5, "perpendicular": 5.0}
 
+#: Parking assumed on each side of a street with sidewalks whose width comes from ``lanes`` and that
+#: has no ``parking*`` tag (downtown streets mostly have curbside parking or loading lanes).
+assumed_parking_width_m: float = 2.2
+
+#: Narrowest half carriageway (m) after mapped sidewalks and building lines have capped it.
+min_carriageway_half_width_m: float = 1.5
+
 #: Width (m) of one painted cycle lane (``cycleway*=lane``).
 cycle_lane_width_m: float = 1.5
 
@@ -188,6 +195,9 @@ sidewalk_highways: frozenset[str] = frozenset({
 
 #: Depth (m) of a derived sidewalk, curb to building line, where no building is closer.
 sidewalk_depth_m: float = 5.0
+
+#: Least sidewalk (m) kept between a derived curb and the building line where no sidewalk is mapped.
+min_sidewalk_width_m: float = 2.5
 
 #: Width (m) of a separately mapped sidewalk (``footway=sidewalk``) without a ``width`` tag.
 mapped_sidewalk_width_m: float = 2.0
@@ -204,6 +214,11 @@ crosswalk_overlap_m: float = 0.5
 #: Width (m) of a walkable passage carved through a building by a footway, corridor or platform
 #: without a ``width`` tag (roads use their carriageway width).
 passage_width_m: float = 3.0
+
+#: Pieces of a carved building smaller than this (m^2), or thinner than
+#: ``passage_island_thickness_m`` (2 x area / perimeter), are open floor between passages.
+passage_island_area_m2: float = 200.0
+passage_island_thickness_m: float = 5.0
 
 #: What ``crossing=unmarked`` becomes: ``"crosswalk"`` or ``"street"``.
 unmarked_crossing_as: str = "crosswalk"

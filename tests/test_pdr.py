@@ -89,3 +89,21 @@ def test_real_walk_matches_surveyed_waypoints():
     walked = np.hypot(*np.diff(moved, axis=0).T).sum()
     assert walked == pytest.approx(surveyed, rel=0.15)
     assert waypoint_errors(velocity, wp).max() < 3.0
+
+
+@pytest.mark.slow
+def test_all_ipin_trials(shared_data):
+    """Over the 38 single-floor IPIN trials: walked distance and waypoint error of the PDR baseline.
+
+    (The 5 floor-changing trials walk detours by the stairs that the straight waypoint legs miss.)
+    """
+    from curbside.localize.pdr import evaluate_ipin
+
+    table, scored = evaluate_ipin(str(shared_data / "ipin2023" / "ipin2023-t3.h5"))
+    assert len(table) == 43
+    single = table[~table["floors"].str.contains(",")]
+    assert len(single) == 38
+    assert single["ratio"].median() == pytest.approx(1.0, abs=0.05)
+    assert single["ratio"].between(0.8, 1.2).all()
+    errors = scored.loc[scored["trial"].isin(single["trial"]), "err_m"]
+    assert np.median(errors) < 5.0 and np.percentile(errors, 90) < 10.0

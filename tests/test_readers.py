@@ -287,3 +287,11 @@ def test_spec_folder_is_read_as_is(tmp_path):
     assert detect_format(tmp_path / "gpx") == "spec"
     back = read_any(tmp_path / "gpx")
     pd.testing.assert_frame_equal(back.gnss, read_session(tmp_path / "gpx").gnss)
+
+
+def test_single_trial_h5_needs_no_trial_name(tmp_path):
+    path = tmp_path / "one.h5"
+    shutil.copy(H5, path)
+    with h5py.File(path, "a") as f:
+        del f[A520]
+    assert read_any(path).name == "TrainingTrial23_repetition03"

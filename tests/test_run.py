@@ -345,3 +345,27 @@ def test_start_heading_offset_turns_first_motion_onto_the_heading():
     assert abs(start_heading_offset(180.0, np.tile([0.0, 0.7], (10, 1)))) == pytest.approx(math.pi)
     assert start_heading_offset(270.0, np.tile([0.0, 0.7], (10, 1))) == pytest.approx(math.pi / 2)
     assert start_heading_offset(45.0, np.zeros((5, 2))) == 0.0
+
+
+# -- real data ------------------------------------------------------------------------------------------
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("trial", ["TrainingTrial23_repetition02", "TrainingTrial26_repetition02"])
+def test_ipin_fused_beats_raw_gnss_in_the_basement(shared_data, trial):
+    """Two basement trials of IPIN 2023 with poor GNSS (README: 9.2 m and 23.4 m median error)."""
+    from curbside.localize.readers.ipin import read_trial
+
+    session = read_trial(shared_data / "ipin2023" / "ipin2023-t3.h5", trial)
+    start = session.meta["start"]
+    frame = LocalFrame.around(start["lon"], start["lat"])
+    wx, wy = frame.to_xy(session.waypoints["lon"].to_numpy(), session.waypoints["lat"].to_numpy())
+    tw = session.waypoints["t"].to_numpy()
+    medians = {}
+    for mode in ("gnss", "fused"):
+        track = track_session(session, None, mode, seed=0, velocity_source="pdr").track
+        tx, ty = frame.to_xy(track["lon"].to_numpy(), track["lat"].to_numpy())
+        t = track["t"].to_numpy()
+        err = np.hypot(np.interp(tw, t, tx) - wx, np.interp(tw, t, ty) - wy)[1:]  # skip the start
+        medians[mode] = np.median(err)
+    assert medians["fused"] < 0.6 * medians["gnss"]

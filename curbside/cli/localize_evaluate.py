@@ -1,9 +1,203 @@
-"""``localize evaluate`` sub-command(s)."""
+"""``localize simulate`` and ``localize evaluate``: the benchmark walks and the paper's report.
+
+::
+
+    localize simulate --route path1 [--seed S] [--map MAP] [--imu] [--no-velocity] -o SESSION
+    localize simulate --benchmark sf6 [--seeds N] [--imu] -o DIR
+    localize evaluate SESSIONS... --maps A.geojson [B.geojson ...] [--map-names NAME ...]
+                      [--metrics-map MAP] [--methods gnss inertial fused] [--jaywalk-weights 0 0.4 1]
+                      [--particles 500 ...] [--gnss-sigma-factors F ...] [--seed S]
+                      [--workers N | --scheduler ADDRESS] [--ipin H5 [--ipin-trials K]] -o REPORT_DIR
+
+``SESSIONS`` are session folders or folders of them. Each list option with several values is a
+parameter sweep (one at a time around the base values); all runs go to one report.
+"""
 
 from __future__ import annotations
 
 import argparse
+import logging
+import os
+from pathlib import Path
+
+from curbside import settings
+from curbside.errors import CurbsideInputError
+from curbside.evaluate.runner import METHODS
+
+logger = logging.getLogger(__name__)
+
+
+def _positive_int(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not an integer: {text!r}") from None
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"must be at least 1, got {value}")
+    return value
+
+
+def _weight(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not a number: {text!r}") from None
+    if not 0.0 <= value <= 1.0:
+        raise argparse.ArgumentTypeError(f"must lie in [0, 1], got {value}")
+    return value
+
+
+def _positive_float(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not a number: {text!r}") from None
+    if not value > 0:
+        raise argparse.ArgumentTypeError(f"must be positive, got {value}")
+    return value
+
+
+def _simulate(args: argparse.Namespace) -> int:
+    from curbside.evaluate import routes as routes_mod
+    from curbside.evaluate.simulate import SimulationConfig, sf6_routes, simulate_benchmark, simulate_session
+    from curbside.localize.session import write_session
+
+    config = SimulationConfig(write_velocity=not args.no_velocity, write_imu=args.imu)
+    if args.benchmark:
+        written = simulate_benchmark(args.output, args.seeds, config, args.osm)
+        print(f"{args.output}: {len(written)} sessions of the sf6 benchmark ({args.seeds} seed(s) per route)")
+        return 0
+    names = [s.name for s in routes_mod.SF6]
+    if args.route not in names:
+        raise CurbsideInputError("--route", f"unknown route {args.route!r}; one of {names}")
+    from curbside.evaluate.osmsource import load_osm
+
+    route_list, frame, osm = sf6_routes(load_osm(args.osm))
+    route = route_list[names.index(args.route)]
+    session = simulate_session(route, osm, frame, args.seed, config, name=Path(args.output).name)
+    if args.map:
+        _check_on_map(args.map, route, frame)
+    write_session(session, args.output)
+    print(
+        f"{args.output}: {route.spec.name}, {route.length_m:.0f} m, {route.crossings} crosswalk crossings, "
+        f"{route.jaywalks} jaywalks, {len(session.gnss)} GNSS fixes"
+    )
+    return 0
+
+
+def _check_on_map(map_path: str, route, frame) -> None:
+    import numpy as np
+    import pyproj
+    import shapely
+
+    from curbside.osmseg.mapio import read_map
+
+    layers = read_map(map_path)
+    lon, lat = frame.to_lonlat(route.xy[:, 0], route.xy[:, 1])
+    from curbside.projection import LocalFrame
+
+    x, y = LocalFrame(pyproj.CRS(layers.crs)).to_xy(lon, lat)
+    if not shapely.box(*layers.gdf.total_bounds).contains(shapely.multipoints(np.column_stack([x, y]))):
+        raise CurbsideInputError(map_path, f"route {route.spec.name} lies outside the map's extent")
+    inside = shapely.contains_xy(layers.union("building"), x, y)
+    if inside.any():
+        logger.warning(
+            "%d of %d waypoints of %s lie in a building of %s",
+            inside.sum(),
+            len(x),
+            route.spec.name,
+            map_path,
+        )
+
+
+def _evaluate(args: argparse.Namespace) -> int:
+    from curbside.evaluate.benchmark import expand_sessions, ipin_table, plan, route_table
+    from curbside.evaluate.report import write_report
+    from curbside.evaluate.runner import run_all
+    from curbside.osmseg.mapio import read_map
+
+    sessions = expand_sessions(args.sessions)
+    for m in args.maps:
+        if not Path(m).is_file():
+            raise CurbsideInputError(m, "no such map file")
+    names = args.map_names or [Path(m).stem for m in args.maps]
+    if len(names) != len(args.maps) or len(set(names)) != len(names):
+        raise CurbsideInputError("--map-names", "give one distinct name per map")
+    maps = dict(zip(names, [str(m) for m in args.maps], strict=True))
+    metrics_map = args.metrics_map or args.maps[0]
+    reference = read_map(metrics_map)
+    if len(reference.layer("sidewalk")) == 0:
+        raise CurbsideInputError(metrics_map, "no sidewalk segments to score against: pass --metrics-map")
+    for m in maps.values():
+        read_map(m)  # fail early, with the file's name, on a bad map
+    sigmas = tuple(args.gnss_sigma_factors) if args.gnss_sigma_factors else (None,)
+    specs, base = plan(
+        sessions,
+        maps,
+        tuple(args.methods),
+        tuple(args.jaywalk_weights),
+        tuple(args.particles),
+        sigmas,
+        args.seed,
+        str(metrics_map),
+        velocity_source=args.velocity_source,
+    )
+    workers = args.workers if args.workers is not None else min(len(specs), os.cpu_count() or 1)
+    results = run_all(specs, workers=workers, scheduler=args.scheduler)
+    extra, extra_json = [], {}
+    table1 = route_table(sessions)
+    if args.ipin:
+        table, rows = ipin_table(args.ipin, args.ipin_trials, args.seed)
+        extra.append(table)
+        extra_json["ipin"] = rows
+    write_report(
+        results,
+        args.output,
+        base,
+        reference,
+        extra,
+        [table1] if table1 else [],
+        extra_json,
+        intro=f"{len(sessions)} session(s), {len(maps)} map(s), {len(specs)} runs.",
+    )
+    print(f"{args.output}: report over {len(sessions)} sessions, {len(specs)} runs")
+    return 0
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
-    """Add this module's sub-command(s) to ``subparsers``."""
+    """Add ``simulate`` and ``evaluate`` to ``subparsers``."""
+    sim = subparsers.add_parser("simulate", help="simulate walks on real SF sidewalks (sessions)")
+    what = sim.add_mutually_exclusive_group(required=True)
+    what.add_argument("--route", help="one benchmark route: path1 .. path6")
+    what.add_argument("--benchmark", choices=["sf6"], help="all six routes, --seeds recordings each")
+    sim.add_argument("--seed", type=int, default=1, help="seed of one session (default 1)")
+    sim.add_argument("--seeds", type=_positive_int, default=3, help="recordings per route for --benchmark")
+    sim.add_argument("--map", help="check the route against this map (extent, buildings)")
+    sim.add_argument("--osm", help="OSM extract for heights and footways (default: the bundled one)")
+    sim.add_argument("--imu", action="store_true", help="also write imu.csv (100 Hz phone IMU)")
+    sim.add_argument("--no-velocity", action="store_true", help="do not write velocity.csv")
+    sim.add_argument("-o", "--output", required=True, help="session folder (or folder of sessions)")
+    sim.set_defaults(func=_simulate)
+
+    ev = subparsers.add_parser("evaluate", help="the paper's metrics, tables and figures over sessions")
+    ev.add_argument("sessions", nargs="+", help="session folders or folders of sessions")
+    ev.add_argument("--maps", nargs="+", required=True, help="map GeoJSONs (map sources to compare)")
+    ev.add_argument("--map-names", nargs="+", help="labels of the maps (default: file stems)")
+    ev.add_argument("--metrics-map", help="map whose sidewalk segments score every run (default: the first)")
+    ev.add_argument("--methods", nargs="+", default=list(METHODS), choices=METHODS)
+    ev.add_argument("--jaywalk-weights", nargs="+", type=_weight, default=[0.0, 0.4, 1.0])
+    ev.add_argument("--particles", nargs="+", type=_positive_int, default=[settings.default_particles])
+    ev.add_argument(
+        "--gnss-sigma-factors",
+        nargs="+",
+        type=_positive_float,
+        help="GNSS sigma = factor x accuracy (default: the filter's)",
+    )
+    ev.add_argument("--velocity-source", default="auto", choices=["auto", "file", "ronin", "pdr"])
+    ev.add_argument("--seed", type=int, default=0, help="filter seed")
+    ev.add_argument("--workers", type=_positive_int, help="dask LocalCluster worker processes (1: serial)")
+    ev.add_argument("--scheduler", help="address of an existing dask scheduler")
+    ev.add_argument("--ipin", help="IPIN 2023 HDF5: add the real-data table (no map)")
+    ev.add_argument("--ipin-trials", type=_positive_int, help="only the first K IPIN trials")
+    ev.add_argument("-o", "--output", required=True, help="report folder")
+    ev.set_defaults(func=_evaluate)

@@ -6,7 +6,7 @@ it finds the elevation angle above which the sky is open (the tallest building i
 
 - **across / along axes**: the blocked directions' principal axis is "across the street" (tall walls
   either side); its normal is "along". ``severity`` along each axis is the mean blocked elevation
-  (0 = open sky, 1 = sky blocked to the zenith).
+  (0 = open sky, 1 = sky blocked to the zenith), averaged over the azimuths near that axis.
 - **correlated error**: a first-order Gauss-Markov (AR(1)) process per axis with time constant
   ``tau_s`` and standard deviation ``sqrt(sigma_open_m^2 + (sigma_canyon_m * severity)^2)``, so errors
   are larger across than along and wander over tens of seconds, as multipath / NLOS errors do.
@@ -136,9 +136,7 @@ def sky_mask(
     np.minimum.at(wall, r_idx, np.where(inside, model.mask_reach_m, dist))
     covered = np.zeros(n * k, bool)
     covered[r_idx[covered_pair]] = True
-    return SkyMask(
-        elevation.reshape(n, k), wall.reshape(n, k), az, covered.reshape(n, k).any(axis=1)
-    )
+    return SkyMask(elevation.reshape(n, k), wall.reshape(n, k), az, covered.reshape(n, k).any(axis=1))
 
 
 def canyon_axes(mask: SkyMask) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
@@ -149,7 +147,7 @@ def canyon_axes(mask: SkyMask) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.n
     across
         ``(n, 2)`` unit vectors: the principal axis of the blocked directions.
     sev_across, sev_along
-        ``(n,)`` mean blocked elevation (fraction of 90 degrees) along each axis, in [0, 1].
+        ``(n,)`` blocked elevation (fraction of 90 degrees) of the azimuths near each axis, in [0, 1].
     mirror
         ``(n, 2)`` displacement that mirrors the position across the canyon centre line.
     """
@@ -157,10 +155,11 @@ def canyon_axes(mask: SkyMask) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.n
     u = mask.azimuth
     k = len(u)
     m = np.einsum("nk,ki,kj->nij", w, u, u) * (2.0 / k)
-    vals, vecs = np.linalg.eigh(m)  # ascending
+    _, vecs = np.linalg.eigh(m)  # ascending eigenvalues: the last vector is the most blocked axis
     across = vecs[:, :, 1]
-    sev_across = np.clip(vals[:, 1], 0, 1)
-    sev_along = np.clip(vals[:, 0], 0, 1)
+    along = np.column_stack([-across[:, 1], across[:, 0]])
+    sev_across = _axis_severity(w, u, across)
+    sev_along = _axis_severity(w, u, along)
     # walls nearest to +across and -across
     cos = across @ u.T
     plus = np.argmax(cos, axis=1)
@@ -170,6 +169,12 @@ def canyon_axes(mask: SkyMask) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.n
     d_minus = np.minimum(mask.wall_m[rows, minus], 40.0)
     mirror = across * (d_plus - d_minus)[:, None]
     return across, sev_across, sev_along, mirror
+
+
+def _axis_severity(w: np.ndarray, u: np.ndarray, axis: np.ndarray) -> np.ndarray:
+    """Mean blockage of the azimuths near ``axis`` (both ways), weighted by ``cos^4`` of the angle."""
+    weight = (axis @ u.T) ** 4
+    return np.clip(np.sum(w * weight, axis=1) / np.sum(weight, axis=1), 0, 1)
 
 
 def _gauss_markov(n: int, dt: float, tau: np.ndarray | float, rng: np.random.Generator) -> np.ndarray:

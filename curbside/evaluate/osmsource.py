@@ -121,7 +121,10 @@ def _read(osm_file: Path) -> OsmSource:
     )
     log.info(
         "OSM %s: %d buildings, %d footways, %d roads",
-        osm_file.name, len(buildings), len(footways), len(roads),
+        osm_file.name,
+        len(buildings),
+        len(footways),
+        len(roads),
     )
     return OsmSource(buildings, footways, roads)
 

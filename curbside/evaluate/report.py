@@ -119,8 +119,14 @@ def paper_tables(pooled: pd.DataFrame, map_name: str, base: dict[str, Any]) -> l
             paper = PAPER["csa"].get(round(float(w), 2), {}).get(m)
             row.append(f"{_fmt(None if r is None else r['csa'])} ({_fmt(paper)})")
         rows2.append(row)
-    tables = [Table(f"Table 2. Correct Sidewalk Assignment, map '{map_name}'", header, rows2,
-                    "Pooled over all footsteps; GNSS does not depend on w.")]
+    tables = [
+        Table(
+            f"Table 2. Correct Sidewalk Assignment, map '{map_name}'",
+            header,
+            rows2,
+            "Pooled over all footsteps; GNSS does not depend on w.",
+        )
+    ]
     w0 = base["jaywalk_weight"]
     for title, names in (
         ("Table 3. Euclidean error (m)", ("euclid_mean_m", "euclid_median_m", "euclid_p90_m")),
@@ -143,19 +149,35 @@ def map_table(pooled: pd.DataFrame, base: dict[str, Any]) -> Table:
     rows = []
     for map_name in pooled["map"].unique():
         for m in METHODS:
-            r = _lookup(pooled, m, map=map_name, jaywalk_weight=base["jaywalk_weight"],
-                        particles=base["particles"], gnss_sigma_factor=base["gnss_sigma_factor"])
+            r = _lookup(
+                pooled,
+                m,
+                map=map_name,
+                jaywalk_weight=base["jaywalk_weight"],
+                particles=base["particles"],
+                gnss_sigma_factor=base["gnss_sigma_factor"],
+            )
             if r is not None:
-                rows.append([map_name, METHOD_LABELS[m]] + [_fmt(r[n], 2 if n == "csa" else 1) for n in names])
-    return Table("Map sources compared", ["map", "method", *names], rows,
-                 "Every map is scored against the same reference sidewalk segments.")
+                rows.append(
+                    [map_name, METHOD_LABELS[m]] + [_fmt(r[n], 2 if n == "csa" else 1) for n in names]
+                )
+    return Table(
+        "Map sources compared",
+        ["map", "method", *names],
+        rows,
+        "Every map is scored against the same reference sidewalk segments.",
+    )
 
 
 def sweep_tables(pooled: pd.DataFrame, base: dict[str, Any]) -> list[Table]:
     """One table per swept parameter with two or more values (the others held at their base values)."""
     tables = []
     params = ("jaywalk_weight", "particles", "gnss_sigma_factor")
-    labels = {"jaywalk_weight": "jaywalk weight w", "particles": "particles N", "gnss_sigma_factor": "GNSS sigma factor"}
+    labels = {
+        "jaywalk_weight": "jaywalk weight w",
+        "particles": "particles N",
+        "gnss_sigma_factor": "GNSS sigma factor",
+    }
     for param in params:
         sub = pooled[pooled["method"] != "gnss"]
         for other in params:
@@ -164,9 +186,15 @@ def sweep_tables(pooled: pd.DataFrame, base: dict[str, Any]) -> list[Table]:
         if sub[param].astype(str).nunique() < 2:
             continue
         rows = [
-            [str(r["map"]), METHOD_LABELS[r["method"]], "default" if pd.isna(r[param]) else f"{r[param]:g}",
-             _fmt(r["csa"]), _fmt(r["euclid_median_m"], 1), _fmt(r["euclid_p90_m"], 1),
-             _fmt(r["across_median_m"], 1)]
+            [
+                str(r["map"]),
+                METHOD_LABELS[r["method"]],
+                "default" if pd.isna(r[param]) else f"{r[param]:g}",
+                _fmt(r["csa"]),
+                _fmt(r["euclid_median_m"], 1),
+                _fmt(r["euclid_p90_m"], 1),
+                _fmt(r["across_median_m"], 1),
+            ]
             for _, r in sub.iterrows()
         ]
         header = ["map", "method", labels[param], "csa", "euclid_median_m", "euclid_p90_m", "across_median_m"]
@@ -208,14 +236,16 @@ def fig_tracks(results: list[dict], layers: MapLayers | None, base: dict[str, An
         for m in METHODS:
             if m in tracks:
                 tr = tracks[m]
-                ax.scatter(tr["x_m"], tr["y_m"], s=3, color=METHOD_COLORS[m], label=METHOD_LABELS[m], zorder=3)
+                ax.scatter(
+                    tr["x_m"], tr["y_m"], s=3, color=METHOD_COLORS[m], label=METHOD_LABELS[m], zorder=3
+                )
         ax.set_xlim(x0, x1)
         ax.set_ylim(y0, y1)
         ax.set_aspect("equal")
         ax.set_title(f"{path} ({first[path]})")
         ax.set_xticks([])
         ax.set_yticks([])
-    for ax in axes.ravel()[len(paths):]:
+    for ax in axes.ravel()[len(paths) :]:
         ax.axis("off")
     axes.ravel()[0].legend(loc="lower left", fontsize=7, markerscale=3)
     fig.suptitle("Fig. 1  Tracks per path (map " + str(base.get("map", "")) + ")")
@@ -243,12 +273,21 @@ def fig_particles(results: list[dict], layers: MapLayers | None, base: dict[str,
             snap = r["snapshots"][k]
             m = r["spec"]["method"]
             ax.scatter(snap["x"], snap["y"], s=2, alpha=0.5, color=METHOD_COLORS[m], label=METHOD_LABELS[m])
-        ax.plot(cx, cy, "k*", ms=14, label="ground truth")
+        fix = runs[0]["snapshots"][k].get("fix")
+        if fix is not None:
+            ax.add_patch(plt.Circle(fix[:2], fix[2], color="#1f77b4", alpha=0.15, zorder=1))
+            ax.plot(*fix[:2], "o", color="#1f77b4", ms=9, label=f"GNSS fix (accuracy {fix[2]:.0f} m)")
+        ax.plot(cx, cy, "k*", ms=12, label="ground truth")
         ax.set_xlim(bounds[0], bounds[2])
         ax.set_ylim(bounds[1], bounds[3])
         ax.set_aspect("equal")
         ax.set_title(f"{session}, t = {t:.0f} s")
-        ax.legend(loc="lower left", fontsize=7, markerscale=4)
+        ax.set_xticks([])
+        ax.set_yticks([])
+        handles, labels = ax.get_legend_handles_labels()
+        legend = ax.legend(handles, labels, loc="lower left", fontsize=7)
+        for handle in legend.legend_handles[: len(runs)]:
+            handle.set_sizes([20])
     fig.suptitle("Fig. 3  Particle clouds")
     fig.tight_layout()
     return fig
@@ -282,7 +321,13 @@ def fig_per_path(pooled_path: pd.DataFrame) -> plt.Figure:
     for j, m in enumerate(METHODS):
         sub = pooled_path[pooled_path["method"] == m].set_index("path")
         vals = [sub["euclid_mean_m"].get(p, np.nan) for p in paths]
-        ax.bar(np.arange(len(paths)) + (j - 1) * width, vals, width, color=METHOD_COLORS[m], label=METHOD_LABELS[m])
+        ax.bar(
+            np.arange(len(paths)) + (j - 1) * width,
+            vals,
+            width,
+            color=METHOD_COLORS[m],
+            label=METHOD_LABELS[m],
+        )
     ax.set_xticks(np.arange(len(paths)), paths)
     ax.set_ylabel("mean Euclidean error (m)")
     ax.legend()
@@ -318,6 +363,7 @@ def write_report(
     base: dict[str, Any],
     layers: MapLayers | None = None,
     extra_tables: list[Table] | None = None,
+    lead_tables: list[Table] | None = None,
     extra_json: dict[str, Any] | None = None,
     intro: str = "",
 ) -> dict[str, Path]:
@@ -334,7 +380,9 @@ def write_report(
     layers
         Map drawn under the figures.
     extra_tables
-        More tables (route table, IPIN results...).
+        Tables after the paper's (IPIN results...).
+    lead_tables
+        Tables before the paper's (Table 1, the routes).
     extra_json
         More members for ``metrics.json``.
     intro
@@ -359,7 +407,7 @@ def write_report(
         base_path = base_path[keep]
     base_path = base_path[base_path["map"] == base["map"]]
 
-    tables = []
+    tables = list(lead_tables or [])
     for map_name in pooled["map"].unique():
         tables += paper_tables(pooled, map_name, base)
     if pooled["map"].nunique() > 1:
@@ -371,14 +419,17 @@ def write_report(
         "generator": f"curbside {curbside.__version__}",
         "metric_names": list(METRIC_NAMES),
         "base": base,
-        "paper": {k: ({str(w): v for w, v in val.items()} if k == "csa" else val) for k, val in PAPER.items()},
+        "paper": {
+            k: ({str(w): v for w, v in val.items()} if k == "csa" else val) for k, val in PAPER.items()
+        },
         "pooled": _records(pooled),
         "per_path": _records(per_path),
         "per_session": _records(per_session),
         "definitions": {
             "csa_on_crossing": (
                 f"ground truth > {settings.evaluate_on_sidewalk_m} m from every sidewalk: correct when the "
-                f"estimate's segment is within {settings.evaluate_crossing_slack_m} m of the nearest one's distance"
+                f"estimate's segment is within {settings.evaluate_crossing_slack_m} m of the nearest "
+                "one's distance"
             ),
             "street_direction": "long axis of the sidewalk segment nearest to the ground truth",
             "rte_window_s": settings.evaluate_rte_window_s,
@@ -389,19 +440,34 @@ def write_report(
         figdir = tmp / "figures"
         figdir.mkdir(parents=True)
         figures: list[tuple[str, str, bytes]] = []
-        figures.append(("fig1_tracks.png", "Fig. 1 tracks", _png(fig_tracks(results, layers, base), figdir / "fig1_tracks.png")))
+        figures.append(
+            (
+                "fig1_tracks.png",
+                "Fig. 1 tracks",
+                _png(fig_tracks(results, layers, base), figdir / "fig1_tracks.png"),
+            )
+        )
         fig3 = fig_particles(results, layers, base)
         if fig3 is not None:
-            figures.append(("fig3_particles.png", "Fig. 3 particles", _png(fig3, figdir / "fig3_particles.png")))
+            figures.append(
+                ("fig3_particles.png", "Fig. 3 particles", _png(fig3, figdir / "fig3_particles.png"))
+            )
         figures.append(("fig4_cdf.png", "Fig. 4 CDF", _png(fig_cdf(results, base), figdir / "fig4_cdf.png")))
-        figures.append(("fig5_per_path.png", "Fig. 5 per path", _png(fig_per_path(base_path), figdir / "fig5_per_path.png")))
+        figures.append(
+            (
+                "fig5_per_path.png",
+                "Fig. 5 per path",
+                _png(fig_per_path(base_path), figdir / "fig5_per_path.png"),
+            )
+        )
         (tmp / "metrics.json").write_text(json.dumps(_json_ready(doc), indent=1), encoding="utf-8")
         md = ["# curbside evaluation report", "", intro, ""]
         md += [t.markdown() for t in tables]
         md += [f"![{alt}](figures/{name})\n" for name, alt, _ in figures]
         (tmp / "report.md").write_text("\n".join(md), encoding="utf-8")
         imgs = "".join(
-            f"<figure><img alt='{alt}' src='data:image/png;base64,{base64.b64encode(data).decode()}'/></figure>"
+            f"<figure><img alt='{alt}' "
+            f"src='data:image/png;base64,{base64.b64encode(data).decode()}'/></figure>"
             for _, alt, data in figures
         )
         style = (

@@ -151,9 +151,11 @@ def build_walk_graph(osm: OsmSource, covered_min_height_m: float = 15.0) -> Walk
     graph = graph.subgraph(largest).copy()
     tall = osm.buildings[osm.buildings["height_m"] >= covered_min_height_m]
     covered_fw = fw[fw["covered"]].geometry.values
-    covered = shapely.union_all(
-        np.concatenate([shapely.buffer(covered_fw, 3.0), tall.geometry.values])
-    ) if len(covered_fw) else shapely.union_all(tall.geometry.values)
+    covered = (
+        shapely.union_all(np.concatenate([shapely.buffer(covered_fw, 3.0), tall.geometry.values]))
+        if len(covered_fw)
+        else shapely.union_all(tall.geometry.values)
+    )
     log.info("walking graph: %d nodes, %d edges", graph.number_of_nodes(), graph.number_of_edges())
     return WalkGraph(graph, xy, _jaywalk_partners(graph, xy, osm), covered)
 
@@ -166,7 +168,12 @@ def _jaywalk_partners(graph: nx.Graph, xy: np.ndarray, osm: OsmSource) -> dict:
     edges.sort(axis=1)
     p, q = xy[edges[:, 0]], xy[edges[:, 1]]
     seg_len = np.hypot(*(q - p).T)
-    edges, p, q, seg_len = edges[seg_len >= 12.0], p[seg_len >= 12.0], q[seg_len >= 12.0], seg_len[seg_len >= 12.0]
+    edges, p, q, seg_len = (
+        edges[seg_len >= 12.0],
+        p[seg_len >= 12.0],
+        q[seg_len >= 12.0],
+        seg_len[seg_len >= 12.0],
+    )
     if len(edges) == 0:
         return {}
     lines = shapely.linestrings(np.stack([p, q], axis=1))

@@ -130,7 +130,9 @@ def run_one(spec: RunSpec) -> dict[str, Any]:
     if spec.metrics_map:
         frame = LocalFrame(pyproj.CRS(_map(spec.metrics_map).crs))
     else:
-        frame = LocalFrame.around(float(session.waypoints["lon"].iat[0]), float(session.waypoints["lat"].iat[0]))
+        frame = LocalFrame.around(
+            float(session.waypoints["lon"].iat[0]), float(session.waypoints["lat"].iat[0])
+        )
     ex, ey = frame.to_xy(track["lon"].to_numpy(), track["lat"].to_numpy())
     t = track["t"].to_numpy(float)
     gx, gy = groundtruth_at(session.waypoints, t, frame)
@@ -148,7 +150,14 @@ def run_one(spec: RunSpec) -> dict[str, Any]:
             if layers is not None and spec.metrics_map and _map(spec.metrics_map).crs != layers.crs:
                 lon, lat = LocalFrame(pyproj.CRS(layers.crs)).to_lonlat(px, py)
                 px, py = frame.to_xy(lon, lat)
-            snapshots.append({"t": float(snap["t"][k]), "x": np.asarray(px, np.float32), "y": np.asarray(py, np.float32)})
+            snapshots.append(
+                {
+                    "t": float(snap["t"][k]),
+                    "x": np.asarray(px, np.float32),
+                    "y": np.asarray(py, np.float32),
+                    "fix": _fix_at(session.gnss, float(snap["t"][k]), frame),
+                }
+            )
     sim = session.meta.get("simulation", {}) if isinstance(session.meta, dict) else {}
     return {
         "spec": asdict(spec),
@@ -163,6 +172,17 @@ def run_one(spec: RunSpec) -> dict[str, Any]:
         "recoveries": int(result.recoveries),
         "velocity_source": result.velocity_source,
     }
+
+
+def _fix_at(gnss: pd.DataFrame | None, t: float, frame: LocalFrame) -> tuple[float, float, float] | None:
+    """The latest GNSS fix at or before ``t`` as ``(x, y, accuracy_m)`` in ``frame``."""
+    if gnss is None or len(gnss) == 0:
+        return None
+    i = int(np.searchsorted(gnss["t"].to_numpy(), t, side="right")) - 1
+    if i < 0:
+        return None
+    x, y = frame.to_xy(gnss["lon"].iat[i], gnss["lat"].iat[i])
+    return float(x), float(y), float(gnss["accuracy_m"].iat[i])
 
 
 def run_all(
@@ -197,7 +217,11 @@ def run_all(
     cluster = None
     if scheduler is None:
         cluster = LocalCluster(
-            n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=None
+            n_workers=workers,
+            threads_per_worker=1,
+            processes=True,
+            dashboard_address=None,
+            silence_logs=logging.WARNING,
         )
         client = Client(cluster)
     else:
@@ -206,7 +230,9 @@ def run_all(
         futures = client.map(run_one, specs, pure=False)
         order = {f.key: i for i, f in enumerate(futures)}
         out: list[dict[str, Any] | None] = [None] * len(specs)
-        for future in tqdm(as_completed(futures), total=len(futures), desc="evaluate", unit="run", disable=disable):
+        for future in tqdm(
+            as_completed(futures), total=len(futures), desc="evaluate", unit="run", disable=disable
+        ):
             out[order[future.key]] = future.result()
         return out  # type: ignore[return-value]
     finally:
@@ -232,9 +258,7 @@ def pool(results: list[dict[str, Any]], by: tuple[str, ...]) -> pd.DataFrame:
         runs), ``n_runs``.
     """
     rows = []
-    keys = [
-        {**RunSpec(**r["spec"]).key(), "path": r["path"], "session": r["session"]} for r in results
-    ]
+    keys = [{**RunSpec(**r["spec"]).key(), "path": r["path"], "session": r["session"]} for r in results]
     frame = pd.DataFrame(keys)
     frame["gnss_sigma_factor"] = frame["gnss_sigma_factor"].astype(object)
     groups = frame.groupby(list(by), sort=False, dropna=False).indices

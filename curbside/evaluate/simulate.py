@@ -64,7 +64,8 @@ class VelocityErrorModel:
     #: Output rate (Hz) and averaging window (s).
     rate_hz: float = 10.0
     window_s: float = 1.0
-    #: Heading error: constant bias 1-sigma (deg), linear drift 1-sigma (deg/min), random walk (deg/sqrt(min)).
+    #: Heading error: constant bias 1-sigma (deg), linear drift 1-sigma (deg/min),
+    #: random walk (deg/sqrt(min)).
     heading_bias_deg: float = 4.0
     heading_drift_deg_per_min: float = 1.0
     heading_walk_deg_per_sqrt_min: float = 2.0
@@ -117,7 +118,9 @@ class Walk:
     speed_mps: float
 
 
-def simulate_walk(route: routes_mod.Route, walker: WalkerModel, rng: np.random.Generator, rate_hz: float = 100.0) -> Walk:
+def simulate_walk(
+    route: routes_mod.Route, walker: WalkerModel, rng: np.random.Generator, rate_hz: float = 100.0
+) -> Walk:
     """Walk ``route`` at a constant speed per leg; return the true path at ``rate_hz``.
 
     Parameters
@@ -189,7 +192,9 @@ def simulate_velocity(walk: Walk, model: VelocityErrorModel, rng: np.random.Gene
     return pd.DataFrame({"t": np.round(t, 3), "ve": ve, "vn": vn})
 
 
-def simulate_imu(walk: Walk, model: ImuModel, vel_model: VelocityErrorModel, rng: np.random.Generator) -> pd.DataFrame:
+def simulate_imu(
+    walk: Walk, model: ImuModel, vel_model: VelocityErrorModel, rng: np.random.Generator
+) -> pd.DataFrame:
     """Phone IMU ``t, ax..gz, qx..qw`` at ``model.rate_hz`` along a walk.
 
     The phone points along the walking direction (device +y forward, screen tilted up by
@@ -212,13 +217,17 @@ def simulate_imu(walk: Walk, model: ImuModel, vel_model: VelocityErrorModel, rng
     right = np.column_stack([fwd[:, 1], -fwd[:, 0]])
     a_h = np.gradient(v, dt, axis=0)
     a_world = np.zeros((n, 3))
-    a_world[:, :2] = a_h + (
-        fwd * (model.surge * np.sin(phase))[:, None] + right * (model.sway * np.sin(phase / 2))[:, None]
-    ) * moving[:, None]
+    a_world[:, :2] = (
+        a_h
+        + (fwd * (model.surge * np.sin(phase))[:, None] + right * (model.sway * np.sin(phase / 2))[:, None])
+        * moving[:, None]
+    )
     a_world[:, 2] = model.bounce * np.cos(phase) * moving
     yaw_hand = np.radians(model.hand_yaw_deg) * np.sin(phase / 2 + 0.3)
     # device-to-ENU: yaw about Up (heading is clockwise, ENU yaw counter-clockwise), then pitch about x
-    true_rot = Rotation.from_euler("ZX", np.column_stack([-(heading + yaw_hand), np.full(n, np.radians(model.pitch_deg))]))
+    true_rot = Rotation.from_euler(
+        "ZX", np.column_stack([-(heading + yaw_hand), np.full(n, np.radians(model.pitch_deg))])
+    )
     specific = a_world + [0.0, 0.0, GRAVITY]
     acc = true_rot.inv().apply(specific)
     acc += model.accel_bias * rng.standard_normal(3) + model.accel_noise * rng.standard_normal((n, 3))
@@ -231,15 +240,22 @@ def simulate_imu(walk: Walk, model: ImuModel, vel_model: VelocityErrorModel, rng
         + vel_model.heading_drift_deg_per_min * rng.standard_normal() * minutes
         + vel_model.heading_walk_deg_per_sqrt_min * np.cumsum(rng.standard_normal(n)) * np.sqrt(dt / 60.0)
     )
-    reported = Rotation.from_euler("Z", -yaw_err) * true_rot
+    reported = Rotation.from_euler("Z", -yaw_err[:, None]) * true_rot
     q = reported.as_quat()  # x, y, z, w
     q *= np.where(q[:, 3:] < 0, -1.0, 1.0)
     return pd.DataFrame(
         {
             "t": np.round(t, 4),
-            "ax": acc[:, 0], "ay": acc[:, 1], "az": acc[:, 2],
-            "gx": gyro[:, 0], "gy": gyro[:, 1], "gz": gyro[:, 2],
-            "qx": q[:, 0], "qy": q[:, 1], "qz": q[:, 2], "qw": q[:, 3],
+            "ax": acc[:, 0],
+            "ay": acc[:, 1],
+            "az": acc[:, 2],
+            "gx": gyro[:, 0],
+            "gy": gyro[:, 1],
+            "gz": gyro[:, 2],
+            "qx": q[:, 0],
+            "qy": q[:, 1],
+            "qz": q[:, 2],
+            "qw": q[:, 3],
         }
     )
 
@@ -300,7 +316,9 @@ def simulate_session(
     gnss_stride = max(1, int(round(1.0 / (config.gnss.rate_hz * (walk.t[1] - walk.t[0])))))
     fixes = simulate_gnss(walk.t[::gnss_stride], walk.xy[::gnss_stride], osm, config.gnss, rng)
     lon, lat = frame.to_lonlat(fixes["x_m"].to_numpy(), fixes["y_m"].to_numpy())
-    gnss = pd.DataFrame({"t": np.round(fixes["t"], 3), "lat": lat, "lon": lon, "accuracy_m": fixes["accuracy_m"]})
+    gnss = pd.DataFrame(
+        {"t": np.round(fixes["t"], 3), "lat": lat, "lon": lon, "accuracy_m": fixes["accuracy_m"]}
+    )
     wlon, wlat = frame.to_lonlat(walk.waypoint_xy[:, 0], walk.waypoint_xy[:, 1])
     waypoints = pd.DataFrame({"t": np.round(walk.waypoint_t, 3), "lat": wlat, "lon": wlon})
     first = walk.waypoint_xy[1] - walk.waypoint_xy[0]
@@ -350,7 +368,9 @@ def sf6_routes(osm: OsmSource | None = None) -> tuple[list[routes_mod.Route], Lo
 
 def routes_geojson(route_list: list[routes_mod.Route], frame: LocalFrame) -> gpd.GeoDataFrame:
     """Routes as WGS84 LineStrings with their Table-1 attributes."""
-    lines = [shapely.linestrings(np.column_stack(frame.to_lonlat(r.xy[:, 0], r.xy[:, 1]))) for r in route_list]
+    lines = [
+        shapely.linestrings(np.column_stack(frame.to_lonlat(r.xy[:, 0], r.xy[:, 1]))) for r in route_list
+    ]
     return gpd.GeoDataFrame(
         {
             "name": [r.spec.name for r in route_list],

@@ -39,9 +39,6 @@ from curbside import settings
 from curbside.errors import CurbsideInputError
 from curbside.localize.maplikelihood import (
     BUILDING,
-    CROSSWALK,
-    FREE,
-    SIDEWALK,
     STREET,
     MapRaster,
     RasterLookup,
@@ -216,8 +213,7 @@ class MapLikelihood:
     """
 
     def __init__(self, raster: MapRaster, jaywalk_weight: float) -> None:
-        weights = np.ones(BUILDING + 1)
-        weights[[FREE, SIDEWALK, CROSSWALK]] = 1.0
+        weights = np.ones(BUILDING + 1)  # FREE, SIDEWALK, CROSSWALK: 1
         weights[STREET] = jaywalk_weight
         weights[BUILDING] = 0.0
         with np.errstate(divide="ignore"):

@@ -23,6 +23,7 @@ the last ``pdr_max_step_interval_s`` only.
 
 from __future__ import annotations
 
+import argparse
 import sys
 
 import numpy as np
@@ -218,7 +219,7 @@ def waypoint_errors(
     return np.linalg.norm(track[1:] - truth[1:], axis=1)
 
 
-def evaluate_ipin(path: str, trials: list[str] | None = None) -> pd.DataFrame:
+def evaluate_ipin(path: str, trials: list[str] | None = None) -> tuple[pd.DataFrame, pd.DataFrame]:
     """PDR on IPIN trials, scored against the surveyed waypoints.
 
     Footsteps are counted and dead reckoning is scored between the first and last waypoint, starting
@@ -233,12 +234,14 @@ def evaluate_ipin(path: str, trials: list[str] | None = None) -> pd.DataFrame:
 
     Returns
     -------
-    pandas.DataFrame
+    trials : pandas.DataFrame
         One row per trial: ``trial, device, floors, steps, walk_s, surveyed_m, pdr_m, ratio``
         (PDR / surveyed path length) and ``err_median_m, err_p90_m`` (absolute heading) and
         ``aligned_median_m, aligned_p90_m`` (heading aligned on the first segment).
+    waypoints : pandas.DataFrame
+        One row per scored waypoint: ``trial, waypoint`` (index, from 1), ``err_m, aligned_err_m``.
     """
-    rows = []
+    rows, scored = [], []
     names = trials or ipin.list_trials(path)
     for name in tqdm(names, desc="PDR", unit="trial", disable=not sys.stderr.isatty()):
         session = ipin.read_trial(path, name)
@@ -261,25 +264,25 @@ def evaluate_ipin(path: str, trials: list[str] | None = None) -> pd.DataFrame:
             "walk_s": t1 - t0, "surveyed_m": surveyed, "pdr_m": pdr_m, "ratio": pdr_m / surveyed,
             "err_median_m": float(np.median(err)), "err_p90_m": float(np.percentile(err, 90)),
             "aligned_median_m": float(np.median(aligned)), "aligned_p90_m": float(np.percentile(aligned, 90)),
-            "_err": err, "_aligned": aligned,
         })
-    return pd.DataFrame(rows)
+        index = np.arange(1, len(err) + 1)
+        scored.append(pd.DataFrame(
+            {"trial": session.name, "waypoint": index, "err_m": err, "aligned_err_m": aligned}
+        ))
+    return pd.DataFrame(rows), pd.concat(scored, ignore_index=True)
 
 
 def main(argv: list[str] | None = None) -> int:
     """``python -m curbside.localize.pdr FILE.h5``: the PDR baseline scored on every IPIN trial."""
-    import argparse
-
     parser = argparse.ArgumentParser(prog="python -m curbside.localize.pdr", description=main.__doc__)
     parser.add_argument("h5", help="IPIN 2023 .h5 (../shared/data/ipin2023/ipin2023-t3.h5)")
     parser.add_argument("--csv", help="also write the per-trial table here")
     args = parser.parse_args(argv)
-    table = evaluate_ipin(args.h5)
-    shown = table.drop(columns=["_err", "_aligned"])
+    table, scored = evaluate_ipin(args.h5)
     if args.csv:
-        shown.to_csv(args.csv, index=False, float_format="%.3f")
+        table.to_csv(args.csv, index=False, float_format="%.3f")
     with pd.option_context("display.width", 200, "display.max_rows", 100, "display.precision", 2):
-        print(shown.to_string(index=False))
+        print(table.to_string(index=False))
     straight = ~table["floors"].str.contains(",")
     groups = {"all": np.ones(len(table), bool), "single floor": straight.to_numpy(),
               "floor changes": (~straight).to_numpy()}
@@ -287,8 +290,8 @@ def main(argv: list[str] | None = None) -> int:
         if not mask.any():
             continue
         sub = table[mask]
-        err = np.concatenate(sub["_err"].to_list())
-        aligned = np.concatenate(sub["_aligned"].to_list())
+        picked = scored[scored["trial"].isin(sub["trial"])]
+        err, aligned = picked["err_m"].to_numpy(), picked["aligned_err_m"].to_numpy()
         q25, q50, q75 = sub["ratio"].quantile([0.25, 0.5, 0.75])
         print(f"{label}: {mask.sum()} trials, {sub['steps'].sum()} steps, ratio median "
               f"{q50:.3f} (IQR {q25:.3f}-{q75:.3f}); "

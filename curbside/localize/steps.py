@@ -47,9 +47,13 @@ def uniform_magnitude(imu: pd.DataFrame) -> tuple[np.ndarray, np.ndarray]:
 
 
 def lowpass(x: np.ndarray, rate_hz: float, cutoff_hz: float) -> np.ndarray:
-    """Zero-phase 4th-order Butterworth low-pass of a uniformly sampled signal."""
+    """Zero-phase 4th-order Butterworth low-pass of a uniformly sampled signal.
+
+    A signal shorter than the filter's edge padding (under half a second) is returned unfiltered.
+    """
     sos = butter(4, min(cutoff_hz, 0.45 * rate_hz), btype="low", fs=rate_hz, output="sos")
-    return sosfiltfilt(sos, x) if len(x) > 27 else x - x.mean() + x.mean()
+    padding = 3 * (2 * len(sos) + 1)
+    return sosfiltfilt(sos, x) if len(x) > padding else np.array(x, float)
 
 
 def detect_steps(

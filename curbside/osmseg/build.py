@@ -29,6 +29,7 @@ from curbside.osmseg.buildings import buildings as derive_buildings
 from curbside.osmseg.crosswalks import UNMARKED_CHOICES
 from curbside.osmseg.crosswalks import crosswalks as derive_crosswalks
 from curbside.osmseg.mapio import MapLayers
+from curbside.osmseg.overlay import polygons_only, subtract
 from curbside.osmseg.reader import OsmData, read_osm_file
 from curbside.osmseg.sidewalks import sidewalk_segments
 from curbside.osmseg.streets import carriageways
@@ -105,14 +106,14 @@ def _window(bbox: BBox | None, crs) -> shapely.Geometry | None:
     if bbox is None:
         return None
     frame = LocalFrame(crs)
-    x, y = frame.to_xy(np.array([bbox[0], bbox[2], bbox[0], bbox[2]]), np.array([bbox[1], bbox[1], bbox[3], bbox[3]]))
+    west, south, east, north = bbox
+    x, y = frame.to_xy(np.array([west, east, west, east]), np.array([south, south, north, north]))
     return shapely.convex_hull(shapely.multipoints(np.column_stack([x, y])))
 
 
 def _layer(cls: str, geoms, crs) -> gpd.GeoDataFrame:
     """Single polygons of one class (multi-part results exploded, slivers dropped)."""
-    parts = shapely.get_parts(shapely.make_valid(np.asarray(geoms, dtype=object)))
-    parts = parts[(shapely.get_type_id(parts) == 3) & (shapely.area(parts) >= settings.min_polygon_area_m2)]
+    parts = polygons_only(shapely.make_valid(np.asarray(geoms, dtype=object)), settings.min_polygon_area_m2)
     return gpd.GeoDataFrame({"class": [cls] * len(parts)}, geometry=parts, crs=crs)
 
 
@@ -152,20 +153,22 @@ def derive_layers(osm: OsmData, unmarked_as: str = settings.unmarked_crossing_as
         raise CurbsideInputError("--unmarked-as", f"must be one of {', '.join(UNMARKED_CHOICES)}")
     stages = tqdm(total=4, desc="osmseg build", unit="stage", disable=not sys.stderr.isatty(), leave=False)
     with stages:
-        blds = derive_buildings(osm.areas, osm.ways)
-        building_union = shapely.union_all(blds.geometry.values)
+        blds = derive_buildings(osm.areas, osm.ways).geometry.values
         stages.update()
-        cways = carriageways(osm.ways)
+        cways = carriageways(osm.ways, blds)
         stages.update()
-        walks = shapely.difference(derive_crosswalks(osm.ways, osm.nodes, cways, unmarked_as), building_union)
-        walk_union = shapely.union_all(walks)
-        street = shapely.difference(cways.surface, shapely.union_all([building_union, walk_union]))
+        walks = derive_crosswalks(osm.ways, osm.nodes, cways, unmarked_as)
+        walks = polygons_only(subtract(walks, blds), settings.min_polygon_area_m2)
+        street = subtract(cways.surface, np.concatenate([blds, walks]))
         stages.update()
-        obstacles = shapely.union_all([cways.surface, building_union, walk_union])
-        segments = sidewalk_segments(cways.roads, obstacles)
+        segments = sidewalk_segments(cways.roads, np.concatenate([cways.surface, blds, walks]))
         stages.update()
-    frames = [_layer("building", blds.geometry.values, osm.crs), _layer("street", [street], osm.crs),
-              _layer("crosswalk", walks, osm.crs), segments.drop(columns="osm_id").assign(**{"class": "sidewalk"})]
+    frames = [
+        _layer("building", blds, osm.crs),
+        _layer("street", street, osm.crs),
+        _layer("crosswalk", walks, osm.crs),
+        segments.drop(columns="osm_id").assign(**{"class": "sidewalk"}),
+    ]
     gdf = gpd.GeoDataFrame(pd.concat(frames, ignore_index=True), geometry="geometry", crs=osm.crs)
     for col in ("segment_id", "street", "side"):
         if col not in gdf:
@@ -214,7 +217,6 @@ def build_map(
     window = _window(clip_bbox, osm.crs)
     if window is not None:
         gdf = gdf.set_geometry(shapely.intersection(gdf.geometry.values, window))
-        gdf = gdf[(shapely.get_type_id(gdf.geometry.values) != 7) & (gdf.area >= settings.min_polygon_area_m2)]
         gdf = gdf.explode(index_parts=False)
         gdf = gdf[gdf.geom_type == "Polygon"]
         gdf = gdf[gdf.area >= settings.min_polygon_area_m2]

@@ -35,7 +35,8 @@ def footprint_mask(areas: gpd.GeoDataFrame) -> np.ndarray:
     """
     building = column(areas, "building")
     layer = first_number(column(areas, "layer"))
-    above_ground = (metres(column(areas, "height")) > 0) | (first_number(column(areas, "building:levels")) > 0)
+    levels = first_number(column(areas, "building:levels"))
+    above_ground = (metres(column(areas, "height")) > 0) | (levels > 0)
     underground = is_in(column(areas, "location"), ["underground"]) | ((layer < 0) & ~above_ground)
     return (
         building.notna().to_numpy()
@@ -56,7 +57,8 @@ def passage_ways(ways: gpd.GeoDataFrame) -> gpd.GeoDataFrame:
     candidates = ways[mask]
     road_width, _ = carriageway_width(candidates)
     tagged = metres(column(candidates, "width"))
-    width = np.where(np.isnan(road_width), np.where(np.isnan(tagged), settings.passage_width_m, tagged), road_width)
+    other_width = np.where(np.isnan(tagged), settings.passage_width_m, tagged)
+    width = np.where(np.isnan(road_width), other_width, road_width)
     return candidates.assign(width_m=width)
 
 
@@ -71,8 +73,8 @@ def buildings(areas: gpd.GeoDataFrame, ways: gpd.GeoDataFrame) -> gpd.GeoDataFra
     Returns
     -------
     geopandas.GeoDataFrame
-        ``osm_id`` and valid (Multi)Polygon ``geometry`` of each building that keeps some area,
-        and ``carved_m2``, the area its passages removed.
+        One row per remaining polygon: ``osm_id``, ``carved_m2`` (the area its building's passages
+        removed, islands included) and a valid Polygon ``geometry``.
     """
     footprints = areas[footprint_mask(areas)].reset_index(drop=True)
     geoms = shapely.make_valid(footprints.geometry.values)
@@ -90,9 +92,17 @@ def buildings(areas: gpd.GeoDataFrame, ways: gpd.GeoDataFrame) -> gpd.GeoDataFra
         carved[hit] = before - shapely.area(geoms[hit])
     else:
         carved = np.zeros(len(geoms))
-    out = gpd.GeoDataFrame(
-        {"osm_id": footprints["osm_id"].to_numpy(), "carved_m2": carved},
-        geometry=shapely.make_valid(geoms),
+    parts, owner = shapely.get_parts(shapely.make_valid(geoms), return_index=True)
+    area = shapely.area(parts)
+    # Slivers and islands left between passages (the strips between a bus plaza's platforms and
+    # busways) are open floor, not walls.
+    thickness = 2 * area / np.maximum(shapely.length(parts), 1e-9)
+    island = (carved[owner] > 0) & (
+        (area < settings.passage_island_area_m2) | (thickness < settings.passage_island_thickness_m)
+    )
+    keep = (shapely.get_type_id(parts) == 3) & (area >= settings.min_polygon_area_m2) & ~island
+    return gpd.GeoDataFrame(
+        {"osm_id": footprints["osm_id"].to_numpy()[owner[keep]], "carved_m2": carved[owner[keep]]},
+        geometry=parts[keep],
         crs=areas.crs,
     )
-    return out[shapely.area(out.geometry.values) >= settings.min_polygon_area_m2].reset_index(drop=True)

@@ -15,6 +15,8 @@ For each class present in either map:
   is a length-weighted average. Outlines are those of the whole polygons, so the extent's edge is
   never taken for an outline, and targets are looked for a little beyond it
   (``settings.compare_edge_margin_m``) so that points near the edge find their true nearest outline.
+- ``boundary_a_to_b_m`` / ``boundary_b_to_a_m``: the two directed means (A's outline to B's, and back);
+  a large ``b_to_a`` with a small ``a_to_b`` means B has outlines A lacks (e.g. missing buildings).
 - ``count_a``, ``count_b``: polygons of the class that intersect the extent.
 
 A class a map does not have at all gives ``n/a`` (NaN) for that map's figures.
@@ -42,6 +44,7 @@ from curbside.projection import WGS84
 
 COLUMNS: tuple[str, ...] = (
     "count_a", "count_b", "area_a_m2", "area_b_m2", "iou", "boundary_mean_m", "boundary_median_m",
+    "boundary_a_to_b_m", "boundary_b_to_a_m",
 )
 
 
@@ -66,8 +69,10 @@ class MapComparison:
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready form: ``extent`` and ``classes`` (NaN written as null)."""
         classes = {
-            cls: {col: (None if pd.isna(v) else float(v) if "_m" in col or col == "iou" else int(v))
-                  for col, v in row.items()}
+            cls: {
+                col: None if pd.isna(v) else int(v) if col.startswith("count") else float(v)
+                for col, v in row.items()
+            }
             for cls, row in self.table.iterrows()
         }
         return {
@@ -160,13 +165,15 @@ def _class_figures(
     figures["iou"] = inter / union if union > 0 else math.nan
     points_a = _sample(_outline(parts_a, extent), step)
     points_b = _sample(_outline(parts_b, extent), step)
-    dist = np.concatenate([
-        _distances(points_a, _outline(parts_b, search)),
-        _distances(points_b, _outline(parts_a, search)),
-    ])
+    a_to_b = _distances(points_a, _outline(parts_b, search))
+    b_to_a = _distances(points_b, _outline(parts_a, search))
+    dist = np.concatenate([a_to_b, b_to_a])
     if len(dist):
         figures["boundary_mean_m"] = float(dist.mean())
         figures["boundary_median_m"] = float(np.median(dist))
+    for key, directed in (("a_to_b", a_to_b), ("b_to_a", b_to_a)):
+        if len(directed):
+            figures[f"boundary_{key}_m"] = float(directed.mean())
     return figures
 
 
@@ -231,8 +238,9 @@ def format_comparison(result: MapComparison, name_a: str = "A", name_b: str = "B
         headers={
             "count_a": "n A", "count_b": "n B", "area_a_m2": "area A m^2", "area_b_m2": "area B m^2",
             "iou": "IoU", "boundary_mean_m": "boundary mean m", "boundary_median_m": "median m",
+            "boundary_a_to_b_m": "A->B m", "boundary_b_to_a_m": "B->A m",
         },
-        digits={"area_a_m2": 0, "area_b_m2": 0, "iou": 3, "boundary_mean_m": 2, "boundary_median_m": 2},
+        digits={"area_a_m2": 0, "area_b_m2": 0, "iou": 3} | dict.fromkeys(COLUMNS[5:], 2),
     )
     return f"{head}\n{text}"
 

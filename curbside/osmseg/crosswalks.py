@@ -73,7 +73,8 @@ def crossing_node_strips(
     if len(points) == 0 or len(roads) == 0:
         return np.array([], dtype=object)
     if len(crossings):
-        covered = shapely.STRtree(crossings.geometry.values).query(points, predicate="dwithin", distance=snap_m)[0]
+        tree = shapely.STRtree(crossings.geometry.values)
+        covered = tree.query(points, predicate="dwithin", distance=snap_m)[0]
         points = np.delete(points, np.unique(covered))
     lines = roads.geometry.values
     point_i, road_i = shapely.STRtree(lines).query_nearest(points, max_distance=snap_m, all_matches=False)

@@ -45,7 +45,8 @@ def _read_tile(path: Path, bbox: tuple[float, float, float, float] | None) -> gp
     try:
         gdf = gpd.read_file(path, bbox=bbox)
     except Exception as exc:  # noqa: BLE001 - pyogrio/GDAL raise several types for unreadable files
-        raise CurbsideInputError(path, f"not readable as TopoJSON ({str(exc).splitlines()[0]})") from None
+        reason = str(exc).splitlines()[0].split("; ")[0]
+        raise CurbsideInputError(path, f"not readable as TopoJSON ({reason})") from None
     if gdf.crs is not None and not gdf.crs.equals(WGS84):
         raise CurbsideInputError(path, f"expected WGS84 lon/lat, the file declares {gdf.crs.name}")
     geoms = gdf.geometry[gdf.geometry.notna()]

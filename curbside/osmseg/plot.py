@@ -136,9 +136,14 @@ def plot_map(layers: MapLayers, ax: Axes, title: str | None = None) -> Axes:
         rows = layers.layer(cls)
         if len(rows) == 0:
             continue
-        kwargs = {k: v for k, v in style.items() if k != "label"}
-        rows.geometry.plot(ax=ax, **kwargs)
-        handles.append(Patch(**kwargs, label=f"{style['label']} ({len(rows):,})"))
+        fill = {k: v for k, v in style.items() if k not in ("label", "hatch", "hatchcolor")}
+        rows.geometry.plot(ax=ax, **fill)
+        if "hatch" in style:
+            # a second, unfilled pass: hatches take the edge colour on every matplotlib version
+            stripes = {"facecolor": "none", "edgecolor": style["hatchcolor"], "hatch": style["hatch"]}
+            rows.geometry.plot(ax=ax, linewidth=0.0, **stripes)
+            fill = {**fill, **stripes, "facecolor": style["facecolor"]}
+        handles.append(Patch(**fill, label=f"{style['label']} ({len(rows):,})"))
     handles.append(Patch(facecolor=BACKGROUND, edgecolor="#999999", linewidth=0.5, label="free space"))
     minx, miny, maxx, maxy = layers.gdf.total_bounds
     pad = 0.01 * max(maxx - minx, maxy - miny)

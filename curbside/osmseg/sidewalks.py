@@ -17,26 +17,12 @@ import pandas as pd
 import shapely
 
 from curbside import settings
-from curbside.osmseg.streets import node_keys
+from curbside.osmseg.overlay import subtract
+from curbside.osmseg.streets import node_keys, sidewalk_sides
 from curbside.osmseg.tags import column, is_in
 
 #: ``service`` values of roads that do not end a block (driveways cross sidewalks).
 NON_BLOCK_SERVICES = ("driveway", "parking_aisle", "drive-through")
-
-_NO = ("no", "none")
-
-
-def sidewalk_sides(roads: pd.DataFrame) -> tuple[np.ndarray, np.ndarray]:
-    """Whether each road has a sidewalk on its left and right (absent tags: both sides)."""
-    main = column(roads, "sidewalk")
-    both = column(roads, "sidewalk:both")
-    left = ~(
-        is_in(main, [*_NO, "right"]) | is_in(both, _NO) | is_in(column(roads, "sidewalk:left"), _NO)
-    )
-    right = ~(
-        is_in(main, [*_NO, "left"]) | is_in(both, _NO) | is_in(column(roads, "sidewalk:right"), _NO)
-    )
-    return left, right
 
 
 def split_at_junctions(roads: gpd.GeoDataFrame, block_ends: np.ndarray) -> gpd.GeoDataFrame:
@@ -98,40 +84,17 @@ def territories(pieces: np.ndarray, spacing_m: float = 3.0) -> np.ndarray:
     keep = np.sort(unique_first)
     xy, idx = xy[keep], idx[keep]
     extent = shapely.box(*shapely.total_bounds(pieces)).buffer(200.0)
-    cells = shapely.get_parts(shapely.voronoi_polygons(shapely.multipoints(xy), extend_to=extent, ordered=True))
+    cells = shapely.voronoi_polygons(shapely.multipoints(xy), extend_to=extent, ordered=True)
+    cells = shapely.get_parts(cells)
     order = np.argsort(idx, kind="stable")
     groups = np.split(cells[order], np.cumsum(np.bincount(idx, minlength=len(pieces)))[:-1])
-    return np.array([shapely.coverage_union_all(g) if len(g) else shapely.Polygon() for g in groups], dtype=object)
-
-
-def subtract_tiled(geoms: np.ndarray, obstacles: shapely.Geometry, tile_m: float = 150.0) -> np.ndarray:
-    """``geoms[i] - obstacles`` for many small geoms and one large obstacle geometry.
-
-    The obstacle is cut into square tiles once, so each difference only touches the tiles its
-    geometry overlaps instead of the whole obstacle.
-    """
-    if shapely.is_empty(obstacles) or len(geoms) == 0:
-        return geoms
-    minx, miny, maxx, maxy = shapely.total_bounds(geoms)
-    xs = np.arange(minx, maxx + tile_m, tile_m)
-    ys = np.arange(miny, maxy + tile_m, tile_m)
-    gx, gy = np.meshgrid(xs, ys)
-    boxes = shapely.box(gx.ravel(), gy.ravel(), gx.ravel() + tile_m, gy.ravel() + tile_m)
-    tiles = shapely.intersection(obstacles, boxes)
-    tiles = tiles[~shapely.is_empty(tiles)]
-    geom_i, tile_i = shapely.STRtree(tiles).query(geoms, predicate="intersects")
-    out = geoms.copy()
-    order = np.argsort(geom_i, kind="stable")
-    geom_i, tile_i = geom_i[order], tile_i[order]
-    rank = np.arange(len(geom_i)) - np.searchsorted(geom_i, geom_i)
-    for r in range(int(rank.max()) + 1 if len(rank) else 0):
-        sel = rank == r
-        out[geom_i[sel]] = shapely.difference(out[geom_i[sel]], tiles[tile_i[sel]])
-    return out
+    return np.array(
+        [shapely.coverage_union_all(g) if len(g) else shapely.Polygon() for g in groups], dtype=object
+    )
 
 
 def sidewalk_segments(
-    roads: gpd.GeoDataFrame, obstacles: shapely.Geometry, min_area_m2: float = 2.0
+    roads: gpd.GeoDataFrame, obstacles: np.ndarray, min_area_m2: float = 2.0
 ) -> gpd.GeoDataFrame:
     """Sidewalk segments along the roads that carry sidewalks.
 
@@ -140,7 +103,7 @@ def sidewalk_segments(
     roads
         :attr:`curbside.osmseg.streets.Carriageways.roads` (with ``half_left_m``/``half_right_m``).
     obstacles
-        Union of carriageway, buildings and crosswalks: what a sidewalk may not overlap.
+        Small polygons a sidewalk may not overlap: carriageway tiles, buildings, crosswalks.
     min_area_m2
         Smaller leftovers (corner slivers) are dropped.
 
@@ -168,8 +131,8 @@ def sidewalk_segments(
     own = territories(lines)
     bands = np.concatenate(
         [
-            shapely.buffer(lines, reach_left, single_sided=True),
-            shapely.buffer(lines, -reach_right, single_sided=True),
+            shapely.buffer(lines, reach_left, single_sided=True, quad_segs=2),
+            shapely.buffer(lines, -reach_right, single_sided=True, quad_segs=2),
         ]
     )
     side = np.repeat(["left", "right"], len(lines))
@@ -177,7 +140,7 @@ def sidewalk_segments(
     present = np.concatenate([has_left[road], has_right[road]])
     bands = shapely.intersection(bands[present], own[piece_of[present]])
     side, piece_of = side[present], piece_of[present]
-    bands = subtract_tiled(bands, obstacles)
+    bands = subtract(bands, obstacles)
     parts, part_of = shapely.get_parts(bands, return_index=True)
     polygonal = (shapely.get_type_id(parts) == 3) & (shapely.area(parts) >= min_area_m2)
     parts, part_of = parts[polygonal], part_of[polygonal]

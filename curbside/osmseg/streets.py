@@ -26,6 +26,18 @@ SIDEWALK_FOOTWAYS = ("sidewalk",)
 _PARKING_LANE_VALUES = {"parallel": "parallel", "marked": "parallel", "diagonal": "diagonal",
                         "perpendicular": "perpendicular"}  # fmt: skip
 _PARKING_VALUES = {"lane": "lane", "half_on_kerb": "half"}
+_PARKING_KEYS = ("parking:lane:both", "parking:lane:left", "parking:lane:right",
+                 "parking:both", "parking:left", "parking:right")  # fmt: skip
+_NO = ("no", "none")
+
+
+def sidewalk_sides(roads: pd.DataFrame) -> tuple[np.ndarray, np.ndarray]:
+    """Whether each road has a sidewalk on its left and right (absent tags: both sides)."""
+    main = column(roads, "sidewalk")
+    both = column(roads, "sidewalk:both")
+    left = ~(is_in(main, [*_NO, "right"]) | is_in(both, _NO) | is_in(column(roads, "sidewalk:left"), _NO))
+    right = ~(is_in(main, [*_NO, "left"]) | is_in(both, _NO) | is_in(column(roads, "sidewalk:right"), _NO))
+    return left, right
 
 
 def ground_level(ways: pd.DataFrame) -> np.ndarray:
@@ -77,7 +89,12 @@ def _parking_width(ways: pd.DataFrame) -> np.ndarray:
     both = side("parking:lane:both", "parking:both")
     left = side("parking:lane:left", "parking:left")
     right = side("parking:lane:right", "parking:right")
-    return np.where(both > 0, 2 * both, left + right)
+    tagged = np.zeros(len(ways), dtype=bool)
+    for key in _PARKING_KEYS:
+        tagged |= column(ways, key).notna().to_numpy()
+    urban = is_in(column(ways, "highway"), settings.sidewalk_highways)
+    assumed = np.where(urban & ~tagged, 2 * settings.assumed_parking_width_m, 0.0)
+    return np.where(both > 0, 2 * both, left + right) + assumed
 
 
 def _cycle_lanes(ways: pd.DataFrame) -> np.ndarray:
@@ -114,7 +131,8 @@ def carriageway_width(ways: pd.DataFrame) -> tuple[np.ndarray, np.ndarray]:
         + _cycle_lanes(ways) * settings.cycle_lane_width_m
     )
     default = column(ways, "highway").map(settings.default_carriageway_width_m).to_numpy(dtype=float)
-    width = np.where(np.isnan(tagged_width), np.where(np.isnan(from_lanes), default, from_lanes), tagged_width)
+    estimated = np.where(np.isnan(from_lanes), default, from_lanes)
+    width = np.where(np.isnan(tagged_width), estimated, tagged_width)
     return width, ~np.isnan(tagged_width)
 
 
@@ -126,15 +144,42 @@ def mapped_sidewalks(ways: gpd.GeoDataFrame) -> gpd.GeoDataFrame:
     return out.assign(width_m=np.where(np.isnan(width), settings.mapped_sidewalk_width_m, width))
 
 
-def _side_distances(lines: np.ndarray, sidewalks: gpd.GeoDataFrame, step_m: float = 8.0) -> np.ndarray:
-    """Median distance (m) from each line to the mapped sidewalk on its left and right, NaN if none.
+def side_distances(
+    lines: np.ndarray,
+    targets: np.ndarray,
+    setback_m: np.ndarray,
+    *,
+    parallel_only: bool = False,
+    step_m: float = 8.0,
+) -> np.ndarray:
+    """Median clearance (m) from each line to the targets on its left and right, NaN if none.
 
-    Casts rays perpendicular to the line every ``step_m`` (at least one, at mid-length) and takes
-    the nearest sidewalk each ray meets within ``settings.mapped_sidewalk_search_m``; the median over
-    a line's rays ignores sidewalks of cross streets met near its ends.
+    Casts rays perpendicular to the line every ``step_m`` (at least one, at mid-length), takes the
+    nearest target each ray meets within ``settings.mapped_sidewalk_search_m`` and subtracts that
+    target's ``setback_m``; the median over a line's rays ignores cross streets' sidewalks or a
+    protruding building met near its ends.
+
+    Parameters
+    ----------
+    lines
+        Road centrelines.
+    targets
+        Mapped sidewalk lines or building polygons.
+    setback_m
+        Per target: how far short of it the curb lies (half the sidewalk width, the least sidewalk
+        in front of a building).
+    parallel_only
+        Count only line targets within about 25 degrees of parallel to the road where hit.
+    step_m
+        Spacing of the rays along the line.
+
+    Returns
+    -------
+    numpy.ndarray
+        Shape (n, 2): left and right clearance of each line.
     """
     out = np.full((len(lines), 2), np.nan)
-    if len(lines) == 0 or len(sidewalks) == 0:
+    if len(lines) == 0 or len(targets) == 0:
         return out
     lengths = shapely.length(lines)
     n = np.maximum(1, (lengths // step_m).astype(int))
@@ -149,22 +194,27 @@ def _side_distances(lines: np.ndarray, sidewalks: gpd.GeoDataFrame, step_m: floa
     tangent /= np.maximum(np.linalg.norm(tangent, axis=1, keepdims=True), 1e-9)
     left_normal = np.column_stack([-tangent[:, 1], tangent[:, 0]])
     search = settings.mapped_sidewalk_search_m
-    sw_geoms = sidewalks.geometry.values
-    tree = shapely.STRtree(sw_geoms)
+    tree = shapely.STRtree(targets)
     for side, sign in enumerate((1.0, -1.0)):
         start = p + sign * left_normal * 0.5
         rays = shapely.linestrings(
             np.stack([start, p + sign * left_normal * search], axis=1).reshape(-1, 2),
             indices=np.repeat(np.arange(len(p)), 2),
         )
-        ray_i, sw_i = tree.query(rays, predicate="intersects")
+        ray_i, target_i = tree.query(rays, predicate="intersects")
         if len(ray_i) == 0:
             continue
-        hits = shapely.intersection(rays[ray_i], sw_geoms[sw_i])
-        dist = shapely.distance(shapely.points(p[ray_i]), hits)
-        # The curb lies half a sidewalk width short of the sidewalk's centreline.
-        curb = dist - sidewalks["width_m"].to_numpy()[sw_i] / 2
-        per_ray = pd.Series(curb).groupby(ray_i).min()
+        hits = shapely.intersection(rays[ray_i], targets[target_i])
+        curb = shapely.distance(shapely.points(p[ray_i]), hits) - setback_m[target_i]
+        if parallel_only:
+            # Only targets running along the road set its curb, not a cross street's sidewalk.
+            target = targets[target_i]
+            at = shapely.line_locate_point(target, shapely.points(p[ray_i]))
+            ta = shapely.get_coordinates(shapely.line_interpolate_point(target, np.maximum(at - 1.0, 0)))
+            tb = shapely.get_coordinates(shapely.line_interpolate_point(target, at + 1.0))
+            td = (tb - ta) / np.maximum(np.linalg.norm(tb - ta, axis=1, keepdims=True), 1e-9)
+            curb = np.where(np.abs(np.sum(td * tangent[ray_i], axis=1)) >= 0.9, curb, np.nan)
+        per_ray = pd.Series(curb).groupby(ray_i).min().dropna()
         per_line = per_ray.groupby(line_idx[per_ray.index.to_numpy()]).median()
         out[per_line.index.to_numpy(), side] = per_line.to_numpy()
     return out
@@ -178,8 +228,8 @@ class Carriageways:
     ----------
     roads
         The road ways (tag columns, LineString geometry) with ``half_left_m`` / ``half_right_m``
-        (left and right of the OSM way direction) and ``mapped_left`` / ``mapped_right`` (the curb
-        on that side was set from a mapped sidewalk).
+        (left and right of the OSM way direction) and ``mapped_left`` / ``mapped_right`` (a mapped
+        sidewalk narrowed that side).
     surface
         The carriageway as disjoint polygons (quadtree tiles of the union), before buildings and
         crosswalks are cut out.
@@ -192,13 +242,16 @@ class Carriageways:
     sidewalks: gpd.GeoDataFrame
 
 
-def carriageways(ways: gpd.GeoDataFrame) -> Carriageways:
+def carriageways(ways: gpd.GeoDataFrame, buildings: np.ndarray | None = None) -> Carriageways:
     """Carriageway polygons of every street-level motor road.
 
     Parameters
     ----------
     ways
         Highway ways of an :class:`~curbside.osmseg.reader.OsmData`.
+    buildings
+        Building footprints. On a side of a street with sidewalks and no mapped sidewalk, the curb
+        stays ``settings.min_sidewalk_width_m`` clear of the building line.
 
     Returns
     -------
@@ -209,14 +262,20 @@ def carriageways(ways: gpd.GeoDataFrame) -> Carriageways:
     width, tagged = carriageway_width(roads)
     half = np.repeat((width / 2)[:, None], 2, axis=1)
     lines = roads.geometry.values
-    to_sidewalk = _side_distances(lines, sidewalks)
-    min_half = 1.5
-    # A sidewalk far beyond the expected curb belongs to a plaza or a parallel street, not this curb.
-    plausible = to_sidewalk <= np.maximum(2 * half, half + 5.0)
-    mapped = ~np.isnan(to_sidewalk) & (to_sidewalk > min_half) & plausible
-    # A tagged width is only capped by a mapped sidewalk; an estimated one is replaced by it.
-    from_sidewalk = np.where(tagged[:, None], np.minimum(half, to_sidewalk), to_sidewalk)
-    half = np.where(mapped, from_sidewalk, half)
+    to_sidewalk = side_distances(
+        lines, sidewalks.geometry.values, sidewalks["width_m"].to_numpy() / 2, parallel_only=True
+    )
+    # Mapped sidewalks are often drawn near the building line, not at the curb: they only cap the
+    # estimated width, so the carriageway never swallows them.
+    mapped = to_sidewalk < half
+    half = np.fmin(half, to_sidewalk)
+    if buildings is not None and len(buildings):
+        to_building = side_distances(lines, buildings, np.full(len(buildings), settings.min_sidewalk_width_m))
+        walked = np.column_stack(sidewalk_sides(roads)) & is_in(
+            column(roads, "highway"), settings.sidewalk_highways
+        )[:, None]
+        half = np.where(walked, np.fmin(half, to_building), half)
+    half = np.maximum(half, settings.min_carriageway_half_width_m)
     roads = roads.assign(
         half_left_m=half[:, 0], half_right_m=half[:, 1], mapped_left=mapped[:, 0], mapped_right=mapped[:, 1]
     )

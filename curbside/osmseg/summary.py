@@ -128,15 +128,16 @@ def format_table(
 
 
 def format_summary(summary: pd.DataFrame) -> str:
-    """The table of :func:`class_summary` as text, with an ``all`` row of counts and areas."""
-    total = pd.DataFrame(
-        {"count": [int(summary["count"].sum())], "area_m2": [float(summary["area_m2"].sum())]},
-        index=pd.Index(["all"], name=summary.index.name),
-    )
-    both = pd.concat([summary, total])
-    both["named"] = both["named"].astype("Int64")
+    """The table of :func:`class_summary` as text, with an ``all`` row when it has several classes."""
+    if len(summary) > 1:
+        total = pd.DataFrame(
+            {"count": [int(summary["count"].sum())], "area_m2": [float(summary["area_m2"].sum())]},
+            index=pd.Index(["all"], name=summary.index.name),
+        )
+        summary = pd.concat([summary, total])
+    summary = summary.astype({"named": "Int64"})
     return format_table(
-        both,
+        summary,
         headers={"count": "polygons", "area_m2": "area m^2", "named": "with street name"},
         digits={"area_m2": 0},
         missing="-",

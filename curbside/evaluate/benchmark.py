@@ -1,0 +1,280 @@
+"""The six-walk San Francisco benchmark (``sf6``) and the evaluation plans behind ``localize evaluate``.
+
+:func:`run_benchmark` is what ``make demo`` calls: build the OSM map, simulate the six walks, run
+GNSS / RoNIN+PF / GNSS+RoNIN+PF at the paper's three jaywalking weights and write the report with
+the paper's tables beside the paper's numbers.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from curbside import settings
+from curbside.errors import CurbsideInputError
+from curbside.evaluate.report import Table, write_report
+from curbside.evaluate.runner import METHODS, RunSpec, run_all
+from curbside.localize.session import read_session
+from curbside.osmseg.mapio import read_map, write_map
+
+log = logging.getLogger(__name__)
+
+#: The paper's Table 1: length (m), crossings on crosswalks, crossings elsewhere.
+PAPER_TABLE1 = {
+    "path1": (628, 4, 4),
+    "path2": (515, 4, 1),
+    "path3": (332, 0, 2),
+    "path4": (644, 2, 2),
+    "path5": (467, 2, 0),
+    "path6": (309, 0, 0),
+}
+
+
+def expand_sessions(paths: list[str | Path]) -> list[Path]:
+    """Session folders from arguments that are sessions or folders of sessions (sorted).
+
+    Raises
+    ------
+    CurbsideInputError
+        A path does not exist or holds no session.
+    """
+    out: list[Path] = []
+    for p in map(Path, paths):
+        if not p.is_dir():
+            raise CurbsideInputError(p, "no such session folder")
+        if any(p.glob("*.csv")):
+            out.append(p)
+            continue
+        subs = sorted(d for d in p.iterdir() if d.is_dir() and any(d.glob("*.csv")))
+        if not subs:
+            raise CurbsideInputError(p, "neither a session folder nor a folder of sessions")
+        out += subs
+    return out
+
+
+def plan(
+    sessions: list[Path],
+    maps: dict[str, str],
+    methods: tuple[str, ...] = METHODS,
+    jaywalk_weights: tuple[float, ...] = (0.0, 0.4, 1.0),
+    particles: tuple[int, ...] = (settings.default_particles,),
+    gnss_sigma_factors: tuple[float | None, ...] = (None,),
+    seed: int = 0,
+    metrics_map: str | None = None,
+    snapshots: bool = True,
+    velocity_source: str = "auto",
+) -> tuple[list[RunSpec], dict[str, Any]]:
+    """The runs of an evaluation: every session x map x method, with one-at-a-time parameter sweeps.
+
+    The base configuration is the first map, ``w = 0.4`` (or the first weight given), the first
+    particle count and the first sigma factor. Each parameter list is swept with the other two held at
+    their base values (Table 2 is the jaywalk-weight sweep). ``gnss`` runs once per session and map.
+
+    Returns
+    -------
+    (list of RunSpec, dict)
+        The runs and the base configuration.
+    """
+    for m in methods:
+        if m not in METHODS:
+            raise CurbsideInputError("--methods", f"unknown method {m!r}; one of {METHODS}")
+    if not maps:
+        raise CurbsideInputError("--maps", "need at least one map")
+    w0 = 0.4 if 0.4 in jaywalk_weights else jaywalk_weights[0]
+    n0, s0 = particles[0], gnss_sigma_factors[0]
+    combos = {(w, n0, s0) for w in jaywalk_weights}
+    combos |= {(w0, n, s0) for n in particles}
+    combos |= {(w0, n0, s) for s in gnss_sigma_factors}
+    combos_sorted = sorted(combos, key=lambda c: (c[0], c[1], -1 if c[2] is None else c[2]))
+    first_map = next(iter(maps))
+    metrics_map = metrics_map or maps[first_map]
+    specs: list[RunSpec] = []
+    for i, session in enumerate(sessions):
+        snap_times: tuple[float, ...] = ()
+        if snapshots and i == 0:
+            t0, t1 = read_session(session).time_span()
+            snap_times = (t0 + (t1 - t0) / 3, t0 + 2 * (t1 - t0) / 3)
+        for name, path in maps.items():
+            for method in methods:
+                if method == "gnss":
+                    specs.append(RunSpec(str(session), "gnss", None, name, metrics_map, w0, n0, s0, seed))
+                    continue
+                for w, n, s in combos_sorted:
+                    if method == "inertial" and s != s0:
+                        continue  # the inertial method ignores GNSS
+                    base = (w, n, s) == (w0, n0, s0) and name == first_map
+                    specs.append(
+                        RunSpec(
+                            str(session),
+                            method,
+                            path,
+                            name,
+                            metrics_map,
+                            w,
+                            n,
+                            s,
+                            seed,
+                            snap_times if base else (),
+                            velocity_source,
+                        )
+                    )
+    base_cfg = {"map": first_map, "jaywalk_weight": w0, "particles": n0, "gnss_sigma_factor": s0}
+    return specs, base_cfg
+
+
+def route_table(sessions: list[Path]) -> Table | None:
+    """Table 1 as simulated: per route, length, crosswalk crossings and jaywalks beside the paper's."""
+    seen: dict[str, dict] = {}
+    for s in sessions:
+        meta_path = s / "meta.json"
+        if meta_path.is_file():
+            sim = json.loads(meta_path.read_text()).get("simulation")
+            if sim and sim["route"] not in seen:
+                seen[sim["route"]] = sim
+    if not seen:
+        return None
+    rows = []
+    for name, sim in seen.items():
+        paper = PAPER_TABLE1.get(name, ("", "", ""))
+        rows.append(
+            [
+                name,
+                sim["area"],
+                f"{sim['length_m']:.0f} ({paper[0]})",
+                f"{sim['crosswalk_crossings']} ({paper[1]})",
+                f"{sim['jaywalks']} ({paper[2]})",
+                f"{100 * sim['covered_share']:.0f}%",
+            ]
+        )
+    return Table(
+        "Table 1. Simulated routes (paper)",
+        ["path", "area", "length m", "crosswalk crossings", "jaywalks", "under cover"],
+        rows,
+    )
+
+
+def run_benchmark(
+    out_dir: str | Path,
+    seeds: int = 2,
+    fast: bool = True,
+    workers: int = 2,
+    scheduler: str | None = None,
+    map_path: str | Path | None = None,
+) -> dict[str, Path]:
+    """Build the map, simulate the six SF walks and write the benchmark report, from scratch.
+
+    Parameters
+    ----------
+    out_dir
+        Gets ``map.geojson`` (unless ``map_path``), ``sessions/`` and ``report/``.
+    seeds
+        Recordings per route.
+    fast
+        ``True``: ``velocity.csv`` input only (the demo, a few minutes on 2 cores). ``False``: also
+        ``imu.csv`` in the sessions.
+    workers, scheduler
+        Parallelism (see :func:`curbside.evaluate.runner.run_all`).
+    map_path
+        An existing map to use instead of building one.
+
+    Returns
+    -------
+    dict
+        ``map``, ``sessions``, ``report`` and the report files.
+    """
+    from curbside.evaluate.simulate import SimulationConfig, simulate_benchmark
+
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    if map_path is None:
+        from curbside.osmseg.build import build_map
+
+        map_path = out_dir / "map.geojson"
+        log.info("building the OSM map -> %s", map_path)
+        write_map(build_map(), map_path)
+    map_path = Path(map_path)
+    sessions = simulate_benchmark(out_dir / "sessions", seeds, SimulationConfig(write_imu=not fast))
+    specs, base = plan(sessions, {"osm": str(map_path)}, seed=0)
+    log.info("benchmark: %d runs over %d sessions", len(specs), len(sessions))
+    results = run_all(specs, workers=workers, scheduler=scheduler)
+    table1 = route_table(sessions)
+    intro = (
+        f"Six simulated walks in downtown San Francisco shaped like the paper's Table 1, {seeds} "
+        "recording(s) each, tracked on the automatic OSM map. GNSS errors come from an urban-canyon "
+        "model driven by OSM building heights; inertial velocity is RoNIN-like (velocity.csv). "
+        "Numbers in parentheses are the paper's (real walks, real RoNIN)."
+    )
+    paths = write_report(
+        results,
+        out_dir / "report",
+        base,
+        read_map(map_path),
+        lead_tables=[table1] if table1 else [],
+        intro=intro,
+    )
+    return {"map": map_path, "sessions": out_dir / "sessions", "report": out_dir / "report", **paths}
+
+
+def ipin_table(h5: str | Path, trials: int | None = None, seed: int = 0) -> tuple[Table, list[dict]]:
+    """Real data without a map: GNSS vs RoNIN+PF vs GNSS+RoNIN+PF at the surveyed IPIN 2023 waypoints.
+
+    Each trial is tracked from its start pose; the estimate is interpolated at each waypoint time and
+    compared with the surveyed point.
+    """
+    from curbside.evaluate.groundtruth import waypoints_xy
+    from curbside.localize.pipeline import track_session
+    from curbside.localize.readers.ipin import list_trials, read_trial
+    from curbside.projection import LocalFrame
+
+    names = list_trials(h5)[: trials or None]
+    errors: dict[str, list[np.ndarray]] = {m: [] for m in METHODS}
+    rows = []
+    for name in names:
+        session = read_trial(h5, name)
+        if session.waypoints is None or len(session.waypoints) < 2:
+            continue
+        frame = LocalFrame.around(
+            float(session.waypoints["lon"].iat[0]), float(session.waypoints["lat"].iat[0])
+        )
+        wt, wx, wy = waypoints_xy(session.waypoints, frame)
+        for method in METHODS:
+            try:
+                track = track_session(session, None, method, seed=seed, progress=False).track
+            except CurbsideInputError as exc:
+                log.warning("IPIN %s %s skipped: %s", name, method, exc)
+                continue
+            x, y = frame.to_xy(track["lon"].to_numpy(), track["lat"].to_numpy())
+            t = track["t"].to_numpy()
+            inside = (wt >= t[0]) & (wt <= t[-1])
+            e = np.hypot(np.interp(wt[inside], t, x) - wx[inside], np.interp(wt[inside], t, y) - wy[inside])
+            errors[method].append(e)
+            rows.append(
+                {
+                    "trial": name,
+                    "method": method,
+                    "n_waypoints": int(inside.sum()),
+                    "median_m": float(np.median(e)) if len(e) else None,
+                }
+            )
+    table_rows = []
+    for m in METHODS:
+        e = np.concatenate(errors[m]) if errors[m] else np.array([])
+        table_rows.append(
+            [
+                m,
+                str(len(e)),
+                f"{np.median(e):.1f}" if len(e) else "n/a",
+                f"{np.percentile(e, 90):.1f}" if len(e) else "n/a",
+                f"{e.mean():.1f}" if len(e) else "n/a",
+            ]
+        )
+    table = Table(
+        f"IPIN 2023 Track 3 ({len(names)} trials, no map): error at surveyed waypoints (m)",
+        ["method", "waypoints", "median", "p90", "mean"],
+        table_rows,
+    )
+    return table, rows

@@ -1,0 +1,153 @@
+"""``localize simulate`` / ``localize evaluate``: plans, reports, dask == serial, and bad input."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from curbside.cli.localize import main
+from curbside.evaluate import runner
+from curbside.evaluate.benchmark import expand_sessions, plan
+
+MAP = Path(__file__).parent / "data" / "evaluate" / "sf-path3.geojson"
+
+
+@pytest.fixture(scope="module")
+def sessions(tmp_path_factory) -> list[Path]:
+    """Two simulated recordings of the benchmark's path 3 (the fixture map is clipped around it)."""
+    root = tmp_path_factory.mktemp("sessions")
+    out = []
+    for seed in (1, 2):
+        assert main(["simulate", "--route", "path3", "--seed", str(seed), "--map", str(MAP),
+                     "-o", str(root / f"path3-s{seed}")]) == 0
+        out.append(root / f"path3-s{seed}")
+    return out
+
+
+def test_plan_sweeps_one_parameter_at_a_time(tmp_path, sessions):
+    specs, base = plan(
+        sessions, {"a": str(MAP), "b": str(MAP)}, jaywalk_weights=(0.0, 0.4, 1.0), particles=(500, 100),
+        gnss_sigma_factors=(None, 2.0), snapshots=False,
+    )
+    assert base == {"map": "a", "jaywalk_weight": 0.4, "particles": 500, "gnss_sigma_factor": None}
+    fused = {(s.jaywalk_weight, s.particles, s.gnss_sigma_factor) for s in specs if s.method == "fused"}
+    assert fused == {(0.0, 500, None), (0.4, 500, None), (1.0, 500, None), (0.4, 100, None), (0.4, 500, 2.0)}
+    inertial = [s for s in specs if s.method == "inertial"]
+    assert all(s.gnss_sigma_factor is None for s in inertial)
+    # per session and map: 1 gnss + 4 inertial + 5 fused
+    assert len(specs) == 2 * 2 * (1 + 4 + 5)
+
+
+def test_expand_sessions(tmp_path, sessions):
+    assert expand_sessions([sessions[0].parent]) == sorted(sessions)
+    assert expand_sessions([sessions[1]]) == [sessions[1]]
+
+
+@pytest.mark.slow
+def test_dask_results_equal_serial(sessions):
+    specs, _ = plan(sessions, {"osm": str(MAP)}, methods=("gnss", "fused"), jaywalk_weights=(0.4,),
+                    particles=(100,), seed=3, snapshots=False)
+    serial = runner.run_all(specs, workers=1)
+    parallel = runner.run_all(specs, workers=2)
+    for a, b in zip(serial, parallel, strict=True):
+        assert a["spec"] == b["spec"]
+        pd.testing.assert_frame_equal(a["track"], b["track"])
+        assert a["metrics"] == b["metrics"]
+
+
+@pytest.mark.slow
+def test_evaluate_writes_the_report(tmp_path, sessions):
+    out = tmp_path / "report"
+    rc = main(["evaluate", str(sessions[0].parent), "--maps", str(MAP), str(MAP), "--map-names", "osm", "copy",
+               "--jaywalk-weights", "0", "0.4", "--particles", "100", "--workers", "1", "-o", str(out)])
+    assert rc == 0
+    doc = json.loads((out / "metrics.json").read_text())
+    pooled = pd.DataFrame(doc["pooled"])
+    for name in ("csa", "euclid_mean_m", "euclid_median_m", "euclid_p90_m", "along_median_m",
+                 "across_median_m", "along_p90_m", "across_p90_m"):
+        assert name in pooled
+    assert set(pooled["method"]) == {"gnss", "inertial", "fused"}
+    assert set(pooled["map"]) == {"osm", "copy"}
+    # the same map under two names gives the same numbers
+    fused = pooled[(pooled["method"] == "fused") & (pooled["jaywalk_weight"] == 0.4)].set_index("map")
+    assert fused.loc["osm", "csa"] == fused.loc["copy", "csa"]
+    assert ((pooled["csa"] >= 0) & (pooled["csa"] <= 1)).all()
+    per_session = pd.DataFrame(doc["per_session"])
+    assert set(per_session["session"]) == {"path3-s1", "path3-s2"}
+    md = (out / "report.md").read_text()
+    assert "Table 2" in md and "Table 3" in md and "Table 4" in md and "Map sources compared" in md
+    assert "(0.80)" in md  # the paper's fused CSA at w = 0.4 beside ours
+    html = (out / "report.html").read_text()
+    assert html.count("data:image/png;base64,") >= 4
+    assert not (out / "figures" / "missing.png").exists()
+    assert (out / "figures" / "fig4_cdf.png").stat().st_size > 1000
+
+
+def _fails(capsys, argv: list[str], needle: str, out: Path | None = None) -> None:
+    try:
+        rc = main(argv)
+    except SystemExit as exc:  # argparse usage errors
+        rc = exc.code
+    assert rc == 2
+    err = capsys.readouterr().err
+    assert needle in err and "Traceback" not in err
+    assert len(err.strip().splitlines()) == 1
+    if out is not None:
+        assert not out.exists()
+
+
+def test_bad_input(tmp_path, capsys, sessions):
+    out = tmp_path / "r"
+    _fails(capsys, ["evaluate", str(tmp_path / "nope"), "--maps", str(MAP), "-o", str(out)],
+           "no such session folder", out)
+    empty = tmp_path / "empty"
+    empty.mkdir()
+    _fails(capsys, ["evaluate", str(empty), "--maps", str(MAP), "-o", str(out)], "folder of sessions", out)
+    _fails(capsys, ["evaluate", str(sessions[0]), "--maps", str(tmp_path / "x.geojson"), "-o", str(out)],
+           "no such map file", out)
+    bad = tmp_path / "bad.geojson"
+    bad.write_text("{not json")
+    _fails(capsys, ["evaluate", str(sessions[0]), "--maps", str(bad), "-o", str(out)], "bad.geojson", out)
+    no_sidewalks = tmp_path / "buildings.geojson"
+    doc = json.loads(MAP.read_text())
+    doc["features"] = [f for f in doc["features"] if f["properties"]["class"] == "building"]
+    no_sidewalks.write_text(json.dumps(doc))
+    _fails(capsys, ["evaluate", str(sessions[0]), "--maps", str(no_sidewalks), "-o", str(out)],
+           "no sidewalk segments", out)
+    _fails(capsys, ["evaluate", str(sessions[0]), "--maps", str(MAP), "--jaywalk-weights", "1.5", "-o", str(out)],
+           "must lie in [0, 1]", out)
+    _fails(capsys, ["evaluate", str(sessions[0]), "--maps", str(MAP), str(MAP), "--map-names", "a", "a",
+                    "-o", str(out)], "one distinct name per map", out)
+    _fails(capsys, ["simulate", "--route", "path9", "-o", str(out)], "unknown route", out)
+    far = tmp_path / "far.geojson"
+    doc = json.loads(MAP.read_text())
+    for f in doc["features"]:
+        f["geometry"]["coordinates"] = json.loads(
+            json.dumps(f["geometry"]["coordinates"]).replace("-122.", "-121.")
+        )
+    far.write_text(json.dumps(doc))
+    _fails(capsys, ["simulate", "--route", "path3", "--map", str(far), "-o", str(out)], "outside the map", out)
+
+
+def test_session_without_waypoints_is_refused(tmp_path, sessions):
+    import shutil
+
+    from curbside.errors import CurbsideInputError
+
+    copy = tmp_path / "nowp"
+    shutil.copytree(sessions[0], copy)
+    (copy / "waypoints.csv").unlink()
+    with pytest.raises(CurbsideInputError, match="no waypoints.csv"):
+        runner.run_one(runner.RunSpec(str(copy), "gnss", metrics_map=str(MAP)))
+
+
+def test_simulated_session_is_scored_against_its_own_route(sessions):
+    result = runner.run_one(runner.RunSpec(str(sessions[0]), "gnss", map_name="osm", metrics_map=str(MAP)))
+    m = result["metrics"]
+    assert m["n_steps"] > 300 and m["n_missing"] == 0
+    assert 0 < m["euclid_median_m"] < 60
+    assert np.isfinite(result["ate_m"]) and np.isfinite(result["rte_m"])

@@ -1,0 +1,100 @@
+"""A synthetic walk on a real map: Mission Street between 1st and Fremont, San Francisco.
+
+``tests/data/filter/sf-mission-1st.geojson`` was cut from the bundled OSM extract with
+``build_map(bbox=(-122.3985, 37.7882, -122.3958, 37.7902))`` (© OpenStreetMap contributors, ODbL).
+The walker follows the south-east sidewalk of Mission Street (segment ``w417101712-0-R``) from end
+to end; GNSS is pulled onto the opposite sidewalk (the urban-canyon failure the paper targets).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+import shapely
+
+from curbside import settings
+from curbside.localize.maplikelihood import BUILDING, rasterize_map
+from curbside.localize.pipeline import track_session
+from curbside.localize.session import read_session
+from curbside.osmseg.mapio import read_map
+from curbside.projection import LocalFrame
+
+WALKED = "w417101712-0-R"
+OPPOSITE = "w417101712-0-L"
+
+
+MAP_FILE = Path(__file__).parent / "data" / "filter" / "sf-mission-1st.geojson"
+
+
+@pytest.fixture(scope="module")
+def sf_map():
+    return read_map(MAP_FILE)
+
+
+def sidewalk_axis(layers, segment_id: str) -> tuple[np.ndarray, np.ndarray]:
+    """End points of the long axis of a sidewalk's oriented bounding box, 3 m in from each end."""
+    poly = layers.gdf.loc[layers.gdf["segment_id"] == segment_id, "geometry"].iloc[0]
+    corners = np.asarray(shapely.oriented_envelope(poly).exterior.coords)[:4]
+    edges = np.roll(corners, -1, axis=0) - corners
+    k = int(np.argmin(np.hypot(*edges.T)))  # a short side
+    a = corners[k] + edges[k] / 2
+    b = corners[(k + 2) % 4] + edges[(k + 2) % 4] / 2
+    u = (b - a) / np.hypot(*(b - a))
+    return a + 3 * u, b - 3 * u
+
+
+def write_sf_walk(folder, layers, seed: int = 0):
+    rng = np.random.default_rng(seed)
+    a, b = sidewalk_axis(layers, WALKED)
+    length = float(np.hypot(*(b - a)))
+    u = (b - a) / length
+    speed = 1.3
+    duration = length / speed
+    centroids = layers.layer("sidewalk").set_index("segment_id").geometry.centroid
+    across = np.array(centroids[OPPOSITE].coords[0]) - np.array(centroids[WALKED].coords[0])
+    frame = LocalFrame(layers.crs)
+    folder.mkdir()
+    pd.DataFrame({"t": np.arange(0.0, duration, 0.55)}).to_csv(folder / "steps.csv", index=False)
+    tv = np.arange(0.0, duration, 0.05)
+    c, s = math.cos(math.radians(5)), math.sin(math.radians(5))
+    v = 1.05 * speed * np.array([c * u[0] - s * u[1], s * u[0] + c * u[1]])
+    pd.DataFrame({"t": tv, "ve": v[0] + rng.normal(0, 0.05, len(tv)),
+                  "vn": v[1] + rng.normal(0, 0.05, len(tv))}).to_csv(folder / "velocity.csv", index=False)
+    tg = np.arange(0.0, duration, 1.0)
+    truth = a + np.outer(speed * tg, u)
+    noisy = truth + across + rng.normal(0, 3, truth.shape)
+    lon, lat = frame.to_lonlat(noisy[:, 0], noisy[:, 1])
+    gnss = pd.DataFrame({"t": tg, "lat": lat, "lon": lon, "accuracy_m": 10.0})
+    gnss.to_csv(folder / "gnss.csv", index=False)
+    slon, slat = frame.to_lonlat(a[0], a[1])
+    heading = math.degrees(math.atan2(u[0], u[1])) % 360
+    meta = {"start": {"lat": float(slat), "lon": float(slon), "heading_deg": heading, "t": 0.0}}
+    (folder / "meta.json").write_text(json.dumps(meta))
+    return folder, a, u, speed
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_fused_keeps_the_right_sidewalk_of_mission_street(tmp_path, monkeypatch, sf_map, seed):
+    monkeypatch.setattr(settings, "cache_dir", tmp_path / "cache")
+    folder, a, u, speed = write_sf_walk(tmp_path / "walk", sf_map, seed)
+    session = read_session(folder)
+    results = {m: track_session(session, sf_map, m, seed=seed, save_particles=m == "fused")
+               for m in ("gnss", "fused")}
+
+    def errors(track):
+        truth = a + np.outer(speed * track["t"].to_numpy(), u)
+        return np.hypot(track["x_m"] - truth[:, 0], track["y_m"] - truth[:, 1])
+
+    gnss_err, fused_err = errors(results["gnss"].track), errors(results["fused"].track)
+    assert np.median(fused_err) < 0.5 * np.median(gnss_err)
+    assert (results["fused"].track["sidewalk_segment_id"] == WALKED).mean() > 0.8
+    assert (results["gnss"].track["sidewalk_segment_id"] == WALKED).mean() < 0.3
+    snaps = results["fused"].snapshots
+    raster = rasterize_map(sf_map)
+    codes = raster.codes_at(snaps["x"] + snaps["origin"][0], snaps["y"] + snaps["origin"][1])
+    assert (codes == BUILDING).mean(axis=1).max() < 0.01
