@@ -22,16 +22,34 @@ def sessions(tmp_path_factory) -> list[Path]:
     root = tmp_path_factory.mktemp("sessions")
     out = []
     for seed in (1, 2):
-        assert main(["simulate", "--route", "path3", "--seed", str(seed), "--map", str(MAP),
-                     "-o", str(root / f"path3-s{seed}")]) == 0
+        assert (
+            main(
+                [
+                    "simulate",
+                    "--route",
+                    "path3",
+                    "--seed",
+                    str(seed),
+                    "--map",
+                    str(MAP),
+                    "-o",
+                    str(root / f"path3-s{seed}"),
+                ]
+            )
+            == 0
+        )
         out.append(root / f"path3-s{seed}")
     return out
 
 
 def test_plan_sweeps_one_parameter_at_a_time(tmp_path, sessions):
     specs, base = plan(
-        sessions, {"a": str(MAP), "b": str(MAP)}, jaywalk_weights=(0.0, 0.4, 1.0), particles=(500, 100),
-        gnss_sigma_factors=(None, 2.0), snapshots=False,
+        sessions,
+        {"a": str(MAP), "b": str(MAP)},
+        jaywalk_weights=(0.0, 0.4, 1.0),
+        particles=(500, 100),
+        gnss_sigma_factors=(None, 2.0),
+        snapshots=False,
     )
     assert base == {"map": "a", "jaywalk_weight": 0.4, "particles": 500, "gnss_sigma_factor": None}
     fused = {(s.jaywalk_weight, s.particles, s.gnss_sigma_factor) for s in specs if s.method == "fused"}
@@ -49,8 +67,15 @@ def test_expand_sessions(tmp_path, sessions):
 
 @pytest.mark.slow
 def test_dask_results_equal_serial(sessions):
-    specs, _ = plan(sessions, {"osm": str(MAP)}, methods=("gnss", "fused"), jaywalk_weights=(0.4,),
-                    particles=(100,), seed=3, snapshots=False)
+    specs, _ = plan(
+        sessions,
+        {"osm": str(MAP)},
+        methods=("gnss", "fused"),
+        jaywalk_weights=(0.4,),
+        particles=(100,),
+        seed=3,
+        snapshots=False,
+    )
     serial = runner.run_all(specs, workers=1)
     parallel = runner.run_all(specs, workers=2)
     for a, b in zip(serial, parallel, strict=True):
@@ -62,13 +87,40 @@ def test_dask_results_equal_serial(sessions):
 @pytest.mark.slow
 def test_evaluate_writes_the_report(tmp_path, sessions):
     out = tmp_path / "report"
-    rc = main(["evaluate", str(sessions[0].parent), "--maps", str(MAP), str(MAP), "--map-names", "osm", "copy",
-               "--jaywalk-weights", "0", "0.4", "--particles", "100", "--workers", "1", "-o", str(out)])
+    rc = main(
+        [
+            "evaluate",
+            str(sessions[0].parent),
+            "--maps",
+            str(MAP),
+            str(MAP),
+            "--map-names",
+            "osm",
+            "copy",
+            "--jaywalk-weights",
+            "0",
+            "0.4",
+            "--particles",
+            "100",
+            "--workers",
+            "1",
+            "-o",
+            str(out),
+        ]
+    )
     assert rc == 0
     doc = json.loads((out / "metrics.json").read_text())
     pooled = pd.DataFrame(doc["pooled"])
-    for name in ("csa", "euclid_mean_m", "euclid_median_m", "euclid_p90_m", "along_median_m",
-                 "across_median_m", "along_p90_m", "across_p90_m"):
+    for name in (
+        "csa",
+        "euclid_mean_m",
+        "euclid_median_m",
+        "euclid_p90_m",
+        "along_median_m",
+        "across_median_m",
+        "along_p90_m",
+        "across_p90_m",
+    ):
         assert name in pooled
     assert set(pooled["method"]) == {"gnss", "inertial", "fused"}
     assert set(pooled["map"]) == {"osm", "copy"}
@@ -102,13 +154,21 @@ def _fails(capsys, argv: list[str], needle: str, out: Path | None = None) -> Non
 
 def test_bad_input(tmp_path, capsys, sessions):
     out = tmp_path / "r"
-    _fails(capsys, ["evaluate", str(tmp_path / "nope"), "--maps", str(MAP), "-o", str(out)],
-           "no such session folder", out)
+    _fails(
+        capsys,
+        ["evaluate", str(tmp_path / "nope"), "--maps", str(MAP), "-o", str(out)],
+        "no such session folder",
+        out,
+    )
     empty = tmp_path / "empty"
     empty.mkdir()
     _fails(capsys, ["evaluate", str(empty), "--maps", str(MAP), "-o", str(out)], "folder of sessions", out)
-    _fails(capsys, ["evaluate", str(sessions[0]), "--maps", str(tmp_path / "x.geojson"), "-o", str(out)],
-           "no such map file", out)
+    _fails(
+        capsys,
+        ["evaluate", str(sessions[0]), "--maps", str(tmp_path / "x.geojson"), "-o", str(out)],
+        "no such map file",
+        out,
+    )
     bad = tmp_path / "bad.geojson"
     bad.write_text("{not json")
     _fails(capsys, ["evaluate", str(sessions[0]), "--maps", str(bad), "-o", str(out)], "bad.geojson", out)
@@ -116,12 +176,24 @@ def test_bad_input(tmp_path, capsys, sessions):
     doc = json.loads(MAP.read_text())
     doc["features"] = [f for f in doc["features"] if f["properties"]["class"] == "building"]
     no_sidewalks.write_text(json.dumps(doc))
-    _fails(capsys, ["evaluate", str(sessions[0]), "--maps", str(no_sidewalks), "-o", str(out)],
-           "no sidewalk segments", out)
-    _fails(capsys, ["evaluate", str(sessions[0]), "--maps", str(MAP), "--jaywalk-weights", "1.5", "-o", str(out)],
-           "must lie in [0, 1]", out)
-    _fails(capsys, ["evaluate", str(sessions[0]), "--maps", str(MAP), str(MAP), "--map-names", "a", "a",
-                    "-o", str(out)], "one distinct name per map", out)
+    _fails(
+        capsys,
+        ["evaluate", str(sessions[0]), "--maps", str(no_sidewalks), "-o", str(out)],
+        "no sidewalk segments",
+        out,
+    )
+    _fails(
+        capsys,
+        ["evaluate", str(sessions[0]), "--maps", str(MAP), "--jaywalk-weights", "1.5", "-o", str(out)],
+        "must lie in [0, 1]",
+        out,
+    )
+    _fails(
+        capsys,
+        ["evaluate", str(sessions[0]), "--maps", str(MAP), str(MAP), "--map-names", "a", "a", "-o", str(out)],
+        "one distinct name per map",
+        out,
+    )
     _fails(capsys, ["simulate", "--route", "path9", "-o", str(out)], "unknown route", out)
     far = tmp_path / "far.geojson"
     doc = json.loads(MAP.read_text())
@@ -130,7 +202,9 @@ def test_bad_input(tmp_path, capsys, sessions):
             json.dumps(f["geometry"]["coordinates"]).replace("-122.", "-121.")
         )
     far.write_text(json.dumps(doc))
-    _fails(capsys, ["simulate", "--route", "path3", "--map", str(far), "-o", str(out)], "outside the map", out)
+    _fails(
+        capsys, ["simulate", "--route", "path3", "--map", str(far), "-o", str(out)], "outside the map", out
+    )
 
 
 def test_session_without_waypoints_is_refused(tmp_path, sessions):
@@ -151,3 +225,15 @@ def test_simulated_session_is_scored_against_its_own_route(sessions):
     assert m["n_steps"] > 300 and m["n_missing"] == 0
     assert 0 < m["euclid_median_m"] < 60
     assert np.isfinite(result["ate_m"]) and np.isfinite(result["rte_m"])
+
+
+def test_ipin_table_scores_methods_at_the_same_waypoints():
+    from curbside.evaluate.benchmark import ipin_table
+
+    h5 = Path(__file__).parent / "data" / "sessions" / "ipin2023-cut.h5"
+    table, rows = ipin_table(h5)
+    frame = pd.DataFrame(rows)
+    assert set(frame["method"]) == {"gnss", "inertial", "fused"}
+    counts = frame.groupby("trial")["n_waypoints"].nunique()
+    assert (counts == 1).all()  # every method at the same waypoints of a trial
+    assert [r[0] for r in table.rows] == ["gnss", "inertial", "fused"]

@@ -44,14 +44,16 @@ def _common_extent_m(*layers: MapLayers) -> shapely.Geometry:
     return shapely.affinity.translate(utm, -X0, -Y0)
 
 
-def _brute_boundary_distances(a: shapely.Geometry, b: shapely.Geometry, step: float) -> np.ndarray:
+def _brute_boundary_distances(
+    a: shapely.Geometry, b: shapely.Geometry, step: float
+) -> tuple[np.ndarray, np.ndarray]:
     """Independent oracle: densified outline vertices of one shape, distance to the other's outline."""
     out = []
     for src, dst in ((a, b), (b, a)):
         ring = shapely.segmentize(src.boundary, step / 4)
         points = shapely.points(shapely.get_coordinates(ring))
         out.append(shapely.distance(points, dst.boundary))
-    return np.concatenate(out)
+    return out[0], out[1]
 
 
 def test_identical_maps_agree_perfectly(test_data):
@@ -74,9 +76,22 @@ def test_shifted_square_iou_and_boundary_distance(dx, dy):
     row = table.loc["building"]
     assert row["iou"] == pytest.approx(square.intersection(moved).area / square.union(moved).area, rel=1e-6)
     assert row["area_a_m2"] == pytest.approx(400, rel=1e-6)
-    oracle = _brute_boundary_distances(square, moved, settings.compare_boundary_step_m)
-    assert row["boundary_mean_m"] == pytest.approx(oracle.mean(), abs=0.05)
-    assert row["boundary_median_m"] == pytest.approx(np.median(oracle), abs=0.1)
+    a_to_b, b_to_a = _brute_boundary_distances(square, moved, settings.compare_boundary_step_m)
+    both = np.concatenate([a_to_b, b_to_a])
+    assert row["boundary_mean_m"] == pytest.approx(both.mean(), abs=0.05)
+    assert row["boundary_median_m"] == pytest.approx(np.median(both), abs=0.1)
+    assert row["boundary_a_to_b_m"] == pytest.approx(a_to_b.mean(), abs=0.05)
+    assert row["boundary_b_to_a_m"] == pytest.approx(b_to_a.mean(), abs=0.05)
+
+
+def test_directed_boundary_distances_point_at_the_map_with_extra_outlines():
+    extent = shapely.box(-10, -10, 100, 60)
+    shared, extra = shapely.box(0, 0, 20, 20), shapely.box(60, 30, 80, 50)
+    row = compare_maps(
+        _layers([("building", shared), ("building", extra)], extent), _layers([("building", shared)], extent)
+    ).table.loc["building"]
+    assert row["boundary_b_to_a_m"] == pytest.approx(0.0, abs=1e-6)
+    assert row["boundary_a_to_b_m"] > 10
 
 
 def test_only_the_overlap_of_the_extents_is_compared():

@@ -1,9 +1,62 @@
-"""``osmseg build`` sub-command(s)."""
+"""``osmseg build``: derive building, street, crosswalk and sidewalk polygons from OpenStreetMap."""
 
 from __future__ import annotations
 
 import argparse
+import sys
+from pathlib import Path
+
+from curbside import settings
+from curbside.osmseg.build import build_map
+from curbside.osmseg.crosswalks import UNMARKED_CHOICES
+from curbside.osmseg.mapio import CLASSES, MapLayers, write_map
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
-    """Add this module's sub-command(s) to ``subparsers``."""
+    """Add ``build`` to ``subparsers``."""
+    p = subparsers.add_parser(
+        "build",
+        help="derive map layers from OpenStreetMap",
+        description=(
+            "Derive building, street, crosswalk and sidewalk-segment polygons from OpenStreetMap. "
+            "No --osm: the bundled downtown San Francisco extract when the bbox lies inside it, "
+            f"else Overpass (cached under {settings.cache_dir}/overpass). {settings.osm_attribution}."
+        ),
+    )
+    p.add_argument(
+        "--bbox",
+        nargs=4,
+        type=float,
+        metavar=("W", "S", "E", "N"),
+        help="area in WGS84 degrees (default: the bundled extract's default area, or the whole --osm file)",
+    )
+    p.add_argument("--osm", type=Path, metavar="FILE", help=".osm, .osm.bz2, .osm.gz or .osm.pbf file")
+    p.add_argument("-o", "--output", type=Path, default=Path("map.geojson"), help="output GeoJSON")
+    p.add_argument(
+        "--unmarked-as",
+        choices=UNMARKED_CHOICES,
+        default=settings.unmarked_crossing_as,
+        help="what unmarked crossings become (default: %(default)s)",
+    )
+    p.set_defaults(func=run)
+
+
+def summary_lines(layers: MapLayers) -> list[str]:
+    """One line per class: polygon count and total area in m^2."""
+    gdf = layers.gdf
+    lines = []
+    for cls in CLASSES:
+        rows = gdf[gdf["class"] == cls]
+        lines.append(f"{cls:<10} {len(rows):>6} polygons {rows.area.sum():>12,.0f} m^2")
+    return lines
+
+
+def run(args: argparse.Namespace) -> int:
+    """Build the map and write it."""
+    layers = build_map(tuple(args.bbox) if args.bbox else None, args.osm, unmarked_as=args.unmarked_as)
+    path = write_map(layers, args.output)
+    out = sys.stdout
+    out.write(f"wrote {path} ({layers.meta['source']}; {settings.osm_attribution})\n")
+    for line in summary_lines(layers):
+        out.write(line + "\n")
+    return 0

@@ -219,11 +219,18 @@ def run_benchmark(
     return {"map": map_path, "sessions": out_dir / "sessions", "report": out_dir / "report", **paths}
 
 
+def benchmark_summary(report_dir: str | Path) -> str:
+    """The tables of a report (Markdown, no figures): what ``make demo`` prints at the end."""
+    text = (Path(report_dir) / "report.md").read_text(encoding="utf-8")
+    return text.split("![", 1)[0].rstrip() + "\n"
+
+
 def ipin_table(h5: str | Path, trials: int | None = None, seed: int = 0) -> tuple[Table, list[dict]]:
     """Real data without a map: GNSS vs RoNIN+PF vs GNSS+RoNIN+PF at the surveyed IPIN 2023 waypoints.
 
     Each trial is tracked from its start pose; the estimate is interpolated at each waypoint time and
-    compared with the surveyed point.
+    compared with the surveyed point. All methods are scored at the same waypoints: those inside every
+    method's track (the GNSS track spans only the fixes), the start waypoint excluded.
     """
     from curbside.evaluate.groundtruth import waypoints_xy
     from curbside.localize.pipeline import track_session
@@ -241,22 +248,28 @@ def ipin_table(h5: str | Path, trials: int | None = None, seed: int = 0) -> tupl
             float(session.waypoints["lon"].iat[0]), float(session.waypoints["lat"].iat[0])
         )
         wt, wx, wy = waypoints_xy(session.waypoints, frame)
+        tracks = {}
         for method in METHODS:
             try:
-                track = track_session(session, None, method, seed=seed, progress=False).track
+                tracks[method] = track_session(session, None, method, seed=seed, progress=False).track
             except CurbsideInputError as exc:
                 log.warning("IPIN %s %s skipped: %s", name, method, exc)
-                continue
+        if len(tracks) < len(METHODS):
+            continue
+        # score every method at the same waypoints: inside every track's span, the start one excluded
+        common = np.arange(len(wt)) > 0
+        for track in tracks.values():
+            common &= (wt >= track["t"].iat[0]) & (wt <= track["t"].iat[-1])
+        for method, track in tracks.items():
             x, y = frame.to_xy(track["lon"].to_numpy(), track["lat"].to_numpy())
             t = track["t"].to_numpy()
-            inside = (wt >= t[0]) & (wt <= t[-1])
-            e = np.hypot(np.interp(wt[inside], t, x) - wx[inside], np.interp(wt[inside], t, y) - wy[inside])
+            e = np.hypot(np.interp(wt[common], t, x) - wx[common], np.interp(wt[common], t, y) - wy[common])
             errors[method].append(e)
             rows.append(
                 {
                     "trial": name,
                     "method": method,
-                    "n_waypoints": int(inside.sum()),
+                    "n_waypoints": int(common.sum()),
                     "median_m": float(np.median(e)) if len(e) else None,
                 }
             )

@@ -16,8 +16,9 @@ it finds the elevation angle above which the sky is open (the tallest building i
 - **outliers**: rare jumps of ``outlier_m`` metres in a random direction lasting a few seconds.
 - **cover**: under a deck (inside a tall building footprint, e.g. the Transit Center) a fix is missing
   with probability ``covered_dropout``; the others carry a large slowly varying error.
-- **reported accuracy**: the model's own 1-sigma radius times a log-normal factor; it knows nothing
-  of wrong-sidewalk episodes or outliers, so it is only loosely calibrated, as iOS's is.
+- **reported accuracy**: the 68 % radius of the model's own Gauss-Markov error times a log-normal
+  factor; it knows nothing of wrong-sidewalk episodes or outliers, so it is only loosely calibrated,
+  as a phone's is.
 
 Every parameter, its default and its source are listed in ``docs/evaluate.md``.
 """
@@ -40,7 +41,7 @@ class GnssErrorModel:
     #: 1-sigma per-axis error under open sky (m); phone GNSS, e.g. IPIN 2023 ground floor ~4 m median.
     sigma_open_m: float = 3.0
     #: Extra 1-sigma per-axis error at full blockage of that axis (m).
-    sigma_canyon_m: float = 12.0
+    sigma_canyon_m: float = 10.0
     #: Gauss-Markov time constant of the error (s).
     tau_s: float = 30.0
     #: Wrong-sidewalk episodes start at this rate times the across-street severity (1/s).
@@ -58,7 +59,10 @@ class GnssErrorModel:
     #: 1-sigma per-axis error under cover (m) and its time constant (s).
     sigma_covered_m: float = 30.0
     tau_covered_s: float = 60.0
-    #: Log-normal spread of the reported accuracy around the model's own sigma.
+    #: Reported accuracy = this x the model's per-axis sigma: the 68 % radius of a circular 2-D Gaussian,
+    #: sqrt(-2 ln 0.32) = 1.51 (iOS ``horizontalAccuracy`` and Android ``getAccuracy()`` are 68 % radii).
+    accuracy_radius_factor: float = 1.51
+    #: Log-normal spread of the reported accuracy around that radius.
     accuracy_log_sigma: float = 0.4
     #: Reported accuracy is clipped to this range (m); iOS reports whole metres.
     accuracy_range_m: tuple[float, float] = (3.0, 100.0)
@@ -261,7 +265,9 @@ def simulate_gnss(
     err += jump[outlier_id] * outlier[:, None]
 
     sigma = np.sqrt((sig_a**2 + sig_b**2) / 2)
-    reported = sigma * np.exp(model.accuracy_log_sigma * rng.standard_normal(n))
+    reported = (
+        model.accuracy_radius_factor * sigma * np.exp(model.accuracy_log_sigma * rng.standard_normal(n))
+    )
     reported = np.round(np.clip(reported, *model.accuracy_range_m))
     keep = ~(covered & (rng.random(n) < model.covered_dropout))
     fixes = pd.DataFrame(

@@ -539,7 +539,7 @@ class Tracker:
             raster = load_or_build_raster(map_layers, self.config.raster_resolution_m)
         else:
             raster = map_layers
-        self.map_likelihood = MapLikelihood(raster, self.config.jaywalk_weight) if raster else None
+        self.map_likelihood = None if raster is None else MapLikelihood(raster, self.config.jaywalk_weight)
         if frame is None and raster is not None:
             frame = LocalFrame(pyproj.CRS.from_wkt(raster.crs))
         self.frame = frame

@@ -14,8 +14,8 @@ Inputs are chosen in this order. Velocity: ``velocity.csv``, else the bundled Ro
 detected from ``imu.csv``, else a fixed cadence of ``settings.default_step_cadence_s`` over the span of
 the velocity (or GNSS) data. The filter is started from ``meta.json``'s start pose (at its ``t`` when
 given, else at the first footstep) with the drift chosen so that the first motion points along the
-start heading; without a start pose, from the first usable GNSS fix (in ``inertial`` mode too: that
-one fix only places the start).
+start heading; without a start pose (or when told to ignore it), from the first usable GNSS fix at or
+after the start time (in ``inertial`` mode too: that one fix only places the start).
 
 Fixes are taken at each footstep as the paper did: interpolated between the bracketing fixes when both
 lie within ``settings.gnss_interp_max_gap_s``, else the latest earlier fix if it is not older than
@@ -396,7 +396,7 @@ def track_session(
         ``auto``, ``file``, ``ronin`` or ``pdr`` (see :func:`inertial_velocity`).
     use_start_pose
         Start from ``meta.json``'s start pose when there is one (the paper's setting); ``False``
-        starts from the first usable fix.
+        starts from the first usable fix at or after the pose's ``t`` (when given).
     save_particles
         Keep a particle snapshot per footstep in :attr:`TrackResult.snapshots`.
     progress
@@ -422,8 +422,11 @@ def track_session(
         overrides["jaywalk_weight"] = float(jaywalk_weight)
     config = replace(config, **overrides) if overrides else config
     frame = _frame_for(session, map_layers)
-    start = session.start_pose if use_start_pose else None
-    t_start = float(start["t"]) if start is not None and isinstance(start.get("t"), int | float) else None
+    # The start time is kept without the pose: it says when the walk began (an app knows when
+    # navigation starts), and what the phone logged before (handling, calibration) is not a walk.
+    pose = session.start_pose
+    t_start = float(pose["t"]) if pose is not None and isinstance(pose.get("t"), int | float) else None
+    start = pose if use_start_pose else None
 
     if mode == "gnss":
         span = None
@@ -440,8 +443,10 @@ def track_session(
     inertial = inertial_velocity(session, velocity_source, steps)
     if len(inertial.velocity) < 2:
         raise CurbsideInputError(session.name, f"the {inertial.source} velocity has fewer than two samples")
-    if t_start is not None:
+    if t_start is not None and start is not None:
         steps = np.concatenate([[t_start], steps[steps > t_start]])
+    elif t_start is not None:
+        steps = steps[steps >= t_start]
     if len(steps) < 2:
         raise CurbsideInputError(session.name, "fewer than two footsteps after the start")
     disp = displacements_between(cumulative_displacement(inertial), steps)

@@ -14,6 +14,7 @@ import numpy as np
 import osmnx as ox
 import requests
 import shapely
+from osmnx._errors import InsufficientResponseError
 
 from curbside import settings
 from curbside.errors import CurbsideInputError
@@ -49,12 +50,15 @@ def features_to_osmdata(features: gpd.GeoDataFrame, bbox: tuple[float, float, fl
     geom_type = gdf.geom_type.to_numpy()
     highway = gdf["highway"].notna().to_numpy() if "highway" in gdf else np.zeros(len(gdf), bool)
     building = gdf["building"].notna().to_numpy() if "building" in gdf else np.zeros(len(gdf), bool)
-    geoms = gdf.geometry.values
+    geoms = np.asarray(gdf.geometry.values, dtype=object)
 
     way_mask = (element == "way") & highway & (geom_type == "LineString")
     # osmnx turns closed highway ways tagged area=yes into polygons: keep their outline as the way.
     closed_highway = (element == "way") & highway & ~building & (geom_type == "Polygon")
-    way_geoms = np.concatenate([geoms[way_mask], shapely.exterior_rings(geoms[closed_highway])])
+    rings = shapely.get_exterior_ring(geoms[closed_highway])
+    ring_xy, ring_i = shapely.get_coordinates(rings, return_index=True)
+    outlines = shapely.linestrings(ring_xy, indices=ring_i) if len(ring_i) else np.array([], dtype=object)
+    way_geoms = np.concatenate([geoms[way_mask], outlines])
     ways = make_table(
         np.concatenate([osm_id[way_mask], osm_id[closed_highway]]),
         way_geoms,
@@ -104,7 +108,7 @@ def fetch_overpass(bbox: tuple[float, float, float, float], *, margin_m: float =
     log.info("querying Overpass at %s for %s", ox.settings.overpass_url, query)
     try:
         features = ox.features_from_bbox(query, OVERPASS_TAGS)
-    except ox._errors.InsufficientResponseError:
+    except InsufficientResponseError:
         raise CurbsideInputError("overpass", f"no OSM buildings or highways in bbox {list(bbox)}") from None
     except requests.RequestException as exc:
         raise CurbsideInputError(
