@@ -12,11 +12,12 @@ same walk in the same process:
 
 Usage::
 
-    python benchmarks/bench_filter.py [--map MAP.geojson] [--steps 20000]
+    python benchmarks/bench_filter.py [--map MAP.geojson | --grid] [--steps 20000]
 
-Without ``--map`` the map is a synthetic downtown grid (20 x 20 blocks: buildings, streets,
-sidewalks, crosswalks) so that the benchmark runs anywhere; ``--map`` takes e.g. the output of
-``osmseg build``. Threads are pinned to one before numpy is imported.
+Without ``--map`` the map is built from the bundled downtown San Francisco extract (what ``osmseg
+build`` writes by default); ``--grid`` uses a synthetic 20 x 20-block grid instead. Each rate is the
+best of five rounds (other processes share the CPU). Threads are pinned to one before numpy is
+imported.
 """
 
 from __future__ import annotations
@@ -34,7 +35,7 @@ import tracemalloc  # noqa: E402
 import geopandas as gpd  # noqa: E402
 import numpy as np  # noqa: E402
 import shapely  # noqa: E402
-from scipy.ndimage import maximum_filter  # noqa: E402
+from scipy.ndimage import distance_transform_edt  # noqa: E402
 
 from curbside.localize.filter import FilterConfig, GnssFix, Tracker  # noqa: E402
 from curbside.localize.maplikelihood import BUILDING, MapRaster, rasterize_map  # noqa: E402
@@ -83,15 +84,25 @@ def walk(start: tuple[float, float], steps: int) -> tuple[np.ndarray, list[GnssF
     return disp, fixes
 
 
+def best_rate(update, steps: int, rounds: int = 5) -> float:
+    """Updates per second of ``update(k)``: the best of ``rounds`` rounds (others share the CPU)."""
+    per_round = max(steps // rounds, 1)
+    best, k = 0.0, 0
+    for _ in range(rounds):
+        t0 = time.perf_counter()
+        for _ in range(per_round):
+            update(k)
+            k += 1
+        best = max(best, per_round / (time.perf_counter() - t0))
+    return best
+
+
 def time_tracker(raster: MapRaster, n: int, backend: str, steps: int, start) -> float:
     tracker = Tracker(raster, FilterConfig(n_particles=n, backend=backend), seed=1)
     tracker.start_at_pose(0.0, *start)
     disp, fixes = walk(start, steps)
     tracker.step(0.0, displacement_en=disp[0], gnss_fix=fixes[0])  # compile the kernels outside the timing
-    t0 = time.perf_counter()
-    for k in range(steps):
-        tracker.step(0.55 * k, displacement_en=disp[k], gnss_fix=fixes[k])
-    rate = steps / (time.perf_counter() - t0)
+    rate = best_rate(lambda k: tracker.step(0.55 * k, displacement_en=disp[k], gnss_fix=fixes[k]), steps)
     if tracker.recoveries:
         print(f"  ({tracker.recoveries} collapses during the timed walk)")
     return rate
@@ -103,12 +114,12 @@ def time_shapely_baseline(layers: MapLayers, n: int, steps: int, start, jaywalk_
     for geom in unions.values():
         shapely.prepare(geom)
     rng = np.random.default_rng(1)
-    x = start[0] + rng.normal(0, 1, n)
-    y = start[1] + rng.normal(0, 1, n)
-    theta = rng.normal(0, 0.1, n)
+    state = {"x": start[0] + rng.normal(0, 1, n), "y": start[1] + rng.normal(0, 1, n),
+             "theta": rng.normal(0, 0.1, n)}
     disp, fixes = walk(start, steps)
-    t0 = time.perf_counter()
-    for k in range(steps):
+
+    def update(k: int) -> None:
+        x, y, theta = state["x"], state["y"], state["theta"]
         dx, dy = disp[k]
         sigma = max(0.05, 0.15 * math.hypot(dx, dy))
         theta = theta + rng.normal(0, math.radians(0.5), n)
@@ -125,11 +136,12 @@ def time_shapely_baseline(layers: MapLayers, n: int, steps: int, start, jaywalk_
         if w.sum() == 0:
             w[:] = 1.0
         w /= w.sum()
-        _estimate = (w @ x, w @ y)
+        state["estimate"] = (w @ x, w @ y)
         positions = (rng.random() + np.arange(n)) / n
         idx = np.minimum(np.searchsorted(np.cumsum(w), positions, side="right"), n - 1)
-        x, y, theta = x[idx], y[idx], theta[idx]
-    return steps / (time.perf_counter() - t0)
+        state["x"], state["y"], state["theta"] = x[idx], y[idx], theta[idx]
+
+    return best_rate(update, steps)
 
 
 def bytes_per_particle(raster: MapRaster) -> float:
@@ -147,24 +159,33 @@ def bytes_per_particle(raster: MapRaster) -> float:
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--map", help="map GeoJSON (default: a synthetic 20 x 20 block grid)")
+    parser.add_argument("--map", help="map GeoJSON (default: built from the bundled SF extract)")
+    parser.add_argument("--grid", action="store_true", help="use a synthetic 20 x 20 block grid instead")
     parser.add_argument("--steps", type=int, default=20000, help="updates timed at N=500")
     args = parser.parse_args(argv)
-    layers = read_map(args.map) if args.map else grid_city()
+    if args.grid:
+        layers = grid_city()
+    elif args.map:
+        layers = read_map(args.map)
+    else:
+        from curbside.osmseg.build import build_map
+
+        layers = build_map()
     t0 = time.perf_counter()
     raster = rasterize_map(layers)
     print(f"map: {len(layers.gdf)} polygons, raster {raster.shape[0]} x {raster.shape[1]} cells at "
           f"{raster.resolution_m} m, rasterised in {time.perf_counter() - t0:.2f} s")
-    # Start near the middle, at least ~25 m from any building, so that the circles stay walkable.
+    # Start near the middle, as far from buildings as the map allows (up to 25 m), so that the
+    # circles stay walkable.
     coarse = raster.codes[::8, ::8]
-    open_space = ~maximum_filter(coarse == BUILDING, size=13) & (coarse != BUILDING)
-    free = np.argwhere(open_space)
+    clearance_m = distance_transform_edt(coarse != BUILDING) * 8 * raster.resolution_m
+    free = np.argwhere(clearance_m >= min(25.0, 0.8 * clearance_m.max()))
     mid = free[np.argmin(np.abs(free - np.array(coarse.shape) / 2).sum(axis=1))] * 8
     res = raster.resolution_m
     start = (raster.x0 + (mid[1] + 0.5) * res, raster.y0 + (mid[0] + 0.5) * res)
 
     print(f"{'N':>8} {'implementation':<18} {'updates/s':>11} {'ms/update':>10} {'vs shapely':>11}")
-    for n, steps, base_steps in ((500, args.steps, 300), (100_000, 200, 3)):
+    for n, steps, base_steps in ((500, args.steps, 500), (100_000, 250, 5)):
         base = time_shapely_baseline(layers, n, base_steps, start)
         for name, rate in (
             ("tracker (numba)", time_tracker(raster, n, "numba", steps, start)),

@@ -225,3 +225,9 @@ unmarked_crossing_as: str = "crosswalk"
 
 #: Polygons smaller than this (m^2) are dropped as slivers.
 min_polygon_area_m2: float = 0.5
+
+# --- interactive HTML maps (osmseg show -o map.html) ---------------------------------------------------
+
+#: Decimals of the lon/lat coordinates written into HTML maps (6 decimals ~ 0.1 m: display only; the
+#: GeoJSON map files keep 7).
+html_coordinate_decimals: int = 6

@@ -78,10 +78,15 @@ def test_dask_results_equal_serial(sessions):
     )
     serial = runner.run_all(specs, workers=1)
     parallel = runner.run_all(specs, workers=2)
-    for a, b in zip(serial, parallel, strict=True):
-        assert a["spec"] == b["spec"]
+    from dask.distributed import LocalCluster
+
+    with LocalCluster(n_workers=1, processes=False, dashboard_address=None) as cluster:
+        existing = runner.run_all(specs, scheduler=cluster.scheduler_address)
+    for a, b, c in zip(serial, parallel, existing, strict=True):
+        assert a["spec"] == b["spec"] == c["spec"]
         pd.testing.assert_frame_equal(a["track"], b["track"])
-        assert a["metrics"] == b["metrics"]
+        pd.testing.assert_frame_equal(a["track"], c["track"])
+        assert a["metrics"] == b["metrics"] == c["metrics"]
 
 
 @pytest.mark.slow
@@ -237,3 +242,31 @@ def test_ipin_table_scores_methods_at_the_same_waypoints():
     counts = frame.groupby("trial")["n_waypoints"].nunique()
     assert (counts == 1).all()  # every method at the same waypoints of a trial
     assert [r[0] for r in table.rows] == ["gnss", "inertial", "fused"]
+
+
+def test_simulate_a_custom_route(tmp_path):
+    from curbside.localize.session import read_session
+
+    out = tmp_path / "custom"
+    argv = [
+        "simulate",
+        "--route",
+        "custom",
+        "--start",
+        "-122.3980",
+        "37.7878",
+        "--length-m",
+        "150",
+        "--jaywalks",
+        "1",
+        "--seed",
+        "4",
+        "-o",
+        str(out),
+    ]
+    assert main(argv) == 0
+    session = read_session(out)
+    sim = session.meta["simulation"]
+    assert (sim["route"], sim["jaywalks"], sim["crosswalk_crossings"]) == ("custom", 1, 0)
+    assert sim["length_m"] == pytest.approx(150, abs=0.5)
+    assert main(["simulate", "--route", "custom", "-o", str(tmp_path / "x")]) == 2

@@ -369,3 +369,56 @@ def test_ipin_fused_beats_raw_gnss_in_the_basement(shared_data, trial):
         err = np.hypot(np.interp(tw, t, tx) - wx, np.interp(tw, t, ty) - wy)[1:]  # skip the start
         medians[mode] = np.median(err)
     assert medians["fused"] < 0.6 * medians["gnss"]
+
+
+# -- IMU sessions: velocity source and footsteps -----------------------------------------------------------
+
+IPIN_CUT = Path(__file__).parent / "data" / "sessions" / "ipin2023-cut.h5"
+
+
+@pytest.fixture
+def imu_session():
+    from curbside.localize.readers import read_any
+
+    return read_any(f"{IPIN_CUT}::TrainingTrial01_repetition01")
+
+
+def test_real_imu_session_runs_with_pdr_and_detected_steps(tmp_path, capsys):
+    src = f"{IPIN_CUT}::TrainingTrial01_repetition01"
+    assert run_cli(src, "--velocity-source", "pdr", "-o", tmp_path / "out") == 0
+    info = json.loads((tmp_path / "out" / "run.json").read_text())
+    assert info["velocity_source"] == "pdr" and info["step_source"] == "detected"
+    track = pd.read_csv(tmp_path / "out" / "track.csv")
+    assert len(track) > 15 and track["recovered"].sum() == 0
+    # 20 s of walking from the first POSI: the track moves, at walking pace.
+    x, y, t = track["x_m"].to_numpy(), track["y_m"].to_numpy(), track["t"].to_numpy()
+    assert 0.5 < np.hypot(x[-1] - x[0], y[-1] - y[0]) / (t[-1] - t[0]) < 2.0
+
+
+def test_ronin_unavailable_falls_back_to_pdr(imu_session, monkeypatch, caplog):
+    from curbside.localize.ronin import infer
+
+    def missing(*args, **kwargs):
+        raise CurbsideInputError("ronin_compact.pt", "no such RoNIN weights/config file")
+
+    monkeypatch.setattr(infer, "ronin_velocity", missing)
+    result = track_session(imu_session, None, "fused", seed=0)
+    assert result.velocity_source == "pdr"
+    assert "falling back to PDR" in caplog.text
+    with pytest.raises(CurbsideInputError, match="RoNIN"):
+        track_session(imu_session, None, "fused", seed=0, velocity_source="ronin")
+
+
+def test_ronin_velocity_is_used_when_available(imu_session, monkeypatch):
+    from curbside.localize.ronin import infer
+
+    t = imu_session.imu["t"].to_numpy()[::10]
+    monkeypatch.setattr(
+        infer, "ronin_velocity", lambda imu, **kw: pd.DataFrame({"t": t, "ve": 1.0, "vn": 0.0})
+    )
+    result = track_session(imu_session, None, "inertial", seed=0)
+    assert result.velocity_source == "ronin"
+    track = result.track
+    # One metre per second, turned onto the start heading: the estimate moves at ~1 m/s.
+    speed = np.hypot(np.diff(track["x_m"]), np.diff(track["y_m"])) / np.diff(track["t"])
+    assert 0.5 < np.median(speed) < 1.5

@@ -135,3 +135,12 @@ def test_imu_has_gravity_gait_and_consistent_orientation(sf):
     spectrum = np.abs(np.fft.rfft(z))
     freqs = np.fft.rfftfreq(len(z), 1 / sim.ImuModel().rate_hz)
     assert freqs[np.argmax(spectrum[1:]) + 1] == pytest.approx(walk.cadence_hz, abs=0.05)
+
+
+def test_writing_imu_leaves_the_other_files_unchanged(sf):
+    route_list, frame, osm = sf
+    plain = sim.simulate_session(route_list[5], osm, frame, 2)
+    with_imu = sim.simulate_session(route_list[5], osm, frame, 2, sim.SimulationConfig(write_imu=True))
+    assert plain.imu is None and with_imu.imu is not None
+    for kind in ("gnss", "velocity", "steps", "waypoints"):
+        pd.testing.assert_frame_equal(getattr(plain, kind), getattr(with_imu, kind))

@@ -3,6 +3,7 @@
 ::
 
     localize simulate --route path1 [--seed S] [--map MAP] [--imu] [--no-velocity] -o SESSION
+    localize simulate --route custom --start LON LAT --length-m M [--crossings C] [--jaywalks J] -o SESSION
     localize simulate --benchmark sf6 [--seeds N] [--imu] -o DIR
     localize evaluate SESSIONS... --maps A.geojson [B.geojson ...] [--map-names NAME ...]
                       [--metrics-map MAP] [--methods gnss inertial fused] [--jaywalk-weights 0 0.4 1]
@@ -67,13 +68,24 @@ def _simulate(args: argparse.Namespace) -> int:
         written = simulate_benchmark(args.output, args.seeds, config, args.osm)
         print(f"{args.output}: {len(written)} sessions of the sf6 benchmark ({args.seeds} seed(s) per route)")
         return 0
-    names = [s.name for s in routes_mod.SF6]
-    if args.route not in names:
-        raise CurbsideInputError("--route", f"unknown route {args.route!r}; one of {names}")
     from curbside.evaluate.osmsource import load_osm
+    from curbside.projection import LocalFrame
 
-    route_list, frame, osm = sf6_routes(load_osm(args.osm))
-    route = route_list[names.index(args.route)]
+    names = [s.name for s in routes_mod.SF6]
+    if args.route == "custom":
+        if args.start is None or args.length_m is None:
+            raise CurbsideInputError("--route custom", "needs --start LON LAT and --length-m")
+        osm = load_osm(args.osm)
+        frame = LocalFrame(osm.crs)
+        spec = routes_mod.RouteSpec(
+            "custom", tuple(args.start), args.length_m, args.crossings, args.jaywalks, "custom"
+        )
+        route = routes_mod.generate_route(routes_mod.build_walk_graph(osm), spec, frame, args.seed)
+    elif args.route in names:
+        route_list, frame, osm = sf6_routes(load_osm(args.osm))
+        route = route_list[names.index(args.route)]
+    else:
+        raise CurbsideInputError("--route", f"unknown route {args.route!r}; one of {names} or custom")
     session = simulate_session(route, osm, frame, args.seed, config, name=Path(args.output).name)
     if args.map:
         _check_on_map(args.map, route, frame)
@@ -168,9 +180,13 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     """Add ``simulate`` and ``evaluate`` to ``subparsers``."""
     sim = subparsers.add_parser("simulate", help="simulate walks on real SF sidewalks (sessions)")
     what = sim.add_mutually_exclusive_group(required=True)
-    what.add_argument("--route", help="one benchmark route: path1 .. path6")
+    what.add_argument("--route", help="one benchmark route (path1 .. path6), or 'custom'")
     what.add_argument("--benchmark", choices=["sf6"], help="all six routes, --seeds recordings each")
     sim.add_argument("--seed", type=int, default=1, help="seed of one session (default 1)")
+    sim.add_argument("--start", nargs=2, type=float, metavar=("LON", "LAT"), help="custom route: start")
+    sim.add_argument("--length-m", type=_positive_float, help="custom route: length in metres")
+    sim.add_argument("--crossings", type=int, default=0, help="custom route: crosswalk crossings")
+    sim.add_argument("--jaywalks", type=int, default=0, help="custom route: crossings off crosswalks")
     sim.add_argument("--seeds", type=_positive_int, default=3, help="recordings per route for --benchmark")
     sim.add_argument("--map", help="check the route against this map (extent, buildings)")
     sim.add_argument("--osm", help="OSM extract for heights and footways (default: the bundled one)")

@@ -30,10 +30,11 @@ def _ronin(args: argparse.Namespace) -> int:
     return 0
 
 
-def _recordings(args: argparse.Namespace):
+def _recordings(args: argparse.Namespace, keep_imu: tuple[str, ...] = ()):
     from curbside.localize.ronin.data import prepare_recordings
 
-    return prepare_recordings(args.ms_indoor, args.ipin, args.ronin_h5, args.prepared, progress=True)
+    return prepare_recordings(args.ms_indoor, args.ipin, args.ronin_h5, args.prepared, progress=True,
+                              keep_imu=keep_imu)
 
 
 def _train(args: argparse.Namespace) -> int:
@@ -61,7 +62,8 @@ def _evaluate(args: argparse.Namespace) -> int:
     from curbside.localize.ronin.evaluate import evaluate_recordings, format_summary
     from curbside.localize.ronin.infer import load_model
 
-    recordings = [r for r in _recordings(args) if r.split == args.split]
+    keep = () if args.no_pdr else (args.split,)
+    recordings = [r for r in _recordings(args, keep) if r.split == args.split]
     if not recordings:
         raise CurbsideInputError("--split", f"no {args.split!r} recordings in the data given")
     report = evaluate_recordings(recordings, load_model(args.weights), with_pdr=not args.no_pdr)

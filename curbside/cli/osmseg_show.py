@@ -32,7 +32,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     """Add ``osmseg show`` to ``subparsers``."""
     parser = subparsers.add_parser(
         "show",
-        help="render a map to PNG (matplotlib) or HTML (folium, no tile server)",
+        help="render a map to PNG (matplotlib) or HTML (Leaflet, self-contained, no tile server)",
         description="Render map layers (any GeoJSON of the curbside schema) to a PNG or an interactive "
         "HTML map; the format follows the output's extension.",
     )

@@ -157,6 +157,33 @@ def route_table(sessions: list[Path]) -> Table | None:
     )
 
 
+def datasf_osm_map(osm_map: str | Path, tiles: list[str | Path], out_path: str | Path) -> Path:
+    """A third map source: DataSF 2013 building footprints with the OSM map's streets and sidewalks.
+
+    Parameters
+    ----------
+    osm_map
+        The automatic OSM map (its non-building layers are kept).
+    tiles
+        DataSF TopoJSON tiles (``osmseg import-datasf`` reads the same).
+    out_path
+        Where to write the combined GeoJSON.
+    """
+    import geopandas as gpd
+    import pandas as pd
+
+    from curbside.osmseg.datasf import read_datasf
+    from curbside.osmseg.mapio import MapLayers
+
+    osm = read_map(osm_map)
+    bbox = osm.meta.get("bbox")
+    buildings = read_datasf(tiles, bbox=tuple(bbox) if bbox else None).gdf.to_crs(osm.crs)
+    rest = osm.gdf[osm.gdf["class"] != "building"]
+    gdf = gpd.GeoDataFrame(pd.concat([buildings, rest], ignore_index=True), crs=osm.crs)
+    meta = {**osm.meta, "source": "DataSF 2013 buildings + " + str(osm.meta.get("source", "OSM"))}
+    return write_map(MapLayers(gdf, meta), out_path)
+
+
 def run_benchmark(
     out_dir: str | Path,
     seeds: int = 2,
@@ -164,6 +191,7 @@ def run_benchmark(
     workers: int = 2,
     scheduler: str | None = None,
     map_path: str | Path | None = None,
+    datasf_tiles: list[str | Path] | None = None,
 ) -> dict[str, Path]:
     """Build the map, simulate the six SF walks and write the benchmark report, from scratch.
 
@@ -180,6 +208,10 @@ def run_benchmark(
         Parallelism (see :func:`curbside.evaluate.runner.run_all`).
     map_path
         An existing map to use instead of building one.
+    datasf_tiles
+        DataSF building tiles: adds a second map source (DataSF buildings + OSM streets and
+        sidewalks) and the map-source comparison table. ``fast=False`` also sweeps the particle
+        count (100, 500, 2000) and the GNSS sigma factor (default, 2).
 
     Returns
     -------
@@ -198,7 +230,13 @@ def run_benchmark(
         write_map(build_map(), map_path)
     map_path = Path(map_path)
     sessions = simulate_benchmark(out_dir / "sessions", seeds, SimulationConfig(write_imu=not fast))
-    specs, base = plan(sessions, {"osm": str(map_path)}, seed=0)
+    maps = {"osm": str(map_path)}
+    if datasf_tiles:
+        maps["datasf+osm"] = str(datasf_osm_map(map_path, list(datasf_tiles), out_dir / "map-datasf.geojson"))
+    sweeps: dict[str, Any] = (
+        {} if fast else {"particles": (500, 100, 2000), "gnss_sigma_factors": (None, 2.0)}
+    )
+    specs, base = plan(sessions, maps, seed=0, metrics_map=str(map_path), **sweeps)
     log.info("benchmark: %d runs over %d sessions", len(specs), len(sessions))
     results = run_all(specs, workers=workers, scheduler=scheduler)
     table1 = route_table(sessions)

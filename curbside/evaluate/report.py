@@ -183,7 +183,7 @@ def sweep_tables(pooled: pd.DataFrame, base: dict[str, Any]) -> list[Table]:
         for other in params:
             if other != param:
                 sub = sub[sub[other].isna()] if base[other] is None else sub[sub[other] == base[other]]
-        if sub[param].astype(str).nunique() < 2:
+        if sub[param].nunique(dropna=False) < 2:
             continue
         rows = [
             [

@@ -142,20 +142,22 @@ def build_walk_graph(osm: OsmSource, covered_min_height_m: float = 15.0) -> Walk
     u, v, kinds = u[keep], v[keep], kinds[keep]
     xy = uniq * _SNAP_M
     length = np.hypot(*(xy[u] - xy[v]).T)
+    # where a sidewalk and a crossing way join the same two nodes, the edge is sidewalk
+    _, pair = np.unique(np.sort(np.column_stack([u, v]), axis=1), axis=0, return_inverse=True)
+    pair = pair.ravel()
+    pair_is_sidewalk = np.zeros(pair.max() + 1, bool)
+    np.logical_or.at(pair_is_sidewalk, pair, kinds == "sidewalk")
+    kinds = np.where(pair_is_sidewalk[pair], "sidewalk", "crossing")
     graph = nx.Graph()
-    for a, b, k, d in zip(u.tolist(), v.tolist(), kinds.tolist(), length.tolist(), strict=True):
-        if graph.has_edge(a, b) and graph[a][b]["kind"] == "sidewalk":
-            continue
-        graph.add_edge(a, b, kind=k, length=d)
+    graph.add_edges_from(
+        (a, b, {"kind": k, "length": d})
+        for a, b, k, d in zip(u.tolist(), v.tolist(), kinds.tolist(), length.tolist(), strict=True)
+    )
     largest = max(nx.connected_components(graph), key=len)
     graph = graph.subgraph(largest).copy()
     tall = osm.buildings[osm.buildings["height_m"] >= covered_min_height_m]
-    covered_fw = fw[fw["covered"]].geometry.values
-    covered = (
-        shapely.union_all(np.concatenate([shapely.buffer(covered_fw, 3.0), tall.geometry.values]))
-        if len(covered_fw)
-        else shapely.union_all(tall.geometry.values)
-    )
+    covered_fw = shapely.buffer(fw[fw["covered"]].geometry.values, 3.0)
+    covered = shapely.union_all(np.concatenate([covered_fw, tall.geometry.values]))
     log.info("walking graph: %d nodes, %d edges", graph.number_of_nodes(), graph.number_of_edges())
     return WalkGraph(graph, xy, _jaywalk_partners(graph, xy, osm), covered)
 
@@ -168,12 +170,8 @@ def _jaywalk_partners(graph: nx.Graph, xy: np.ndarray, osm: OsmSource) -> dict:
     edges.sort(axis=1)
     p, q = xy[edges[:, 0]], xy[edges[:, 1]]
     seg_len = np.hypot(*(q - p).T)
-    edges, p, q, seg_len = (
-        edges[seg_len >= 12.0],
-        p[seg_len >= 12.0],
-        q[seg_len >= 12.0],
-        seg_len[seg_len >= 12.0],
-    )
+    long_enough = seg_len >= 12.0
+    edges, p, q, seg_len = edges[long_enough], p[long_enough], q[long_enough], seg_len[long_enough]
     if len(edges) == 0:
         return {}
     lines = shapely.linestrings(np.stack([p, q], axis=1))

@@ -309,12 +309,15 @@ def simulate_session(
         ``meta`` holds the start pose and the simulation parameters.
     """
     config = config or SimulationConfig()
-    rng = np.random.default_rng([seed, 0x5EED])
-    walk = simulate_walk(route, config.walker, rng)
-    velocity = simulate_velocity(walk, config.velocity, rng) if config.write_velocity else None
-    imu = simulate_imu(walk, config.imu, config.velocity, rng) if config.write_imu else None
+    # one independent stream per component: writing imu.csv or not leaves the other files unchanged
+    walk_rng, vel_rng, imu_rng, gnss_rng = (
+        np.random.default_rng(s) for s in np.random.SeedSequence([seed, 0x5EED]).spawn(4)
+    )
+    walk = simulate_walk(route, config.walker, walk_rng)
+    velocity = simulate_velocity(walk, config.velocity, vel_rng) if config.write_velocity else None
+    imu = simulate_imu(walk, config.imu, config.velocity, imu_rng) if config.write_imu else None
     gnss_stride = max(1, int(round(1.0 / (config.gnss.rate_hz * (walk.t[1] - walk.t[0])))))
-    fixes = simulate_gnss(walk.t[::gnss_stride], walk.xy[::gnss_stride], osm, config.gnss, rng)
+    fixes = simulate_gnss(walk.t[::gnss_stride], walk.xy[::gnss_stride], osm, config.gnss, gnss_rng)
     lon, lat = frame.to_lonlat(fixes["x_m"].to_numpy(), fixes["y_m"].to_numpy())
     gnss = pd.DataFrame(
         {"t": np.round(fixes["t"], 3), "lat": lat, "lon": lon, "accuracy_m": fixes["accuracy_m"]}

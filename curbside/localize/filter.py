@@ -21,8 +21,9 @@ Read it top to bottom:
    components, recovers from collapse and returns an :class:`Estimate`. Batch runs
    (:mod:`curbside.localize.pipeline`) drive the same class.
 
-Nothing is allocated per step: every array is preallocated for the particle count. One update at
-N=500 costs tens of microseconds (``benchmarks/bench_filter.py``).
+Arrays are preallocated for the particle count (the fast path allocates nothing per step), so one
+update at N=500 costs tens of microseconds (``benchmarks/bench_filter.py``). Resampling swaps the
+particle arrays with spare ones: read ``tracker.particles.x`` after a step, do not keep it.
 """
 
 from __future__ import annotations
@@ -167,19 +168,23 @@ class InertialPredictor:
         self.noise_fraction = config.step_noise_fraction
         self.noise_floor_m = config.step_noise_floor_m
         self.theta_sigma = math.radians(config.theta_noise_deg)
-        self._noise = np.empty((3, n))
+        self.noise = np.empty((3, n))  # standard normals: x, y, theta
         self.cos_theta = np.empty(n)
         self.sin_theta = np.empty(n)
         self._tmp = np.empty(n)
+
+    def draw_noise(self, dx: float, dy: float) -> float:
+        """Draw this step's standard normals into :attr:`noise`; return the position sigma (m)."""
+        self.rng.standard_normal(out=self.noise)
+        return max(self.noise_floor_m, self.noise_fraction * math.hypot(dx, dy))
 
     def predict(self, particles: ParticleSet, dx: float, dy: float) -> None:
         """Move ``particles`` in place by the step displacement ``(dx, dy)`` metres (east, north).
 
         Leaves ``cos_theta`` / ``sin_theta`` of the new drift angles for the estimate.
         """
-        sigma_xy = max(self.noise_floor_m, self.noise_fraction * math.hypot(dx, dy))
-        noise, c, s, tmp = self._noise, self.cos_theta, self.sin_theta, self._tmp
-        self.rng.standard_normal(out=noise)
+        sigma_xy = self.draw_noise(dx, dy)
+        noise, c, s, tmp = self.noise, self.cos_theta, self.sin_theta, self._tmp
         noise[:2] *= sigma_xy
         noise[2] *= self.theta_sigma
         particles.theta += noise[2]
@@ -269,18 +274,23 @@ class GnssLikelihood:
             and 0.0 < fix.accuracy_m < self.max_accuracy_m
         )
 
+    def coefficients(self, fix: GnssFix) -> tuple[float, float]:
+        """``(a, b)`` with log-density = ``a * squared distance + b``."""
+        variance = (self.sigma_factor * fix.accuracy_m) ** 2
+        return -0.5 / variance, -math.log(2.0 * math.pi * variance)
+
     def log_likelihood(
         self, x: np.ndarray, y: np.ndarray, fix: GnssFix, out: np.ndarray, tmp: np.ndarray
     ) -> np.ndarray:
         """Log-density of each particle position under the fix's Gaussian (written into ``out``)."""
-        sigma = self.sigma_factor * fix.accuracy_m
+        scale, log_norm = self.coefficients(fix)
         np.subtract(x, fix.x, out=out)
         np.square(out, out=out)
         np.subtract(y, fix.y, out=tmp)
         np.square(tmp, out=tmp)
         out += tmp
-        out *= -0.5 / (sigma * sigma)
-        out -= math.log(2.0 * math.pi * sigma * sigma)
+        out *= scale
+        out += log_norm
         return out
 
 
@@ -691,15 +701,13 @@ class Tracker:
 
     def _predict_and_weigh_fast(self, dx: float, dy: float, fix: GnssFix | None) -> None:
         pred, p = self.predictor, self.particles
-        sigma_xy = max(pred.noise_floor_m, pred.noise_fraction * math.hypot(dx, dy))
-        self.rng.standard_normal(out=pred._noise)
+        sigma_xy = pred.draw_noise(dx, dy)
         if fix is None:
             fix_args = (False, 0.0, 0.0, 0.0, 0.0)
         else:
-            sigma = self.gnss_likelihood.sigma_factor * fix.accuracy_m
-            fix_args = (True, fix.x, fix.y, -0.5 / (sigma * sigma), -math.log(2.0 * math.pi * sigma * sigma))
+            fix_args = (True, fix.x, fix.y, *self.gnss_likelihood.coefficients(fix))
         _predict_and_weigh(
-            p.x, p.y, p.theta, p.log_weight, pred.cos_theta, pred.sin_theta, pred._noise, dx, dy,
+            p.x, p.y, p.theta, p.log_weight, pred.cos_theta, pred.sin_theta, pred.noise, dx, dy,
             sigma_xy, pred.theta_sigma, *self._map_args, *fix_args,
         )
 

@@ -38,7 +38,7 @@ from tqdm.auto import tqdm
 
 from curbside import settings
 from curbside.errors import CurbsideInputError
-from curbside.localize.filter import FilterConfig, GnssFix, Tracker
+from curbside.localize.filter import Estimate, FilterConfig, GnssFix, Tracker
 from curbside.localize.maplikelihood import load_or_build_raster
 from curbside.localize.session import Session
 from curbside.osmseg.mapio import MapLayers
@@ -308,9 +308,10 @@ def _frame_for(session: Session, map_layers: MapLayers | None) -> LocalFrame:
     raise CurbsideInputError(session.name, "no start pose in meta.json and no gnss.csv: nowhere to start")
 
 
-def _check_extent(session: Session, tracker: Tracker, frame: LocalFrame, fixes: Fixes) -> None:
+def _check_extent(
+    session: Session, start: dict | None, tracker: Tracker, frame: LocalFrame, fixes: Fixes
+) -> None:
     raster = tracker.map_likelihood.raster
-    start = session.start_pose
     if start is not None:
         x, y = frame.to_xy(start["lon"], start["lat"])
         if not bool(raster.contains(x, y)):
@@ -459,7 +460,7 @@ def track_session(
         frame,
     )
     if map_layers is not None:
-        _check_extent(session, tracker, frame, fixes)
+        _check_extent(session, start, tracker, frame, fixes)
     first = 0
     if start is not None:
         x0, y0 = frame.to_xy(start["lon"], start["lat"])
@@ -473,20 +474,12 @@ def track_session(
             raise CurbsideInputError(
                 session.name, "no start pose in meta.json and no usable GNSS fix to start from"
             )
-    snaps: list[tuple[np.ndarray, ...]] = []
-    if save_particles and estimates:
-        snaps.append(_snapshot(tracker))
-    use_gnss = mode == "fused"
-    for k in tqdm(range(first, len(steps)), desc=f"{session.name} {mode}", unit="step",
-                  disable=(not progress) if progress is not None else None, leave=False):
-        fix = None
-        if math.isfinite(facc[k]) and (use_gnss or not tracker.started):
-            fix = GnssFix(fx[k], fy[k], facc[k])
-        estimate = tracker.step(float(steps[k]), displacement_en=disp[k], gnss_fix=fix)
-        if estimate is not None:
-            estimates.append(estimate)
-            if save_particles:
-                snaps.append(_snapshot(tracker))
+    label = f"{session.name} {mode}"
+    estimates, snaps = _filter_steps(
+        tracker, steps[first:], disp[first:], (fx[first:], fy[first:], facc[first:]),
+        use_gnss=mode == "fused", save_particles=save_particles, progress=progress, label=label,
+        estimates=estimates,
+    )
     if not estimates:
         raise CurbsideInputError(session.name, "no usable GNSS fix to start the filter from")
     track = pd.DataFrame(
@@ -499,28 +492,59 @@ def track_session(
             "recovered": np.array([e.recovered for e in estimates], dtype=int),
         }
     )
-    snapshots = None
-    if save_particles:
-        origin = np.array([track["x_m"].iat[0], track["y_m"].iat[0]])
-        snapshots = {
-            "t": track["t"].to_numpy(),
-            "x": np.stack([s[0] for s in snaps]) - origin[0],
-            "y": np.stack([s[1] for s in snaps]) - origin[1],
-            "theta": np.stack([s[2] for s in snaps]).astype(np.float32),
-            "origin": origin,
-            "crs": np.array(frame.crs.to_wkt()),
-        }
-        snapshots["x"] = snapshots["x"].astype(np.float32)
-        snapshots["y"] = snapshots["y"].astype(np.float32)
     if tracker.recoveries:
         logger.warning("%s: the particle cloud collapsed %d time(s)", session.name, tracker.recoveries)
+    snapshots = _stack_snapshots(snaps, track, frame) if save_particles else None
     result = TrackResult(track, mode, inertial.source, step_source, tracker.recoveries, snapshots)
     return _finish(result, frame, map_layers)
+
+
+def _filter_steps(
+    tracker: Tracker,
+    steps: np.ndarray,
+    disp: np.ndarray,
+    fixes: tuple[np.ndarray, np.ndarray, np.ndarray],
+    *,
+    use_gnss: bool,
+    save_particles: bool,
+    progress: bool | None,
+    label: str,
+    estimates: list[Estimate],
+) -> tuple[list[Estimate], list[tuple[np.ndarray, ...]]]:
+    """Feed the footsteps to the tracker; a fix starts an unstarted tracker even without ``use_gnss``."""
+    fx, fy, facc = fixes
+    snaps = [_snapshot(tracker)] if save_particles and estimates else []
+    for k in tqdm(range(len(steps)), desc=label, unit="step", leave=False,
+                  disable=(not progress) if progress is not None else None):
+        fix = None
+        if math.isfinite(facc[k]) and (use_gnss or not tracker.started):
+            fix = GnssFix(fx[k], fy[k], facc[k])
+        estimate = tracker.step(float(steps[k]), displacement_en=disp[k], gnss_fix=fix)
+        if estimate is not None:
+            estimates.append(estimate)
+            if save_particles:
+                snaps.append(_snapshot(tracker))
+    return estimates, snaps
 
 
 def _snapshot(tracker: Tracker) -> tuple[np.ndarray, ...]:
     p = tracker.particles
     return p.x.copy(), p.y.copy(), p.theta.copy()
+
+
+def _stack_snapshots(
+    snaps: list[tuple[np.ndarray, ...]], track: pd.DataFrame, frame: LocalFrame
+) -> dict[str, np.ndarray]:
+    """Snapshots as ``(K, N)`` float32 arrays, positions relative to the first estimate."""
+    origin = np.array([track["x_m"].iat[0], track["y_m"].iat[0]])
+    return {
+        "t": track["t"].to_numpy(),
+        "x": (np.stack([s[0] for s in snaps]) - origin[0]).astype(np.float32),
+        "y": (np.stack([s[1] for s in snaps]) - origin[1]).astype(np.float32),
+        "theta": np.stack([s[2] for s in snaps]).astype(np.float32),
+        "origin": origin,
+        "crs": np.array(frame.crs.to_wkt()),
+    }
 
 
 def _finish(result: TrackResult, frame: LocalFrame, map_layers: MapLayers | None) -> TrackResult:

@@ -1,4 +1,4 @@
-"""Render map layers: a static PNG (matplotlib) or an interactive HTML map (folium, no tile server).
+"""Render map layers: a static PNG (matplotlib) or a self-contained interactive HTML map (Leaflet).
 
 Both renderers work on any map of the schema in :mod:`curbside.osmseg.mapio`, including hand-labelled
 maps with only some of the classes. Drawing happens in the map's local metric CRS (PNG) or in WGS84
@@ -8,11 +8,11 @@ maps with only some of the classes. Drawing happens in the map's local metric CR
 from __future__ import annotations
 
 import html
+import json
 import logging
 import math
 from pathlib import Path
 
-import folium
 import geopandas as gpd
 import shapely
 from matplotlib.axes import Axes
@@ -47,6 +47,8 @@ CLASS_STYLE: dict[str, dict[str, object]] = {
 BACKGROUND = "#f3efe6"
 #: Output formats by file extension.
 FORMATS: dict[str, str] = {".png": "png", ".html": "html", ".htm": "html"}
+#: The vendored Leaflet (script, stylesheet, licence) that HTML pages inline.
+WEB_ASSETS = Path(__file__).resolve().parents[1] / "data" / "web"
 
 
 def _attribution(layers: MapLayers) -> str:
@@ -198,22 +200,91 @@ def save_png(layers: MapLayers, path: str | Path, width_in: float = 12.0, dpi: i
     return path
 
 
-def _style(cls: str):
+def _script_json(value: object) -> str:
+    """``value`` as JSON that can sit inside a ``<script>`` element (no ``</script>`` can close it)."""
+    return json.dumps(value, separators=(",", ":"), ensure_ascii=False).replace("<", "\\u003c")
+
+
+def _class_layer_js(cls: str, features: list[dict]) -> str:
+    """One ``L.geoJson`` overlay statement: the class's polygons, style and layer-control label."""
     style = CLASS_STYLE[cls]
     stroke = style["edgecolor"] if style["edgecolor"] != "none" else style["facecolor"]
-    weight = 0.0 if cls == "street" else 1.0
+    path_style = {
+        "fillColor": style["facecolor"], "color": stroke, "weight": 0 if cls == "street" else 1,
+        "opacity": 1, "fillOpacity": 0.9,
+    }
+    label = (
+        f'<span class="swatch" style="background:{style["facecolor"]};border-color:{stroke}"></span> '
+        f"{html.escape(str(style['label']))} ({len(features):,})"
+    )
+    collection = {"type": "FeatureCollection", "features": features}
+    interactive = ", onEachFeature: describeSegment" if cls == "sidewalk" else ", interactive: false"
+    return (
+        f"layers.addOverlay(L.geoJson({_script_json(collection)}, "
+        f"{{style: () => ({_script_json(path_style)}){interactive}}}).addTo(map), {_script_json(label)});"
+    )
 
-    def style_function(_feature: dict) -> dict:
-        return {"fillColor": style["facecolor"], "color": stroke, "weight": weight, "fillOpacity": 0.9}
 
-    return style_function
+_SOURCE_MAP = "//# sourceMappingURL=leaflet.js.map"
+_PAGE = """<!DOCTYPE html>
+<html lang="en">
+<head>
+<meta charset="utf-8">
+<meta name="viewport" content="width=device-width, initial-scale=1.0">
+<title>{title}</title>
+<style>
+{leaflet_css}
+</style>
+<style>
+html, body, #map {{ height: 100%; width: 100%; margin: 0; padding: 0; }}
+.leaflet-container {{ background: {background}; }}
+.leaflet-tooltip td:first-child {{ color: #666; padding-right: 0.6em; }}
+.swatch {{ display: inline-block; width: 0.9em; height: 0.9em; border: 1px solid; vertical-align: -0.1em; }}
+</style>
+<script>
+{leaflet_js}
+</script>
+</head>
+<body>
+<div id="map"></div>
+<script>
+"use strict";
+const map = L.map("map", {{preferCanvas: true, maxZoom: 22, zoomSnap: 0.25}});
+map.attributionControl.addAttribution({attribution});
+L.control.scale().addTo(map);
+const layers = L.control.layers(null, null, {{collapsed: false}}).addTo(map);
+const SEGMENT_FIELDS = [["segment", "segment_id"], ["street", "street"], ["side", "side"]];
+function segmentTable(layer) {{
+  const table = document.createElement("table");
+  for (const [label, key] of SEGMENT_FIELDS) {{
+    const row = table.insertRow();
+    row.insertCell().textContent = label;
+    row.insertCell().textContent = layer.feature.properties[key] ?? "\u2014";
+  }}
+  return table;
+}}
+function describeSegment(feature, layer) {{
+  layer.bindTooltip(segmentTable, {{sticky: true}});
+  layer.on("mouseover", () => layer.setStyle({{weight: 3}}));
+  layer.on("mouseout", () => layer.setStyle({{weight: 1}}));
+}}
+{class_layers}
+map.fitBounds({bounds});
+</script>
+</body>
+</html>
+"""
 
 
-def make_folium_map(layers: MapLayers) -> folium.Map:
-    """An interactive map with no tile server: one toggleable GeoJSON layer per class.
+def html_page(layers: MapLayers) -> str:
+    """A self-contained interactive map page: plain Leaflet, inlined, with no tile server.
 
-    Sidewalk segments show ``segment_id``, ``street`` and ``side`` in a tooltip. The attribution
-    goes to Leaflet's attribution control.
+    The page loads nothing: the vendored Leaflet script and stylesheet (``curbside/data/web``) and the
+    polygons are inlined, so it opens offline. Each class present is one toggleable overlay in an
+    expanded layer control; sidewalk segments show ``segment_id``, ``street`` and ``side`` in a tooltip
+    and thicken their outline under the pointer. Coordinates are rounded to
+    ``settings.html_coordinate_decimals`` for display. The attribution goes to Leaflet's attribution
+    control.
 
     Parameters
     ----------
@@ -222,42 +293,31 @@ def make_folium_map(layers: MapLayers) -> folium.Map:
 
     Returns
     -------
-    folium.Map
+    str
+        The HTML document.
     """
-    doc = to_geojson(layers)
+    doc = to_geojson(layers, precision=settings.html_coordinate_decimals)
+    by_class: dict[str, list[dict]] = {cls: [] for cls in CLASS_STYLE}
+    for feature in doc["features"]:
+        props = feature["properties"]
+        if props["class"] != "sidewalk":
+            feature = {**feature, "properties": {}}  # the layer says the class; only sidewalks need fields
+        by_class[props["class"]].append(feature)
     west, south, east, north = layers.gdf.to_crs(WGS84).total_bounds
-    fmap = folium.Map(
-        location=[(south + north) / 2, (west + east) / 2], tiles=None, control_scale=True,
-        prefer_canvas=True, zoom_start=16, max_zoom=22,
+    return _PAGE.format(
+        title=html.escape(_title(layers)),
+        leaflet_css=(WEB_ASSETS / "leaflet.css").read_text(encoding="utf-8"),
+        # the source map is not vendored; without the comment no devtools asks for it
+        leaflet_js=(WEB_ASSETS / "leaflet.js").read_text(encoding="utf-8").replace(_SOURCE_MAP, ""),
+        background=BACKGROUND,
+        attribution=_script_json(html.escape(_attribution(layers))),
+        class_layers="\n".join(_class_layer_js(cls, f) for cls, f in by_class.items() if f),
+        bounds=_script_json([[south, west], [north, east]]),
     )
-    fmap.get_root().header.add_child(
-        folium.Element(f"<style>.leaflet-container {{ background: {BACKGROUND}; }}</style>")
-    )
-    fmap.get_root().html.add_child(folium.Element(f"<title>{html.escape(_title(layers))}</title>"))
-    attribution = html.escape(_attribution(layers))
-    for cls, style in CLASS_STYLE.items():
-        features = [f for f in doc["features"] if f["properties"]["class"] == cls]
-        if not features:
-            continue
-        tooltip = None
-        if cls == "sidewalk":
-            tooltip = folium.GeoJsonTooltip(
-                fields=["segment_id", "street", "side"], aliases=["segment", "street", "side"]
-            )
-        label = (
-            f'<span style="color:{style["facecolor"]}">&#9632;</span> {style["label"]} ({len(features):,})'
-        )
-        folium.GeoJson(
-            {"type": "FeatureCollection", "features": features}, name=label, style_function=_style(cls),
-            tooltip=tooltip, attribution=attribution,
-        ).add_to(fmap)
-    folium.LayerControl(collapsed=False).add_to(fmap)
-    fmap.fit_bounds([[south, west], [north, east]])
-    return fmap
 
 
 def save_html(layers: MapLayers, path: str | Path) -> Path:
-    """Write the interactive map of :func:`make_folium_map` to an HTML file (atomically).
+    """Write the self-contained interactive map of :func:`html_page` to an HTML file (atomically).
 
     Parameters
     ----------
@@ -271,11 +331,11 @@ def save_html(layers: MapLayers, path: str | Path) -> Path:
     pathlib.Path
         ``path``.
     """
-    fmap = make_folium_map(layers)
+    page = html_page(layers)
     path = Path(path)
     with atomic_path(path) as tmp:
-        fmap.save(str(tmp))
-    log.info("wrote %s", path)
+        tmp.write_text(page, encoding="utf-8")
+    log.info("wrote %s (%.1f MB)", path, path.stat().st_size / 1e6)
     return path
 
 

@@ -93,6 +93,28 @@ def territories(pieces: np.ndarray, spacing_m: float = 3.0) -> np.ndarray:
     )
 
 
+def extend_shared_ends(lines: np.ndarray, length_m: np.ndarray) -> np.ndarray:
+    """Lines prolonged straight by ``length_m`` at every end that another line also ends at."""
+    xy, idx = shapely.get_coordinates(lines, return_index=True)
+    n = np.bincount(idx, minlength=len(lines))
+    start = np.cumsum(n) - n
+    end = start + n - 1
+    end_keys = node_keys(np.concatenate([xy[start], xy[end]]))
+    _, inverse, counts = np.unique(end_keys, return_inverse=True, return_counts=True)
+    shared = (counts[inverse] >= 2).reshape(2, -1)
+
+    def prolong(tip: np.ndarray, before: np.ndarray, on: np.ndarray) -> np.ndarray:
+        direction = xy[tip] - xy[before]
+        direction /= np.maximum(np.linalg.norm(direction, axis=1, keepdims=True), 1e-9)
+        return xy[tip] + direction * (length_m * on)[:, None]
+
+    new_start = prolong(start, start + 1, shared[0])
+    new_end = prolong(end, end - 1, shared[1])
+    # One line's new end and the next line's new start go in at the same index: end first.
+    out_xy = np.insert(xy, np.r_[end + 1, start], np.concatenate([new_end, new_start]), axis=0)
+    return shapely.linestrings(out_xy, indices=np.repeat(np.arange(len(lines)), n + 2))
+
+
 def sidewalk_segments(
     roads: gpd.GeoDataFrame, obstacles: np.ndarray, min_area_m2: float = 2.0
 ) -> gpd.GeoDataFrame:
@@ -129,10 +151,13 @@ def sidewalk_segments(
     reach_left = carrying["half_left_m"].to_numpy()[road] + depth
     reach_right = carrying["half_right_m"].to_numpy()[road] + depth
     own = territories(lines)
+    # Bands run on past ends shared with another block so that they also cover the outside of
+    # bends; the territories then split the overlap.
+    reach = extend_shared_ends(lines, np.maximum(reach_left, reach_right))
     bands = np.concatenate(
         [
-            shapely.buffer(lines, reach_left, single_sided=True, quad_segs=2),
-            shapely.buffer(lines, -reach_right, single_sided=True, quad_segs=2),
+            shapely.buffer(reach, reach_left, single_sided=True, quad_segs=2),
+            shapely.buffer(reach, -reach_right, single_sided=True, quad_segs=2),
         ]
     )
     side = np.repeat(["left", "right"], len(lines))

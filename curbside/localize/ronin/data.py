@@ -82,6 +82,9 @@ class Recording:
         ``(M, 3)`` ground truth ``t, x, y`` (s, m, m) in the IMU's world frame (x east-like).
     split
         ``"train"``, ``"val"`` or ``"test"``.
+    imu
+        The raw ``imu.csv`` table, kept only when asked for (baselines such as PDR need it); not
+        stored by :func:`save_recordings`.
     """
 
     name: str
@@ -90,6 +93,7 @@ class Recording:
     features: np.ndarray
     positions: np.ndarray
     split: str = "train"
+    imu: pd.DataFrame | None = None
 
     def on_grid(self, rate_hz: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Features and label positions on a uniform clock over the ground-truth span.
@@ -188,12 +192,15 @@ def plan_rotation(t: np.ndarray, forward_xy: np.ndarray, waypoints: np.ndarray,
 
 
 def _recordings_from_imu(name: str, source: str, imu: pd.DataFrame, positions: np.ndarray,
-                         src: str) -> list[Recording]:
+                         src: str, keep_imu: Iterable[str] = ()) -> list[Recording]:
     out = []
+    split = split_of(name, source)
     for k, seg in enumerate(world_frame_segments(imu, src, min_duration_s=2.0)):
         feats = seg[["wgx", "wgy", "wgz", "wax", "way", "waz"]].to_numpy(np.float32)
         rec_name = name if k == 0 else f"{name}#{k}"
-        out.append(Recording(rec_name, source, seg["t"].to_numpy(), feats, positions, split_of(name, source)))
+        t = seg["t"].to_numpy()
+        raw = imu[(imu["t"] >= t[0]) & (imu["t"] <= t[-1])].reset_index(drop=True) if split in keep_imu else None
+        out.append(Recording(rec_name, source, t, feats, positions, split, raw))
     return out
 
 
@@ -207,8 +214,8 @@ def _open_h5(path: str | Path) -> h5py.File:
         raise CurbsideInputError(path, f"not a readable HDF5 file ({exc})") from None
 
 
-def read_ms_indoor(path: str | Path, min_heading_consistency: float = 0.8,
-                   progress: bool = True) -> list[Recording]:
+def read_ms_indoor(path: str | Path, min_heading_consistency: float = 0.8, progress: bool = True,
+                   keep_imu: Iterable[str] = ()) -> list[Recording]:
     """Recordings of ``ms-indoor-2020.h5`` with waypoints rotated into the rotation vector's frame.
 
     Parameters
@@ -219,6 +226,8 @@ def read_ms_indoor(path: str | Path, min_heading_consistency: float = 0.8,
         Paths whose per-segment rotation estimates agree less than this use their floor's median.
     progress
         Show a progress bar.
+    keep_imu
+        Splits whose recordings keep their raw ``imu`` table (e.g. ``("test",)`` for baselines).
 
     Returns
     -------
@@ -261,12 +270,14 @@ def read_ms_indoor(path: str | Path, min_heading_consistency: float = 0.8,
             angle = floor_angle[floor]
             n_fallback += 1
         positions = np.column_stack([wp[:, 0], _rotate_xy(wp[:, 1:], angle)])
-        recordings += _recordings_from_imu(f"ms/{key}", "ms", imu, positions, f"{Path(path).name}::{key}")
+        recordings += _recordings_from_imu(f"ms/{key}", "ms", imu, positions, f"{Path(path).name}::{key}",
+                                           keep_imu)
     logger.info("ms-indoor: %d recordings, %d with their floor's rotation", len(recordings), n_fallback)
     return recordings
 
 
-def read_ipin(path: str | Path, min_heading_consistency: float = 0.8, progress: bool = True) -> list[Recording]:
+def read_ipin(path: str | Path, min_heading_consistency: float = 0.8, progress: bool = True,
+              keep_imu: Iterable[str] = ()) -> list[Recording]:
     """Recordings of ``ipin2023-t3.h5`` with waypoints on a local true-north plane.
 
     Parameters
@@ -277,6 +288,8 @@ def read_ipin(path: str | Path, min_heading_consistency: float = 0.8, progress: 
         Training trials whose segments disagree more than this keep true north.
     progress
         Show a progress bar.
+    keep_imu
+        Splits whose recordings keep their raw ``imu`` table.
 
     Returns
     -------
@@ -302,7 +315,8 @@ def read_ipin(path: str | Path, min_heading_consistency: float = 0.8, progress: 
             angle, consistency = plan_rotation(session.imu["t"].to_numpy(), forward_axis_xy(quat), positions)
             if consistency >= min_heading_consistency:
                 positions[:, 1:] = _rotate_xy(positions[:, 1:], angle)
-        recordings += _recordings_from_imu(name, "ipin", session.imu, positions, f"{Path(path).name}::{trial}")
+        recordings += _recordings_from_imu(name, "ipin", session.imu, positions, f"{Path(path).name}::{trial}",
+                                           keep_imu)
     return recordings
 
 
@@ -436,7 +450,7 @@ class WindowSet:
 
 def prepare_recordings(ms_indoor: str | Path | None = None, ipin: str | Path | None = None,
                        ronin_dir: str | Path | None = None, prepared: str | Path | None = None,
-                       progress: bool = True) -> list[Recording]:
+                       progress: bool = True, keep_imu: Iterable[str] = ()) -> list[Recording]:
     """Read every given source, or a previously prepared ``.npz`` when ``prepared`` exists.
 
     Parameters
@@ -447,6 +461,8 @@ def prepare_recordings(ms_indoor: str | Path | None = None, ipin: str | Path | N
         Cache of :func:`save_recordings`: loaded when it exists, written after reading otherwise.
     progress
         Show progress bars.
+    keep_imu
+        Splits whose recordings keep their raw ``imu`` table (ignores ``prepared``, which holds none).
 
     Returns
     -------
@@ -457,18 +473,19 @@ def prepare_recordings(ms_indoor: str | Path | None = None, ipin: str | Path | N
     CurbsideInputError
         No source given and no prepared file; a source is missing or malformed.
     """
-    if prepared is not None and Path(prepared).is_file():
+    keep_imu = tuple(keep_imu)
+    if prepared is not None and Path(prepared).is_file() and not keep_imu:
         logger.info("using prepared recordings %s", prepared)
         return load_recordings(prepared)
     recordings: list[Recording] = []
     if ms_indoor is not None:
-        recordings += read_ms_indoor(ms_indoor, progress=progress)
+        recordings += read_ms_indoor(ms_indoor, progress=progress, keep_imu=keep_imu)
     if ipin is not None:
-        recordings += read_ipin(ipin, progress=progress)
+        recordings += read_ipin(ipin, progress=progress, keep_imu=keep_imu)
     if ronin_dir is not None:
         recordings += read_ronin_dir(ronin_dir, progress=progress)
     if not recordings:
         raise CurbsideInputError("--ms-indoor/--ipin/--ronin-h5", "no training data given")
-    if prepared is not None:
+    if prepared is not None and not Path(prepared).is_file():
         save_recordings(recordings, prepared)
     return recordings

@@ -78,6 +78,7 @@ class Scene:
         self.nodes: dict[tuple[float, float], int] = {}
         self.node_tags: dict[int, dict[str, str]] = {}
         self.ways: list[tuple[int, list[int], dict[str, str]]] = []
+        self.relations: list[tuple[int, list[tuple[int, str]], dict[str, str]]] = []
 
     def node(self, x: float, y: float, **tags: str) -> int:
         key = (round(x, 3), round(y, 3))
@@ -88,12 +89,17 @@ class Scene:
             self.node_tags[nid] = {k.replace("__", ":"): v for k, v in tags.items()}
         return nid
 
-    def way(self, points: list[tuple[float, float]], **tags: str) -> None:
+    def way(self, points: list[tuple[float, float]], **tags: str) -> int:
         refs = [self.node(x, y) for x, y in points]
-        self.ways.append((1000 + len(self.ways), refs, {k.replace("__", ":"): v for k, v in tags.items()}))
+        wid = 1000 + len(self.ways)
+        self.ways.append((wid, refs, {k.replace("__", ":"): v for k, v in tags.items()}))
+        return wid
 
-    def box(self, x0: float, y0: float, x1: float, y1: float, **tags: str) -> None:
-        self.way([(x0, y0), (x1, y0), (x1, y1), (x0, y1), (x0, y0)], **tags)
+    def box(self, x0: float, y0: float, x1: float, y1: float, **tags: str) -> int:
+        return self.way([(x0, y0), (x1, y0), (x1, y1), (x0, y1), (x0, y0)], **tags)
+
+    def relation(self, members: list[tuple[int, str]], **tags: str) -> None:
+        self.relations.append((5000 + len(self.relations), members, tags))
 
     def write(self, name: str) -> None:
         from xml.sax.saxutils import quoteattr
@@ -114,6 +120,11 @@ class Scene:
             lines += [f'    <nd ref="{r}"/>' for r in refs]
             lines += [f"    <tag k={quoteattr(k)} v={quoteattr(v)}/>" for k, v in tags.items()]
             lines.append("  </way>")
+        for rid, members, tags in self.relations:
+            lines.append(f'  <relation id="{rid}" version="1" timestamp="2026-01-02T03:04:05Z">')
+            lines += [f'    <member type="way" ref="{ref}" role="{role}"/>' for ref, role in members]
+            lines += [f"    <tag k={quoteattr(k)} v={quoteattr(v)}/>" for k, v in tags.items()]
+            lines.append("  </relation>")
         lines.append("</osm>")
         Path(__file__).with_name(name).write_text("\n".join(lines) + "\n", encoding="utf-8")
 
@@ -176,11 +187,22 @@ def passage() -> Scene:
     return s
 
 
+def relation_building() -> Scene:
+    """A courtyard building mapped as a multipolygon relation (outer 40 x 30 m, inner 10 x 10 m)."""
+    s = Scene()
+    s.way([(-60, 0), (60, 0)], highway="residential", name="Court Street")
+    outer = s.box(-20, 10, 20, 40)
+    inner = s.box(-5, 20, 5, 30)
+    s.relation([(outer, "outer"), (inner, "inner")], type="multipolygon", building="yes")
+    return s
+
+
 def write_scenes() -> None:
     crossroads(mapped_sidewalks=True).write("crossroads-mapped-sidewalks.osm")
     crossroads(mapped_sidewalks=False).write("crossroads-crossing-nodes.osm")
     wide_road().write("wide-road.osm")
     passage().write("building-passage.osm")
+    relation_building().write("relation-building.osm")
     empty = Scene()
     empty.node(0, 0, amenity="bench")
     empty.way([(0, 0), (5, 5)], barrier="fence")
