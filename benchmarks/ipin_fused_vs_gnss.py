@@ -10,7 +10,11 @@ from the first usable fix instead.
 Usage::
 
     python benchmarks/ipin_fused_vs_gnss.py ../shared/data/ipin2023/ipin2023-t3.h5 [--seed 0]
-        [--particles 500] [--modes gnss fused inertial] [--trials N] [--no-start-pose] [--csv out.csv]
+        [--particles 500] [--modes gnss fused inertial] [--velocity-source auto|pdr|ronin]
+        [--trials N] [--match TEXT] [--no-start-pose] [--csv out.csv]
+
+The bundled RoNIN model was trained on every IPIN trial except the ``repetition04`` ones: score
+RoNIN on those only (``--match repetition04``); PDR has no training data.
 """
 
 from __future__ import annotations
@@ -49,13 +53,16 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--modes", nargs="+", default=["gnss", "fused", "inertial"])
     parser.add_argument("--velocity-source", default="auto")
     parser.add_argument("--trials", type=int, default=None, help="only the first N trials")
+    parser.add_argument("--match", default="", help="only trials whose name contains this text, e.g. "
+                        "repetition04 (the trials the bundled RoNIN model did not train on)")
     parser.add_argument("--no-start-pose", action="store_true")
     parser.add_argument("--csv", help="write per-waypoint errors here")
     args = parser.parse_args(argv)
     logging.basicConfig(level=logging.ERROR)
 
     rows = []
-    trials = list_trials(args.h5)[: args.trials]
+    trials = [t for t in list_trials(args.h5) if args.match in t][: args.trials]
+    sources: set[str] = set()
     for trial in tqdm(trials, unit="trial", file=sys.stderr):
         session = read_trial(args.h5, trial)
         start = session.meta["start"]
@@ -64,10 +71,12 @@ def main(argv: list[str] | None = None) -> int:
         errors = {}
         for mode in args.modes:
             try:
-                track = track_session(
+                result = track_session(
                     session, None, mode, particles=args.particles, seed=args.seed,
                     velocity_source=args.velocity_source, use_start_pose=not args.no_start_pose,
-                ).track
+                )
+                track = result.track
+                sources.add(result.velocity_source or "-")
             except Exception as exc:  # noqa: BLE001 - report and go on with the other trials
                 print(f"{trial} {mode}: {exc}", file=sys.stderr)
                 continue
@@ -94,7 +103,8 @@ def main(argv: list[str] | None = None) -> int:
                             "median_m": e.median(), "p90_m": e.quantile(0.9), "mean_m": e.mean()})
     table = pd.DataFrame(summary).pivot(index="set", columns="mode", values=["median_m", "p90_m"])
     print(f"IPIN 2023: error at surveyed waypoints (m), seed {args.seed}, N={args.particles}, "
-          f"{len(trials)} trials, {df['waypoint'].groupby(df['mode']).size().max()} waypoints per mode")
+          f"{len(trials)} trials, {df['waypoint'].groupby(df['mode']).size().max()} waypoints per mode, "
+          f"velocity from {', '.join(sorted(sources - {'-'}))}")
     print(table.round(1).to_string())
     return 0
 

@@ -270,3 +270,15 @@ def test_simulate_a_custom_route(tmp_path):
     assert (sim["route"], sim["jaywalks"], sim["crosswalk_crossings"]) == ("custom", 1, 0)
     assert sim["length_m"] == pytest.approx(150, abs=0.5)
     assert main(["simulate", "--route", "custom", "-o", str(tmp_path / "x")]) == 2
+
+
+def test_snapshot_moments_are_a_bad_fix_and_a_turn(sessions):
+    from curbside.evaluate.benchmark import snapshot_times
+    from curbside.localize.session import read_session
+
+    session = read_session(sessions[0])
+    times = snapshot_times(session)
+    t0, t1 = session.time_span()
+    assert all(t0 <= t <= t1 for t in times)
+    assert any(np.isclose(session.waypoints["t"], t).any() for t in times)
+    assert any(np.isclose(session.gnss["t"], t).any() for t in times)

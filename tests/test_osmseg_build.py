@@ -100,6 +100,12 @@ def test_crossroads_blocks_and_crosswalks(scenes, name):
     assert sidewalks["segment_id"].is_unique
     assert set(sidewalks["side"]) == {"left", "right"}
     assert set(sidewalks["street"]) == {"East Street", "North Street"}
+    # East Street runs west to east: its left sidewalks lie north of it, its right ones south.
+    east = sidewalks[sidewalks["street"] == "East Street"]
+    road_y = shapely.get_coordinates(layers.layer("street").geometry.values).mean(axis=0)[1]
+    side_y = shapely.get_coordinates(shapely.centroid(east.geometry.values))[:, 1]
+    assert (side_y[east["side"].to_numpy() == "left"] > road_y).all()
+    assert (side_y[east["side"].to_numpy() == "right"] < road_y).all()
     walks = layers.layer("crosswalk")
     assert len(walks) == 4
     assert crosswalk_ends_joined(layers).all()
@@ -154,6 +160,11 @@ def test_building_passage_is_carved_and_upper_levels_are_not(scenes):
     buildings = layers.union("building")
     assert shapely.intersection(passage, buildings).length == 0
     assert shapely.intersection(roof_path, buildings).length > 0.5 * roof_path.length
+    # A station's upper-level platform opens it; an office's does not.
+    platforms = ways.loc[ways["highway"] == "platform", "geometry"]
+    station_deck, office_deck = sorted(platforms, key=lambda g: g.centroid.y)
+    assert shapely.intersection(station_deck, buildings).length == 0
+    assert shapely.intersection(office_deck, buildings).length == pytest.approx(office_deck.length)
     # building=roof is not impenetrable.
     roof = osm.areas.loc[osm.areas["building"] == "roof", "geometry"].iloc[0]
     assert shapely.intersection(roof, buildings).area == 0

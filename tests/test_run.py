@@ -197,6 +197,8 @@ def test_cli_writes_track_files_and_same_seed_same_track(tmp_path, map_file, cap
         assert npz["x"].shape == (len(track), settings.default_particles)
     info = json.loads((tmp_path / "a" / "run.json").read_text())
     assert info["velocity_source"] == "file" and info["step_source"] == "file" and info["seed"] == 3
+    assert info["filter"]["n_particles"] == settings.default_particles
+    assert info["filter"]["jaywalk_weight"] == settings.default_jaywalk_weight
     assert not (tmp_path / "b" / "particles.npz").exists()
     assert "footsteps" in capsys.readouterr().out
 

@@ -22,11 +22,13 @@ def _ronin(args: argparse.Namespace) -> int:
     session = read_session(args.session)
     if session.imu is None:
         raise CurbsideInputError(Path(args.session) / "imu.csv", "no such file: RoNIN needs imu.csv")
-    velocity = ronin_velocity(session.imu, load_model(args.weights), source=str(Path(args.session) / "imu.csv"))
+    imu_path = Path(args.session) / "imu.csv"
+    velocity = ronin_velocity(session.imu, load_model(args.weights), source=str(imu_path))
     out = Path(args.output) if args.output else Path(args.session) / "velocity.csv"
     with atomic_path(out) as tmp:
         velocity.to_csv(tmp, index=False, float_format="%.6f")
-    sys.stdout.write(f"{out}: {len(velocity)} velocities over {velocity['t'].iat[-1] - velocity['t'].iat[0]:.1f} s\n")
+    span = velocity["t"].iat[-1] - velocity["t"].iat[0]
+    sys.stdout.write(f"{out}: {len(velocity)} velocities over {span:.1f} s\n")
     return 0
 
 
@@ -39,14 +41,19 @@ def _recordings(args: argparse.Namespace, keep_imu: tuple[str, ...] = ()):
 
 def _train(args: argparse.Namespace) -> int:
     from curbside.localize.ronin.data import WindowSet
-    from curbside.localize.ronin.train import TrainOptions, train
+    from curbside.localize.ronin.evaluate import calibrate_output_scale
+    from curbside.localize.ronin.infer import load_model
+    from curbside.localize.ronin.train import TrainOptions, save_weights, train
 
     recordings = _recordings(args)
     options = TrainOptions(arch=args.arch, epochs=args.epochs, windows_per_epoch=args.windows_per_epoch,
                            batch_size=args.batch_size, lr=args.lr, seed=args.seed, device=args.device,
                            num_threads=args.threads)
-    sets = {split: WindowSet.build([r for r in recordings if r.split == split], settings.ronin_window,
-                                   settings.ronin_stride, settings.ronin_rate_hz) for split in ("train", "val")}
+    sets = {
+        split: WindowSet.build([r for r in recordings if r.split == split], settings.ronin_window,
+                               settings.ronin_stride, settings.ronin_rate_hz)
+        for split in ("train", "val")
+    }
     if len(sets["train"]) == 0:
         raise CurbsideInputError("training data", "no labelled training windows")
     extra = {"sources": sorted({r.source for r in recordings}),
@@ -54,7 +61,11 @@ def _train(args: argparse.Namespace) -> int:
              "train_windows": len(sets["train"]), "val_windows": len(sets["val"])}
     history = train(sets["train"], sets["val"], options, args.output, checkpoint=args.checkpoint, extra=extra)
     best = min(history, key=lambda h: h["val_loss"])
-    sys.stdout.write(f"{args.output}: best epoch {best['epoch']} val MSE {best['val_loss']:.4f} (m/s)^2\n")
+    model = load_model(args.output)
+    scale = calibrate_output_scale(model, [r for r in recordings if r.split == "val"])
+    save_weights(model, args.output)
+    sys.stdout.write(f"{args.output}: best epoch {best['epoch']} val MSE {best['val_loss']:.4f} (m/s)^2, "
+                     f"output scale {scale:.3f}\n")
     return 0
 
 
@@ -75,7 +86,7 @@ def _evaluate(args: argparse.Namespace) -> int:
 
 
 def _add_data_args(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--ms-indoor", metavar="H5", help="ms-indoor-2020.h5 (Indoor Location Competition 2.0 paths)")
+    p.add_argument("--ms-indoor", metavar="H5", help="ms-indoor-2020.h5 (Indoor Location Competition 2.0)")
     p.add_argument("--ipin", metavar="H5", help="ipin2023-t3.h5 (IPIN 2023 Track 3 trials)")
     p.add_argument("--ronin-h5", metavar="DIR", help="folder of RoNIN-layout sequences (*/data.hdf5)")
     p.add_argument("--prepared", metavar="NPZ",
@@ -84,7 +95,7 @@ def _add_data_args(p: argparse.ArgumentParser) -> None:
 
 def register(subparsers: argparse._SubParsersAction) -> None:
     """Add ``ronin``, ``train-ronin`` and ``ronin-eval``."""
-    p = subparsers.add_parser("ronin", help="write velocity.csv from a session's imu.csv with the RoNIN model")
+    p = subparsers.add_parser("ronin", help="write velocity.csv from a session's imu.csv (RoNIN)")
     p.add_argument("session", metavar="SESSION", help="session folder holding imu.csv")
     p.add_argument("-o", "--output", metavar="CSV", help="output file (default SESSION/velocity.csv)")
     p.add_argument("--weights", metavar="PT", help="weights .pt with its .json (default: the bundled model)")

@@ -83,7 +83,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     parser = subparsers.add_parser(
         "run",
         help="track one session (GNSS only, inertial + map, or fused) and write the track",
-        description=__doc__.split("\n\n")[0],
+        description="Track one session with the map-aware particle filter; writes OUT/track.csv, "
+        "OUT/track.geojson and OUT/run.json (and OUT/particles.npz with --save-particles).",
     )
     parser.add_argument("session", help="session folder, Sensor Logger export, FILE.h5::TRIAL or .gpx")
     parser.add_argument("--map", help="map layers GeoJSON (osmseg build); none: no map likelihood")

@@ -16,10 +16,12 @@ import numpy as np
 
 from curbside import settings
 from curbside.errors import CurbsideInputError
+from curbside.evaluate.groundtruth import groundtruth_at, waypoints_xy
 from curbside.evaluate.report import Table, write_report
 from curbside.evaluate.runner import METHODS, RunSpec, run_all
-from curbside.localize.session import read_session
+from curbside.localize.session import Session, read_session
 from curbside.osmseg.mapio import read_map, write_map
+from curbside.projection import LocalFrame
 
 log = logging.getLogger(__name__)
 
@@ -96,8 +98,7 @@ def plan(
     for i, session in enumerate(sessions):
         snap_times: tuple[float, ...] = ()
         if snapshots and i == 0:
-            t0, t1 = read_session(session).time_span()
-            snap_times = (t0 + (t1 - t0) / 3, t0 + 2 * (t1 - t0) / 3)
+            snap_times = snapshot_times(read_session(session))
         for name, path in maps.items():
             for method in methods:
                 if method == "gnss":
@@ -124,6 +125,29 @@ def plan(
                     )
     base_cfg = {"map": first_map, "jaywalk_weight": w0, "particles": n0, "gnss_sigma_factor": s0}
     return specs, base_cfg
+
+
+def snapshot_times(session: Session) -> tuple[float, ...]:
+    """Two moments worth a particle-cloud figure, like the paper's Fig. 3.
+
+    The worst confidently-wrong GNSS fix (largest error among fixes reporting at most 25 m) and the
+    waypoint (a turn) nearest to two thirds of the walk; the middle and two thirds of the walk when
+    there are no fixes or waypoints.
+    """
+    t0, t1 = session.time_span()
+    fallback = (t0 + (t1 - t0) / 2, t0 + 2 * (t1 - t0) / 3)
+    if session.gnss is None or session.waypoints is None or len(session.waypoints) < 3:
+        return fallback
+    frame = LocalFrame.around(float(session.waypoints["lon"].iat[0]), float(session.waypoints["lat"].iat[0]))
+    gnss = session.gnss[session.gnss["accuracy_m"] <= 25.0]
+    if len(gnss) == 0:
+        return fallback
+    x, y = frame.to_xy(gnss["lon"].to_numpy(), gnss["lat"].to_numpy())
+    gx, gy = groundtruth_at(session.waypoints, gnss["t"].to_numpy(), frame)
+    worst = float(gnss["t"].iat[int(np.argmax(np.hypot(x - gx, y - gy)))])
+    wt = session.waypoints["t"].to_numpy()[1:-1]
+    turn = float(wt[np.argmin(np.abs(wt - (t0 + 2 * (t1 - t0) / 3)))])
+    return tuple(sorted({worst, turn}))
 
 
 def route_table(sessions: list[Path]) -> Table | None:
@@ -263,6 +287,23 @@ def benchmark_summary(report_dir: str | Path) -> str:
     return text.split("![", 1)[0].rstrip() + "\n"
 
 
+def demo_stage(ctx: Any) -> dict[str, Path]:
+    """A ``curbside.demo`` stage: the sf6 benchmark on the demo's map, its tables printed at the end.
+
+    ``ctx`` is the demo's context (``ctx.out_dir``); the report goes to ``out_dir/benchmark/report``.
+    """
+    map_path = Path(ctx.out_dir) / "map.geojson"
+    paths = run_benchmark(
+        Path(ctx.out_dir) / "benchmark",
+        seeds=2,
+        fast=True,
+        workers=2,
+        map_path=map_path if map_path.is_file() else None,
+    )
+    print(benchmark_summary(paths["report"]))
+    return {f"benchmark_{name.replace('.', '_')}": path for name, path in paths.items()}
+
+
 def ipin_table(h5: str | Path, trials: int | None = None, seed: int = 0) -> tuple[Table, list[dict]]:
     """Real data without a map: GNSS vs RoNIN+PF vs GNSS+RoNIN+PF at the surveyed IPIN 2023 waypoints.
 
@@ -270,10 +311,8 @@ def ipin_table(h5: str | Path, trials: int | None = None, seed: int = 0) -> tupl
     compared with the surveyed point. All methods are scored at the same waypoints: those inside every
     method's track (the GNSS track spans only the fixes), the start waypoint excluded.
     """
-    from curbside.evaluate.groundtruth import waypoints_xy
     from curbside.localize.pipeline import track_session
     from curbside.localize.readers.ipin import list_trials, read_trial
-    from curbside.projection import LocalFrame
 
     names = list_trials(h5)[: trials or None]
     errors: dict[str, list[np.ndarray]] = {m: [] for m in METHODS}
@@ -289,9 +328,12 @@ def ipin_table(h5: str | Path, trials: int | None = None, seed: int = 0) -> tupl
         tracks = {}
         for method in METHODS:
             try:
-                tracks[method] = track_session(session, None, method, seed=seed, progress=False).track
+                track = track_session(session, None, method, seed=seed, progress=False).track
             except CurbsideInputError as exc:
                 log.warning("IPIN %s %s skipped: %s", name, method, exc)
+                continue
+            if len(track) >= 2:
+                tracks[method] = track
         if len(tracks) < len(METHODS):
             continue
         # score every method at the same waypoints: inside every track's span, the start one excluded

@@ -140,6 +140,21 @@ def paper_tables(pooled: pd.DataFrame, map_name: str, base: dict[str, Any]) -> l
                 row.append(f"{_fmt(None if r is None else r[name], 1)} ({_fmt(PAPER[name][m], 1)})")
             rows.append(row)
         tables.append(Table(f"{title}, w = {w0:g}, map '{map_name}'", header, rows))
+    rows = []
+    for name in ("ate_m", "rte_m"):
+        row = [name]
+        for m in methods:
+            r = _lookup(pooled, m, jaywalk_weight=w0, **where)
+            row.append(_fmt(None if r is None else r[name], 1))
+        rows.append(row)
+    tables.append(
+        Table(
+            f"Trajectory errors (RoNIN's ATE / RTE, 60 s windows), w = {w0:g}, map '{map_name}'",
+            [""] + [METHOD_LABELS[m] for m in methods],
+            rows,
+            "Means over runs; the paper reports neither.",
+        )
+    )
     return tables
 
 

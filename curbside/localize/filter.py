@@ -14,9 +14,9 @@ Read it top to bottom:
 6. :func:`normalise_log_weights`: weights stay in the log domain (products of many likelihoods never
    underflow) and are normalised with the log-sum-exp trick.
 7. :class:`SystematicResampler`: seeded, vectorised systematic resampling.
-8. The fast path: the same arithmetic fused into two numba kernels (one pass over the particles
-   for predict + map + GNSS, one for normalise + estimate + resample). The numpy components above
-   are the reference; the tests check that both paths give the same particles from the same draws.
+8. The fast path: the same arithmetic in three numba loops (predict + map + GNSS in one pass,
+   normalise + estimate, resample). The numpy components above are the reference; the tests check
+   that both paths give the same particles from the same draws.
 9. :class:`Tracker`: the streaming API a navigation app calls once per footstep; it composes the
    components, recovers from collapse and returns an :class:`Estimate`. Batch runs
    (:mod:`curbside.localize.pipeline`) drive the same class.
@@ -31,6 +31,7 @@ from __future__ import annotations
 import logging
 import math
 from dataclasses import dataclass, field
+from typing import NamedTuple
 
 import numba
 import numpy as np
@@ -393,7 +394,7 @@ class SystematicResampler:
         particles.log_weight.fill(self._log_uniform)
         return idx
 
-# -- The fast path: the components above, fused into two passes over the particles ------------------
+# -- The fast path: the components above as compiled loops over the particles ------------------------
 # Same draws, same formulas, same order of the random numbers; only the loops are compiled. No
 # fastmath: the weights rely on -inf.
 
@@ -473,9 +474,8 @@ def _systematic_resample(weights, u0, x, y, theta, x_out, y_out, theta_out):  # 
         theta_out[k] = theta[j]
 
 
-@dataclass(frozen=True)
-class Estimate:
-    """The filter's output at one footstep.
+class Estimate(NamedTuple):
+    """The filter's output at one footstep (a named tuple: cheap to make once per footstep).
 
     Attributes
     ----------
@@ -499,7 +499,7 @@ class Estimate:
     theta: float
     n_eff: float
     recovered: bool
-    frame: LocalFrame | None = field(default=None, repr=False, compare=False)
+    frame: LocalFrame | None = None
 
     @property
     def lat(self) -> float:
@@ -565,6 +565,7 @@ class Tracker:
         self._loglik = np.empty(n)
         self._tmp = np.empty(n)
         self._ess_threshold = self.config.ess_fraction * n
+        self._log_uniform = -math.log(n)
         self._fast = self.config.backend == "numba"
         self._spare = (np.empty(n), np.empty(n), np.empty(n))
         lookup = self.map_likelihood.lookup if self.map_likelihood is not None else None
@@ -743,7 +744,7 @@ class Tracker:
         _systematic_resample(self._weights, self.rng.random(), p.x, p.y, p.theta, x_out, y_out, theta_out)
         self._spare = (p.x, p.y, p.theta)
         p.x, p.y, p.theta = x_out, y_out, theta_out
-        p.log_weight.fill(-math.log(len(p)))
+        p.log_weight.fill(self._log_uniform)
 
     def _recover(self, t: float) -> None:
         """Re-seed a collapsed cloud around the last estimate and the latest good fix; never NaN.

@@ -105,7 +105,8 @@ def _drop_nan_rows(imu: pd.DataFrame, columns: list[str], source: str) -> pd.Dat
     finite = np.isfinite(values.to_numpy()).all(axis=1)
     if not finite.all():
         logger.warning(
-            "%s: %d row(s) with NaN/inf dropped; their holes are handled as gaps", source, int((~finite).sum())
+            "%s: %d row(s) with NaN/inf dropped; their holes are handled as gaps", source,
+            int((~finite).sum()),
         )
         values = values[finite]
     if len(values) < 2:
@@ -114,7 +115,9 @@ def _drop_nan_rows(imu: pd.DataFrame, columns: list[str], source: str) -> pd.Dat
     dt = np.diff(t)
     if (dt <= 0).any():
         i = int(np.argmax(dt <= 0))
-        raise CurbsideInputError(source, f"timestamps not strictly increasing at data row {i + 2} (t={t[i + 1]!r})")
+        raise CurbsideInputError(
+            source, f"timestamps not strictly increasing at data row {i + 2} (t={t[i + 1]!r})"
+        )
     return values.reset_index(drop=True)
 
 
@@ -169,9 +172,12 @@ def detect_quaternion_order(acc: np.ndarray, quat: np.ndarray, source: str = "im
     CurbsideInputError
         No reading brings gravity within 30 degrees of up (not an orientation of this IMU).
     """
+    acc, quat = np.array(acc, dtype=float), np.array(quat, dtype=float)  # writable copies for scipy
     norms = np.linalg.norm(quat, axis=1)
     if not (np.abs(norms - 1.0) < 0.05).mean() > 0.95:
-        raise CurbsideInputError(source, f"quaternion columns are not unit quaternions (median norm {np.median(norms):.3f})")
+        raise CurbsideInputError(
+            source, f"quaternion columns are not unit quaternions (median norm {np.median(norms):.3f})"
+        )
     step = max(1, len(acc) // 2000)
     cosines = {}
     for name, (perm, inverse) in QUATERNION_READINGS.items():
@@ -182,14 +188,16 @@ def detect_quaternion_order(acc: np.ndarray, quat: np.ndarray, source: str = "im
     best = max(cosines, key=lambda k: cosines[k])
     if cosines[best] < np.cos(np.radians(30.0)):
         raise CurbsideInputError(
-            source, "no quaternion convention rotates the accelerometer's gravity to up: not a device orientation"
+            source, "no quaternion convention rotates the accelerometer's gravity to up: not an orientation"
         )
     # Keep the documented order unless another reading is clearly better (a still, level phone
     # can make several readings agree).
     if best != "xyzw" and cosines["xyzw"] > cosines[best] - 1e-3:
         best = "xyzw"
     if best != "xyzw":
-        logger.warning("%s: quaternion columns read as %s (gravity check); SPEC order is qx,qy,qz,qw", source, best)
+        logger.warning(
+            "%s: quaternion columns read as %s (gravity check); SPEC order is qx,qy,qz,qw", source, best
+        )
     return best
 
 
@@ -218,7 +226,8 @@ def _moving_mean(x: np.ndarray, width: int) -> np.ndarray:
     return (c[hi] - c[lo]) / (hi - lo)[:, None]
 
 
-def integrate_gyroscope(t: np.ndarray, gyro: np.ndarray, acc: np.ndarray, tilt_window_s: float = 2.0) -> Rotation:
+def integrate_gyroscope(t: np.ndarray, gyro: np.ndarray, acc: np.ndarray,
+                        tilt_window_s: float = 2.0) -> Rotation:
     """Device-to-world orientation from the gyroscope, tilt held to gravity: a game rotation vector.
 
     The body-frame increments ``exp(omega dt)`` are chained by a parallel prefix product (log2 N
@@ -244,6 +253,7 @@ def integrate_gyroscope(t: np.ndarray, gyro: np.ndarray, acc: np.ndarray, tilt_w
     scipy.spatial.transform.Rotation
         ``N`` device-to-world rotations.
     """
+    t, gyro, acc = (np.array(a, dtype=float) for a in (t, gyro, acc))  # writable copies for scipy
     n = len(t)
     dt = np.diff(t, prepend=t[0])
     omega = np.vstack([gyro[:1], 0.5 * (gyro[1:] + gyro[:-1])])
@@ -310,7 +320,9 @@ def world_frame_segments(
         raise CurbsideInputError(
             source, f"IMU rate {rate:.1f} Hz is below the {settings.imu_min_rate_hz:g} Hz minimum for RoNIN"
         )
-    floors = np.array([settings.imu_saturation_floor_accel_ms2] * 3 + [settings.imu_saturation_floor_gyro_rads] * 3)
+    floors = np.array(
+        [settings.imu_saturation_floor_accel_ms2] * 3 + [settings.imu_saturation_floor_gyro_rads] * 3
+    )
     saturated = saturation_mask(np.hstack([acc, gyro]), floors)
     if saturated.any():
         logger.warning(
@@ -329,7 +341,9 @@ def world_frame_segments(
     segments = []
     for lo, hi in zip(np.r_[0, breaks], np.r_[breaks, len(t)], strict=True):
         if t[hi - 1] - t[lo] < min_duration_s:
-            logger.warning("%s: dropped a %.2f s segment at t=%.2f (too short)", source, t[hi - 1] - t[lo], t[lo])
+            logger.warning(
+                "%s: dropped a %.2f s segment at t=%.2f (too short)", source, t[hi - 1] - t[lo], t[lo]
+            )
             continue
         sl = slice(lo, hi)
         rot = rot_all[sl] if has_quat else integrate_gyroscope(t[sl], gyro[sl], acc[sl])
@@ -362,9 +376,12 @@ def resample_world(segment: pd.DataFrame, rate_hz: float) -> WorldImu:
     t = t_in[0] + np.arange(int(np.floor((t_in[-1] - t_in[0]) * rate_hz)) + 1) / rate_hz
     cols = segment[["wgx", "wgy", "wgz", "wax", "way", "waz"]].to_numpy()
     out = np.column_stack([np.interp(t, t_in, cols[:, k]) for k in range(6)])
-    nearest = np.clip(np.searchsorted(t_in, t), 0, len(t_in) - 1)
+    # a grid sample is saturated when either input sample it is interpolated from is
+    flags = segment["saturated"].to_numpy()
+    right = np.clip(np.searchsorted(t_in, t, side="right"), 0, len(t_in) - 1)
+    left = np.clip(right - 1, 0, len(t_in) - 1)
     return WorldImu(
-        t=t, gyro=out[:, :3], acc=out[:, 3:], saturated=segment["saturated"].to_numpy()[nearest], rate_hz=rate_hz
+        t=t, gyro=out[:, :3], acc=out[:, 3:], saturated=flags[left] | flags[right], rate_hz=rate_hz,
     )
 
 
@@ -388,4 +405,5 @@ def preprocess(imu: pd.DataFrame, rate_hz: float = 200.0, source: str = "imu.csv
     list of WorldImu
         One per stretch without a gap longer than ``settings.imu_max_interp_gap_s``.
     """
-    return [resample_world(seg, rate_hz) for seg in world_frame_segments(imu, source, min_duration_s=min_duration_s)]
+    segments = world_frame_segments(imu, source, min_duration_s=min_duration_s)
+    return [resample_world(seg, rate_hz) for seg in segments]

@@ -99,6 +99,8 @@ class TrackResult:
     snapshots
         With ``save_particles``: ``t`` ``(K,)``, ``x``, ``y`` ``(K, N)`` float32 metres relative to
         ``origin``, ``theta`` ``(K, N)`` float32 radians, ``origin`` ``(2,)``, ``crs`` (WKT).
+    config
+        The filter parameters used (``None`` in ``gnss`` mode).
     """
 
     track: pd.DataFrame
@@ -107,6 +109,7 @@ class TrackResult:
     step_source: str
     recoveries: int
     snapshots: dict[str, np.ndarray] | None = None
+    config: FilterConfig | None = None
 
 
 # -- inputs ---------------------------------------------------------------------------------------------
@@ -495,7 +498,7 @@ def track_session(
     if tracker.recoveries:
         logger.warning("%s: the particle cloud collapsed %d time(s)", session.name, tracker.recoveries)
     snapshots = _stack_snapshots(snaps, track, frame) if save_particles else None
-    result = TrackResult(track, mode, inertial.source, step_source, tracker.recoveries, snapshots)
+    result = TrackResult(track, mode, inertial.source, step_source, tracker.recoveries, snapshots, config)
     return _finish(result, frame, map_layers)
 
 

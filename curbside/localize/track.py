@@ -6,6 +6,7 @@ name and renamed into place only when every file is complete.
 
 from __future__ import annotations
 
+import dataclasses
 import json
 from pathlib import Path
 from typing import Any
@@ -72,7 +73,8 @@ def write_track(result: TrackResult, out_dir: str | Path, run_info: dict[str, An
     """Write a :class:`TrackResult` into ``out_dir`` (replaced if it exists), atomically.
 
     Files: ``track.csv`` (one row per footstep), ``track.geojson``, ``run.json`` (the method, the inputs
-    used, the number of collapses and ``run_info``) and, when the result holds snapshots,
+    used, the number of collapses, ``run_info`` and every filter parameter) and, when the result holds
+    snapshots,
     ``particles.npz`` (``t``, ``x``, ``y``, ``theta`` per footstep; x/y relative to ``origin``).
 
     Parameters
@@ -97,6 +99,7 @@ def write_track(result: TrackResult, out_dir: str | Path, run_info: dict[str, An
         "rows": len(result.track),
         "recoveries": result.recoveries,
         **(run_info or {}),
+        "filter": dataclasses.asdict(result.config) if result.config is not None else None,
     }
     with atomic_path(out_dir) as tmp:
         tmp.mkdir()

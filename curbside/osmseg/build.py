@@ -30,7 +30,7 @@ from curbside.osmseg.crosswalks import UNMARKED_CHOICES
 from curbside.osmseg.crosswalks import crosswalks as derive_crosswalks
 from curbside.osmseg.mapio import MapLayers
 from curbside.osmseg.overlay import polygons_only, subtract
-from curbside.osmseg.reader import OsmData, read_osm_file
+from curbside.osmseg.reader import OsmData, bbox_polygon, read_osm_file
 from curbside.osmseg.sidewalks import sidewalk_segments
 from curbside.osmseg.streets import carriageways
 from curbside.projection import LocalFrame
@@ -102,15 +102,6 @@ def load_osm(bbox: BBox | None, osm_file: str | Path | None) -> tuple[OsmData, B
     return fetch_overpass(bbox), bbox
 
 
-def _window(bbox: BBox | None, crs) -> shapely.Geometry | None:
-    if bbox is None:
-        return None
-    frame = LocalFrame(crs)
-    west, south, east, north = bbox
-    x, y = frame.to_xy(np.array([west, east, west, east]), np.array([south, south, north, north]))
-    return shapely.convex_hull(shapely.multipoints(np.column_stack([x, y])))
-
-
 def _layer(cls: str, geoms, crs) -> gpd.GeoDataFrame:
     """Single polygons of one class (multi-part results exploded, slivers dropped)."""
     parts = polygons_only(shapely.make_valid(np.asarray(geoms, dtype=object)), settings.min_polygon_area_m2)
@@ -129,7 +120,13 @@ def build_params(unmarked_as: str) -> dict[str, Any]:
         "mapped_sidewalk_width_m": settings.mapped_sidewalk_width_m,
         "crosswalk_width_m": settings.crosswalk_width_m,
         "crosswalk_overlap_m": settings.crosswalk_overlap_m,
+        "assumed_parking_width_m": settings.assumed_parking_width_m,
+        "min_carriageway_half_width_m": settings.min_carriageway_half_width_m,
+        "min_sidewalk_width_m": settings.min_sidewalk_width_m,
+        "mapped_sidewalk_search_m": settings.mapped_sidewalk_search_m,
         "passage_width_m": settings.passage_width_m,
+        "passage_island_area_m2": settings.passage_island_area_m2,
+        "passage_island_thickness_m": settings.passage_island_thickness_m,
         "sidewalk_highways": sorted(settings.sidewalk_highways),
     }
 
@@ -149,8 +146,6 @@ def derive_layers(osm: OsmData, unmarked_as: str = settings.unmarked_crossing_as
     geopandas.GeoDataFrame
         Columns ``class``, ``segment_id``, ``street``, ``side``, ``geometry`` (CRS of ``osm``).
     """
-    if unmarked_as not in UNMARKED_CHOICES:
-        raise CurbsideInputError("--unmarked-as", f"must be one of {', '.join(UNMARKED_CHOICES)}")
     stages = tqdm(total=4, desc="osmseg build", unit="stage", disable=not sys.stderr.isatty(), leave=False)
     with stages:
         blds = derive_buildings(osm.areas, osm.ways).geometry.values
@@ -214,8 +209,8 @@ def build_map(
     if len(osm.ways) == 0 and len(osm.areas) == 0:
         raise CurbsideInputError(source, "no highways or buildings in this area")
     gdf = derive_layers(osm, unmarked_as)
-    window = _window(clip_bbox, osm.crs)
-    if window is not None:
+    if clip_bbox is not None:
+        window = bbox_polygon(clip_bbox, osm.crs)
         gdf = gdf.set_geometry(shapely.intersection(gdf.geometry.values, window))
         gdf = gdf.explode(index_parts=False)
         gdf = gdf[gdf.geom_type == "Polygon"]
@@ -229,8 +224,10 @@ def build_map(
     if len(gdf) == 0:
         raise CurbsideInputError(source, "no buildings or streets in this area")
     if clip_bbox is None:
-        lon, lat = LocalFrame(osm.crs).to_lonlat(*np.reshape(gdf.total_bounds, (2, 2)).T)
-        clip_bbox = (float(lon[0]), float(lat[0]), float(lon[1]), float(lat[1]))
+        minx, miny, maxx, maxy = gdf.total_bounds
+        corners_x, corners_y = np.array([minx, maxx, minx, maxx]), np.array([miny, miny, maxy, maxy])
+        lon, lat = LocalFrame(osm.crs).to_lonlat(corners_x, corners_y)
+        clip_bbox = (float(lon.min()), float(lat.min()), float(lon.max()), float(lat.max()))
     meta = {
         "source": osm.source,
         "bbox": [round(v, 7) for v in clip_bbox],

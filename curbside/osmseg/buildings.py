@@ -4,7 +4,9 @@ A building is a ``building=*`` closed way or multipolygon relation, except struc
 walks under or that are not at street level (:data:`NOT_IMPENETRABLE`, underground buildings).
 Every street-level highway way that runs through a footprint -- ``tunnel=building_passage``, covered
 footways, indoor corridors, platforms and roads through a ground floor such as the Salesforce Transit
-Center's bus plaza -- carves a passage as wide as the way out of it.
+Center's bus plaza -- carves a passage as wide as the way out of it. In stations
+(:data:`STATION_BUILDINGS`) platforms and building-passage busways and footways carve on every level:
+the Transit Center's bus deck, where the paper's paths 5 and 6 ran, is one floor up.
 """
 
 from __future__ import annotations
@@ -19,6 +21,15 @@ from curbside.osmseg.tags import column, first_number, is_in, metres
 
 #: ``building`` values that are not impenetrable: open structures and non-buildings.
 NOT_IMPENETRABLE: frozenset[str] = frozenset({"roof", "carport", "canopy", "no", "bridge"})
+
+#: ``building`` values of stations: their platforms, busways and passages carve on every level (a
+#: pedestrian on a bus deck walks above its ground floor, and the map has only one level).
+STATION_BUILDINGS: frozenset[str] = frozenset({"transportation", "train_station"})
+
+#: ``highway`` values that carve a station on any level (platforms always; the others when mapped as
+#: ``tunnel=building_passage``).
+STATION_PASSAGE_HIGHWAYS: frozenset[str] = frozenset({"platform", "busway", "footway", "pedestrian",
+                                                      "corridor", "service"})  # fmt: skip
 
 #: ``highway`` values that never carve a passage (they connect floors, not ground-floor space).
 NON_PASSAGE_HIGHWAYS: frozenset[str] = frozenset({"steps", "elevator", "escalator", "construction",
@@ -54,7 +65,24 @@ def passage_ways(ways: gpd.GeoDataFrame) -> gpd.GeoDataFrame:
     ``settings.passage_width_m``.
     """
     mask = ground_level(ways) & ~is_in(column(ways, "highway"), NON_PASSAGE_HIGHWAYS)
-    candidates = ways[mask]
+    return _with_width(ways[mask])
+
+
+def station_passage_ways(ways: gpd.GeoDataFrame) -> gpd.GeoDataFrame:
+    """Ways through a station's concourses and bus decks, on any level, with ``width_m``.
+
+    Platforms and busways, and footways mapped as ``tunnel=building_passage``, except bridges.
+    """
+    highway = column(ways, "highway")
+    mask = (
+        is_in(highway, STATION_PASSAGE_HIGHWAYS)
+        & (is_in(highway, ["platform"]) | is_in(column(ways, "tunnel"), ["building_passage"]))
+        & ~(column(ways, "bridge").notna() & (column(ways, "bridge") != "no")).to_numpy()
+    )
+    return _with_width(ways[mask])
+
+
+def _with_width(candidates: gpd.GeoDataFrame) -> gpd.GeoDataFrame:
     road_width, _ = carriageway_width(candidates)
     tagged = metres(column(candidates, "width"))
     other_width = np.where(np.isnan(tagged), settings.passage_width_m, tagged)
@@ -78,20 +106,24 @@ def buildings(areas: gpd.GeoDataFrame, ways: gpd.GeoDataFrame) -> gpd.GeoDataFra
     """
     footprints = areas[footprint_mask(areas)].reset_index(drop=True)
     geoms = shapely.make_valid(footprints.geometry.values)
-    passages = passage_ways(ways)
-    if len(passages) and len(geoms):
-        tree = shapely.STRtree(geoms)
+    station = is_in(column(footprints, "building"), STATION_BUILDINGS)
+    carved = np.zeros(len(geoms))
+    carvings = ((passage_ways(ways), np.ones(len(geoms), bool)), (station_passage_ways(ways), station))
+    for passages, which in carvings:
+        targets = np.flatnonzero(which)
+        if len(passages) == 0 or len(targets) == 0:
+            continue
+        tree = shapely.STRtree(geoms[targets])
         way_i, _ = tree.query(passages.geometry.values, predicate="intersects")
+        if len(way_i) == 0:
+            continue
         through = passages.iloc[np.unique(way_i)]
         cut = shapely.buffer(through.geometry.values, through["width_m"].to_numpy() / 2, cap_style="flat")
         cut_union = shapely.union_all(cut)
-        hit = np.unique(tree.query(cut_union, predicate="intersects"))
+        hit = targets[np.unique(tree.query(cut_union, predicate="intersects"))]
         before = shapely.area(geoms[hit])
         geoms[hit] = shapely.difference(geoms[hit], cut_union)
-        carved = np.zeros(len(geoms))
-        carved[hit] = before - shapely.area(geoms[hit])
-    else:
-        carved = np.zeros(len(geoms))
+        carved[hit] += before - shapely.area(geoms[hit])
     parts, owner = shapely.get_parts(shapely.make_valid(geoms), return_index=True)
     area = shapely.area(parts)
     # Slivers and islands left between passages (the strips between a bus plaza's platforms and

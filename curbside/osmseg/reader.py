@@ -28,7 +28,7 @@ from curbside.projection import LocalFrame
 log = logging.getLogger(__name__)
 
 #: File name endings ``--osm`` accepts (pyosmium reads compressed XML itself).
-OSM_SUFFIXES: tuple[str, ...] = (".osm", ".osm.bz2", ".osm.gz", ".osm.pbf", ".pbf", ".xml")
+OSM_SUFFIXES: tuple[str, ...] = (".osm", ".osm.bz2", ".osm.gz", ".osm.pbf")
 
 #: Tags the derivation reads; every table has one column per key (None where absent).
 TAG_KEYS: tuple[str, ...] = (
@@ -81,17 +81,17 @@ class OsmData:
         return len(self.ways) + len(self.areas) + len(self.nodes)
 
 
-def tag_table(records: list[dict[str, str]], n: int) -> pd.DataFrame:
+def tag_table(records: list[dict[str, str]]) -> pd.DataFrame:
     """One column per :data:`TAG_KEYS` entry from tag dicts (missing tags are None)."""
-    df = pd.DataFrame.from_records(records, columns=list(TAG_KEYS), nrows=n) if n else None
-    if df is None:
-        df = pd.DataFrame({k: pd.Series([], dtype=object) for k in TAG_KEYS})
-    return df.astype(object).where(df.notna(), None)
+    if not records:
+        return pd.DataFrame({k: pd.Series([], dtype=object) for k in TAG_KEYS})
+    df = pd.DataFrame.from_records(records, columns=list(TAG_KEYS)).astype(object)
+    return df.where(df.notna(), None)
 
 
 def make_table(ids, geoms, records: list[dict[str, str]], crs: CRS) -> gpd.GeoDataFrame:
     """An OsmData table from ids, geometries and tag dicts."""
-    tags = tag_table(records, len(records))
+    tags = tag_table(records)
     tags.insert(0, "osm_id", list(ids))
     return gpd.GeoDataFrame(tags, geometry=np.asarray(geoms, dtype=object), crs=crs)
 
@@ -102,11 +102,16 @@ def frame_for(bbox: tuple[float, float, float, float]) -> LocalFrame:
     return LocalFrame.around((west + east) / 2, (south + north) / 2)
 
 
+def bbox_polygon(bbox: tuple[float, float, float, float], crs: CRS) -> shapely.Polygon:
+    """A WGS84 (west, south, east, north) bbox as a polygon in a metric CRS (its four corners)."""
+    west, south, east, north = bbox
+    x, y = LocalFrame(crs).to_xy(np.array([west, east, east, west]), np.array([south, south, north, north]))
+    return shapely.Polygon(np.column_stack([x, y]))
+
+
 def clip_to_bbox(data: OsmData, bbox: tuple[float, float, float, float], margin_m: float) -> OsmData:
     """Keep the elements whose geometry comes within ``margin_m`` of the bbox."""
-    frame = LocalFrame(data.crs)
-    x, y = frame.to_xy(np.array([bbox[0], bbox[2]]), np.array([bbox[1], bbox[3]]))
-    window = shapely.box(x[0], y[0], x[1], y[1]).buffer(margin_m, join_style="mitre")
+    window = bbox_polygon(bbox, data.crs).buffer(margin_m, join_style="mitre")
 
     def keep(gdf: gpd.GeoDataFrame) -> gpd.GeoDataFrame:
         return gdf[shapely.intersects(gdf.geometry.values, window)].reset_index(drop=True)
@@ -294,27 +299,38 @@ def _assemble_relations(
     keys: frozenset[str],
 ) -> tuple[list[str], list[dict[str, str]], np.ndarray]:
     """Polygons of building multipolygon relations: polygonized outer ways minus inner ways."""
-    by_rel: dict[int, dict[str, list[shapely.LineString]]] = {}
-    for way_id, uses in members.items():
-        coords = member_coords.get(way_id)
-        if not coords or len(coords) < 2:
-            continue
-        lonlat = np.asarray(coords)
-        line = shapely.linestrings(np.column_stack(frame.to_xy(lonlat[:, 0], lonlat[:, 1])))
-        for rel_id, role in uses:
-            rings = by_rel.setdefault(rel_id, {"outer": [], "inner": []})
-            rings["inner" if role == "inner" else "outer"].append(line)
-    ids, tags, polys = [], [], []
-    for rel_id, rings in by_rel.items():
-        outer = shapely.union_all(shapely.get_parts(shapely.polygonize(rings["outer"])))
-        if outer.is_empty:
-            continue
-        if rings["inner"]:
-            outer = outer.difference(shapely.union_all(shapely.get_parts(shapely.polygonize(rings["inner"]))))
-        ids.append(f"r{rel_id}")
-        tags.append({k: v for k, v in rel_tags[rel_id].items() if k in keys})
-        polys.append(outer)
-    return ids, tags, np.array(polys, dtype=object)
+    way_ids = [w for w in members if len(member_coords.get(w, ())) >= 2]
+    if not way_ids:
+        return [], [], np.array([], dtype=object)
+    lengths = [len(member_coords[w]) for w in way_ids]
+    lonlat = np.array([c for w in way_ids for c in member_coords[w]], dtype=float)
+    lines = _rings_or_lines(lonlat, lengths, frame, closed=False)
+    uses = [(i, rel_id, role == "inner") for i, w in enumerate(way_ids) for rel_id, role in members[w]]
+    line_i, rel_of, inner = (np.array(v) for v in zip(*uses, strict=True))
+    rel_ids, rel_row = np.unique(rel_of, return_inverse=True)
+
+    def rings(mask: np.ndarray) -> np.ndarray:
+        """Per relation, the union of the polygons its member lines of one role close."""
+        table = _padded_rows(rel_row[mask], lines[line_i[mask]], len(rel_ids))
+        faces = shapely.polygonize(table, axis=1)
+        parts, owner = shapely.get_parts(faces, return_index=True)
+        return shapely.union_all(_padded_rows(owner, parts, len(rel_ids)), axis=1)
+
+    polys = shapely.difference(rings(~inner), rings(inner))
+    keep = ~shapely.is_empty(polys)
+    ids = [f"r{r}" for r in rel_ids[keep]]
+    tags = [{k: v for k, v in rel_tags[int(r)].items() if k in keys} for r in rel_ids[keep]]
+    return ids, tags, polys[keep]
+
+
+def _padded_rows(row: np.ndarray, values: np.ndarray, n_rows: int) -> np.ndarray:
+    """A (n_rows, widest) object array holding each row's values, padded with None."""
+    order = np.argsort(row, kind="stable")
+    row, values = row[order], values[order]
+    rank = np.arange(len(row)) - np.searchsorted(row, row)
+    table = np.full((n_rows, int(rank.max()) + 1 if len(rank) else 1), None, dtype=object)
+    table[row, rank] = values
+    return table
 
 
 def _first_line(exc: BaseException) -> str:

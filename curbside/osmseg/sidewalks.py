@@ -2,7 +2,7 @@
 
 Streets that carry sidewalks (``settings.sidewalk_highways``) are split into blocks at junctions with
 other roads. Each block side gets the band from its centreline out to the curb plus
-``settings.sidewalk_depth_m`` (at least the mapped sidewalk's width), built with a single-sided
+``settings.sidewalk_depth_m``, built with a single-sided
 buffer (positive = left of the OSM way direction). Where bands of different streets meet at corners,
 the space goes to the nearest centreline (Voronoi cells of points sampled along the blocks). The
 carriageway, buildings and crosswalks are then cut out, which leaves the strip between the curb and
@@ -42,12 +42,7 @@ def split_at_junctions(roads: gpd.GeoDataFrame, block_ends: np.ndarray) -> gpd.G
         and the piece geometry.
     """
     xy, line = shapely.get_coordinates(roads.geometry.values, return_index=True)
-    end_xy, end_line = shapely.get_coordinates(block_ends, return_index=True)
-    end_counts = (
-        pd.DataFrame({"key": node_keys(end_xy), "line": end_line}).drop_duplicates().groupby("key").size()
-    )
-    keys = node_keys(xy)
-    shared = end_counts.reindex(keys).fillna(0).to_numpy() >= 2
+    shared = np.isin(node_keys(xy), junction_keys(block_ends))
     first = np.r_[True, line[1:] != line[:-1]]
     last = np.r_[line[1:] != line[:-1], True]
     split = shared & ~first & ~last
@@ -86,22 +81,62 @@ def territories(pieces: np.ndarray, spacing_m: float = 3.0) -> np.ndarray:
     extent = shapely.box(*shapely.total_bounds(pieces)).buffer(200.0)
     cells = shapely.voronoi_polygons(shapely.multipoints(xy), extend_to=extent, ordered=True)
     cells = shapely.get_parts(cells)
+    # Dissolve per piece in one call: one row per piece, its cells padded with None.
     order = np.argsort(idx, kind="stable")
-    groups = np.split(cells[order], np.cumsum(np.bincount(idx, minlength=len(pieces)))[:-1])
-    return np.array(
-        [shapely.coverage_union_all(g) if len(g) else shapely.Polygon() for g in groups], dtype=object
-    )
+    idx, cells = idx[order], cells[order]
+    rank = np.arange(len(idx)) - np.searchsorted(idx, idx)
+    table = np.full((len(pieces), int(rank.max()) + 1 if len(rank) else 1), None, dtype=object)
+    table[idx, rank] = cells
+    return shapely.coverage_union_all(table, axis=1)
 
 
-def extend_shared_ends(lines: np.ndarray, length_m: np.ndarray) -> np.ndarray:
-    """Lines prolonged straight by ``length_m`` at every end that another line also ends at."""
+def junction_keys(lines: np.ndarray) -> np.ndarray:
+    """:func:`~curbside.osmseg.streets.node_keys` of the vertices two or more lines share."""
+    xy, idx = shapely.get_coordinates(lines, return_index=True)
+    table = pd.DataFrame({"key": node_keys(xy), "line": idx}).drop_duplicates()
+    counts = table.groupby("key").size()
+    return counts.index.to_numpy()[counts.to_numpy() >= 2]
+
+
+def extend_shared_ends(
+    lines: np.ndarray,
+    length_m: np.ndarray,
+    others: np.ndarray | None = None,
+    own: np.ndarray | None = None,
+    snap_m: float = 15.0,
+) -> np.ndarray:
+    """Lines prolonged straight by ``length_m`` at every end at a junction; dead ends left alone.
+
+    Parameters
+    ----------
+    lines
+        LineStrings.
+    length_m
+        Per line, how far to prolong it.
+    others, own
+        Further lines (the roads) and, per line, the index in ``others`` of the one it is part of:
+        an end within ``snap_m`` of another of ``others`` is a junction too (also a road that stops
+        at the curb of a cross street instead of at its centreline).
+    snap_m
+        See ``others``.
+
+    Notes
+    -----
+    An end is always a junction when another of ``lines`` ends at the same point.
+    """
     xy, idx = shapely.get_coordinates(lines, return_index=True)
     n = np.bincount(idx, minlength=len(lines))
     start = np.cumsum(n) - n
     end = start + n - 1
-    end_keys = node_keys(np.concatenate([xy[start], xy[end]]))
-    _, inverse, counts = np.unique(end_keys, return_inverse=True, return_counts=True)
-    shared = (counts[inverse] >= 2).reshape(2, -1)
+    tips = np.concatenate([xy[start], xy[end]])
+    _, inverse, counts = np.unique(node_keys(tips), return_inverse=True, return_counts=True)
+    shared = counts[inverse] >= 2
+    if others is not None and own is not None:
+        tree = shapely.STRtree(others)
+        tip_i, other_i = tree.query(shapely.points(tips), predicate="dwithin", distance=snap_m)
+        foreign = other_i != np.tile(own, 2)[tip_i]
+        shared[tip_i[foreign]] = True
+    shared = shared.reshape(2, -1)
 
     def prolong(tip: np.ndarray, before: np.ndarray, on: np.ndarray) -> np.ndarray:
         direction = xy[tip] - xy[before]
@@ -137,7 +172,8 @@ def sidewalk_segments(
     """
     service = column(roads, "service")
     block_end_mask = ~is_in(service, NON_BLOCK_SERVICES)
-    carrying = roads[is_in(column(roads, "highway"), settings.sidewalk_highways)].reset_index(drop=True)
+    carrying_mask = is_in(column(roads, "highway"), settings.sidewalk_highways)
+    carrying = roads[carrying_mask].reset_index(drop=True)
     empty = gpd.GeoDataFrame(
         {"segment_id": [], "street": [], "side": [], "osm_id": []}, geometry=[], crs=roads.crs
     )
@@ -153,7 +189,8 @@ def sidewalk_segments(
     own = territories(lines)
     # Bands run on past ends shared with another block so that they also cover the outside of
     # bends; the territories then split the overlap.
-    reach = extend_shared_ends(lines, np.maximum(reach_left, reach_right))
+    road_row = np.flatnonzero(carrying_mask)[road]
+    reach = extend_shared_ends(lines, np.maximum(reach_left, reach_right), roads.geometry.values, road_row)
     bands = np.concatenate(
         [
             shapely.buffer(reach, reach_left, single_sided=True, quad_segs=2),

@@ -109,7 +109,8 @@ class Recording:
         if t1 <= t0:
             return np.zeros(0), np.zeros((0, 6), np.float32), np.zeros((0, 2))
         t = t0 + np.arange(int(np.floor((t1 - t0) * rate_hz)) + 1) / rate_hz
-        feats = np.column_stack([np.interp(t, self.t, self.features[:, k]) for k in range(6)]).astype(np.float32)
+        feats = np.column_stack([np.interp(t, self.t, self.features[:, k]) for k in range(6)])
+        feats = feats.astype(np.float32)
         xy = np.column_stack([np.interp(t, self.positions[:, 0], self.positions[:, k]) for k in (1, 2)])
         return t, feats, xy
 
@@ -199,7 +200,9 @@ def _recordings_from_imu(name: str, source: str, imu: pd.DataFrame, positions: n
         feats = seg[["wgx", "wgy", "wgz", "wax", "way", "waz"]].to_numpy(np.float32)
         rec_name = name if k == 0 else f"{name}#{k}"
         t = seg["t"].to_numpy()
-        raw = imu[(imu["t"] >= t[0]) & (imu["t"] <= t[-1])].reset_index(drop=True) if split in keep_imu else None
+        raw = None
+        if split in keep_imu:
+            raw = imu[(imu["t"] >= t[0]) & (imu["t"] <= t[-1])].reset_index(drop=True)
         out.append(Recording(rec_name, source, t, feats, positions, split, raw))
     return out
 
@@ -240,8 +243,10 @@ def read_ms_indoor(path: str | Path, min_heading_consistency: float = 0.8, progr
     """
     raw = []
     with _open_h5(path) as f:
-        keys = [f"{s}/{fl}/{p}" for s in f for fl in f[s] if isinstance(f[s][fl], h5py.Group) for p in f[s][fl]]
-        keys = [k for k in keys if isinstance(f[k], h5py.Group) and {"acce", "gyro", "rotvec", "waypoints"} <= set(f[k])]
+        keys = [f"{s}/{fl}/{p}" for s in f for fl in f[s] if isinstance(f[s][fl], h5py.Group)
+                for p in f[s][fl]]
+        needed = {"acce", "gyro", "rotvec", "waypoints"}
+        keys = [k for k in keys if isinstance(f[k], h5py.Group) and needed <= set(f[k])]
         if not keys:
             raise CurbsideInputError(path, "no /<site>/<floor>/<path>/{acce,gyro,rotvec,waypoints} groups")
         for key in tqdm(keys, desc="ms-indoor", disable=not progress):
@@ -315,8 +320,8 @@ def read_ipin(path: str | Path, min_heading_consistency: float = 0.8, progress: 
             angle, consistency = plan_rotation(session.imu["t"].to_numpy(), forward_axis_xy(quat), positions)
             if consistency >= min_heading_consistency:
                 positions[:, 1:] = _rotate_xy(positions[:, 1:], angle)
-        recordings += _recordings_from_imu(name, "ipin", session.imu, positions, f"{Path(path).name}::{trial}",
-                                           keep_imu)
+        source = f"{Path(path).name}::{trial}"
+        recordings += _recordings_from_imu(name, "ipin", session.imu, positions, source, keep_imu)
     return recordings
 
 
@@ -330,7 +335,8 @@ def read_ronin_sequence(folder: str | Path) -> Recording:
     """
     folder = Path(folder)
     path = folder / "data.hdf5" if folder.is_dir() else folder
-    needed = ("synced/time", "synced/gyro", "synced/acce", "synced/game_rv", "pose/tango_pos", "pose/tango_ori")
+    needed = ("synced/time", "synced/gyro", "synced/acce", "synced/game_rv", "pose/tango_pos",
+              "pose/tango_ori")
     with _open_h5(path) as f:
         missing = [k for k in needed if k not in f]
         if missing:

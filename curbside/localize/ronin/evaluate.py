@@ -93,7 +93,8 @@ def trajectory_metrics(t: np.ndarray, estimate: np.ndarray, truth: np.ndarray,
         "duration_s": float(duration),
         "path_length_m": true_len,
         "distance_ratio": est_len / true_len if true_len > 0 else float("nan"),
-        "speed_error_mps": float(np.mean(np.abs(np.linalg.norm(v_est, axis=1) - np.linalg.norm(v_true, axis=1)))),
+        "speed_error_mps": float(np.mean(np.abs(np.linalg.norm(v_est, axis=1)
+                                                - np.linalg.norm(v_true, axis=1)))),
         "ate_m": float(np.sqrt(np.mean(np.sum((aligned - rel_true) ** 2, axis=1)))),
         "ate_raw_m": float(np.sqrt(np.mean(np.sum((rel_est - rel_true) ** 2, axis=1)))),
         "rte_m": rte,
@@ -211,3 +212,21 @@ def format_summary(report: dict) -> str:
                 f"{e['ate_raw_m_median']:>8.2f} {e.get('waypoint_error_median_m', float('nan')):>10.2f}"
             )
     return "\n".join(lines) + "\n"
+
+
+def calibrate_output_scale(model: RoninResNet, recordings: list[Recording]) -> float:
+    """Set ``model.config.output_scale`` so that the median distance ratio on ``recordings`` is 1.
+
+    Use validation recordings (never the test split). Returns the new scale.
+    """
+    model.config.output_scale = 1.0
+    ratios = []
+    for rec in recordings:
+        t_c, est, truth = ronin_trajectory(model, rec)
+        if len(t_c) >= 2:
+            ratios.append(trajectory_metrics(t_c, est, truth)["distance_ratio"])
+    if not ratios:
+        return 1.0
+    model.config.output_scale = float(1.0 / np.nanmedian(ratios))
+    logger.info("output scale %.4f from %d validation recordings", model.config.output_scale, len(ratios))
+    return model.config.output_scale

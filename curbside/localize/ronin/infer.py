@@ -7,7 +7,6 @@ in ``ronin_compact.json`` beside it.
 
 from __future__ import annotations
 
-import functools
 import json
 import logging
 from pathlib import Path
@@ -47,11 +46,7 @@ def load_model(weights: str | Path | None = None) -> RoninResNet:
     CurbsideInputError
         Missing or unreadable weights or config.
     """
-    return _load_cached(Path(weights or settings.ronin_default_weights).resolve())
-
-
-@functools.lru_cache(maxsize=4)
-def _load_cached(weights: Path) -> RoninResNet:
+    weights = Path(weights or settings.ronin_default_weights)
     cfg_path = config_path_for(weights)
     for path in (weights, cfg_path):
         if not path.is_file():
@@ -65,7 +60,8 @@ def _load_cached(weights: Path) -> RoninResNet:
         state = torch.load(weights, map_location="cpu", weights_only=True)
         model.load_state_dict(state)
     except (RuntimeError, OSError, KeyError) as exc:
-        raise CurbsideInputError(weights, f"not a state_dict for this config ({str(exc).splitlines()[0]})") from None
+        first_line = str(exc).splitlines()[0]
+        raise CurbsideInputError(weights, f"not a state_dict for this config ({first_line})") from None
     return model.eval()
 
 

@@ -177,13 +177,18 @@ def wide_road() -> Scene:
 
 
 def passage() -> Scene:
-    """A building crossed by a footway through a passage, with a roof-garden path on top."""
+    """A station crossed by a footway through a passage, with a roof-garden path and a bus-deck
+    platform, and an office with an upper-level platform."""
     s = Scene()
     s.way([(-80, -30), (80, -30)], highway="tertiary", name="Front Street")
     s.box(-40, -20, 40, 40, building="transportation", height="30")
     s.way([(0, -30), (0, -20), (0, 40), (0, 60)], highway="footway", tunnel="building_passage")
     s.way([(-30, 0), (30, 0)], highway="footway", layer="4", level="3")
     s.box(50, -20, 70, 10, building="roof")
+    # Upper-level platforms: they open the station (a bus deck) but not an office building.
+    s.way([(-30, 20), (30, 20)], highway="platform", layer="2", level="2")
+    s.box(-40, 70, 40, 100, building="office")
+    s.way([(-30, 85), (30, 85)], highway="platform", layer="2", level="2")
     return s
 
 
