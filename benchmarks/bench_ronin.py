@@ -18,7 +18,13 @@ import pandas as pd
 import torch
 from scipy.spatial.transform import Rotation
 
-from curbside.localize.ronin.infer import load_model, make_windows, predict_windows, ronin_velocity, window_starts
+from curbside.localize.ronin.infer import (
+    load_model,
+    make_windows,
+    predict_windows,
+    ronin_velocity,
+    window_starts,
+)
 
 
 def synthetic_imu_table(minutes: float, rate_hz: float = 50.0, seed: int = 0) -> pd.DataFrame:

@@ -1,9 +1,10 @@
 """The end-to-end demo run by ``make demo``: ``python -m curbside.demo --out out``.
 
 The demo is a list of stages (:data:`STAGES`) run in order on a shared :class:`DemoContext`; each stage
-returns the files it wrote, by name. Later stages (simulate sessions, track them, evaluate) append
-themselves to the list. Stage 1 builds the default map from the bundled OpenStreetMap extract, writes
-``map.geojson``, ``map.png`` and ``map.html`` and prints the per-class summary.
+returns the files it wrote, by name. The first stages build the default map from the bundled
+OpenStreetMap extract, write ``map.geojson``, ``map.png`` and ``map.html`` and print the per-class
+summary; the last simulates the six San Francisco walks, tracks them (GNSS, RoNIN+PF, GNSS+RoNIN+PF)
+and writes the benchmark report under ``benchmark/report/``.
 """
 
 from __future__ import annotations
@@ -19,6 +20,7 @@ from typing import Any
 from tqdm import tqdm
 
 from curbside.cli.common import make_parser, run_cli
+from curbside.evaluate.benchmark import demo_stage
 from curbside.osmseg.build import build_map
 from curbside.osmseg.mapio import write_map
 from curbside.osmseg.plot import save_html, save_png
@@ -80,6 +82,7 @@ STAGES: list[Stage] = [
     Stage("build the default map", build_default_map),
     Stage("render the map", render_map_files),
     Stage("summarise the map", print_map_summary),
+    Stage("sf6 benchmark report", demo_stage),
 ]
 
 
@@ -121,7 +124,10 @@ def _main(args: argparse.Namespace) -> int:
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of ``python -m curbside.demo``."""
-    parser = make_parser("curbside.demo", "Build the default map, render it and summarise it.")
+    parser = make_parser(
+        "curbside.demo",
+        "Build the default map, render and summarise it, then run the six-walk SF benchmark report.",
+    )
     parser.add_argument("--out", default="out", help="output folder (default: out)")
     parser.set_defaults(func=_main, verbose=1)  # the demo logs its stages at INFO level
     return run_cli("curbside.demo", parser, argv)

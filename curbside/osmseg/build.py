@@ -154,9 +154,12 @@ def derive_layers(osm: OsmData, unmarked_as: str = settings.unmarked_crossing_as
         stages.update()
         walks = derive_crosswalks(osm.ways, osm.nodes, cways, unmarked_as)
         walks = polygons_only(subtract(walks, blds), settings.min_polygon_area_m2)
-        street = subtract(cways.surface, np.concatenate([blds, walks]))
+        through = cways.surface[~cways.minor]
+        segments = sidewalk_segments(cways.roads, np.concatenate([through, blds, walks]))
         stages.update()
-        segments = sidewalk_segments(cways.roads, np.concatenate([cways.surface, blds, walks]))
+        # Sidewalks run on across driveways and parking-aisle mouths.
+        minor = subtract(cways.surface[cways.minor], segments.geometry.values)
+        street = subtract(np.concatenate([through, minor]), np.concatenate([blds, walks]))
         stages.update()
     frames = [
         _layer("building", blds, osm.crs),

@@ -18,11 +18,8 @@ import shapely
 
 from curbside import settings
 from curbside.osmseg.overlay import subtract
-from curbside.osmseg.streets import node_keys, sidewalk_sides
+from curbside.osmseg.streets import MINOR_SERVICES, node_keys, sidewalk_sides
 from curbside.osmseg.tags import column, is_in
-
-#: ``service`` values of roads that do not end a block (driveways cross sidewalks).
-NON_BLOCK_SERVICES = ("driveway", "parking_aisle", "drive-through")
 
 
 def split_at_junctions(roads: gpd.GeoDataFrame, block_ends: np.ndarray) -> gpd.GeoDataFrame:
@@ -171,7 +168,7 @@ def sidewalk_segments(
         the way), ``street``, ``side`` (``left``/``right``), ``osm_id`` and geometry.
     """
     service = column(roads, "service")
-    block_end_mask = ~is_in(service, NON_BLOCK_SERVICES)
+    block_end_mask = ~is_in(service, MINOR_SERVICES)
     carrying_mask = is_in(column(roads, "highway"), settings.sidewalk_highways)
     carrying = roads[carrying_mask].reset_index(drop=True)
     empty = gpd.GeoDataFrame(

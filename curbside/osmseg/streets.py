@@ -21,6 +21,9 @@ from curbside import settings
 from curbside.osmseg.overlay import polygons_only, quadtree_split, subtract
 from curbside.osmseg.tags import column, first_number, is_in, metres
 
+#: ``service`` values of roads whose carriageway gives way to the sidewalks it crosses.
+MINOR_SERVICES = ("driveway", "parking_aisle", "drive-through")
+
 #: ``footway`` values of separately mapped sidewalks.
 SIDEWALK_FOOTWAYS = ("sidewalk",)
 _PARKING_LANE_VALUES = {"parallel": "parallel", "marked": "parallel", "diagonal": "diagonal",
@@ -233,12 +236,16 @@ class Carriageways:
     surface
         The carriageway as disjoint polygons (quadtree tiles of the union), before buildings and
         crosswalks are cut out.
+    minor
+        Per ``surface`` polygon: it belongs only to driveways, parking aisles or drive-throughs
+        (:data:`MINOR_SERVICES`), which sidewalks cross.
     sidewalks
         The mapped sidewalks used (``footway=sidewalk`` ways with ``width_m``).
     """
 
     roads: gpd.GeoDataFrame
     surface: np.ndarray
+    minor: np.ndarray
     sidewalks: gpd.GeoDataFrame
 
 
@@ -281,14 +288,23 @@ def carriageways(ways: gpd.GeoDataFrame, buildings: np.ndarray | None = None) ->
     )
     left = shapely.buffer(lines, half[:, 0], single_sided=True, quad_segs=2)
     right = shapely.buffer(lines, -half[:, 1], single_sided=True, quad_segs=2)
-    disks = junction_disks(lines, half.min(axis=1))
-    surface = quadtree_split(shapely.union_all(np.concatenate([left, right, disks])))
+    radius = half.min(axis=1)
+    minor_road = is_in(column(roads, "service"), MINOR_SERVICES)
+    through = ~minor_road
+    major = np.concatenate([left[through], right[through], junction_disks(lines[through], radius[through])])
+    major_tiles = quadtree_split(shapely.union_all(major))
+    minor = np.concatenate([left[minor_road], right[minor_road], junction_disks(lines, radius)])
+    minor_tiles = polygons_only(subtract(quadtree_split(shapely.union_all(minor)), major_tiles))
+    surface = np.concatenate([major_tiles, minor_tiles])
     if len(sidewalks):
         kept_clear = shapely.buffer(
             sidewalks.geometry.values, sidewalks["width_m"].to_numpy() / 2, cap_style="flat", quad_segs=2
         )
-        surface = polygons_only(subtract(surface, kept_clear))
-    return Carriageways(roads, surface, sidewalks)
+        surface = subtract(surface, kept_clear)
+    parts, tile = shapely.get_parts(surface, return_index=True)
+    polygon = shapely.get_type_id(parts) == 3
+    is_minor = tile[polygon] >= len(major_tiles)
+    return Carriageways(roads, parts[polygon], is_minor, sidewalks)
 
 
 def node_keys(xy: np.ndarray) -> np.ndarray:
