@@ -301,7 +301,9 @@ def test_fix_starts_an_unstarted_tracker_with_theta_over_the_full_circle():
     assert tracker.step(0.0, displacement_en=(0.0, 0.0)) is None
     fix = tracker.fix(37.79, -122.40, 5.0)
     est = tracker.step(0.5, displacement_en=(0.0, 0.0), gnss_fix=fix)
-    assert est is not None and abs(est.lat - 37.79) < 1e-6 and abs(est.lon + 122.40) < 1e-6
+    sigma = tracker.config.gnss_sigma_factor * 5.0
+    assert est is not None and math.hypot(est.x - fix.x, est.y - fix.y) < 4 * sigma / math.sqrt(2000)
+    assert abs(est.lat - 37.79) < 1e-5 and abs(est.lon + 122.40) < 1e-5
     counts, _ = np.histogram(tracker.particles.theta, bins=4, range=(-math.pi, math.pi))
     assert counts.min() > 350
 

@@ -98,6 +98,8 @@ def test_crossroads_blocks_and_crosswalks(scenes, name):
     # Two streets, each split at the junction into two blocks, two sides each.
     assert len(sidewalks) == 8
     assert sidewalks["segment_id"].is_unique
+    assert sidewalks["segment_id"].str.fullmatch(r"w\d+-[01]-[LR]").all()
+    assert (sidewalks["segment_id"].str[-1] == sidewalks["side"].str[0].str.upper()).all()
     assert set(sidewalks["side"]) == {"left", "right"}
     assert set(sidewalks["street"]) == {"East Street", "North Street"}
     # East Street runs west to east: its left sidewalks lie north of it, its right ones south.

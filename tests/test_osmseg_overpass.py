@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import http.server
+import socket
 import threading
 from collections.abc import Iterator
 from pathlib import Path
@@ -23,13 +24,14 @@ BBOX = (-122.4016, 37.7914, -122.4003, 37.7924)
 
 class _Handler(http.server.BaseHTTPRequestHandler):
     body = b""
+    status = 200
     requests = 0
 
     def do_POST(self) -> None:  # noqa: N802 - http.server's naming
         length = int(self.headers.get("Content-Length", 0))
         self.rfile.read(length)
         type(self).requests += 1
-        self.send_response(200)
+        self.send_response(self.status)
         self.send_header("Content-Type", "application/json")
         self.send_header("Content-Length", str(len(self.body)))
         self.end_headers()
@@ -42,7 +44,7 @@ class _Handler(http.server.BaseHTTPRequestHandler):
 @pytest.fixture
 def overpass(tmp_path, monkeypatch) -> Iterator[type[_Handler]]:
     """A loopback Overpass serving the recording; osmnx and curbside caches in tmp_path."""
-    handler = type("Recorded", (_Handler,), {"body": RECORDED.read_bytes(), "requests": 0})
+    handler = type("Recorded", (_Handler,), {"body": RECORDED.read_bytes(), "status": 200, "requests": 0})
     server = http.server.ThreadingHTTPServer(("127.0.0.1", 0), handler)
     thread = threading.Thread(target=server.serve_forever, daemon=True)
     thread.start()
@@ -94,4 +96,29 @@ def test_overpass_empty_area(overpass, tmp_path, capsys):
     err = capsys.readouterr().err
     assert status == 2
     assert "no OSM" in err and len(err.strip().splitlines()) == 1
+    assert not out.exists()
+
+
+def test_overpass_unreachable(overpass, tmp_path, capsys, monkeypatch):
+    # A loopback port with no server behind it.
+    with socket.socket() as sock:
+        sock.bind(("127.0.0.1", 0))
+        port = sock.getsockname()[1]
+    monkeypatch.setattr(ox.settings, "overpass_url", f"http://127.0.0.1:{port}/api")
+    out = tmp_path / "map.geojson"
+    status = osmseg_main(["build", "--bbox", *(str(v) for v in BBOX), "-o", str(out)])
+    err = capsys.readouterr().err
+    assert status == 2
+    assert "Overpass request failed" in err and len(err.strip().splitlines()) == 1
+    assert not out.exists()
+
+
+def test_overpass_server_error(overpass, tmp_path, capsys):
+    overpass.status = 500
+    overpass.body = b"<html>overloaded</html>"
+    out = tmp_path / "map.geojson"
+    status = osmseg_main(["build", "--bbox", *(str(v) for v in BBOX), "-o", str(out)])
+    err = capsys.readouterr().err
+    assert status == 2
+    assert "Overpass request failed" in err
     assert not out.exists()

@@ -14,7 +14,7 @@ import numpy as np
 import osmnx as ox
 import requests
 import shapely
-from osmnx._errors import InsufficientResponseError
+from osmnx._errors import InsufficientResponseError, ResponseStatusCodeError
 
 from curbside import settings
 from curbside.errors import CurbsideInputError
@@ -110,7 +110,7 @@ def fetch_overpass(bbox: tuple[float, float, float, float], *, margin_m: float =
         features = ox.features_from_bbox(query, OVERPASS_TAGS)
     except InsufficientResponseError:
         raise CurbsideInputError("overpass", f"no OSM buildings or highways in bbox {list(bbox)}") from None
-    except requests.RequestException as exc:
+    except (requests.RequestException, ResponseStatusCodeError) as exc:
         raise CurbsideInputError(
             ox.settings.overpass_url, f"Overpass request failed ({type(exc).__name__})"
         ) from None

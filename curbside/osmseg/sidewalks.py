@@ -184,8 +184,8 @@ def sidewalk_segments(
     reach_left = carrying["half_left_m"].to_numpy()[road] + depth
     reach_right = carrying["half_right_m"].to_numpy()[road] + depth
     own = territories(lines)
-    # Bands run on past ends shared with another block so that they also cover the outside of
-    # bends; the territories then split the overlap.
+    # Bands run on past junction ends so that they also cover the outside of bends and corners; the
+    # territories then split the overlap.
     road_row = np.flatnonzero(carrying_mask)[road]
     reach = extend_shared_ends(lines, np.maximum(reach_left, reach_right), roads.geometry.values, road_row)
     bands = np.concatenate(
@@ -214,10 +214,10 @@ def sidewalk_segments(
     table["n"] = table.groupby(["way", "side"]).cumcount()
     table = table.sort_index()
     osm_id = carrying["osm_id"].to_numpy()[way_row]
-    segment_id = [
-        f"w{w}-{n}-{'L' if s == 'left' else 'R'}"
-        for w, n, s in zip(osm_id, table["n"].to_numpy(), table["side"].to_numpy(), strict=True)
-    ]
+    segment_id = (
+        "w" + pd.Series(osm_id).astype(str) + "-" + table["n"].astype(str).to_numpy()
+        + "-" + table["side"].map({"left": "L", "right": "R"}).to_numpy()
+    ).to_numpy()
     names = column(carrying, "name").to_numpy()[way_row]
     return gpd.GeoDataFrame(
         {"segment_id": segment_id, "street": names, "side": table["side"].to_numpy(), "osm_id": osm_id},

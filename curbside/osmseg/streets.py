@@ -123,7 +123,7 @@ def carriageway_width(ways: pd.DataFrame) -> tuple[np.ndarray, np.ndarray]:
     width_m : numpy.ndarray
         Metres; NaN for ways whose ``highway`` class has no default width.
     tagged : numpy.ndarray
-        True where the width came from ``width`` or ``est_width`` (then mapped sidewalks only cap it).
+        True where the width came from ``width`` or ``est_width`` (then the building line does not cap it).
     """
     tagged_width = metres(column(ways, "width"))
     est = metres(column(ways, "est_width"))
@@ -257,8 +257,8 @@ def carriageways(ways: gpd.GeoDataFrame, buildings: np.ndarray | None = None) ->
     ways
         Highway ways of an :class:`~curbside.osmseg.reader.OsmData`.
     buildings
-        Building footprints. On a side of a street with sidewalks and no mapped sidewalk, the curb
-        stays ``settings.min_sidewalk_width_m`` clear of the building line.
+        Building footprints. On a side of a street with sidewalks whose width is not tagged, the
+        curb stays ``settings.min_sidewalk_width_m`` clear of the building line.
 
     Returns
     -------
@@ -278,8 +278,9 @@ def carriageways(ways: gpd.GeoDataFrame, buildings: np.ndarray | None = None) ->
     half = np.fmin(half, to_sidewalk)
     if buildings is not None and len(buildings):
         to_building = side_distances(lines, buildings, np.full(len(buildings), settings.min_sidewalk_width_m))
-        walked = np.column_stack(sidewalk_sides(roads)) & is_in(
-            column(roads, "highway"), settings.sidewalk_highways
+        # A measured (tagged) width is not second-guessed from the building line.
+        walked = np.column_stack(sidewalk_sides(roads)) & (
+            is_in(column(roads, "highway"), settings.sidewalk_highways) & ~tagged
         )[:, None]
         half = np.where(walked, np.fmin(half, to_building), half)
     half = np.maximum(half, settings.min_carriageway_half_width_m)
