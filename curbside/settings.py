@@ -88,6 +88,13 @@ filter_step_noise_floor_m: float = 0.05
 #: Heading-drift random walk per footstep, degrees (one sigma).
 filter_theta_noise_deg: float = 0.5
 
+#: Speed-scale state (beyond the paper, off by default): each particle scales the inertial
+#: displacement by its own factor, drawn around 1 with this sigma at the start and random-walking by
+#: the second per footstep. 0 and 0 give the paper's three-state filter; on the simulated SF walks
+#: the scale state did not help (docs/filter.md), so it is an option, e.g. 0.08 and 0.002.
+filter_scale_init_sigma: float = 0.0
+filter_scale_noise_per_step: float = 0.0
+
 #: Initial spread around a known start pose: position sigma (m) and drift sigma (degrees).
 filter_init_position_sigma_m: float = 1.0
 filter_init_theta_sigma_deg: float = 5.0

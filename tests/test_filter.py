@@ -70,7 +70,8 @@ def _cache_in_tmp(tmp_path, monkeypatch):
 
 def quiet_config(**kw) -> FilterConfig:
     """No process noise: motion is deterministic."""
-    base = dict(step_noise_fraction=0.0, step_noise_floor_m=0.0, theta_noise_deg=0.0)
+    base = dict(step_noise_fraction=0.0, step_noise_floor_m=0.0, theta_noise_deg=0.0,
+                scale_init_sigma=0.0, scale_noise_per_step=0.0)
     base.update(kw)
     return FilterConfig(**base)
 
@@ -140,6 +141,14 @@ def test_predictor_moves_by_displacement_rotated_by_theta():
     np.testing.assert_allclose(p.y, [0.5, 2.0, -0.5, -2.0], atol=1e-12)
 
 
+def test_predictor_scales_the_displacement_by_each_particles_speed_scale():
+    p = ParticleSet(3)
+    p.scale[:] = [0.5, 1.0, 1.2]
+    InertialPredictor(quiet_config(n_particles=3), np.random.default_rng(0)).predict(p, 2.0, 1.0)
+    np.testing.assert_allclose(p.x, [1.0, 2.0, 2.4], atol=1e-12)
+    np.testing.assert_allclose(p.y, [0.5, 1.0, 1.2], atol=1e-12)
+
+
 def test_predictor_noise_scales_with_step_length():
     cfg = FilterConfig(n_particles=20000, step_noise_fraction=0.2, step_noise_floor_m=0.05, theta_noise_deg=0)
     spreads = []
@@ -187,9 +196,10 @@ def test_systematic_resampling_matches_filterpy_on_the_same_uniform():
         np.random.seed(n)  # noqa: NPY002
         expected = systematic_resample(w)
         np.testing.assert_array_equal(systematic_indices(w, u0), expected)
-        x_out, y_out, t_out = np.empty(n), np.empty(n), np.empty(n)
+        outs = [np.empty(n) for _ in range(4)]
         ids = np.arange(n, dtype=float)
-        _systematic_resample(w, u0, ids, ids, ids, x_out, y_out, t_out)
+        _systematic_resample(w, u0, ids, ids, ids, ids, *outs)
+        x_out = outs[0]
         np.testing.assert_array_equal(x_out.astype(int), expected)
 
 
@@ -267,7 +277,7 @@ def test_start_pose_in_a_building_moves_to_the_nearest_free_cell(caplog):
 
 
 def _run_tracker(backend: str, seed: int, steps: int = 60) -> tuple[list, Tracker]:
-    cfg = FilterConfig(n_particles=400, backend=backend)
+    cfg = FilterConfig(n_particles=400, backend=backend, scale_init_sigma=0.05, scale_noise_per_step=0.002)
     tracker = Tracker(block_map(), cfg, seed=seed)
     out = [tracker.start_at_pose(0.0, X0 - 60.0, Y0 + 8.0, 0.05)]
     for k in range(1, steps):
@@ -283,6 +293,8 @@ def test_numba_and_numpy_paths_agree():
     np.testing.assert_allclose([e.n_eff for e in fast], [e.n_eff for e in ref], rtol=1e-9)
     np.testing.assert_allclose(tf.particles.x, tr.particles.x, rtol=0, atol=1e-6)
     np.testing.assert_allclose(tf.particles.theta, tr.particles.theta, rtol=0, atol=1e-9)
+    np.testing.assert_allclose(tf.particles.scale, tr.particles.scale, rtol=0, atol=1e-9)
+    np.testing.assert_allclose([e.scale for e in fast], [e.scale for e in ref], rtol=1e-9)
 
 
 def test_same_seed_same_estimates_and_particles_stay_off_buildings():

@@ -21,6 +21,7 @@ import shapely
 from curbside import settings
 from curbside.cli.localize import main as localize_main
 from curbside.errors import CurbsideInputError
+from curbside.localize.filter import FilterConfig
 from curbside.localize.maplikelihood import BUILDING, rasterize_map
 from curbside.localize.pipeline import (
     InertialInput,
@@ -171,6 +172,16 @@ def test_drift_state_learns_the_inertial_heading_error(walk_results):
     assert abs(np.median(theta[-50:]) + 6.0) < 5.0
 
 
+def test_speed_scale_is_off_by_default_and_learned_when_on(walk_results, tmp_path):
+    np.testing.assert_allclose(walk_results[0]["fused"].track["speed_scale"], 1.0, rtol=0, atol=1e-12)
+    # The velocity is 5 % fast; along a straight street only GNSS can tell.
+    session = read_session(write_walk(tmp_path / "walk", seed=1))
+    config = FilterConfig(scale_init_sigma=0.08, scale_noise_per_step=0.002)
+    scale = track_session(session, block_layers(), "fused", config=config, seed=1).track["speed_scale"]
+    assert abs(scale.iat[0] - 1.0) < 0.02
+    assert abs(np.median(scale.iloc[-50:]) - 1 / 1.05) < 0.03
+
+
 # -- the command ----------------------------------------------------------------------------------------
 
 
@@ -187,8 +198,8 @@ def test_cli_writes_track_files_and_same_seed_same_track(tmp_path, map_file, cap
     assert a == (tmp_path / "b" / "track.csv").read_bytes()
     assert a != (tmp_path / "c" / "track.csv").read_bytes()
     track = pd.read_csv(tmp_path / "a" / "track.csv")
-    assert list(track.columns) == ["t", "lat", "lon", "x_m", "y_m", "theta_drift_deg", "n_eff", "recovered",
-                                   "sidewalk_segment_id"]
+    assert list(track.columns) == ["t", "lat", "lon", "x_m", "y_m", "theta_drift_deg", "speed_scale", "n_eff",
+                                   "recovered", "sidewalk_segment_id"]
     assert (np.diff(track["t"]) > 0).all() and len(track) == len(np.arange(0, 40, 0.55))
     doc = json.loads((tmp_path / "a" / "track.geojson").read_text())
     kinds = [f["geometry"]["type"] for f in doc["features"]]

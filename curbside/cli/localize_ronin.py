@@ -40,11 +40,15 @@ def _recordings(args: argparse.Namespace, keep_imu: tuple[str, ...] = ()):
 
 
 def _train(args: argparse.Namespace) -> int:
+    import torch
+
     from curbside.localize.ronin.data import WindowSet
     from curbside.localize.ronin.evaluate import calibrate_output_scale
     from curbside.localize.ronin.infer import load_model
     from curbside.localize.ronin.train import TrainOptions, save_weights, train
 
+    if args.device.startswith("cuda") and not torch.cuda.is_available():
+        raise CurbsideInputError("--device", f"{args.device!r} requested but torch sees no CUDA device")
     recordings = _recordings(args)
     options = TrainOptions(arch=args.arch, epochs=args.epochs, windows_per_epoch=args.windows_per_epoch,
                            batch_size=args.batch_size, lr=args.lr, seed=args.seed, device=args.device,

@@ -4,9 +4,11 @@ Read it top to bottom:
 
 1. :class:`FilterConfig`: every parameter, defaults from :mod:`curbside.settings`.
 2. :class:`ParticleSet`: the state. Per particle ``x``, ``y`` (metres east/north in the map's local
-   UTM CRS), ``theta`` (heading drift, radians, counter-clockwise) and a log-weight.
+   UTM CRS), ``theta`` (heading drift, radians, counter-clockwise), ``scale`` (speed scale, beyond the
+   paper: the inertial speed may be off by several per cent) and a log-weight.
 3. :class:`InertialPredictor`: at a footstep, rotate the step's inertial displacement by each
-   particle's ``theta``, add it, and add Gaussian noise to ``x``, ``y`` and ``theta``.
+   particle's ``theta``, scale it by its ``scale``, add it, and add Gaussian noise to ``x``, ``y``,
+   ``theta`` and ``scale``.
 4. :class:`MapLikelihood`: log-weight by the map class under each particle, looked up in a raster
    (0 in buildings, ``jaywalk_weight`` on the street, 1 elsewhere).
 5. :class:`GnssLikelihood`: log of an isotropic Gaussian centred on a fix, sigma proportional to the
@@ -69,6 +71,9 @@ class FilterConfig:
         Position noise per footstep, east and north: sigma = max(floor, fraction * step length).
     theta_noise_deg
         Heading-drift random walk per footstep (one sigma).
+    scale_init_sigma, scale_noise_per_step
+        Speed-scale spread around 1 at the start and its random walk per footstep (both 0: the
+        paper's three-state filter).
     init_position_sigma_m, init_theta_sigma_deg
         Spread around a known start pose.
     gnss_init_theta_sigma_deg
@@ -97,6 +102,8 @@ class FilterConfig:
     step_noise_fraction: float = field(default_factory=lambda: settings.filter_step_noise_fraction)
     step_noise_floor_m: float = field(default_factory=lambda: settings.filter_step_noise_floor_m)
     theta_noise_deg: float = field(default_factory=lambda: settings.filter_theta_noise_deg)
+    scale_init_sigma: float = field(default_factory=lambda: settings.filter_scale_init_sigma)
+    scale_noise_per_step: float = field(default_factory=lambda: settings.filter_scale_noise_per_step)
     init_position_sigma_m: float = field(default_factory=lambda: settings.filter_init_position_sigma_m)
     init_theta_sigma_deg: float = field(default_factory=lambda: settings.filter_init_theta_sigma_deg)
     gnss_init_theta_sigma_deg: float | None = field(
@@ -133,6 +140,8 @@ class ParticleSet:
         Metres east and north in the local CRS.
     theta
         Heading drift, radians: the inertial velocity is rotated counter-clockwise by it.
+    scale
+        Speed scale: the inertial displacement is multiplied by it.
     log_weight
         Unnormalised log-weights (``-inf`` = weight 0).
     """
@@ -141,6 +150,7 @@ class ParticleSet:
         self.x = np.zeros(n)
         self.y = np.zeros(n)
         self.theta = np.zeros(n)
+        self.scale = np.ones(n)
         self.log_weight = np.full(n, -math.log(n))
 
     def __len__(self) -> int:
@@ -150,10 +160,11 @@ class ParticleSet:
 class InertialPredictor:
     """Motion model: displacement rotated by each particle's drift, plus Gaussian noise.
 
-    At each footstep ``theta`` first takes its random-walk increment, then every particle moves by the
-    step's displacement ``(dx, dy)`` rotated by its own ``theta``, plus isotropic position noise with
-    sigma ``max(step_noise_floor_m, step_noise_fraction * |(dx, dy)|)``: the error of an inertial step
-    grows with its length (scale error), and the floor keeps standing-still clouds alive.
+    At each footstep ``theta`` and ``scale`` first take their random-walk increments, then every
+    particle moves by the step's displacement ``(dx, dy)`` rotated by its own ``theta`` and multiplied
+    by its own ``scale``, plus isotropic position noise with sigma ``max(step_noise_floor_m,
+    step_noise_fraction * |(dx, dy)|)``: the error of an inertial step grows with its length, and the
+    floor keeps standing-still clouds alive.
 
     Parameters
     ----------
@@ -169,14 +180,17 @@ class InertialPredictor:
         self.noise_fraction = config.step_noise_fraction
         self.noise_floor_m = config.step_noise_floor_m
         self.theta_sigma = math.radians(config.theta_noise_deg)
-        self.noise = np.empty((3, n))  # standard normals: x, y, theta
+        self.scale_sigma = config.scale_noise_per_step
+        self.noise = np.zeros((4, n))  # standard normals: x, y, theta, scale
+        # Without a scale random walk its row stays zero and is not drawn (fewer normals per step).
+        self._drawn = self.noise if self.scale_sigma > 0 else self.noise[:3]
         self.cos_theta = np.empty(n)
         self.sin_theta = np.empty(n)
         self._tmp = np.empty(n)
 
     def draw_noise(self, dx: float, dy: float) -> float:
         """Draw this step's standard normals into :attr:`noise`; return the position sigma (m)."""
-        self.rng.standard_normal(out=self.noise)
+        self.rng.standard_normal(out=self._drawn)
         return max(self.noise_floor_m, self.noise_fraction * math.hypot(dx, dy))
 
     def predict(self, particles: ParticleSet, dx: float, dy: float) -> None:
@@ -188,18 +202,20 @@ class InertialPredictor:
         noise, c, s, tmp = self.noise, self.cos_theta, self.sin_theta, self._tmp
         noise[:2] *= sigma_xy
         noise[2] *= self.theta_sigma
+        noise[3] *= self.scale_sigma
         particles.theta += noise[2]
+        particles.scale += noise[3]
         np.cos(particles.theta, out=c)
         np.sin(particles.theta, out=s)
-        # x += dx cos - dy sin + noise;  y += dx sin + dy cos + noise
+        # x += scale (dx cos - dy sin) + noise;  y += scale (dx sin + dy cos) + noise
         np.multiply(c, dx, out=tmp)
+        tmp -= s * dy
+        tmp *= particles.scale
         particles.x += tmp
-        np.multiply(s, dy, out=tmp)
-        particles.x -= tmp
         particles.x += noise[0]
         np.multiply(s, dx, out=tmp)
-        particles.y += tmp
-        np.multiply(c, dy, out=tmp)
+        tmp += c * dy
+        tmp *= particles.scale
         particles.y += tmp
         particles.y += noise[1]
 
@@ -386,7 +402,7 @@ class SystematicResampler:
         idx = self._idx
         idx[...] = np.searchsorted(self._cumulative, self._positions, side="right")
         np.minimum(idx, self._last, out=idx)
-        for name in ("x", "y", "theta"):
+        for name in ("x", "y", "theta", "scale"):
             current = getattr(particles, name)
             np.take(current, idx, out=self._spare)
             setattr(particles, name, self._spare)
@@ -401,19 +417,21 @@ class SystematicResampler:
 
 @numba.njit(cache=True, nogil=True)
 def _predict_and_weigh(
-    x, y, theta, log_weight, cos_theta, sin_theta, noise, dx, dy, sigma_xy, sigma_theta,
-    use_map, padded, inv_res, x_offset, y_offset, col_max, row_max, stride, log_table,
+    x, y, theta, scale, log_weight, cos_theta, sin_theta, noise, dx, dy, sigma_xy, sigma_theta,
+    sigma_scale, use_map, padded, inv_res, x_offset, y_offset, col_max, row_max, stride, log_table,
     use_fix, fix_x, fix_y, fix_scale, fix_log_norm,
 ):  # pragma: no cover - compiled
     for i in range(x.shape[0]):
         th = theta[i] + sigma_theta * noise[2, i]
         theta[i] = th
+        sc = scale[i] + sigma_scale * noise[3, i]
+        scale[i] = sc
         c = math.cos(th)
         s = math.sin(th)
         cos_theta[i] = c
         sin_theta[i] = s
-        xi = x[i] + c * dx - s * dy + sigma_xy * noise[0, i]
-        yi = y[i] + s * dx + c * dy + sigma_xy * noise[1, i]
+        xi = x[i] + (c * dx - s * dy) * sc + sigma_xy * noise[0, i]
+        yi = y[i] + (s * dx + c * dy) * sc + sigma_xy * noise[1, i]
         x[i] = xi
         y[i] = yi
         lw = log_weight[i]
@@ -429,37 +447,40 @@ def _predict_and_weigh(
 
 
 @numba.njit(cache=True, nogil=True)
-def _normalise_and_estimate(log_weight, weights, x, y, cos_theta, sin_theta):  # pragma: no cover
+def _normalise_and_estimate(log_weight, weights, x, y, scale, cos_theta, sin_theta):  # pragma: no cover
     n = log_weight.shape[0]
     peak = -math.inf
     for i in range(n):
         lw = log_weight[i]
         if lw != lw:
-            return False, 0.0, 0.0, 0.0, 0.0
+            return False, 0.0, 0.0, 0.0, 0.0, 0.0
         peak = max(peak, lw)
     if peak == -math.inf:
-        return False, 0.0, 0.0, 0.0, 0.0
+        return False, 0.0, 0.0, 0.0, 0.0, 0.0
     total = 0.0
     for i in range(n):
         w = math.exp(log_weight[i] - peak)
         weights[i] = w
         total += w
     log_total = math.log(total)
-    ex = ey = ec = es = sq = 0.0
+    ex = ey = esc = ec = es = sq = 0.0
     for i in range(n):
         w = weights[i] / total
         weights[i] = w
         log_weight[i] = log_weight[i] - peak - log_total
         ex += w * x[i]
         ey += w * y[i]
+        esc += w * scale[i]
         ec += w * cos_theta[i]
         es += w * sin_theta[i]
         sq += w * w
-    return True, ex, ey, math.atan2(es, ec), 1.0 / sq
+    return True, ex, ey, math.atan2(es, ec), esc, 1.0 / sq
 
 
 @numba.njit(cache=True, nogil=True)
-def _systematic_resample(weights, u0, x, y, theta, x_out, y_out, theta_out):  # pragma: no cover
+def _systematic_resample(
+    weights, u0, x, y, theta, scale, x_out, y_out, theta_out, scale_out
+):  # pragma: no cover - compiled
     # One merge pass: position k goes to the first particle whose cumulative weight exceeds it.
     n = weights.shape[0]
     j = 0
@@ -472,6 +493,7 @@ def _systematic_resample(weights, u0, x, y, theta, x_out, y_out, theta_out):  # 
         x_out[k] = x[j]
         y_out[k] = y[j]
         theta_out[k] = theta[j]
+        scale_out[k] = scale[j]
 
 
 class Estimate(NamedTuple):
@@ -485,6 +507,8 @@ class Estimate(NamedTuple):
         Weighted mean position, metres in the local CRS.
     theta
         Weighted circular mean of the heading drift, radians.
+    scale
+        Weighted mean speed scale.
     n_eff
         Effective sample size before resampling.
     recovered
@@ -497,6 +521,7 @@ class Estimate(NamedTuple):
     x: float
     y: float
     theta: float
+    scale: float
     n_eff: float
     recovered: bool
     frame: LocalFrame | None = None
@@ -567,7 +592,7 @@ class Tracker:
         self._ess_threshold = self.config.ess_fraction * n
         self._log_uniform = -math.log(n)
         self._fast = self.config.backend == "numba"
-        self._spare = (np.empty(n), np.empty(n), np.empty(n))
+        self._spare = (np.empty(n), np.empty(n), np.empty(n), np.empty(n))
         lookup = self.map_likelihood.lookup if self.map_likelihood is not None else None
         self._map_args = (
             (True, lookup.padded, lookup.inv_res, lookup.x_offset, lookup.y_offset, lookup.col_max,
@@ -638,6 +663,10 @@ class Tracker:
             p.theta[:] = self.rng.uniform(-math.pi, math.pi, n)
         else:
             p.theta[:] = theta + theta_sigma * self.rng.standard_normal(n)
+        if self.config.scale_init_sigma > 0:
+            p.scale[:] = 1.0 + self.config.scale_init_sigma * self.rng.standard_normal(n)
+        else:
+            p.scale.fill(1.0)
         np.cos(p.theta, out=self.predictor.cos_theta)
         np.sin(p.theta, out=self.predictor.sin_theta)
         p.log_weight.fill(-math.log(n))
@@ -708,28 +737,29 @@ class Tracker:
         else:
             fix_args = (True, fix.x, fix.y, *self.gnss_likelihood.coefficients(fix))
         _predict_and_weigh(
-            p.x, p.y, p.theta, p.log_weight, pred.cos_theta, pred.sin_theta, pred.noise, dx, dy,
-            sigma_xy, pred.theta_sigma, *self._map_args, *fix_args,
+            p.x, p.y, p.theta, p.scale, p.log_weight, pred.cos_theta, pred.sin_theta, pred.noise, dx, dy,
+            sigma_xy, pred.theta_sigma, pred.scale_sigma, *self._map_args, *fix_args,
         )
 
-    def _normalise_and_estimate(self) -> tuple[bool, float, float, float, float]:
-        """``(ok, x, y, theta, n_eff)`` after normalising the weights in place."""
+    def _normalise_and_estimate(self) -> tuple[bool, float, float, float, float, float]:
+        """``(ok, x, y, theta, scale, n_eff)`` after normalising the weights in place."""
         p, w = self.particles, self._weights
         c, s = self.predictor.cos_theta, self.predictor.sin_theta
         if self._fast:
-            return _normalise_and_estimate(p.log_weight, w, p.x, p.y, c, s)
+            return _normalise_and_estimate(p.log_weight, w, p.x, p.y, p.scale, c, s)
         if not normalise_log_weights(p.log_weight, w):
-            return False, 0.0, 0.0, 0.0, 0.0
+            return False, 0.0, 0.0, 0.0, 0.0, 0.0
         theta = math.atan2(float(np.dot(w, s)), float(np.dot(w, c)))
-        return True, float(np.dot(w, p.x)), float(np.dot(w, p.y)), theta, effective_sample_size(w)
+        x, y, scale = float(np.dot(w, p.x)), float(np.dot(w, p.y)), float(np.dot(w, p.scale))
+        return True, x, y, theta, scale, effective_sample_size(w)
 
     def _update(self, t: float) -> Estimate:
         """Normalise, recover from a collapse, estimate, resample."""
-        ok, x, y, theta, n_eff = self._normalise_and_estimate()
+        ok, x, y, theta, scale, n_eff = self._normalise_and_estimate()
         if not ok:
             self._recover(t)  # leaves finite weights, so the second pass succeeds
-            _, x, y, theta, n_eff = self._normalise_and_estimate()
-        estimate = Estimate(t, x, y, theta, n_eff, not ok, self.frame)
+            _, x, y, theta, scale, n_eff = self._normalise_and_estimate()
+        estimate = Estimate(t, x, y, theta, scale, n_eff, not ok, self.frame)
         if self.config.resample == "always" or n_eff < self._ess_threshold:
             self._resample()
         self.last_estimate = estimate
@@ -740,10 +770,10 @@ class Tracker:
         if not self._fast:
             self.resampler.resample(p, self._weights)
             return
-        x_out, y_out, theta_out = self._spare
-        _systematic_resample(self._weights, self.rng.random(), p.x, p.y, p.theta, x_out, y_out, theta_out)
-        self._spare = (p.x, p.y, p.theta)
-        p.x, p.y, p.theta = x_out, y_out, theta_out
+        out = self._spare
+        _systematic_resample(self._weights, self.rng.random(), p.x, p.y, p.theta, p.scale, *out)
+        self._spare = (p.x, p.y, p.theta, p.scale)
+        p.x, p.y, p.theta, p.scale = out
         p.log_weight.fill(self._log_uniform)
 
     def _recover(self, t: float) -> None:
@@ -751,7 +781,7 @@ class Tracker:
 
         Half the particles go around the cloud's predicted centre (where the last estimate has moved
         to), half around the latest usable fix (all of them when one of the two is missing). Drift
-        angles are kept: the heading belief is still informative. Weights then come from the map
+        angles and speed scales are kept: those beliefs are still informative. Weights then come from the map
         alone; if even that kills every particle, they are made uniform.
         """
         self.recoveries += 1
@@ -771,8 +801,8 @@ class Tracker:
         cxs, cys, sig = (np.array(v)[which] for v in zip(*centres, strict=True))
         p.x[:] = cxs + sig * self.rng.standard_normal(n)
         p.y[:] = cys + sig * self.rng.standard_normal(n)
-        bad_theta = ~np.isfinite(p.theta)
-        p.theta[bad_theta] = 0.0
+        p.theta[~np.isfinite(p.theta)] = 0.0
+        p.scale[~np.isfinite(p.scale)] = 1.0
         np.cos(p.theta, out=self.predictor.cos_theta)
         np.sin(p.theta, out=self.predictor.sin_theta)
         p.log_weight.fill(-math.log(n))

@@ -50,7 +50,7 @@ MODES = ("gnss", "inertial", "fused")
 VELOCITY_SOURCES = ("auto", "file", "ronin", "pdr")
 
 #: Columns of ``track.csv`` in order (``sidewalk_segment_id`` is added when the map has sidewalks).
-TRACK_COLUMNS = ("t", "lat", "lon", "x_m", "y_m", "theta_drift_deg", "n_eff", "recovered")
+TRACK_COLUMNS = ("t", "lat", "lon", "x_m", "y_m", "theta_drift_deg", "speed_scale", "n_eff", "recovered")
 
 #: Velocity samples further apart than this (s) are a gap: no motion is integrated across it.
 VELOCITY_MAX_GAP_S = 1.0
@@ -98,7 +98,8 @@ class TrackResult:
         How many times the particle cloud collapsed and was re-seeded.
     snapshots
         With ``save_particles``: ``t`` ``(K,)``, ``x``, ``y`` ``(K, N)`` float32 metres relative to
-        ``origin``, ``theta`` ``(K, N)`` float32 radians, ``origin`` ``(2,)``, ``crs`` (WKT).
+        ``origin``, ``theta`` ``(K, N)`` float32 radians, ``scale`` ``(K, N)`` float32, ``origin``
+        ``(2,)``, ``crs`` (WKT).
     config
         The filter parameters used (``None`` in ``gnss`` mode).
     """
@@ -361,8 +362,8 @@ def _gnss_track(
     x, y = np.interp(t, tf, xf), np.interp(t, tf, yf)
     n = len(t)
     return pd.DataFrame(
-        {"t": t, "x_m": x, "y_m": y, "theta_drift_deg": np.full(n, np.nan), "n_eff": np.full(n, np.nan),
-         "recovered": np.zeros(n, dtype=int)}
+        {"t": t, "x_m": x, "y_m": y, "theta_drift_deg": np.full(n, np.nan), "speed_scale": np.full(n, np.nan),
+         "n_eff": np.full(n, np.nan), "recovered": np.zeros(n, dtype=int)}
     )
 
 
@@ -491,6 +492,7 @@ def track_session(
             "x_m": [e.x for e in estimates],
             "y_m": [e.y for e in estimates],
             "theta_drift_deg": np.degrees([e.theta for e in estimates]),
+            "speed_scale": [e.scale for e in estimates],
             "n_eff": [e.n_eff for e in estimates],
             "recovered": np.array([e.recovered for e in estimates], dtype=int),
         }
@@ -532,7 +534,7 @@ def _filter_steps(
 
 def _snapshot(tracker: Tracker) -> tuple[np.ndarray, ...]:
     p = tracker.particles
-    return p.x.copy(), p.y.copy(), p.theta.copy()
+    return p.x.copy(), p.y.copy(), p.theta.copy(), p.scale.copy()
 
 
 def _stack_snapshots(
@@ -545,6 +547,7 @@ def _stack_snapshots(
         "x": (np.stack([s[0] for s in snaps]) - origin[0]).astype(np.float32),
         "y": (np.stack([s[1] for s in snaps]) - origin[1]).astype(np.float32),
         "theta": np.stack([s[2] for s in snaps]).astype(np.float32),
+        "scale": np.stack([s[3] for s in snaps]).astype(np.float32),
         "origin": origin,
         "crs": np.array(frame.crs.to_wkt()),
     }

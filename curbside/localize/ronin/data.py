@@ -16,8 +16,8 @@ Sources
     with the segment's direction in the plan; the length-weighted circular mean of these
     differences over a path rotates its waypoints into the rotation vector's East-North-Up frame.
     When a path's differences disagree (resultant length below ``min_heading_consistency``), the
-    circular median of its floor is used instead. This also absorbs the magnetic heading bias of
-    that path indoors.
+    circular mean of its floor (over consistent paths) is used instead. This also absorbs the
+    magnetic heading bias of that path indoors.
 ``ipin2023-t3.h5`` (IPIN 2023 Track 3)
     Surveyed waypoints in lat/lon, projected onto a local azimuthal-equidistant plane around the
     first waypoint (true north up). The rotation vector's north is magnetic and disturbed indoors
@@ -52,6 +52,7 @@ from tqdm.auto import tqdm
 from curbside.errors import CurbsideInputError
 from curbside.io import atomic_path
 from curbside.localize.imu import world_frame_segments
+from curbside.localize.pdr import forward_heading_vectors
 
 logger = logging.getLogger(__name__)
 
@@ -148,16 +149,6 @@ def _rotate_xy(xy: np.ndarray, angle: float) -> np.ndarray:
     return xy @ np.array([[c, s], [-s, c]])
 
 
-def forward_axis_xy(quat_xyzw: np.ndarray) -> np.ndarray:
-    """Horizontal unit vectors of a phone's forward direction (device ``+y - z``) in the world frame.
-
-    The sum of the top edge and the back of the phone points forward from flat to upright poses.
-    """
-    world = Rotation.from_quat(quat_xyzw).apply([0.0, 1.0, -1.0])[:, :2]
-    norm = np.linalg.norm(world, axis=1, keepdims=True)
-    return np.divide(world, norm, out=np.zeros_like(world), where=norm > 1e-9)
-
-
 def plan_rotation(t: np.ndarray, forward_xy: np.ndarray, waypoints: np.ndarray,
                   min_segment_m: float = 2.0) -> tuple[float, float]:
     """Rotation (rad, counter-clockwise) taking a path's plan-frame waypoints into the IMU world frame.
@@ -167,7 +158,8 @@ def plan_rotation(t: np.ndarray, forward_xy: np.ndarray, waypoints: np.ndarray,
     t
         ``(N,)`` IMU times.
     forward_xy
-        ``(N, 2)`` forward-axis unit vectors in the world frame (:func:`forward_axis_xy`).
+        ``(N, 2)`` forward-axis unit vectors in the world frame
+        (:func:`curbside.localize.pdr.forward_heading_vectors`).
     waypoints
         ``(M, 3)`` ``t, x, y`` in the plan frame.
     min_segment_m
@@ -226,7 +218,8 @@ def read_ms_indoor(path: str | Path, min_heading_consistency: float = 0.8, progr
     path
         The HDF5 file (layout ``/<site>/<floor>/<path_id>/{acce,gyro,rotvec,waypoints}``).
     min_heading_consistency
-        Paths whose per-segment rotation estimates agree less than this use their floor's median.
+        Paths whose per-segment rotation estimates agree less than this use their floor's
+        circular mean.
     progress
         Show a progress bar.
     keep_imu
@@ -258,7 +251,7 @@ def read_ms_indoor(path: str | Path, min_heading_consistency: float = 0.8, progr
                 continue
             imu = pd.DataFrame(np.hstack([acce[:n], gyro[:n, 1:], rv[:n, 1:5]]),
                                columns=["t", "ax", "ay", "az", "gx", "gy", "gz", "qx", "qy", "qz", "qw"])
-            angle, consistency = plan_rotation(imu["t"].to_numpy(), forward_axis_xy(rv[:n, 1:5]), wp)
+            angle, consistency = plan_rotation(imu["t"].to_numpy(), forward_heading_vectors(imu), wp)
             raw.append((key, imu, wp, angle, consistency))
     floors: dict[str, list[float]] = {}
     for key, _, _, angle, consistency in raw:
@@ -316,8 +309,8 @@ def read_ipin(path: str | Path, min_heading_consistency: float = 0.8, progress: 
         positions = np.column_stack([wp["t"].to_numpy(), x, y])
         name = f"ipin/{session.name}"
         if split_of(name, "ipin") != "test":
-            quat = session.imu[["qx", "qy", "qz", "qw"]].to_numpy()
-            angle, consistency = plan_rotation(session.imu["t"].to_numpy(), forward_axis_xy(quat), positions)
+            forward = forward_heading_vectors(session.imu)
+            angle, consistency = plan_rotation(session.imu["t"].to_numpy(), forward, positions)
             if consistency >= min_heading_consistency:
                 positions[:, 1:] = _rotate_xy(positions[:, 1:], angle)
         source = f"{Path(path).name}::{trial}"

@@ -24,6 +24,7 @@ import torch
 from torch import nn
 from tqdm.auto import tqdm
 
+from curbside.errors import CurbsideInputError
 from curbside.io import atomic_path
 from curbside.localize.ronin.data import WindowSet
 from curbside.localize.ronin.infer import config_path_for
@@ -65,7 +66,11 @@ class TrainOptions:
     seed: int = 0
     device: str = "cpu"
     num_threads: int = 2
-    val_every: int = 2
+    val_every: int = 1
+
+    def schedule_key(self) -> dict:
+        """The options a resumed run must share with the checkpoint (not the device or threads)."""
+        return {k: v for k, v in asdict(self).items() if k not in ("device", "num_threads")}
 
 
 def normalisation_stats(features: np.ndarray) -> tuple[list[float], list[float]]:
@@ -158,7 +163,8 @@ def train(train_set: WindowSet, val_set: WindowSet, options: TrainOptions, out: 
     out
         Weights path (``.pt``; the config goes to ``.json`` beside it).
     checkpoint
-        Resumable state, written after each epoch; training resumes from it when it exists.
+        Resumable state, written after each epoch; training resumes from it when it exists (it
+        must come from a run with the same options, see :meth:`TrainOptions.schedule_key`).
     extra
         Stored in the config's ``extra`` (data sources, split...).
     progress
@@ -185,6 +191,8 @@ def train(train_set: WindowSet, val_set: WindowSet, options: TrainOptions, out: 
     start_epoch = 0
     if checkpoint is not None and Path(checkpoint).is_file():
         state = torch.load(checkpoint, map_location=device, weights_only=True)
+        if json.loads(state.get("options", "{}")) != options.schedule_key():
+            raise CurbsideInputError(checkpoint, "checkpoint of a run with other options (epochs, seed...)")
         model.load_state_dict(state["model"])
         optimiser.load_state_dict(state["optimiser"])
         schedule.load_state_dict(state["schedule"])
@@ -233,5 +241,6 @@ def train(train_set: WindowSet, val_set: WindowSet, options: TrainOptions, out: 
         if checkpoint is not None:
             with atomic_path(checkpoint) as tmp:
                 torch.save({"model": model.state_dict(), "optimiser": optimiser.state_dict(),
-                            "schedule": schedule.state_dict(), "history": json.dumps(history)}, tmp)
+                            "schedule": schedule.state_dict(), "history": json.dumps(history),
+                            "options": json.dumps(options.schedule_key())}, tmp)
     return history
