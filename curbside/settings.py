@@ -118,6 +118,23 @@ gnss_sigma_factor: float = 1.5
 #: Fixes reporting a worse accuracy than this (metres) make no update.
 gnss_max_accuracy_m: float = 50.0
 
+#: Robust GNSS likelihood (docs/filter.md, "GNSS fusion"): weight of a flat outlier component, the
+#: uniform density over a disc of gnss_outlier_radius_m, mixed with the Gaussian. It bounds how much one
+#: fix can lower a particle's weight (multipath and wrong-sidewalk fixes report a few metres). 0.2 was
+#: the best of 0 / 0.05 / 0.2 on the IPIN 2023 training trials (benchmarks/tune_gnss_ipin.py).
+gnss_outlier_prob: float = 0.2
+gnss_outlier_radius_m: float = 50.0
+
+#: Time constant (s) of the GNSS error, treated as first-order Gauss-Markov: a fix dt seconds after the
+#: previous one counts as (1 - rho) / (1 + rho) of an independent fix, rho = exp(-dt / tau). 0: none.
+#: On the IPIN training trials 3 s was neutral and 10 / 30 s worse, so it is off.
+gnss_error_correlation_s: float = 0.0
+
+#: How fixes are associated with footsteps: "interpolate" (the paper: a fix interpolated at every
+#: footstep, so each 1 Hz fix is used about twice at 2 Hz footsteps) or "once" (each fix is applied at
+#: the first footstep at or after it, and never again; chosen on the IPIN training trials).
+gnss_fix_association: str = "once"
+
 #: A fix is interpolated at a footstep when both bracketing fixes are this close in time (s) ...
 gnss_interp_max_gap_s: float = 2.0
 #: ... else the latest earlier fix is used if not older than this (s); staler: no update.

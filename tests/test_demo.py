@@ -21,7 +21,7 @@ def small_build(monkeypatch, test_data):
 
 
 def test_demo_writes_geojson_png_html_and_prints_the_summary(tmp_path, small_build, capsys):
-    written = demo.run_demo(tmp_path / "out")
+    written = demo.run_demo(tmp_path / "out", demo.MAP_STAGES)
     assert set(written) == {"map_geojson", "map_png", "map_html"}
     assert all(p.is_file() and p.parent == tmp_path / "out" for p in written.values())
     assert written["map_png"].read_bytes()[:4] == b"\x89PNG"
@@ -42,22 +42,27 @@ def test_later_stages_append_and_see_earlier_results(tmp_path, small_build):
         path.write_text(json.dumps(seen))
         return {"extra": path}
 
-    written = demo.run_demo(tmp_path, [*demo.STAGES, demo.Stage("extra", extra)])
+    written = demo.run_demo(tmp_path, [*demo.MAP_STAGES, demo.Stage("extra", extra)])
     assert seen["classes"] == sorted(CLASSES)
     assert list(written)[-1] == "extra" and written["extra"].is_file()
 
 
 def test_demo_command_line(tmp_path, small_build, capsys):
-    assert demo.main(["--out", str(tmp_path / "o")]) == 0
+    assert demo.main(["--out", str(tmp_path / "o"), "--map-only"]) == 0
     assert "map_html" in capsys.readouterr().out
     assert sorted(p.name for p in (tmp_path / "o").iterdir()) == ["map.geojson", "map.html", "map.png"]
 
 
 @pytest.mark.slow
-def test_demo_builds_the_bundled_default_area(tmp_path, capsys):
+def test_demo_end_to_end_on_the_bundled_default_area(tmp_path, capsys):
     written = demo.run_demo(tmp_path)
     layers = read_map(written["map_geojson"])
     summary = class_summary(layers)
     assert (summary["count"] > 100).all()  # every class is there, in numbers, for downtown SF
     assert layers.meta["source"].endswith(".osm.bz2")
-    assert "sidewalk" in capsys.readouterr().out
+    out = capsys.readouterr().out
+    assert "sidewalk" in out
+    metrics = json.loads((tmp_path / "benchmark" / "report" / "metrics.json").read_text())
+    assert metrics, "the benchmark report has metrics"
+    html = (tmp_path / "benchmark" / "report" / "report.html").read_text(encoding="utf-8")
+    assert "Correct Sidewalk Assignment" in html or "CSA" in html

@@ -38,6 +38,7 @@ from curbside.localize.maplikelihood import (
     rasterize_map,
     rasterize_mask,
 )
+from curbside.localize.pipeline import fresh_fixes_at
 from curbside.osmseg.mapio import MapLayers
 
 UTM10 = 32610
@@ -179,6 +180,56 @@ def test_gnss_likelihood_is_the_gaussian_log_density_and_prefers_near_particles(
     assert out[0] > out[1] > out[2]
 
 
+def test_gnss_mixture_is_the_mixture_density_and_bounded_below():
+    eps, radius = 0.1, 50.0
+    lik = GnssLikelihood(sigma_factor=1.5, max_accuracy_m=50.0, outlier_prob=eps, outlier_radius_m=radius)
+    fix = GnssFix(10.0, -4.0, 6.0)
+    x, y = np.array([10.0, 14.0, 40.0, 1e4]), np.array([-4.0, -1.0, 20.0, 1e4])
+    out = lik.log_likelihood(x, y, fix, np.empty(4), np.empty(4))
+    gauss = multivariate_normal([10.0, -4.0], (1.5 * 6.0) ** 2 * np.eye(2)).pdf(np.column_stack([x, y]))
+    floor = eps / (math.pi * radius**2)
+    np.testing.assert_allclose(out, np.log((1 - eps) * gauss + floor))
+    assert out[0] > out[1] > out[2] and out[3] == pytest.approx(math.log(floor))
+    tempered = lik.log_likelihood(x, y, fix, np.empty(4), np.empty(4), exponent=0.25)
+    np.testing.assert_allclose(tempered, 0.25 * out)
+
+
+@pytest.mark.parametrize("backend", ["numba", "numpy"])
+def test_an_outlier_fix_cannot_drag_or_kill_the_cloud(backend):
+    def after_far_fix(outlier_prob):
+        cfg = quiet_config(n_particles=500, backend=backend, init_position_sigma_m=1.0,
+                           gnss_outlier_prob=outlier_prob, gnss_sigma_factor=1.5)
+        tracker = Tracker(None, cfg, seed=3, frame=None)
+        tracker.start_at_pose(0.0, 0.0, 0.0)
+        return tracker.step(1.0, displacement_en=(0.0, 0.0), gnss_fix=GnssFix(30.0, 0.0, 3.0))
+
+    plain, robust = after_far_fix(0.0), after_far_fix(0.2)
+    assert plain.n_eff < 0.5 * 500  # the Gaussian alone pulls the cloud towards a fix 30 m away
+    assert robust.n_eff > 0.95 * 500 and not robust.recovered
+    assert math.hypot(robust.x, robust.y) < 0.2
+
+
+def test_tempering_counts_correlated_fixes_by_their_effective_number():
+    lik = GnssLikelihood(1.5, 50.0, correlation_time_s=10.0)
+    rho = math.exp(-1.0 / 10.0)
+    assert lik.exponent(1.0) == pytest.approx((1 - rho) / (1 + rho))
+    assert 2 * lik.exponent(0.5) == pytest.approx(lik.exponent(1.0), rel=0.01)  # 2 Hz reuse: no extra weight
+    assert lik.exponent(math.inf) == 1.0 and lik.exponent(1e4) == pytest.approx(1.0)
+    assert GnssLikelihood(1.5, 50.0).exponent(0.5) == 1.0
+
+
+def test_each_fix_is_applied_once_at_the_first_footstep_at_or_after_it():
+    tf = np.array([0.2, 1.2, 2.2, 2.4, 10.0])
+    fixes = (tf, tf * 10.0, np.zeros(5), np.full(5, 5.0))
+    steps = np.arange(0.0, 8.01, 0.5)
+    x, _, acc = fresh_fixes_at(fixes, steps, max_age_s=3.0)
+    used = np.isfinite(acc)
+    np.testing.assert_allclose(steps[used], [0.5, 1.5, 2.5])
+    np.testing.assert_allclose(x[used], [2.0, 12.0, 24.0])  # two fixes in one step: the newer one
+    x, _, acc = fresh_fixes_at(fixes, np.array([5.0, 5.5]), max_age_s=2.0)
+    assert np.isnan(acc).all()  # 2.6 s old at the first footstep after it: stale
+
+
 @pytest.mark.parametrize("accuracy", [-1.0, 0.0, math.nan, math.inf, 80.0])
 def test_invalid_or_inaccurate_fixes_make_no_update(accuracy):
     assert not GnssLikelihood(1.0, 50.0).accepts(GnssFix(0.0, 0.0, accuracy))
@@ -276,8 +327,9 @@ def test_start_pose_in_a_building_moves_to_the_nearest_free_cell(caplog):
         Tracker(block_map(), FilterConfig(max_start_snap_m=5.0), seed=0).start_at_pose(0.0, X0, Y0 + 35.0)
 
 
-def _run_tracker(backend: str, seed: int, steps: int = 60) -> tuple[list, Tracker]:
-    cfg = FilterConfig(n_particles=400, backend=backend, scale_init_sigma=0.05, scale_noise_per_step=0.002)
+def _run_tracker(backend: str, seed: int, steps: int = 60, **kw) -> tuple[list, Tracker]:
+    cfg = FilterConfig(n_particles=400, backend=backend, scale_init_sigma=0.05, scale_noise_per_step=0.002,
+                       **kw)
     tracker = Tracker(block_map(), cfg, seed=seed)
     out = [tracker.start_at_pose(0.0, X0 - 60.0, Y0 + 8.0, 0.05)]
     for k in range(1, steps):
@@ -286,9 +338,10 @@ def _run_tracker(backend: str, seed: int, steps: int = 60) -> tuple[list, Tracke
     return out, tracker
 
 
-def test_numba_and_numpy_paths_agree():
-    fast, tf = _run_tracker("numba", seed=4)
-    ref, tr = _run_tracker("numpy", seed=4)
+@pytest.mark.parametrize("gnss", [{}, {"gnss_outlier_prob": 0.1, "gnss_error_correlation_s": 10.0}])
+def test_numba_and_numpy_paths_agree(gnss):
+    fast, tf = _run_tracker("numba", seed=4, **gnss)
+    ref, tr = _run_tracker("numpy", seed=4, **gnss)
     np.testing.assert_allclose([e.x for e in fast], [e.x for e in ref], rtol=0, atol=1e-6)
     np.testing.assert_allclose([e.n_eff for e in fast], [e.n_eff for e in ref], rtol=1e-9)
     np.testing.assert_allclose(tf.particles.x, tr.particles.x, rtol=0, atol=1e-6)
@@ -321,6 +374,8 @@ def test_fix_starts_an_unstarted_tracker_with_theta_over_the_full_circle():
 
 
 def test_config_rejects_bad_values():
-    for kw in ({"jaywalk_weight": 1.5}, {"n_particles": 0}, {"resample": "never"}, {"backend": "cuda"}):
+    for kw in ({"jaywalk_weight": 1.5}, {"n_particles": 0}, {"resample": "never"}, {"backend": "cuda"},
+               {"gnss_outlier_prob": 1.0}, {"gnss_outlier_radius_m": 0.0},
+               {"gnss_error_correlation_s": -1.0}):
         with pytest.raises(ValueError):
             FilterConfig(**kw)

@@ -11,8 +11,9 @@ Read it top to bottom:
    ``theta`` and ``scale``.
 4. :class:`MapLikelihood`: log-weight by the map class under each particle, looked up in a raster
    (0 in buildings, ``jaywalk_weight`` on the street, 1 elsewhere).
-5. :class:`GnssLikelihood`: log of an isotropic Gaussian centred on a fix, sigma proportional to the
-   reported accuracy.
+5. :class:`GnssLikelihood`: a robust GNSS likelihood: an isotropic Gaussian centred on a fix, sigma
+   proportional to the reported accuracy, mixed with a flat outlier density, and tempered for the
+   time correlation of successive fixes.
 6. :func:`normalise_log_weights`: weights stay in the log domain (products of many likelihoods never
    underflow) and are normalised with the log-sum-exp trick.
 7. :class:`SystematicResampler`: seeded, vectorised systematic resampling.
@@ -84,6 +85,13 @@ class FilterConfig:
         GNSS likelihood sigma = factor * reported accuracy.
     gnss_max_accuracy_m
         Fixes with a worse reported accuracy make no update.
+    gnss_outlier_prob
+        Weight of the flat outlier component of the GNSS likelihood, in [0, 1).
+    gnss_outlier_radius_m
+        The outlier component is the uniform density over a disc of this radius, ``1 / (pi R^2)``.
+    gnss_error_correlation_s
+        Time constant (s) of the GNSS error; each fix's log-likelihood is tempered by the fraction of an
+        independent fix it carries (0: successive fixes are independent, no tempering).
     resample
         ``"always"`` (every footstep, as the paper) or ``"ess"`` (when the effective sample size drops
         below ``ess_fraction * n_particles``).
@@ -112,6 +120,9 @@ class FilterConfig:
     recovery_sigma_m: float = field(default_factory=lambda: settings.filter_recovery_sigma_m)
     gnss_sigma_factor: float = field(default_factory=lambda: settings.gnss_sigma_factor)
     gnss_max_accuracy_m: float = field(default_factory=lambda: settings.gnss_max_accuracy_m)
+    gnss_outlier_prob: float = field(default_factory=lambda: settings.gnss_outlier_prob)
+    gnss_outlier_radius_m: float = field(default_factory=lambda: settings.gnss_outlier_radius_m)
+    gnss_error_correlation_s: float = field(default_factory=lambda: settings.gnss_error_correlation_s)
     resample: str = field(default_factory=lambda: settings.filter_resample)
     ess_fraction: float = field(default_factory=lambda: settings.filter_ess_fraction)
     raster_resolution_m: float = field(default_factory=lambda: settings.raster_resolution_m)
@@ -129,6 +140,14 @@ class FilterConfig:
             raise ValueError(f"backend must be one of {BACKENDS}, got {self.backend!r}")
         if not self.gnss_sigma_factor > 0:
             raise ValueError(f"gnss_sigma_factor must be positive, got {self.gnss_sigma_factor}")
+        if not 0.0 <= self.gnss_outlier_prob < 1.0:
+            raise ValueError(f"gnss_outlier_prob must lie in [0, 1), got {self.gnss_outlier_prob}")
+        if not self.gnss_outlier_radius_m > 0:
+            raise ValueError(f"gnss_outlier_radius_m must be positive, got {self.gnss_outlier_radius_m}")
+        if not self.gnss_error_correlation_s >= 0:
+            raise ValueError(
+                f"gnss_error_correlation_s must be non-negative, got {self.gnss_error_correlation_s}"
+            )
 
 
 class ParticleSet:
@@ -267,7 +286,23 @@ class GnssFix:
 
 
 class GnssLikelihood:
-    """Log of a bivariate isotropic Gaussian centred on the fix, sigma = factor * accuracy.
+    """Robust, tempered log-likelihood of particle positions given a GNSS fix.
+
+    Three ideas, each with one parameter:
+
+    - **Gaussian inlier**: an isotropic bivariate Gaussian centred on the fix with sigma = ``sigma_factor``
+      times the reported accuracy radius.
+    - **Outlier mixture**: in urban canyons a fix can be tens of metres off while reporting a few
+      metres (multipath, a reflected signal "on the other side of the street"). The likelihood is
+      ``(1 - outlier_prob) * Gaussian + outlier_prob / (pi R^2)``, a uniform density over a disc of
+      radius ``outlier_radius_m`` that bounds the likelihood below: however far the fix, it can lower
+      no particle's weight by more than a fixed factor, so one bad fix cannot wipe out the cloud.
+    - **Tempering**: urban GNSS errors are correlated over tens of seconds, so successive fixes are
+      far from independent. Treating the error as first-order Gauss-Markov with time constant
+      ``correlation_time_s``, fixes ``dt`` apart have correlation ``rho = exp(-dt / tau)`` and N of
+      them carry the information of ``N (1 - rho) / (1 + rho)`` independent ones (the effective sample
+      size of the mean of an AR(1) series). Each fix's log-likelihood is multiplied by that exponent,
+      so a fix repeated (or interpolated) twice in one second counts no more than once.
 
     Parameters
     ----------
@@ -275,11 +310,31 @@ class GnssLikelihood:
         Multiplies the reported accuracy radius.
     max_accuracy_m
         Fixes reporting a worse (larger) accuracy make no update.
+    outlier_prob
+        Weight of the outlier component, in [0, 1) (0: the plain Gaussian).
+    outlier_radius_m
+        Radius of the outlier disc, metres.
+    correlation_time_s
+        Time constant of the GNSS error, seconds (0: independent fixes, exponent 1).
     """
 
-    def __init__(self, sigma_factor: float, max_accuracy_m: float) -> None:
+    def __init__(
+        self,
+        sigma_factor: float,
+        max_accuracy_m: float,
+        outlier_prob: float = 0.0,
+        outlier_radius_m: float = 50.0,
+        correlation_time_s: float = 0.0,
+    ) -> None:
         self.sigma_factor = sigma_factor
         self.max_accuracy_m = max_accuracy_m
+        self.outlier_prob = outlier_prob
+        self.outlier_radius_m = outlier_radius_m
+        self.correlation_time_s = correlation_time_s
+        self.log_inlier_prob = math.log1p(-outlier_prob)
+        self.log_outlier_density = -math.inf  # no outlier component: the plain Gaussian
+        if outlier_prob > 0:
+            self.log_outlier_density = math.log(outlier_prob) - math.log(math.pi * outlier_radius_m**2)
 
     def accepts(self, fix: GnssFix | None) -> bool:
         """Whether ``fix`` is valid (finite position, accuracy > 0 and finite) and accurate enough."""
@@ -291,16 +346,32 @@ class GnssLikelihood:
             and 0.0 < fix.accuracy_m < self.max_accuracy_m
         )
 
-    def coefficients(self, fix: GnssFix) -> tuple[float, float]:
-        """``(a, b)`` with log-density = ``a * squared distance + b``."""
+    def coefficients(self, fix: GnssFix) -> tuple[float, float, float]:
+        """``(a, b, c)``: inlier log-density ``a * squared distance + b``, outlier log-density ``c``.
+
+        Both include their mixture weights, so the log-likelihood is ``logaddexp(a d^2 + b, c)``.
+        """
         variance = (self.sigma_factor * fix.accuracy_m) ** 2
-        return -0.5 / variance, -math.log(2.0 * math.pi * variance)
+        log_norm = self.log_inlier_prob - math.log(2.0 * math.pi * variance)
+        return -0.5 / variance, log_norm, self.log_outlier_density
+
+    def exponent(self, dt_s: float) -> float:
+        """Tempering exponent of a fix ``dt_s`` seconds after the previous one applied (inf: the first).
+
+        ``(1 - rho) / (1 + rho)`` with ``rho = exp(-dt_s / tau)``; 1 without correlation or for the first
+        fix.
+        """
+        if self.correlation_time_s <= 0 or not math.isfinite(dt_s):
+            return 1.0
+        rho = math.exp(-max(dt_s, 0.0) / self.correlation_time_s)
+        return (1.0 - rho) / (1.0 + rho)
 
     def log_likelihood(
-        self, x: np.ndarray, y: np.ndarray, fix: GnssFix, out: np.ndarray, tmp: np.ndarray
+        self, x: np.ndarray, y: np.ndarray, fix: GnssFix, out: np.ndarray, tmp: np.ndarray,
+        exponent: float = 1.0,
     ) -> np.ndarray:
-        """Log-density of each particle position under the fix's Gaussian (written into ``out``)."""
-        scale, log_norm = self.coefficients(fix)
+        """Tempered log-likelihood of each particle position given the fix (written into ``out``)."""
+        scale, log_norm, log_outlier = self.coefficients(fix)
         np.subtract(x, fix.x, out=out)
         np.square(out, out=out)
         np.subtract(y, fix.y, out=tmp)
@@ -308,6 +379,8 @@ class GnssLikelihood:
         out += tmp
         out *= scale
         out += log_norm
+        np.logaddexp(out, log_outlier, out=out)
+        out *= exponent
         return out
 
 
@@ -419,7 +492,7 @@ class SystematicResampler:
 def _predict_and_weigh(
     x, y, theta, scale, log_weight, cos_theta, sin_theta, noise, dx, dy, sigma_xy, sigma_theta,
     sigma_scale, use_map, padded, inv_res, x_offset, y_offset, col_max, row_max, stride, log_table,
-    use_fix, fix_x, fix_y, fix_scale, fix_log_norm,
+    use_fix, fix_x, fix_y, fix_scale, fix_log_norm, fix_log_outlier, fix_exponent,
 ):  # pragma: no cover - compiled
     for i in range(x.shape[0]):
         th = theta[i] + sigma_theta * noise[2, i]
@@ -442,7 +515,15 @@ def _predict_and_weigh(
         if use_fix:
             ex = xi - fix_x
             ey = yi - fix_y
-            lw += (ex * ex + ey * ey) * fix_scale + fix_log_norm
+            inlier = (ex * ex + ey * ey) * fix_scale + fix_log_norm
+            # logaddexp(inlier, fix_log_outlier), as numpy computes it
+            if fix_log_outlier == -math.inf:
+                ll = inlier
+            elif inlier >= fix_log_outlier:
+                ll = inlier + math.log1p(math.exp(fix_log_outlier - inlier))
+            else:
+                ll = fix_log_outlier + math.log1p(math.exp(inlier - fix_log_outlier))
+            lw += fix_exponent * ll
         log_weight[i] = lw
 
 
@@ -579,12 +660,16 @@ class Tracker:
             frame = LocalFrame(pyproj.CRS.from_wkt(raster.crs))
         self.frame = frame
         self.predictor = InertialPredictor(self.config, self.rng)
-        self.gnss_likelihood = GnssLikelihood(self.config.gnss_sigma_factor, self.config.gnss_max_accuracy_m)
+        self.gnss_likelihood = GnssLikelihood(
+            self.config.gnss_sigma_factor, self.config.gnss_max_accuracy_m, self.config.gnss_outlier_prob,
+            self.config.gnss_outlier_radius_m, self.config.gnss_error_correlation_s,
+        )
         self.resampler = SystematicResampler(n, self.rng)
         self.particles = ParticleSet(n)
         self.started = False
         self.last_estimate: Estimate | None = None
         self.last_fix: GnssFix | None = None
+        self.last_fix_t = -math.inf
         self.recoveries = 0
         self._weights = np.empty(n)
         self._loglik = np.empty(n)
@@ -652,7 +737,7 @@ class Tracker:
         sigma = self.gnss_likelihood.sigma_factor * fix.accuracy_m
         theta_sigma = self.config.gnss_init_theta_sigma_deg
         self._seed(fix.x, fix.y, sigma, 0.0, None if theta_sigma is None else math.radians(theta_sigma))
-        self.last_fix = fix
+        self.last_fix, self.last_fix_t = fix, t
         return self._update(t)
 
     def _seed(self, x: float, y: float, sigma_m: float, theta: float, theta_sigma: float | None) -> None:
@@ -715,27 +800,28 @@ class Tracker:
         if not self.started:
             return self.start_at_fix(t, gnss_fix) if use_fix else None
         p = self.particles
+        exponent = self.gnss_likelihood.exponent(t - self.last_fix_t) if use_fix else 0.0
         if self._fast:
-            self._predict_and_weigh_fast(dx, dy, gnss_fix if use_fix else None)
+            self._predict_and_weigh_fast(dx, dy, gnss_fix if use_fix else None, exponent)
         else:
             self.predictor.predict(p, dx, dy)
             if self.map_likelihood is not None:
                 p.log_weight += self.map_likelihood.log_likelihood(p.x, p.y, out=self._loglik)
             if use_fix:
                 p.log_weight += self.gnss_likelihood.log_likelihood(
-                    p.x, p.y, gnss_fix, self._loglik, self._tmp
+                    p.x, p.y, gnss_fix, self._loglik, self._tmp, exponent
                 )
         if use_fix:
-            self.last_fix = gnss_fix
+            self.last_fix, self.last_fix_t = gnss_fix, t
         return self._update(t)
 
-    def _predict_and_weigh_fast(self, dx: float, dy: float, fix: GnssFix | None) -> None:
+    def _predict_and_weigh_fast(self, dx: float, dy: float, fix: GnssFix | None, exponent: float) -> None:
         pred, p = self.predictor, self.particles
         sigma_xy = pred.draw_noise(dx, dy)
         if fix is None:
-            fix_args = (False, 0.0, 0.0, 0.0, 0.0)
+            fix_args = (False, 0.0, 0.0, 0.0, 0.0, -math.inf, 0.0)
         else:
-            fix_args = (True, fix.x, fix.y, *self.gnss_likelihood.coefficients(fix))
+            fix_args = (True, fix.x, fix.y, *self.gnss_likelihood.coefficients(fix), exponent)
         _predict_and_weigh(
             p.x, p.y, p.theta, p.scale, p.log_weight, pred.cos_theta, pred.sin_theta, pred.noise, dx, dy,
             sigma_xy, pred.theta_sigma, pred.scale_sigma, *self._map_args, *fix_args,

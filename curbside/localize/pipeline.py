@@ -17,11 +17,13 @@ given, else at the first footstep) with the drift chosen so that the first motio
 start heading; without a start pose (or when told to ignore it), from the first usable GNSS fix at or
 after the start time (in ``inertial`` mode too: that one fix only places the start).
 
-Fixes are taken at each footstep as the paper did: interpolated between the bracketing fixes when both
-lie within ``settings.gnss_interp_max_gap_s``, else the latest earlier fix if it is not older than
+Fixes are associated with footsteps by ``settings.gnss_fix_association``. ``"interpolate"`` (the
+paper): at each footstep, interpolated between the bracketing fixes when both lie within
+``settings.gnss_interp_max_gap_s``, else the latest earlier fix if it is not older than
 ``settings.gnss_max_fix_age_s``; otherwise no GNSS update (gaps of minutes run on inertial data
-alone). The interpolation looks up to 2 s ahead, which a batch run can do; a live app passes the
-latest fix to :meth:`Tracker.step` instead.
+alone). The interpolation looks up to 2 s ahead, which a batch run can do. ``"once"``: each fix is
+applied at the first footstep at or after it and never again (:func:`fresh_fixes_at`), as a live app
+passing its newest fix to :meth:`Tracker.step` would.
 """
 
 from __future__ import annotations
@@ -48,6 +50,7 @@ logger = logging.getLogger(__name__)
 
 MODES = ("gnss", "inertial", "fused")
 VELOCITY_SOURCES = ("auto", "file", "ronin", "pdr")
+GNSS_ASSOCIATIONS = ("interpolate", "once")
 
 #: Columns of ``track.csv`` in order (``sidewalk_segment_id`` is added when the map has sidewalks).
 TRACK_COLUMNS = ("t", "lat", "lon", "x_m", "y_m", "theta_drift_deg", "speed_scale", "n_eff", "recovered")
@@ -275,6 +278,43 @@ def fixes_at(
     return out[0], out[1], out[2]
 
 
+def fresh_fixes_at(
+    fixes: Fixes, times: np.ndarray, max_age_s: float | None = None
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Each fix once: the newest fix in ``(times[k-1], times[k]]`` at footstep ``k``, NaN where none.
+
+    Footsteps (about 2 Hz) come faster than fixes (1 Hz); interpolating at every footstep would apply
+    the same information about twice. Here a fix is used at the first footstep at or after it (at most
+    half a step late: well under a metre), and a footstep with no new fix makes no GNSS update.
+
+    Parameters
+    ----------
+    fixes
+        ``t, x, y, accuracy_m`` of valid fixes, ``t`` increasing.
+    times
+        Footstep times, increasing.
+    max_age_s
+        A fix older than this at the footstep is dropped (default ``settings.gnss_max_fix_age_s``).
+
+    Returns
+    -------
+    (x, y, accuracy_m)
+        Arrays of ``len(times)``.
+    """
+    max_age_s = settings.gnss_max_fix_age_s if max_age_s is None else max_age_s
+    tf, xf, yf, af = fixes
+    out = np.full((3, len(times)), np.nan)
+    if len(tf) == 0 or len(times) == 0:
+        return out[0], out[1], out[2]
+    newest = np.searchsorted(tf, times, side="right") - 1
+    before = np.concatenate([[-1], newest[:-1]])
+    p = np.clip(newest, 0, len(tf) - 1)
+    fresh = (newest > before) & (times - tf[p] <= max_age_s)
+    for row, values in enumerate((xf, yf, af)):
+        out[row] = np.where(fresh, values[p], np.nan)
+    return out[0], out[1], out[2]
+
+
 def start_heading_offset(heading_deg: float, displacements: np.ndarray) -> float:
     """Drift angle (rad, counter-clockwise) that turns the first motion onto the start heading.
 
@@ -456,7 +496,12 @@ def track_session(
         raise CurbsideInputError(session.name, "fewer than two footsteps after the start")
     disp = displacements_between(cumulative_displacement(inertial), steps)
     fixes = valid_fixes(session.gnss, frame)
-    fx, fy, facc = fixes_at(fixes, steps)
+    association = settings.gnss_fix_association
+    if association not in GNSS_ASSOCIATIONS:
+        raise CurbsideInputError(
+            "settings.gnss_fix_association", f"unknown {association!r}; one of {GNSS_ASSOCIATIONS}"
+        )
+    fx, fy, facc = (fresh_fixes_at if association == "once" else fixes_at)(fixes, steps)
     tracker = Tracker(
         load_or_build_raster(map_layers, config.raster_resolution_m) if map_layers is not None else None,
         config,
