@@ -22,40 +22,11 @@ import os
 from pathlib import Path
 
 from curbside import settings
+from curbside.cli.common import positive_float, positive_int, unit_interval
 from curbside.errors import CurbsideInputError
 from curbside.evaluate.runner import METHODS
 
 logger = logging.getLogger(__name__)
-
-
-def _positive_int(text: str) -> int:
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"not an integer: {text!r}") from None
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"must be at least 1, got {value}")
-    return value
-
-
-def _weight(text: str) -> float:
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"not a number: {text!r}") from None
-    if not 0.0 <= value <= 1.0:
-        raise argparse.ArgumentTypeError(f"must lie in [0, 1], got {value}")
-    return value
-
-
-def _positive_float(text: str) -> float:
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"not a number: {text!r}") from None
-    if not value > 0:
-        raise argparse.ArgumentTypeError(f"must be positive, got {value}")
-    return value
 
 
 def _simulate(args: argparse.Namespace) -> int:
@@ -184,10 +155,10 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     what.add_argument("--benchmark", choices=["sf6"], help="all six routes, --seeds recordings each")
     sim.add_argument("--seed", type=int, default=1, help="seed of one session (default 1)")
     sim.add_argument("--start", nargs=2, type=float, metavar=("LON", "LAT"), help="custom route: start")
-    sim.add_argument("--length-m", type=_positive_float, help="custom route: length in metres")
+    sim.add_argument("--length-m", type=positive_float, help="custom route: length in metres")
     sim.add_argument("--crossings", type=int, default=0, help="custom route: crosswalk crossings")
     sim.add_argument("--jaywalks", type=int, default=0, help="custom route: crossings off crosswalks")
-    sim.add_argument("--seeds", type=_positive_int, default=3, help="recordings per route for --benchmark")
+    sim.add_argument("--seeds", type=positive_int, default=3, help="recordings per route for --benchmark")
     sim.add_argument("--map", help="check the route against this map (extent, buildings)")
     sim.add_argument("--osm", help="OSM extract for heights and footways (default: the bundled one)")
     sim.add_argument("--imu", action="store_true", help="also write imu.csv (100 Hz phone IMU)")
@@ -201,19 +172,19 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     ev.add_argument("--map-names", nargs="+", help="labels of the maps (default: file stems)")
     ev.add_argument("--metrics-map", help="map whose sidewalk segments score every run (default: the first)")
     ev.add_argument("--methods", nargs="+", default=list(METHODS), choices=METHODS)
-    ev.add_argument("--jaywalk-weights", nargs="+", type=_weight, default=[0.0, 0.4, 1.0])
-    ev.add_argument("--particles", nargs="+", type=_positive_int, default=[settings.default_particles])
+    ev.add_argument("--jaywalk-weights", nargs="+", type=unit_interval, default=[0.0, 0.4, 1.0])
+    ev.add_argument("--particles", nargs="+", type=positive_int, default=[settings.default_particles])
     ev.add_argument(
         "--gnss-sigma-factors",
         nargs="+",
-        type=_positive_float,
+        type=positive_float,
         help="GNSS sigma = factor x accuracy (default: the filter's)",
     )
     ev.add_argument("--velocity-source", default="auto", choices=["auto", "file", "ronin", "pdr"])
     ev.add_argument("--seed", type=int, default=0, help="filter seed")
-    ev.add_argument("--workers", type=_positive_int, help="dask LocalCluster worker processes (1: serial)")
+    ev.add_argument("--workers", type=positive_int, help="dask LocalCluster worker processes (1: serial)")
     ev.add_argument("--scheduler", help="address of an existing dask scheduler")
     ev.add_argument("--ipin", help="IPIN 2023 HDF5: add the real-data table (no map)")
-    ev.add_argument("--ipin-trials", type=_positive_int, help="only the first K IPIN trials")
+    ev.add_argument("--ipin-trials", type=positive_int, help="only the first K IPIN trials")
     ev.add_argument("-o", "--output", required=True, help="report folder")
     ev.set_defaults(func=_evaluate)

@@ -18,32 +18,13 @@ import argparse
 import logging
 
 from curbside import settings
+from curbside.cli.common import positive_int, unit_interval
 from curbside.localize.pipeline import MODES, VELOCITY_SOURCES, track_session
 from curbside.localize.readers import read_any
 from curbside.localize.track import write_track
 from curbside.osmseg.mapio import read_map
 
 logger = logging.getLogger(__name__)
-
-
-def _positive_int(text: str) -> int:
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"not an integer: {text!r}") from None
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"must be at least 1, got {value}")
-    return value
-
-
-def _weight(text: str) -> float:
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"not a number: {text!r}") from None
-    if not 0.0 <= value <= 1.0:
-        raise argparse.ArgumentTypeError(f"must lie in [0, 1], got {value}")
-    return value
 
 
 def _run(args: argparse.Namespace) -> int:
@@ -89,9 +70,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument("session", help="session folder, Sensor Logger export, FILE.h5::TRIAL or .gpx")
     parser.add_argument("--map", help="map layers GeoJSON (osmseg build); none: no map likelihood")
     parser.add_argument("--mode", choices=MODES, default="fused", help="method (default: fused)")
-    parser.add_argument("--particles", type=_positive_int, default=settings.default_particles,
+    parser.add_argument("--particles", type=positive_int, default=settings.default_particles,
                         help=f"number of particles (default {settings.default_particles})")
-    parser.add_argument("--jaywalk-weight", type=_weight, default=settings.default_jaywalk_weight,
+    parser.add_argument("--jaywalk-weight", type=unit_interval, default=settings.default_jaywalk_weight,
                         help=f"particle weight on street surface (default {settings.default_jaywalk_weight})")
     parser.add_argument("--seed", type=int, default=0, help="random seed (default 0): same seed, same track")
     parser.add_argument("--save-particles", action="store_true", help="also write OUT/particles.npz")
