@@ -1,4 +1,4 @@
-"""Small file helpers shared by every stage: atomic writes."""
+"""Small file helpers shared by every stage: atomic writes, opening HDF5 datasets."""
 
 from __future__ import annotations
 
@@ -8,6 +8,12 @@ import shutil
 import tempfile
 from collections.abc import Iterator
 from pathlib import Path
+from typing import TYPE_CHECKING
+
+from curbside.errors import CurbsideInputError
+
+if TYPE_CHECKING:
+    import h5py
 
 
 @contextlib.contextmanager
@@ -38,3 +44,27 @@ def atomic_path(dst: str | os.PathLike[str]) -> Iterator[Path]:
         os.replace(tmp, dst)
     finally:
         shutil.rmtree(tmp_dir, ignore_errors=True)
+
+
+def open_h5(path: str | os.PathLike[str]) -> h5py.File:
+    """Open an HDF5 file read-only, or raise :class:`CurbsideInputError` naming it.
+
+    Parameters
+    ----------
+    path
+        The ``.h5`` file.
+
+    Returns
+    -------
+    h5py.File
+        Use it as a context manager.
+    """
+    import h5py  # only the HDF5 readers need it
+
+    path = Path(path)
+    if not path.is_file():
+        raise CurbsideInputError(path, "no such file")
+    try:
+        return h5py.File(path, "r")
+    except OSError as exc:
+        raise CurbsideInputError(path, f"not a readable HDF5 file ({exc})") from None

@@ -28,6 +28,7 @@ import pandas as pd
 import pyproj
 
 from curbside.errors import CurbsideInputError
+from curbside.io import open_h5
 from curbside.localize.readers._resample import merge_imu
 from curbside.localize.readers._tidy import accelerometer_ms2, tidy_table
 from curbside.localize.session import Session
@@ -36,16 +37,6 @@ logger = logging.getLogger(__name__)
 
 _GEOD = pyproj.Geod(ellps="WGS84")
 _REQUIRED = ("acce", "gyro", "rotvec", "gnss", "posi")
-
-
-def _open(path: str | Path) -> h5py.File:
-    path = Path(path)
-    if not path.is_file():
-        raise CurbsideInputError(path, "no such file")
-    try:
-        return h5py.File(path, "r")
-    except OSError as exc:
-        raise CurbsideInputError(path, f"not a readable HDF5 file ({exc})") from None
 
 
 def list_trials(path: str | Path) -> list[str]:
@@ -66,7 +57,7 @@ def list_trials(path: str | Path) -> list[str]:
     CurbsideInputError
         Missing or unreadable file, or no group holding the IPIN datasets.
     """
-    with _open(path) as f:
+    with open_h5(path) as f:
         names = [n for n, g in f.items() if isinstance(g, h5py.Group) and all(k in g for k in _REQUIRED)]
     if not names:
         raise CurbsideInputError(path, f"no trial groups with datasets {list(_REQUIRED)}")
@@ -113,7 +104,7 @@ def read_trial(path: str | Path, trial: str) -> Session:
     CurbsideInputError
         Missing/unreadable file, unknown trial, missing or malformed datasets, no usable rows.
     """
-    with _open(path) as f:
+    with open_h5(path) as f:
         name = _resolve(f, path, trial)
         source = f"{Path(path).name}::{name}"
         g = f[name]

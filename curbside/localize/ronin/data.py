@@ -50,7 +50,7 @@ from scipy.spatial.transform import Rotation
 from tqdm.auto import tqdm
 
 from curbside.errors import CurbsideInputError
-from curbside.io import atomic_path
+from curbside.io import atomic_path, open_h5
 from curbside.localize.imu import world_frame_segments
 from curbside.localize.pdr import forward_heading_vectors
 
@@ -199,16 +199,6 @@ def _recordings_from_imu(name: str, source: str, imu: pd.DataFrame, positions: n
     return out
 
 
-def _open_h5(path: str | Path) -> h5py.File:
-    path = Path(path)
-    if not path.is_file():
-        raise CurbsideInputError(path, "no such file")
-    try:
-        return h5py.File(path, "r")
-    except OSError as exc:
-        raise CurbsideInputError(path, f"not a readable HDF5 file ({exc})") from None
-
-
 def read_ms_indoor(path: str | Path, min_heading_consistency: float = 0.8, progress: bool = True,
                    keep_imu: Iterable[str] = ()) -> list[Recording]:
     """Recordings of ``ms-indoor-2020.h5`` with waypoints rotated into the rotation vector's frame.
@@ -235,7 +225,7 @@ def read_ms_indoor(path: str | Path, min_heading_consistency: float = 0.8, progr
         Missing/unreadable file or no path group in the expected layout.
     """
     raw = []
-    with _open_h5(path) as f:
+    with open_h5(path) as f:
         keys = [f"{s}/{fl}/{p}" for s in f for fl in f[s] if isinstance(f[s][fl], h5py.Group)
                 for p in f[s][fl]]
         needed = {"acce", "gyro", "rotvec", "waypoints"}
@@ -330,7 +320,7 @@ def read_ronin_sequence(folder: str | Path) -> Recording:
     path = folder / "data.hdf5" if folder.is_dir() else folder
     needed = ("synced/time", "synced/gyro", "synced/acce", "synced/game_rv", "pose/tango_pos",
               "pose/tango_ori")
-    with _open_h5(path) as f:
+    with open_h5(path) as f:
         missing = [k for k in needed if k not in f]
         if missing:
             raise CurbsideInputError(path, f"missing dataset(s) {missing} (RoNIN layout)")
