@@ -218,6 +218,23 @@ def test_tempering_counts_correlated_fixes_by_their_effective_number():
     assert GnssLikelihood(1.5, 50.0).exponent(0.5) == 1.0
 
 
+def test_bias_state_absorbs_a_steady_gnss_offset_instead_of_moving_the_track():
+    def final_estimate(bias_sigma_m):
+        cfg = FilterConfig(n_particles=500, gnss_bias_sigma_m=bias_sigma_m, gnss_bias_time_s=30.0,
+                           gnss_sigma_factor=0.66, gnss_outlier_prob=0.0, gnss_error_correlation_s=0.0)
+        tracker = Tracker(None, cfg, seed=0, frame=None)
+        tracker.start_at_pose(0.0, 0.0, 0.0)
+        for k in range(1, 121):  # 60 s east at 1.3 m/s; every fix 12 m south of the truth
+            fix = GnssFix(0.65 * k, -12.0, 3.0) if k % 2 == 0 else None
+            estimate = tracker.step(0.5 * k, displacement_en=(0.65, 0.0), gnss_fix=fix)
+        return estimate, float(np.mean(tracker.particles.bias_y))
+
+    plain, _ = final_estimate(0.0)
+    with_bias, bias_y = final_estimate(8.0)
+    assert plain.y < -10.0  # the plain filter follows the offset fixes
+    assert abs(with_bias.y) < 0.5 * abs(plain.y) and bias_y < -5.0
+
+
 def test_each_fix_is_applied_once_at_the_first_footstep_at_or_after_it():
     tf = np.array([0.2, 1.2, 2.2, 2.4, 10.0])
     fixes = (tf, tf * 10.0, np.zeros(5), np.full(5, 5.0))
@@ -247,9 +264,9 @@ def test_systematic_resampling_matches_filterpy_on_the_same_uniform():
         np.random.seed(n)  # noqa: NPY002
         expected = systematic_resample(w)
         np.testing.assert_array_equal(systematic_indices(w, u0), expected)
-        outs = [np.empty(n) for _ in range(4)]
+        outs = [np.empty(n) for _ in range(6)]
         ids = np.arange(n, dtype=float)
-        _systematic_resample(w, u0, ids, ids, ids, ids, *outs)
+        _systematic_resample(w, u0, *([ids] * 6), *outs)
         x_out = outs[0]
         np.testing.assert_array_equal(x_out.astype(int), expected)
 
@@ -275,7 +292,7 @@ def test_log_domain_weights_never_underflow():
 @pytest.mark.parametrize("backend", ["numba", "numpy"])
 def test_ten_thousand_tiny_likelihoods_keep_finite_weights(backend):
     cfg = FilterConfig(n_particles=200, resample="ess", ess_fraction=0.0, backend=backend,
-                       gnss_sigma_factor=1.0, gnss_max_accuracy_m=50.0)
+                       gnss_sigma_factor=1.0, gnss_max_accuracy_m=50.0, gnss_outlier_prob=0.0)
     tracker = Tracker(None, cfg, seed=2, frame=None)
     tracker.start_at_pose(0.0, 0.0, 0.0)
     far_fix = GnssFix(400.0, 0.0, 2.0)  # each update multiplies by ~exp(-20000)
@@ -338,7 +355,8 @@ def _run_tracker(backend: str, seed: int, steps: int = 60, **kw) -> tuple[list, 
     return out, tracker
 
 
-@pytest.mark.parametrize("gnss", [{}, {"gnss_outlier_prob": 0.1, "gnss_error_correlation_s": 10.0}])
+@pytest.mark.parametrize("gnss", [{}, {"gnss_outlier_prob": 0.1, "gnss_error_correlation_s": 10.0},
+                                  {"gnss_bias_sigma_m": 6.0, "gnss_bias_time_s": 20.0}])
 def test_numba_and_numpy_paths_agree(gnss):
     fast, tf = _run_tracker("numba", seed=4, **gnss)
     ref, tr = _run_tracker("numpy", seed=4, **gnss)
@@ -348,6 +366,7 @@ def test_numba_and_numpy_paths_agree(gnss):
     np.testing.assert_allclose(tf.particles.theta, tr.particles.theta, rtol=0, atol=1e-9)
     np.testing.assert_allclose(tf.particles.scale, tr.particles.scale, rtol=0, atol=1e-9)
     np.testing.assert_allclose([e.scale for e in fast], [e.scale for e in ref], rtol=1e-9)
+    np.testing.assert_allclose(tf.particles.bias_x, tr.particles.bias_x, rtol=0, atol=1e-9)
 
 
 def test_same_seed_same_estimates_and_particles_stay_off_buildings():
@@ -376,6 +395,6 @@ def test_fix_starts_an_unstarted_tracker_with_theta_over_the_full_circle():
 def test_config_rejects_bad_values():
     for kw in ({"jaywalk_weight": 1.5}, {"n_particles": 0}, {"resample": "never"}, {"backend": "cuda"},
                {"gnss_outlier_prob": 1.0}, {"gnss_outlier_radius_m": 0.0},
-               {"gnss_error_correlation_s": -1.0}):
+               {"gnss_error_correlation_s": -1.0}, {"gnss_bias_sigma_m": -1.0}, {"gnss_bias_time_s": 0.0}):
         with pytest.raises(ValueError):
             FilterConfig(**kw)

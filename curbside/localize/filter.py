@@ -5,10 +5,11 @@ Read it top to bottom:
 1. :class:`FilterConfig`: every parameter, defaults from :mod:`curbside.settings`.
 2. :class:`ParticleSet`: the state. Per particle ``x``, ``y`` (metres east/north in the map's local
    UTM CRS), ``theta`` (heading drift, radians, counter-clockwise), ``scale`` (speed scale, beyond the
-   paper: the inertial speed may be off by several per cent) and a log-weight.
+   paper: the inertial speed may be off by several per cent), ``bias_x``, ``bias_y`` (the slowly
+   wandering GNSS error, beyond the paper, optional) and a log-weight.
 3. :class:`InertialPredictor`: at a footstep, rotate the step's inertial displacement by each
    particle's ``theta``, scale it by its ``scale``, add it, and add Gaussian noise to ``x``, ``y``,
-   ``theta`` and ``scale``.
+   ``theta`` and ``scale``; the GNSS bias follows a first-order Gauss-Markov process.
 4. :class:`MapLikelihood`: log-weight by the map class under each particle, looked up in a raster
    (0 in buildings, ``jaywalk_weight`` on the street, 1 elsewhere).
 5. :class:`GnssLikelihood`: a robust GNSS likelihood: an isotropic Gaussian centred on a fix, sigma
@@ -92,6 +93,9 @@ class FilterConfig:
     gnss_error_correlation_s
         Time constant (s) of the GNSS error; each fix's log-likelihood is tempered by the fraction of an
         independent fix it carries (0: successive fixes are independent, no tempering).
+    gnss_bias_sigma_m, gnss_bias_time_s
+        The GNSS bias state: stationary sigma (m, per axis; 0: no bias state) and time constant (s) of
+        a first-order Gauss-Markov error that each fix measures on top of the particle's position.
     resample
         ``"always"`` (every footstep, as the paper) or ``"ess"`` (when the effective sample size drops
         below ``ess_fraction * n_particles``).
@@ -123,6 +127,8 @@ class FilterConfig:
     gnss_outlier_prob: float = field(default_factory=lambda: settings.gnss_outlier_prob)
     gnss_outlier_radius_m: float = field(default_factory=lambda: settings.gnss_outlier_radius_m)
     gnss_error_correlation_s: float = field(default_factory=lambda: settings.gnss_error_correlation_s)
+    gnss_bias_sigma_m: float = field(default_factory=lambda: settings.gnss_bias_sigma_m)
+    gnss_bias_time_s: float = field(default_factory=lambda: settings.gnss_bias_time_s)
     resample: str = field(default_factory=lambda: settings.filter_resample)
     ess_fraction: float = field(default_factory=lambda: settings.filter_ess_fraction)
     raster_resolution_m: float = field(default_factory=lambda: settings.raster_resolution_m)
@@ -148,6 +154,11 @@ class FilterConfig:
             raise ValueError(
                 f"gnss_error_correlation_s must be non-negative, got {self.gnss_error_correlation_s}"
             )
+        if not (self.gnss_bias_sigma_m >= 0 and self.gnss_bias_time_s > 0):
+            raise ValueError(
+                f"gnss_bias_sigma_m must be >= 0 and gnss_bias_time_s > 0, got {self.gnss_bias_sigma_m}, "
+                f"{self.gnss_bias_time_s}"
+            )
 
 
 class ParticleSet:
@@ -161,6 +172,8 @@ class ParticleSet:
         Heading drift, radians: the inertial velocity is rotated counter-clockwise by it.
     scale
         Speed scale: the inertial displacement is multiplied by it.
+    bias_x, bias_y
+        GNSS bias, metres east/north: a fix measures ``(x + bias_x, y + bias_y)`` plus white noise.
     log_weight
         Unnormalised log-weights (``-inf`` = weight 0).
     """
@@ -170,6 +183,8 @@ class ParticleSet:
         self.y = np.zeros(n)
         self.theta = np.zeros(n)
         self.scale = np.ones(n)
+        self.bias_x = np.zeros(n)
+        self.bias_y = np.zeros(n)
         self.log_weight = np.full(n, -math.log(n))
 
     def __len__(self) -> int:
@@ -183,7 +198,9 @@ class InertialPredictor:
     particle moves by the step's displacement ``(dx, dy)`` rotated by its own ``theta`` and multiplied
     by its own ``scale``, plus isotropic position noise with sigma ``max(step_noise_floor_m,
     step_noise_fraction * |(dx, dy)|)``: the error of an inertial step grows with its length, and the
-    floor keeps standing-still clouds alive.
+    floor keeps standing-still clouds alive. With a GNSS bias state, the bias decays by ``rho = exp(-dt /
+    tau)`` over the step's duration ``dt`` and takes an innovation of sigma ``sigma_b sqrt(1 - rho^2)``,
+    which keeps its stationary sigma at ``sigma_b``.
 
     Parameters
     ----------
@@ -203,6 +220,9 @@ class InertialPredictor:
         self.noise = np.zeros((4, n))  # standard normals: x, y, theta, scale
         # Without a scale random walk its row stays zero and is not drawn (fewer normals per step).
         self._drawn = self.noise if self.scale_sigma > 0 else self.noise[:3]
+        self.bias_sigma_m = config.gnss_bias_sigma_m
+        self.bias_time_s = config.gnss_bias_time_s
+        self.bias_noise = np.zeros((2, n))  # drawn after the others, only with a bias state
         self.cos_theta = np.empty(n)
         self.sin_theta = np.empty(n)
         self._tmp = np.empty(n)
@@ -210,14 +230,29 @@ class InertialPredictor:
     def draw_noise(self, dx: float, dy: float) -> float:
         """Draw this step's standard normals into :attr:`noise`; return the position sigma (m)."""
         self.rng.standard_normal(out=self._drawn)
+        if self.bias_sigma_m > 0:
+            self.rng.standard_normal(out=self.bias_noise)
         return max(self.noise_floor_m, self.noise_fraction * math.hypot(dx, dy))
 
-    def predict(self, particles: ParticleSet, dx: float, dy: float) -> None:
+    def bias_decay(self, dt_s: float) -> tuple[float, float]:
+        """``(rho, innovation sigma)`` of the GNSS bias over ``dt_s`` seconds (``(1, 0)`` without one)."""
+        if self.bias_sigma_m <= 0:
+            return 1.0, 0.0
+        rho = math.exp(-max(dt_s, 0.0) / self.bias_time_s)
+        return rho, self.bias_sigma_m * math.sqrt(1.0 - rho * rho)
+
+    def predict(self, particles: ParticleSet, dx: float, dy: float, dt_s: float = 0.0) -> None:
         """Move ``particles`` in place by the step displacement ``(dx, dy)`` metres (east, north).
 
-        Leaves ``cos_theta`` / ``sin_theta`` of the new drift angles for the estimate.
+        ``dt_s`` is the step's duration (it only ages the GNSS bias). Leaves ``cos_theta`` /
+        ``sin_theta`` of the new drift angles for the estimate.
         """
         sigma_xy = self.draw_noise(dx, dy)
+        if self.bias_sigma_m > 0:
+            rho, innovation = self.bias_decay(dt_s)
+            for bias, noise_row in zip((particles.bias_x, particles.bias_y), self.bias_noise, strict=True):
+                bias *= rho
+                bias += innovation * noise_row
         noise, c, s, tmp = self.noise, self.cos_theta, self.sin_theta, self._tmp
         noise[:2] *= sigma_xy
         noise[2] *= self.theta_sigma
@@ -475,7 +510,7 @@ class SystematicResampler:
         idx = self._idx
         idx[...] = np.searchsorted(self._cumulative, self._positions, side="right")
         np.minimum(idx, self._last, out=idx)
-        for name in ("x", "y", "theta", "scale"):
+        for name in ("x", "y", "theta", "scale", "bias_x", "bias_y"):
             current = getattr(particles, name)
             np.take(current, idx, out=self._spare)
             setattr(particles, name, self._spare)
@@ -493,6 +528,7 @@ def _predict_and_weigh(
     x, y, theta, scale, log_weight, cos_theta, sin_theta, noise, dx, dy, sigma_xy, sigma_theta,
     sigma_scale, use_map, padded, inv_res, x_offset, y_offset, col_max, row_max, stride, log_table,
     use_fix, fix_x, fix_y, fix_scale, fix_log_norm, fix_log_outlier, fix_exponent,
+    use_bias, bias_x, bias_y, bias_noise, bias_rho, bias_innovation,
 ):  # pragma: no cover - compiled
     for i in range(x.shape[0]):
         th = theta[i] + sigma_theta * noise[2, i]
@@ -512,6 +548,13 @@ def _predict_and_weigh(
             fx = min(max(xi * inv_res - x_offset, 0.0), col_max)
             fy = min(max(yi * inv_res - y_offset, 0.0), row_max)
             lw += log_table[padded[int(fy) * stride + int(fx)]]
+        if use_bias:
+            bx = bias_rho * bias_x[i] + bias_innovation * bias_noise[0, i]
+            by = bias_rho * bias_y[i] + bias_innovation * bias_noise[1, i]
+            bias_x[i] = bx
+            bias_y[i] = by
+            xi += bx  # where this particle expects the fix
+            yi += by
         if use_fix:
             ex = xi - fix_x
             ey = yi - fix_y
@@ -560,7 +603,8 @@ def _normalise_and_estimate(log_weight, weights, x, y, scale, cos_theta, sin_the
 
 @numba.njit(cache=True, nogil=True)
 def _systematic_resample(
-    weights, u0, x, y, theta, scale, x_out, y_out, theta_out, scale_out
+    weights, u0, x, y, theta, scale, bias_x, bias_y, x_out, y_out, theta_out, scale_out, bias_x_out,
+    bias_y_out,
 ):  # pragma: no cover - compiled
     # One merge pass: position k goes to the first particle whose cumulative weight exceeds it.
     n = weights.shape[0]
@@ -575,6 +619,8 @@ def _systematic_resample(
         y_out[k] = y[j]
         theta_out[k] = theta[j]
         scale_out[k] = scale[j]
+        bias_x_out[k] = bias_x[j]
+        bias_y_out[k] = bias_y[j]
 
 
 class Estimate(NamedTuple):
@@ -677,7 +723,9 @@ class Tracker:
         self._ess_threshold = self.config.ess_fraction * n
         self._log_uniform = -math.log(n)
         self._fast = self.config.backend == "numba"
-        self._spare = (np.empty(n), np.empty(n), np.empty(n), np.empty(n))
+        self._spare = tuple(np.empty(n) for _ in range(6))
+        self._expected_x = np.empty(n)  # particle position + GNSS bias: where it expects the fix
+        self._expected_y = np.empty(n)
         lookup = self.map_likelihood.lookup if self.map_likelihood is not None else None
         self._map_args = (
             (True, lookup.padded, lookup.inv_res, lookup.x_offset, lookup.y_offset, lookup.col_max,
@@ -737,6 +785,9 @@ class Tracker:
         sigma = self.gnss_likelihood.sigma_factor * fix.accuracy_m
         theta_sigma = self.config.gnss_init_theta_sigma_deg
         self._seed(fix.x, fix.y, sigma, 0.0, None if theta_sigma is None else math.radians(theta_sigma))
+        p = self.particles
+        p.x -= p.bias_x  # the fix is position + bias
+        p.y -= p.bias_y
         self.last_fix, self.last_fix_t = fix, t
         return self._update(t)
 
@@ -752,6 +803,12 @@ class Tracker:
             p.scale[:] = 1.0 + self.config.scale_init_sigma * self.rng.standard_normal(n)
         else:
             p.scale.fill(1.0)
+        if self.config.gnss_bias_sigma_m > 0:
+            p.bias_x[:] = self.config.gnss_bias_sigma_m * self.rng.standard_normal(n)
+            p.bias_y[:] = self.config.gnss_bias_sigma_m * self.rng.standard_normal(n)
+        else:
+            p.bias_x.fill(0.0)
+            p.bias_y.fill(0.0)
         np.cos(p.theta, out=self.predictor.cos_theta)
         np.sin(p.theta, out=self.predictor.sin_theta)
         p.log_weight.fill(-math.log(n))
@@ -801,30 +858,36 @@ class Tracker:
             return self.start_at_fix(t, gnss_fix) if use_fix else None
         p = self.particles
         exponent = self.gnss_likelihood.exponent(t - self.last_fix_t) if use_fix else 0.0
+        dt_s = t - self.last_estimate.t if self.last_estimate is not None else 0.0
         if self._fast:
-            self._predict_and_weigh_fast(dx, dy, gnss_fix if use_fix else None, exponent)
+            self._predict_and_weigh_fast(dx, dy, dt_s, gnss_fix if use_fix else None, exponent)
         else:
-            self.predictor.predict(p, dx, dy)
+            self.predictor.predict(p, dx, dy, dt_s)
             if self.map_likelihood is not None:
                 p.log_weight += self.map_likelihood.log_likelihood(p.x, p.y, out=self._loglik)
             if use_fix:
+                np.add(p.x, p.bias_x, out=self._expected_x)
+                np.add(p.y, p.bias_y, out=self._expected_y)
                 p.log_weight += self.gnss_likelihood.log_likelihood(
-                    p.x, p.y, gnss_fix, self._loglik, self._tmp, exponent
+                    self._expected_x, self._expected_y, gnss_fix, self._loglik, self._tmp, exponent
                 )
         if use_fix:
             self.last_fix, self.last_fix_t = gnss_fix, t
         return self._update(t)
 
-    def _predict_and_weigh_fast(self, dx: float, dy: float, fix: GnssFix | None, exponent: float) -> None:
+    def _predict_and_weigh_fast(
+        self, dx: float, dy: float, dt_s: float, fix: GnssFix | None, exponent: float
+    ) -> None:
         pred, p = self.predictor, self.particles
         sigma_xy = pred.draw_noise(dx, dy)
+        bias_args = (pred.bias_sigma_m > 0, p.bias_x, p.bias_y, pred.bias_noise, *pred.bias_decay(dt_s))
         if fix is None:
             fix_args = (False, 0.0, 0.0, 0.0, 0.0, -math.inf, 0.0)
         else:
             fix_args = (True, fix.x, fix.y, *self.gnss_likelihood.coefficients(fix), exponent)
         _predict_and_weigh(
             p.x, p.y, p.theta, p.scale, p.log_weight, pred.cos_theta, pred.sin_theta, pred.noise, dx, dy,
-            sigma_xy, pred.theta_sigma, pred.scale_sigma, *self._map_args, *fix_args,
+            sigma_xy, pred.theta_sigma, pred.scale_sigma, *self._map_args, *fix_args, *bias_args,
         )
 
     def _normalise_and_estimate(self) -> tuple[bool, float, float, float, float, float]:
@@ -857,9 +920,11 @@ class Tracker:
             self.resampler.resample(p, self._weights)
             return
         out = self._spare
-        _systematic_resample(self._weights, self.rng.random(), p.x, p.y, p.theta, p.scale, *out)
-        self._spare = (p.x, p.y, p.theta, p.scale)
-        p.x, p.y, p.theta, p.scale = out
+        _systematic_resample(
+            self._weights, self.rng.random(), p.x, p.y, p.theta, p.scale, p.bias_x, p.bias_y, *out
+        )
+        self._spare = (p.x, p.y, p.theta, p.scale, p.bias_x, p.bias_y)
+        p.x, p.y, p.theta, p.scale, p.bias_x, p.bias_y = out
         p.log_weight.fill(self._log_uniform)
 
     def _recover(self, t: float) -> None:
