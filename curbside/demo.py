@@ -117,6 +117,9 @@ def run_demo(out_dir: str | Path, stages: Sequence[Stage] | None = None) -> dict
 
 
 def _main(args: argparse.Namespace) -> int:
+    # The demo logs its own stages at INFO; dask's scheduler chatter stays at WARNING.
+    for noisy in ("distributed", "bokeh", "tornado"):
+        logging.getLogger(noisy).setLevel(logging.WARNING)
     written = run_demo(args.out, MAP_STAGES if args.map_only else STAGES)
     print("Wrote:")
     for name, path in written.items():
