@@ -263,3 +263,28 @@ min_polygon_area_m2: float = 0.5
 #: Decimals of the lon/lat coordinates written into HTML maps (6 decimals ~ 0.1 m: display only; the
 #: GeoJSON map files keep 7).
 html_coordinate_decimals: int = 6
+
+# --- posterior mode over sidewalk segments (localize filter, helper G) ------------------------------
+
+#: Reach (m) of a sidewalk segment in the nearest-segment raster: cells farther from every sidewalk
+#: belong to no segment (their particles count towards no segment's posterior probability).
+segment_raster_max_distance_m: float = 25.0
+
+# --- divergence recovery: Augmented MCL driven by GNSS (localize filter, helper H) ------------------
+# Thrun, Burgard & Fox, Probabilistic Robotics (2005), table 8.3: short- and long-term averages of the
+# cloud's GNSS agreement (per fix); when the short one falls below the long one, a fraction of the
+# particles is re-drawn around the fix. Rates are per fix (about 2 per second): 0.1 averages ~5 s,
+# 0.005 ~100 s. See docs/filter.md, "Divergence recovery".
+
+#: Rates of the short- and long-term averages of the cloud's mean GNSS agreement, per fix.
+filter_recovery_alpha_fast: float = 0.1
+filter_recovery_alpha_slow: float = 0.005
+#: Injection starts when the short-term average falls below this fraction of the long-term one
+#: (1 is the book's rule, which also injects on the ordinary fix-to-fix fluctuations of a sound cloud).
+filter_recovery_trigger_ratio: float = 0.5
+#: At most this fraction of the particles is replaced at one fix (0 disables the recovery).
+filter_recovery_max_fraction: float = 0.25
+#: The agreement kernel's sigma, as a multiple of the GNSS likelihood's sigma (gnss_sigma_factor x
+#: accuracy): wider than the likelihood, so that canyon fixes tens of metres off do not read as a
+#: diverged cloud.
+filter_recovery_kernel_scale: float = 1.0

@@ -87,6 +87,9 @@ def test_dask_results_equal_serial(sessions):
         pd.testing.assert_frame_equal(a["track"], b["track"])
         pd.testing.assert_frame_equal(a["track"], c["track"])
         assert a["metrics"] == b["metrics"] == c["metrics"]
+        assert a["metrics_mode"] == b["metrics_mode"] == c["metrics_mode"]
+        if a["spec"]["method"] == "gnss":  # no particles: the mode estimate is the estimate
+            assert a["metrics_mode"] == a["metrics"]
 
 
 @pytest.mark.slow
@@ -133,11 +136,17 @@ def test_evaluate_writes_the_report(tmp_path, sessions):
     fused = pooled[(pooled["method"] == "fused") & (pooled["jaywalk_weight"] == 0.4)].set_index("map")
     assert fused.loc["osm", "csa"] == fused.loc["copy", "csa"]
     assert ((pooled["csa"] >= 0) & (pooled["csa"] <= 1)).all()
+    # every metric again on the posterior-mode estimate; GNSS has no particles, so the same there
+    assert ((pooled["csa_mode"] >= 0) & (pooled["csa_mode"] <= 1)).all()
+    gnss = pooled[pooled["method"] == "gnss"]
+    assert (gnss["csa_mode"] == gnss["csa"]).all()
+    assert (gnss["euclid_median_m_mode"] == gnss["euclid_median_m"]).all()
     per_session = pd.DataFrame(doc["per_session"])
     assert set(per_session["session"]) == {"path3-s1", "path3-s2"}
     md = (out / "report.md").read_text()
     assert "Table 2" in md and "Table 3" in md and "Table 4" in md and "Map sources compared" in md
     assert "(0.80)" in md  # the paper's fused CSA at w = 0.4 beside ours
+    assert "mean / posterior-mode estimate" in md
     html = (out / "report.html").read_text()
     assert html.count("data:image/png;base64,") >= 4
     assert not (out / "figures" / "missing.png").exists()

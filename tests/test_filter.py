@@ -398,3 +398,101 @@ def test_config_rejects_bad_values():
                {"gnss_error_correlation_s": -1.0}, {"gnss_bias_sigma_m": -1.0}, {"gnss_bias_time_s": 0.0}):
         with pytest.raises(ValueError):
             FilterConfig(**kw)
+
+
+# -- posterior mode over sidewalk segments -------------------------------------------------------------
+
+
+def two_sidewalk_map() -> MapLayers:
+    """A street along x with a sidewalk on each side: "N" (6 < y < 10) and "S" (-10 < y < -6)."""
+    bands = ((-6, 6), (6, 10), (-10, -6), (40, 45))
+    geoms = [shapely.box(X0 - 100, Y0 + y0, X0 + 100, Y0 + y1) for y0, y1 in bands]
+    gdf = gpd.GeoDataFrame(
+        {"class": ["street", "sidewalk", "sidewalk", "building"], "segment_id": [None, "N", "S", None],
+         "street": None, "side": None},
+        geometry=geoms, crs=UTM10,
+    )
+    return MapLayers(gdf)
+
+
+def test_segment_raster_holds_the_nearest_sidewalk_within_reach(monkeypatch):
+    monkeypatch.setattr(settings, "segment_raster_max_distance_m", 25.0)
+    layers = two_sidewalk_map()
+    raster = rasterize_map(layers, 0.5)
+    ids = raster.segment_ids
+    assert sorted(ids.tolist()) == ["N", "S"]
+    ys = Y0 + np.array([8.0, 0.5, -0.5, -8.0, 30.0, 36.0, 44.0])
+    got = raster.segments_at(np.full(len(ys), X0), ys)
+    expected = [ids.tolist().index(s) if s else -1 for s in ("N", "N", "S", "S", "N", None, None)]
+    assert got.tolist() == expected
+    assert raster.segments_at(np.array([X0 + 500.0]), np.array([Y0]))[0] == -1  # outside the grid
+    # Against shapely's nearest polygon wherever the two sidewalks are not nearly equidistant.
+    rng = np.random.default_rng(0)
+    x, y = X0 + rng.uniform(-99, 99, 2000), Y0 + rng.uniform(-9.9, 44.9, 2000)
+    sidewalks = layers.layer("sidewalk")
+    dist = np.stack([shapely.distance(g, shapely.points(x, y)) for g in sidewalks.geometry.values])
+    nearest = np.where(dist.min(axis=0) <= 24.0, dist.argmin(axis=0), -1)
+    clear = (np.abs(dist[0] - dist[1]) > 1.0) & (np.abs(dist.min(axis=0) - 25.0) > 1.0)
+    names = np.append(sidewalks["segment_id"].to_numpy(), None)
+    got = raster.segments_at(x, y)
+    assert clear.sum() > 1500
+    assert (np.append(ids, None)[got][clear] == names[nearest][clear]).all()
+
+
+def test_segment_raster_is_cached_and_a_map_without_sidewalks_has_none():
+    layers = two_sidewalk_map()
+    first = load_or_build_raster(layers, 1.0)
+    second = load_or_build_raster(layers, 1.0)
+    np.testing.assert_array_equal(first.segment_index, second.segment_index)
+    np.testing.assert_array_equal(first.segment_ids, second.segment_ids)
+    no_sidewalks = MapLayers(layers.gdf[layers.gdf["class"] != "sidewalk"])
+    raster = load_or_build_raster(no_sidewalks, 1.0)
+    assert raster.segment_index is None
+    assert raster.segments_at(np.array([X0]), np.array([Y0 + 8.0])).tolist() == [-1]
+    assert map_hash(no_sidewalks, 1.0) != map_hash(layers, 1.0)
+
+
+@pytest.mark.parametrize("backend", ["numba", "numpy"])
+def test_bimodal_cloud_mode_is_on_the_heavier_sidewalk_while_the_mean_is_mid_street(backend):
+    tracker = Tracker(two_sidewalk_map(), quiet_config(n_particles=500, backend=backend), seed=0)
+    tracker.start_at_pose(0.0, X0, Y0 + 8.0)
+    p = tracker.particles
+    rng = np.random.default_rng(1)
+    north = np.arange(500) < 250
+    p.x[:] = X0 + rng.uniform(-20, 20, 500)
+    p.y[:] = np.where(north, Y0 + 8.0, Y0 - 8.0) + rng.uniform(-1, 1, 500)
+    p.log_weight[:] = np.where(north, math.log(0.6), math.log(0.4))
+    weights = np.where(north, 0.6, 0.4)
+    mean_y, mode_x, mode_y = np.average(p.y, weights=weights), p.x[north].mean(), p.y[north].mean()
+    est = tracker.step(0.5, displacement_en=(0.0, 0.0))  # no motion, no noise: the cloud stays
+    assert est.segment_id == "N"
+    assert est.segment_prob == pytest.approx(0.6)
+    assert (est.mode_x, est.mode_y) == (pytest.approx(mode_x), pytest.approx(mode_y))
+    assert 6.0 < est.mode_y - Y0 < 10.0  # on the north sidewalk
+    assert est.y == pytest.approx(mean_y) and -6.0 < est.y - Y0 < 6.0  # the mean: in the street
+    off = Tracker(two_sidewalk_map(), quiet_config(n_particles=500, backend=backend, segment_estimate=False))
+    est_off = off.start_at_pose(0.0, X0, Y0 + 8.0)
+    assert est_off.segment_id is None and math.isnan(est_off.segment_prob)
+    assert (est_off.mode_x, est_off.mode_y) == (est_off.x, est_off.y)
+
+
+def _run_two_sidewalks(backend: str, seed: int) -> list:
+    cfg = FilterConfig(n_particles=400, backend=backend, init_position_sigma_m=8.0)
+    tracker = Tracker(two_sidewalk_map(), cfg, seed=seed)
+    out = [tracker.start_at_pose(0.0, X0 - 60.0, Y0, 0.0)]  # mid-street: the cloud spans both sides
+    for k in range(1, 80):
+        # Fixes mid-street, one side or the other by 1 m: which sidewalk wins is up to the draws.
+        fix = GnssFix(X0 - 60.0 + 1.2 * k, Y0 + (-1.0) ** k, 5.0)
+        out.append(tracker.step(0.5 * k, velocity_en=(2.4, 0.0), dt=0.5, gnss_fix=fix))
+    return out
+
+
+def test_numba_and_numpy_segment_modes_agree():
+    fast, ref = _run_two_sidewalks("numba", 5), _run_two_sidewalks("numpy", 5)
+    assert [e.segment_id for e in fast] == [e.segment_id for e in ref]
+    assert {e.segment_id for e in fast} == {"N", "S"}
+    np.testing.assert_allclose([e.segment_prob for e in fast], [e.segment_prob for e in ref], atol=1e-9)
+    np.testing.assert_allclose([e.mode_x for e in fast], [e.mode_x for e in ref], rtol=0, atol=1e-6)
+    np.testing.assert_allclose([e.mode_y for e in fast], [e.mode_y for e in ref], rtol=0, atol=1e-6)
+    probs = np.array([e.segment_prob for e in fast])
+    assert ((probs > 0) & (probs <= 1 + 1e-12)).all() and (probs < 0.99).any()

@@ -151,6 +151,10 @@ def test_fused_beats_gnss_and_stays_on_the_right_sidewalk(walk_results, seed):
     on_north = (res["fused"].track["sidewalk_segment_id"] == "N").mean()
     assert on_north > 0.9
     assert (res["gnss"].track["sidewalk_segment_id"] == "N").mean() < 0.2
+    # No particles in gnss mode: no posterior, and the mode estimate is the track itself.
+    assert res["gnss"].track["segment_prob"].isna().all()
+    gnss_track = res["gnss"].track
+    np.testing.assert_array_equal(gnss_track[["mode_lat", "mode_lon"]], gnss_track[["lat", "lon"]])
 
 
 def test_particles_never_stay_in_buildings(walk_results):
@@ -199,8 +203,13 @@ def test_cli_writes_track_files_and_same_seed_same_track(tmp_path, map_file, cap
     assert a != (tmp_path / "c" / "track.csv").read_bytes()
     track = pd.read_csv(tmp_path / "a" / "track.csv")
     assert list(track.columns) == ["t", "lat", "lon", "x_m", "y_m", "theta_drift_deg", "speed_scale", "n_eff",
-                                   "recovered", "sidewalk_segment_id"]
+                                   "recovered", "sidewalk_segment_id", "segment_prob", "mode_lat", "mode_lon"]
     assert (np.diff(track["t"]) > 0).all() and len(track) == len(np.arange(0, 40, 0.55))
+    # the MAP segment and its posterior probability; the mode estimate lies on that sidewalk
+    assert track["segment_prob"].between(0.0, 1.0 + 1e-9).all()
+    assert (track["sidewalk_segment_id"] == "N").mean() > 0.9
+    _, mode_y = FRAME.to_xy(track["mode_lon"].to_numpy(), track["mode_lat"].to_numpy())
+    assert np.median(np.abs(mode_y - Y0 - 8.0)) < 1.5
     doc = json.loads((tmp_path / "a" / "track.geojson").read_text())
     kinds = [f["geometry"]["type"] for f in doc["features"]]
     assert kinds[0] == "LineString" and kinds.count("Point") == len(track)

@@ -25,7 +25,7 @@ import pandas as pd  # noqa: E402
 import curbside  # noqa: E402
 from curbside import settings  # noqa: E402
 from curbside.evaluate.metrics import METRIC_NAMES  # noqa: E402
-from curbside.evaluate.runner import METHOD_LABELS, METHODS, pool  # noqa: E402
+from curbside.evaluate.runner import METHOD_LABELS, METHODS, MODE_SUFFIX, pool  # noqa: E402
 from curbside.io import atomic_path  # noqa: E402
 from curbside.osmseg.mapio import MapLayers  # noqa: E402
 
@@ -128,6 +128,8 @@ def paper_tables(pooled: pd.DataFrame, map_name: str, base: dict[str, Any]) -> l
         )
     ]
     w0 = base["jaywalk_weight"]
+    if f"csa{MODE_SUFFIX}" in pooled:
+        tables += mode_tables(pooled, map_name, methods, where, w0)
     for title, names in (
         ("Table 3. Euclidean error (m)", ("euclid_mean_m", "euclid_median_m", "euclid_p90_m")),
         ("Table 4. Along- and across-street median error (m)", ("along_median_m", "across_median_m")),
@@ -156,6 +158,37 @@ def paper_tables(pooled: pd.DataFrame, map_name: str, base: dict[str, Any]) -> l
         )
     )
     return tables
+
+
+def mode_tables(
+    pooled: pd.DataFrame, map_name: str, methods: list[str], where: dict[str, Any], w0: float
+) -> list[Table]:
+    """CSA and errors of the posterior-mode estimate beside the paper's weighted-mean estimate."""
+    rows = []
+    for w in sorted(pooled.loc[pooled["method"] != "gnss", "jaywalk_weight"].unique()):
+        row = [f"w = {w:g}"]
+        for m in methods:
+            r = _lookup(pooled, m, jaywalk_weight=w, **where)
+            row.append("-" if r is None else f"{_fmt(r['csa'])} / {_fmt(r[f'csa{MODE_SUFFIX}'])}")
+        rows.append(row)
+    header = [""] + [METHOD_LABELS[m] for m in methods]
+    errors = []
+    for name in ("euclid_mean_m", "euclid_median_m", "euclid_p90_m", "along_median_m", "across_median_m"):
+        row = [name]
+        for m in methods:
+            r = _lookup(pooled, m, jaywalk_weight=w0, **where)
+            row.append("-" if r is None else f"{_fmt(r[name], 1)} / {_fmt(r[f'{name}{MODE_SUFFIX}'], 1)}")
+        errors.append(row)
+    return [
+        Table(
+            f"Correct Sidewalk Assignment, mean / posterior-mode estimate, map '{map_name}'",
+            header,
+            rows,
+            "Mean: the paper's weighted mean of the particles. Mode: the weighted mean of the particles on "
+            "the sidewalk segment of largest posterior probability. GNSS has no particles: both equal.",
+        ),
+        Table(f"Errors (m), mean / posterior-mode estimate, w = {w0:g}, map '{map_name}'", header, errors),
+    ]
 
 
 def map_table(pooled: pd.DataFrame, base: dict[str, Any]) -> Table:

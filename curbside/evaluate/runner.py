@@ -5,6 +5,11 @@ reads its inputs itself (sessions and maps are paths, so a task is small to ship
 with :func:`curbside.localize.pipeline.track_session`, and scores every footstep against the ground
 truth (:mod:`curbside.evaluate.metrics`). Each run is seeded, so the results do not depend on which
 worker ran what: a dask run equals a serial one.
+
+Every run is scored twice: on the paper's estimate (the weighted mean of the particles; the SPEC metric
+names) and on the posterior-mode estimate (the weighted mean of the particles on the MAP sidewalk
+segment, ``track.csv``'s ``mode_lat, mode_lon``; the same names with :data:`MODE_SUFFIX`). Without
+particles (``gnss``) or without sidewalks in the filter's map both estimates are the same.
 """
 
 from __future__ import annotations
@@ -33,6 +38,8 @@ log = logging.getLogger(__name__)
 METHODS: tuple[str, ...] = ("gnss", "inertial", "fused")
 #: The paper's names for the methods.
 METHOD_LABELS: dict[str, str] = {"gnss": "GNSS", "inertial": "RoNIN+PF", "fused": "GNSS+RoNIN+PF"}
+#: Suffix of the metrics scored on the posterior-mode estimate (``csa_mode``...).
+MODE_SUFFIX = "_mode"
 
 
 @dataclass(frozen=True)
@@ -101,7 +108,8 @@ def run_one(spec: RunSpec) -> dict[str, Any]:
     -------
     dict
         ``spec`` (dict), ``path`` (route name), ``metrics`` (SPEC names), ``ate_m``, ``rte_m``,
-        ``errors`` (per-footstep DataFrame), ``track`` (``t, x_m, y_m, gt_x_m, gt_y_m``),
+        ``errors`` (per-footstep DataFrame), ``metrics_mode`` and ``errors_mode`` (the same for the
+        posterior-mode estimate), ``track`` (``t, x_m, y_m, gt_x_m, gt_y_m``),
         ``snapshots`` (list of ``{"t", "x", "y"}`` clouds), ``recoveries``, ``velocity_source``.
     """
     from curbside.localize.filter import FilterConfig
@@ -140,6 +148,11 @@ def run_one(spec: RunSpec) -> dict[str, Any]:
     gt = np.column_stack([gx, gy])
     index = _index(spec.metrics_map) if spec.metrics_map else None
     errors = metrics.step_errors(est, gt, index)
+    mode_est = est
+    if "mode_lat" in track:
+        mx, my = frame.to_xy(track["mode_lon"].to_numpy(), track["mode_lat"].to_numpy())
+        mode_est = np.column_stack([mx, my])
+    errors_mode = metrics.step_errors(mode_est, gt, index) if mode_est is not est else errors
     snapshots = []
     if result.snapshots is not None and spec.snapshot_times:
         snap = result.snapshots
@@ -167,6 +180,8 @@ def run_one(spec: RunSpec) -> dict[str, Any]:
         "ate_m": metrics.ate_m(est, gt),
         "rte_m": metrics.rte_m(t, est, gt),
         "errors": errors,
+        "metrics_mode": metrics.summarize(errors_mode),
+        "errors_mode": errors_mode,
         "track": pd.DataFrame({"t": t, "x_m": ex, "y_m": ey, "gt_x_m": gx, "gt_y_m": gy}),
         "snapshots": snapshots,
         "recoveries": int(result.recoveries),
@@ -254,8 +269,9 @@ def pool(results: list[dict[str, Any]], by: tuple[str, ...]) -> pd.DataFrame:
     Returns
     -------
     pandas.DataFrame
-        One row per group: ``by`` columns, the SPEC metrics, ``ate_m`` and ``rte_m`` (means over
-        runs), ``n_runs``.
+        One row per group: ``by`` columns, the SPEC metrics, the same for the posterior-mode estimate
+        (suffixed :data:`MODE_SUFFIX`: ``csa_mode``...), ``ate_m`` and ``rte_m`` (means over runs),
+        ``n_runs``.
     """
     rows = []
     keys = [{**RunSpec(**r["spec"]).key(), "path": r["path"], "session": r["session"]} for r in results]
@@ -267,6 +283,10 @@ def pool(results: list[dict[str, Any]], by: tuple[str, ...]) -> pd.DataFrame:
         errs = pd.concat([results[i]["errors"] for i in idx], ignore_index=True)
         row = dict(zip(by, group, strict=True))
         row.update(metrics.summarize(errs))
+        errs_mode = pd.concat([results[i].get("errors_mode", results[i]["errors"]) for i in idx],
+                              ignore_index=True)
+        mode = metrics.summarize(errs_mode)
+        row.update({f"{name}{MODE_SUFFIX}": mode[name] for name in metrics.METRIC_NAMES})
         row["ate_m"] = float(np.nanmean([results[i]["ate_m"] for i in idx]))
         row["rte_m"] = float(np.nanmean([results[i]["rte_m"] for i in idx]))
         row["n_runs"] = len(idx)

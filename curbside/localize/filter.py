@@ -21,9 +21,13 @@ Read it top to bottom:
 8. The fast path: the same arithmetic in three numba loops (predict + map + GNSS in one pass,
    normalise + estimate, resample). The numpy components above are the reference; the tests check
    that both paths give the same particles from the same draws.
-9. :class:`Tracker`: the streaming API a navigation app calls once per footstep; it composes the
-   components, recovers from collapse and returns an :class:`Estimate`. Batch runs
-   (:mod:`curbside.localize.pipeline`) drive the same class.
+9. :func:`segment_posterior`: the posterior over discrete sidewalk segments (one ``bincount`` of the
+   weights by each particle's nearest segment, from the map's segment raster), its mode (the MAP
+   segment) and the weighted mean of the particles on it: the Bayes decision for sidewalk assignment,
+   which the weighted mean of a cloud split across a street is not.
+10. :class:`Tracker`: the streaming API a navigation app calls once per footstep; it composes the
+    components, recovers from collapse and returns an :class:`Estimate`. Batch runs
+    (:mod:`curbside.localize.pipeline`) drive the same class.
 
 Arrays are preallocated for the particle count (the fast path allocates nothing per step), so one
 update at N=500 costs tens of microseconds (``benchmarks/bench_filter.py``). Resampling swaps the
@@ -82,6 +86,16 @@ class FilterConfig:
         Drift spread when starting from a GNSS fix; ``None`` for the full circle.
     recovery_sigma_m
         Spread of particles re-seeded around the last estimate after a collapse.
+    recovery_alpha_fast, recovery_alpha_slow
+        Rates (per fix) of the short- and long-term averages of the cloud's GNSS agreement that drive
+        the divergence recovery (:class:`DivergenceRecovery`).
+    recovery_trigger_ratio
+        Particles are injected once the short-term average falls below this fraction of the long-term
+        one (1: the book's rule).
+    recovery_kernel_scale
+        The agreement kernel's sigma is this multiple of the GNSS likelihood's sigma.
+    recovery_max_fraction
+        At most this fraction of the particles is re-drawn around a fix at one step (0: no recovery).
     gnss_sigma_factor
         GNSS likelihood sigma = factor * reported accuracy.
     gnss_max_accuracy_m
@@ -107,6 +121,9 @@ class FilterConfig:
         A start pose in a building moves to the nearest free cell within this distance.
     backend
         ``"numba"`` (fused kernels, the default) or ``"numpy"`` (the reference components).
+    segment_estimate
+        Compute the posterior over sidewalk segments and the mode estimate at each step (needs a map
+        with sidewalk segments; without, the mode estimate is the weighted mean).
     """
 
     n_particles: int = field(default_factory=lambda: settings.default_particles)
@@ -122,6 +139,11 @@ class FilterConfig:
         default_factory=lambda: settings.filter_gnss_init_theta_sigma_deg
     )
     recovery_sigma_m: float = field(default_factory=lambda: settings.filter_recovery_sigma_m)
+    recovery_alpha_fast: float = field(default_factory=lambda: settings.filter_recovery_alpha_fast)
+    recovery_alpha_slow: float = field(default_factory=lambda: settings.filter_recovery_alpha_slow)
+    recovery_trigger_ratio: float = field(default_factory=lambda: settings.filter_recovery_trigger_ratio)
+    recovery_kernel_scale: float = field(default_factory=lambda: settings.filter_recovery_kernel_scale)
+    recovery_max_fraction: float = field(default_factory=lambda: settings.filter_recovery_max_fraction)
     gnss_sigma_factor: float = field(default_factory=lambda: settings.gnss_sigma_factor)
     gnss_max_accuracy_m: float = field(default_factory=lambda: settings.gnss_max_accuracy_m)
     gnss_outlier_prob: float = field(default_factory=lambda: settings.gnss_outlier_prob)
@@ -134,6 +156,7 @@ class FilterConfig:
     raster_resolution_m: float = field(default_factory=lambda: settings.raster_resolution_m)
     max_start_snap_m: float = field(default_factory=lambda: settings.filter_max_start_snap_m)
     backend: str = "numba"
+    segment_estimate: bool = True
 
     def __post_init__(self) -> None:
         if int(self.n_particles) < 1:
@@ -153,6 +176,15 @@ class FilterConfig:
         if not self.gnss_error_correlation_s >= 0:
             raise ValueError(
                 f"gnss_error_correlation_s must be non-negative, got {self.gnss_error_correlation_s}"
+            )
+        if not 0.0 <= self.recovery_max_fraction <= 1.0:
+            raise ValueError(f"recovery_max_fraction must lie in [0, 1], got {self.recovery_max_fraction}")
+        if not (0.0 < self.recovery_alpha_slow < self.recovery_alpha_fast <= 1.0
+                and 0.0 < self.recovery_trigger_ratio <= 1.0 and self.recovery_kernel_scale > 0):
+            raise ValueError(
+                "need 0 < recovery_alpha_slow < recovery_alpha_fast <= 1, 0 < recovery_trigger_ratio <= 1, "
+                f"recovery_kernel_scale > 0; got {self.recovery_alpha_slow}, {self.recovery_alpha_fast}, "
+                f"{self.recovery_trigger_ratio}, {self.recovery_kernel_scale}"
             )
         if not (self.gnss_bias_sigma_m >= 0 and self.gnss_bias_time_s > 0):
             raise ValueError(
@@ -518,6 +550,168 @@ class SystematicResampler:
         particles.log_weight.fill(self._log_uniform)
         return idx
 
+
+class DivergenceRecovery:
+    """Augmented MCL driven by GNSS: re-draw particles around the fix when the cloud stops agreeing.
+
+    The robust GNSS likelihood bounds what one fix can do to the cloud, so a cloud that has drifted
+    tens of metres away (a wrong turn, particles trapped behind a building) sees every fix as an
+    outlier and GNSS can no longer pull it back. Following Thrun, Burgard & Fox, *Probabilistic
+    Robotics* (2005), section 8.3.5, each fix measures the cloud's mean agreement with it,
+    ``w_avg = sum_i w_i exp(-d_i^2 / (2 sigma^2))`` (``d_i``: the particle's expected fix to the fix,
+    ``sigma = sigma_factor * accuracy``, ``w_i``: the prior weights), and a short- and a long-term
+    average follow it, ``w += alpha (w_avg - w)``. When the short one falls well below the long one,
+    the cloud has stopped agreeing with a GNSS that used to agree, and the fraction
+    ``min(max_fraction, max(0, 1 - w_fast / (trigger_ratio * w_slow)))`` of the particles is replaced
+    by draws around the fix. The agreement is the pure Gaussian kernel without its normaliser: a
+    diverged cloud registers as ~0 (neither the outlier floor nor tempering hides it), and a change of
+    reported accuracy alone does not read as divergence. It is computed in the log domain.
+
+    Injected particles keep the drift angle, speed scale and GNSS bias of random current particles
+    (the drift estimate survives); they land at ``fix - bias`` plus the fix's spread, with the average
+    weight ``1 / N``. The map likelihood at the next footstep removes those that land in buildings.
+
+    Parameters
+    ----------
+    config
+        ``recovery_*`` rates, trigger and cap; ``n_particles``.
+    sigma_factor
+        GNSS sigma = factor * reported accuracy (the likelihood's).
+    rng
+        The filter's seeded generator (drawn from only when particles are injected).
+    """
+
+    def __init__(self, config: FilterConfig, sigma_factor: float, rng: np.random.Generator) -> None:
+        self.alpha_fast = config.recovery_alpha_fast
+        self.alpha_slow = config.recovery_alpha_slow
+        self.trigger_ratio = config.recovery_trigger_ratio
+        self.max_fraction = config.recovery_max_fraction
+        self.sigma_factor = sigma_factor
+        self.kernel_sigma_factor = sigma_factor * config.recovery_kernel_scale
+        self.rng = rng
+        self.w_fast = math.nan  # both start at the first fix's agreement
+        self.w_slow = math.nan
+        n = config.n_particles
+        self.prior_log_weight = np.empty(n)
+        self._tmp = np.empty(n)
+        self._tmp2 = np.empty(n)
+
+    @property
+    def enabled(self) -> bool:
+        """Whether any particle can ever be injected."""
+        return self.max_fraction > 0
+
+    def log_agreement(self, particles: ParticleSet, fix: GnssFix) -> float:
+        """``log w_avg``: log of the prior-weighted mean Gaussian kernel of the expected fixes.
+
+        Uses :attr:`prior_log_weight` (normalised log-weights before this fix's update).
+        """
+        p, d2, tmp = particles, self._tmp, self._tmp2
+        np.add(p.x, p.bias_x, out=d2)
+        d2 -= fix.x
+        np.square(d2, out=d2)
+        np.add(p.y, p.bias_y, out=tmp)
+        tmp -= fix.y
+        np.square(tmp, out=tmp)
+        d2 += tmp
+        d2 *= -0.5 / (self.kernel_sigma_factor * fix.accuracy_m) ** 2
+        d2 += self.prior_log_weight
+        peak = d2.max()
+        if not math.isfinite(peak):
+            return -math.inf
+        d2 -= peak
+        np.exp(d2, out=d2)
+        return peak + math.log(float(d2.sum()))
+
+    def observe(self, particles: ParticleSet, fix: GnssFix) -> float:
+        """Update both averages with this fix; return the fraction of particles to inject."""
+        w_avg = math.exp(self.log_agreement(particles, fix))
+        if math.isnan(self.w_slow):
+            self.w_fast = self.w_slow = w_avg
+        else:
+            self.w_fast += self.alpha_fast * (w_avg - self.w_fast)
+            self.w_slow += self.alpha_slow * (w_avg - self.w_slow)
+        if not self.w_slow > 0:
+            return 0.0
+        return min(self.max_fraction, max(0.0, 1.0 - self.w_fast / (self.trigger_ratio * self.w_slow)))
+
+    def inject(self, particles: ParticleSet, fix: GnssFix, fraction: float) -> int:
+        """Replace ``round(fraction * N)`` random particles by draws around ``fix``; return how many."""
+        n = len(particles)
+        k = int(round(fraction * n))
+        if k == 0:
+            return 0
+        p, rng = particles, self.rng
+        idx = rng.choice(n, size=k, replace=False)
+        donors = rng.integers(0, n, size=k)
+        sigma = self.sigma_factor * fix.accuracy_m
+        for name in ("theta", "scale", "bias_x", "bias_y"):
+            values = getattr(p, name)
+            values[idx] = values[donors]
+        p.x[idx] = fix.x - p.bias_x[idx] + sigma * rng.standard_normal(k)
+        p.y[idx] = fix.y - p.bias_y[idx] + sigma * rng.standard_normal(k)
+        p.log_weight[idx] = -math.log(n)
+        return k
+
+
+class SegmentMode(NamedTuple):
+    """The posterior mode over sidewalk segments at one step.
+
+    Attributes
+    ----------
+    segment
+        Index of the MAP segment (-1: no particle with positive weight near a sidewalk).
+    prob
+        Its posterior probability: the summed normalised weight of the particles whose nearest
+        segment it is (0 without one).
+    x, y
+        Weighted mean of those particles (NaN without a MAP segment).
+    """
+
+    segment: int
+    prob: float
+    x: float
+    y: float
+
+
+def segment_posterior(
+    segment_of: np.ndarray, weights: np.ndarray, x: np.ndarray, y: np.ndarray
+) -> tuple[np.ndarray, SegmentMode]:
+    """Posterior probability of every sidewalk segment and its mode, from weighted particles.
+
+    Each particle votes its normalised weight to its nearest segment; particles near no segment (-1)
+    vote for none. For 0-1 loss on the segment, the Bayes decision is the segment of largest posterior
+    probability (ties: the lowest index).
+
+    Parameters
+    ----------
+    segment_of
+        ``(N,)`` nearest-segment index of each particle, -1 for none.
+    weights
+        ``(N,)`` normalised weights.
+    x, y
+        ``(N,)`` particle positions.
+
+    Returns
+    -------
+    tuple
+        ``(segment_weights, mode)``: the summed weight per segment index (up to the largest index
+        present) and a :class:`SegmentMode`.
+    """
+    valid = segment_of >= 0
+    seg, w = segment_of[valid], weights[valid]
+    if len(seg) == 0:
+        return np.zeros(0), SegmentMode(-1, 0.0, math.nan, math.nan)
+    segment_weights = np.bincount(seg, weights=w)
+    best = int(np.argmax(segment_weights))
+    prob = float(segment_weights[best])
+    if not prob > 0:
+        return segment_weights, SegmentMode(-1, 0.0, math.nan, math.nan)
+    # bincount sums in particle order, as the compiled path does, so both paths agree to the bit.
+    mx = np.bincount(seg, weights=w * x[valid])[best]
+    my = np.bincount(seg, weights=w * y[valid])[best]
+    return segment_weights, SegmentMode(best, prob, float(mx / prob), float(my / prob))
+
 # -- The fast path: the components above as compiled loops over the particles ------------------------
 # Same draws, same formulas, same order of the random numbers; only the loops are compiled. No
 # fastmath: the weights rely on -inf.
@@ -623,6 +817,45 @@ def _systematic_resample(
         bias_y_out[k] = bias_y[j]
 
 
+@numba.njit(cache=True, nogil=True)
+def _segment_mode(
+    weights, x, y, padded_segments, inv_res, x_offset, y_offset, col_max, row_max, stride, segment_of,
+    segment_sums,
+):  # pragma: no cover - compiled
+    # segment_sums (3, S): weight, weight * x, weight * y per segment; all zeros on entry and on exit
+    # (only the touched entries are reset, in the second loop).
+    n = x.shape[0]
+    for i in range(n):
+        fx = min(max(x[i] * inv_res - x_offset, 0.0), col_max)
+        fy = min(max(y[i] * inv_res - y_offset, 0.0), row_max)
+        k = padded_segments[int(fy) * stride + int(fx)]
+        segment_of[i] = k
+        if k >= 0:
+            w = weights[i]
+            segment_sums[0, k] += w
+            segment_sums[1, k] += w * x[i]
+            segment_sums[2, k] += w * y[i]
+    best = -1
+    prob = mx = my = 0.0
+    for i in range(n):
+        k = segment_of[i]
+        if k < 0:
+            continue
+        w = segment_sums[0, k]
+        # Each segment is compared once, at its first particle (its sums are then reset to 0).
+        if w > prob or (w == prob and w > 0.0 and k < best):
+            best = k
+            prob = w
+            mx = segment_sums[1, k]
+            my = segment_sums[2, k]
+        segment_sums[0, k] = 0.0
+        segment_sums[1, k] = 0.0
+        segment_sums[2, k] = 0.0
+    if best < 0:
+        return -1, 0.0, math.nan, math.nan
+    return best, prob, mx / prob, my / prob
+
+
 class Estimate(NamedTuple):
     """The filter's output at one footstep (a named tuple: cheap to make once per footstep).
 
@@ -642,6 +875,14 @@ class Estimate(NamedTuple):
         Whether the particle cloud collapsed at this step and was re-seeded.
     frame
         The local frame, for :attr:`lat` / :attr:`lon`.
+    segment_id
+        ``segment_id`` of the MAP sidewalk segment (the segment of largest posterior probability);
+        ``None`` without a segment raster or with no weight near a sidewalk.
+    segment_prob
+        Its posterior probability (NaN without a segment raster, 0 with no weight near a sidewalk).
+    mode_x, mode_y
+        The mode estimate: weighted mean of the particles on the MAP segment (the weighted mean ``x, y``
+        when there is none), metres in the local CRS.
     """
 
     t: float
@@ -652,6 +893,10 @@ class Estimate(NamedTuple):
     n_eff: float
     recovered: bool
     frame: LocalFrame | None = None
+    segment_id: str | None = None
+    segment_prob: float = math.nan
+    mode_x: float = math.nan
+    mode_y: float = math.nan
 
     @property
     def lat(self) -> float:
@@ -662,6 +907,12 @@ class Estimate(NamedTuple):
     def lon(self) -> float:
         """Longitude, WGS84 degrees."""
         return float(self.frame.to_lonlat(self.x, self.y)[0])
+
+    @property
+    def mode_lonlat(self) -> tuple[float, float]:
+        """``(lon, lat)`` of the mode estimate, WGS84 degrees."""
+        lon, lat = self.frame.to_lonlat(self.mode_x, self.mode_y)
+        return float(lon), float(lat)
 
 
 class Tracker:
@@ -679,6 +930,14 @@ class Tracker:
     frame
         Local metric frame. Default: the map's CRS; without a map, set by :meth:`start_at_lonlat` or
         given here.
+
+    Attributes
+    ----------
+    recoveries
+        Number of collapses (every weight zero) re-seeded so far.
+    injections
+        Number of particles injected around GNSS fixes so far (:class:`DivergenceRecovery`);
+        ``last_injected``: how many at the latest step.
 
     Examples
     --------
@@ -717,6 +976,10 @@ class Tracker:
         self.last_fix: GnssFix | None = None
         self.last_fix_t = -math.inf
         self.recoveries = 0
+        self.recovery = DivergenceRecovery(self.config, self.config.gnss_sigma_factor, self.rng)
+        self.injections = 0
+        self.last_injected = 0
+        self._inject_fraction = 0.0
         self._weights = np.empty(n)
         self._loglik = np.empty(n)
         self._tmp = np.empty(n)
@@ -733,6 +996,14 @@ class Tracker:
             if lookup is not None
             else (False, np.zeros(1, np.uint8), 1.0, 0.0, 0.0, 0.0, 0.0, 1, np.zeros(BUILDING + 1))
         )
+        self.segment_ids: np.ndarray | None = None
+        if self.config.segment_estimate and lookup is not None and lookup.padded_segments is not None:
+            self.segment_ids = raster.segment_ids
+            self._segment_of = np.empty(n, lookup.padded_segments.dtype)
+            self._segment_args = (
+                lookup.padded_segments, lookup.inv_res, lookup.x_offset, lookup.y_offset, lookup.col_max,
+                lookup.row_max, lookup.stride, self._segment_of, np.zeros((3, len(raster.segment_ids))),
+            )
 
     # -- starting -----------------------------------------------------------------------------------
 
@@ -859,6 +1130,9 @@ class Tracker:
         p = self.particles
         exponent = self.gnss_likelihood.exponent(t - self.last_fix_t) if use_fix else 0.0
         dt_s = t - self.last_estimate.t if self.last_estimate is not None else 0.0
+        track_agreement = use_fix and self.recovery.enabled
+        if track_agreement:
+            np.copyto(self.recovery.prior_log_weight, p.log_weight)
         if self._fast:
             self._predict_and_weigh_fast(dx, dy, dt_s, gnss_fix if use_fix else None, exponent)
         else:
@@ -873,6 +1147,8 @@ class Tracker:
                 )
         if use_fix:
             self.last_fix, self.last_fix_t = gnss_fix, t
+        if track_agreement:
+            self._inject_fraction = self.recovery.observe(p, gnss_fix)
         return self._update(t)
 
     def _predict_and_weigh_fast(
@@ -902,15 +1178,39 @@ class Tracker:
         x, y, scale = float(np.dot(w, p.x)), float(np.dot(w, p.y)), float(np.dot(w, p.scale))
         return True, x, y, theta, scale, effective_sample_size(w)
 
+    def segment_mode(self) -> SegmentMode | None:
+        """The posterior mode over sidewalk segments under the current normalised weights.
+
+        ``None`` without a segment raster (no map, a map without sidewalks, or
+        ``config.segment_estimate`` off).
+        """
+        if self.segment_ids is None:
+            return None
+        p = self.particles
+        if self._fast:
+            return SegmentMode(*_segment_mode(self._weights, p.x, p.y, *self._segment_args))
+        segment_of = self.map_likelihood.lookup.segments_at(p.x, p.y, out=self._segment_of)
+        return segment_posterior(segment_of, self._weights, p.x, p.y)[1]
+
     def _update(self, t: float) -> Estimate:
-        """Normalise, recover from a collapse, estimate, resample."""
+        """Normalise, recover from a collapse, estimate (mean and segment mode), resample."""
         ok, x, y, theta, scale, n_eff = self._normalise_and_estimate()
         if not ok:
             self._recover(t)  # leaves finite weights, so the second pass succeeds
             _, x, y, theta, scale, n_eff = self._normalise_and_estimate()
-        estimate = Estimate(t, x, y, theta, scale, n_eff, not ok, self.frame)
+        mode = self.segment_mode()
+        if mode is None:
+            segment_id, prob, mode_x, mode_y = None, math.nan, x, y
+        elif mode.segment < 0:
+            segment_id, prob, mode_x, mode_y = None, 0.0, x, y
+        else:
+            segment_id, prob, mode_x, mode_y = str(self.segment_ids[mode.segment]), mode.prob, mode.x, mode.y
+        estimate = Estimate(
+            t, x, y, theta, scale, n_eff, not ok, self.frame, segment_id, prob, mode_x, mode_y
+        )
         if self.config.resample == "always" or n_eff < self._ess_threshold:
             self._resample()
+        self._inject()
         self.last_estimate = estimate
         return estimate
 
@@ -926,6 +1226,17 @@ class Tracker:
         self._spare = (p.x, p.y, p.theta, p.scale, p.bias_x, p.bias_y)
         p.x, p.y, p.theta, p.scale, p.bias_x, p.bias_y = out
         p.log_weight.fill(self._log_uniform)
+
+    def _inject(self) -> None:
+        """After resampling, inject the fraction of particles :meth:`step` asked for around the latest fix."""
+        self.last_injected = 0
+        if self._inject_fraction > 0:
+            self.last_injected = self.recovery.inject(self.particles, self.last_fix, self._inject_fraction)
+            self._inject_fraction = 0.0
+            if self.last_injected:
+                self.injections += self.last_injected
+                logger.debug("cloud disagrees with GNSS (w_fast/w_slow = %.3g): %d particles injected",
+                             self.recovery.w_fast / self.recovery.w_slow, self.last_injected)
 
     def _recover(self, t: float) -> None:
         """Re-seed a collapsed cloud around the last estimate and the latest good fix; never NaN.
@@ -961,4 +1272,4 @@ class Tracker:
             p.log_weight += self.map_likelihood.log_likelihood(p.x, p.y, out=self._loglik)
         if not np.isfinite(p.log_weight.max()):
             p.log_weight.fill(-math.log(n))
-        logger.warning("particle cloud collapsed at t=%.2f s: re-seeded (%d so far)", t, self.recoveries)
+        logger.debug("particle cloud collapsed at t=%.2f s: re-seeded (%d so far)", t, self.recoveries)

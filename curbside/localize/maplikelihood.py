@@ -17,8 +17,17 @@ Class codes increase with precedence, so the grid is the element-wise maximum of
 ``building`` overrides everything, ``crosswalk`` overrides ``street`` and ``sidewalk``, and
 ``sidewalk`` overrides ``street`` (a sidewalk drawn over the carriageway edge is walkable).
 
+Alongside the class codes, the same grid holds the index of the nearest sidewalk segment of every cell
+within ``settings.segment_raster_max_distance_m`` of one (-1 farther away), with the ``segment_id``
+strings in a lookup array: the filter sums its particle weights per segment with one ``bincount``. The
+segments are rasterised (each cell centre inside a sidewalk polygon takes that polygon's index, found
+by one vectorised STRtree query over those centres), and the Euclidean distance transform
+(:func:`scipy.ndimage.distance_transform_edt` with ``return_indices``) hands every other cell the index
+of its nearest labelled cell.
+
 Rasters are cached under ``settings.cache_dir / "rasters"`` as ``.npz`` files named by a SHA-256 of
-the map content (CRS, classes and WKB of every polygon), the resolution and the rasteriser version.
+the map content (CRS, classes and WKB of every polygon, sidewalk ``segment_id`` strings), the
+resolution, the segment reach and the rasteriser version.
 """
 
 from __future__ import annotations
@@ -31,6 +40,7 @@ from pathlib import Path
 import numpy as np
 import pyproj
 import shapely
+from scipy import ndimage
 from tqdm.auto import tqdm
 
 from curbside import settings
@@ -46,7 +56,7 @@ CLASS_CODES: dict[str, int] = {
 }
 
 #: Bumped whenever the rasteriser's output changes, so stale cache files are not reused.
-RASTER_FORMAT_VERSION = 1
+RASTER_FORMAT_VERSION = 2
 
 #: Rows rasterised at once: bounds the difference array's memory (rows x columns x 4 bytes).
 _ROW_BLOCK = 512
@@ -70,6 +80,12 @@ class MapRaster:
         Cell size, metres.
     crs
         The map's metric CRS (WKT), for checks when a raster is reused.
+    segment_index
+        ``(rows, cols)`` ``int16``/``int32`` index into :attr:`segment_ids` of the nearest sidewalk segment of
+        each cell, -1 beyond ``settings.segment_raster_max_distance_m``; ``None`` for a map without
+        sidewalk segments.
+    segment_ids
+        ``segment_id`` string of each indexed segment (``None`` with :attr:`segment_index`).
     """
 
     codes: np.ndarray
@@ -77,6 +93,8 @@ class MapRaster:
     y0: float
     resolution_m: float
     crs: str
+    segment_index: np.ndarray | None = None
+    segment_ids: np.ndarray | None = None
 
     @property
     def shape(self) -> tuple[int, int]:
@@ -135,6 +153,17 @@ class MapRaster:
         k = int(np.argmin((cx - x) ** 2 + (cy - y) ** 2))
         return float(cx[k]), float(cy[k])
 
+    def segments_at(self, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+        """Index into :attr:`segment_ids` of the nearest sidewalk segment of each point (-1: none).
+
+        Points outside the grid, and every point of a raster without segments, give -1.
+        """
+        x, y = np.asarray(x, float), np.asarray(y, float)
+        if self.segment_index is None:
+            return np.full(x.shape, -1, np.int16)
+        lookup = RasterLookup(self)
+        return lookup.segments_at(x.ravel(), y.ravel()).reshape(x.shape)
+
 
 class RasterLookup:
     """Index math from points to class codes, with preallocated buffers for a fixed particle count.
@@ -152,6 +181,11 @@ class RasterLookup:
         rows, cols = raster.codes.shape
         self.raster = raster
         self.padded = np.pad(raster.codes, 1, constant_values=FREE).ravel()
+        #: Padded nearest-segment grid (-1 in the ring); ``None`` without sidewalk segments.
+        self.padded_segments = (
+            None if raster.segment_index is None
+            else np.pad(raster.segment_index, 1, constant_values=-1).ravel()
+        )
         self.inv_res = 1.0 / raster.resolution_m
         # Index in the padded grid = (x - (x0 - res)) / res, i.e. x * inv_res - offset.
         self.x_offset = (raster.x0 - raster.resolution_m) * self.inv_res
@@ -170,10 +204,8 @@ class RasterLookup:
             self._codes = np.empty(n, dtype=np.uint8)
             self._n = n
 
-    def codes_at(self, x: np.ndarray, y: np.ndarray) -> np.ndarray:
-        """Class codes under ``x, y`` (1-D or any shape); a view into a reused buffer for 1-D input."""
-        shape = x.shape
-        x, y = x.ravel(), y.ravel()
+    def flat_indices(self, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+        """Index into the padded, flattened grid of each point of 1-D ``x, y`` (a reused buffer)."""
         self._buffers(len(x))
         fx, fy = self._fx, self._fy
         np.multiply(x, self.inv_res, out=fx)
@@ -187,20 +219,41 @@ class RasterLookup:
         iy[...] = fy
         iy *= self.stride
         flat += iy
+        return flat
+
+    def codes_at(self, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+        """Class codes under ``x, y`` (1-D or any shape); a view into a reused buffer for 1-D input."""
+        shape = x.shape
+        flat = self.flat_indices(x.ravel(), y.ravel())
         np.take(self.padded, flat, out=self._codes)
         return self._codes.reshape(shape)
+
+    def segments_at(self, x: np.ndarray, y: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
+        """Nearest-segment index under 1-D ``x, y`` (-1: none), into ``out`` when given.
+
+        Raises
+        ------
+        ValueError
+            The raster has no segment grid.
+        """
+        if self.padded_segments is None:
+            raise ValueError("the map raster has no sidewalk segments")
+        return np.take(self.padded_segments, self.flat_indices(x, y), out=out)
 
 
 def map_hash(layers: MapLayers, resolution_m: float) -> str:
     """SHA-256 hex digest of a map's content and the raster parameters (the cache key)."""
     digest = hashlib.sha256()
     digest.update(f"v{RASTER_FORMAT_VERSION};res={resolution_m!r};".encode())
+    digest.update(f"segment_reach={float(settings.segment_raster_max_distance_m)!r};".encode())
     digest.update(pyproj.CRS(layers.crs).to_wkt().encode())
     digest.update(repr(sorted(CLASS_CODES.items())).encode())
     for cls in layers.gdf["class"].astype(str):
         digest.update(cls.encode())
     for wkb in shapely.to_wkb(layers.gdf.geometry.values, output_dimension=2):
         digest.update(wkb)
+    if "segment_id" in layers.gdf:
+        digest.update("\0".join(map(str, layers.gdf["segment_id"].tolist())).encode())
     return digest.hexdigest()
 
 
@@ -284,6 +337,65 @@ def rasterize_mask(
     return mask
 
 
+def rasterize_segments(
+    layers: MapLayers, x0: float, y0: float, res: float, shape: tuple[int, int],
+    max_distance_m: float | None = None,
+) -> tuple[np.ndarray, np.ndarray] | None:
+    """Grid of the nearest sidewalk segment's index of every cell, and the ``segment_id`` lookup array.
+
+    Cells whose centre lies in (or on) a sidewalk polygon take its index (the first polygon where
+    several overlap); a polygon too thin to hold a cell centre marks the cell of a point on its
+    surface. Every other cell takes the index of the nearest marked cell (Euclidean distance
+    transform), or -1 when that is farther than ``max_distance_m``.
+
+    Parameters
+    ----------
+    layers
+        The map, in its local metric CRS.
+    x0, y0, res, shape
+        The grid: south-west corner, cell size and ``(rows, cols)``.
+    max_distance_m
+        Reach of a segment (default ``settings.segment_raster_max_distance_m``).
+
+    Returns
+    -------
+    tuple of numpy.ndarray or None
+        ``(segment_index, segment_ids)``: ``int16`` (``int32`` beyond 32,766 segments) grid of
+        ``shape`` and the ``str`` ids; ``None``
+        when the map has no sidewalk segment.
+    """
+    reach = float(settings.segment_raster_max_distance_m if max_distance_m is None else max_distance_m)
+    sidewalks = layers.layer("sidewalk")
+    sidewalks = sidewalks[sidewalks.geometry.notna() & ~sidewalks.geometry.is_empty]
+    if len(sidewalks) == 0:
+        return None
+    geoms = np.asarray(sidewalks.geometry.values)
+    ids = sidewalks["segment_id"].astype(str).to_numpy().astype(str)
+    rows, cols = shape
+    label = np.full(shape, -1, np.int32)
+    ii, jj = np.nonzero(rasterize_mask(geoms, x0, y0, res, shape))
+    centres = shapely.points(x0 + (jj + 0.5) * res, y0 + (ii + 0.5) * res)
+    cell, poly = shapely.STRtree(geoms).query(centres, predicate="intersects")
+    # Reversed so that, among overlapping polygons, the first one is written last and wins.
+    label[ii[cell[::-1]], jj[cell[::-1]]] = poly[::-1]
+    unmarked = np.setdiff1d(np.arange(len(geoms)), label[label >= 0])
+    if len(unmarked):
+        px, py = shapely.get_coordinates(shapely.point_on_surface(geoms[unmarked])).T
+        pj, pi = np.floor((px - x0) / res).astype(np.intp), np.floor((py - y0) / res).astype(np.intp)
+        inside = (pi >= 0) & (pi < rows) & (pj >= 0) & (pj < cols)
+        free = np.zeros(len(unmarked), bool)
+        free[inside] = label[pi[inside], pj[inside]] < 0
+        label[pi[free], pj[free]] = unmarked[free]
+    if not (label >= 0).any():
+        return None
+    distance, (ri, ci) = ndimage.distance_transform_edt(label < 0, sampling=res, return_indices=True)
+    segment_index = label[ri, ci]
+    segment_index[distance > reach] = -1
+    # The grid is as large as the class raster: int16 quarters it for maps with < 32,767 segments.
+    dtype = np.int16 if len(ids) < np.iinfo(np.int16).max else np.int32
+    return segment_index.astype(dtype), ids
+
+
 def rasterize_map(
     layers: MapLayers, resolution_m: float | None = None, margin_m: float = 0.0
 ) -> MapRaster:
@@ -317,7 +429,11 @@ def rasterize_map(
         mask = rasterize_mask(np.asarray(geoms), x0, y0, res, (rows, cols))
         codes[mask] = code
         logger.debug("rasterised %d %s polygons: %d cells", len(geoms), cls, int(mask.sum()))
-    return MapRaster(codes, float(x0), float(y0), res, pyproj.CRS(layers.crs).to_wkt())
+    segments = rasterize_segments(layers, float(x0), float(y0), res, (rows, cols))
+    segment_index, segment_ids = segments if segments is not None else (None, None)
+    return MapRaster(
+        codes, float(x0), float(y0), res, pyproj.CRS(layers.crs).to_wkt(), segment_index, segment_ids
+    )
 
 
 def load_or_build_raster(
@@ -346,9 +462,12 @@ def load_or_build_raster(
     if path.is_file():
         try:
             with np.load(path, allow_pickle=False) as npz:
+                has_segments = "segment_index" in npz.files
                 raster = MapRaster(
                     npz["codes"], float(npz["x0"]), float(npz["y0"]), float(npz["resolution_m"]),
                     str(npz["crs"]),
+                    npz["segment_index"] if has_segments else None,
+                    npz["segment_ids"] if has_segments else None,
                 )
             logger.info("map raster from cache %s", path)
             return raster
@@ -356,10 +475,14 @@ def load_or_build_raster(
             logger.warning("ignoring unreadable raster cache %s (%s)", path, exc)
     raster = rasterize_map(layers, res)
     try:
+        segments = (
+            {} if raster.segment_index is None
+            else {"segment_index": raster.segment_index, "segment_ids": raster.segment_ids}
+        )
         with atomic_path(path) as tmp, open(tmp, "wb") as fh:
             np.savez_compressed(
                 fh, codes=raster.codes, x0=raster.x0, y0=raster.y0, resolution_m=raster.resolution_m,
-                crs=np.array(raster.crs),
+                crs=np.array(raster.crs), **segments,
             )
         logger.info("map raster %dx%d cached at %s", *raster.shape, path)
     except OSError as exc:

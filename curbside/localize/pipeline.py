@@ -52,8 +52,13 @@ MODES = ("gnss", "inertial", "fused")
 VELOCITY_SOURCES = ("auto", "file", "ronin", "pdr")
 GNSS_ASSOCIATIONS = ("interpolate", "once")
 
-#: Columns of ``track.csv`` in order (``sidewalk_segment_id`` is added when the map has sidewalks).
+#: Columns of ``track.csv`` in order (:data:`SEGMENT_COLUMNS` follow when the map has sidewalks).
 TRACK_COLUMNS = ("t", "lat", "lon", "x_m", "y_m", "theta_drift_deg", "speed_scale", "n_eff", "recovered")
+
+#: Columns added when the map has sidewalk segments: the filter's MAP segment (the polygon under the
+#: estimate in ``gnss`` mode), its posterior probability (NaN in ``gnss`` mode) and the mode estimate
+#: (the weighted mean of the particles on the MAP segment; the track's own position in ``gnss`` mode).
+SEGMENT_COLUMNS = ("sidewalk_segment_id", "segment_prob", "mode_lat", "mode_lon")
 
 #: Velocity samples further apart than this (s) are a gap: no motion is integrated across it.
 VELOCITY_MAX_GAP_S = 1.0
@@ -92,7 +97,8 @@ class TrackResult:
     Attributes
     ----------
     track
-        One row per footstep: :data:`TRACK_COLUMNS` (and ``sidewalk_segment_id`` with a map).
+        One row per footstep: :data:`TRACK_COLUMNS` (and :data:`SEGMENT_COLUMNS` with a map that has
+        sidewalks).
     mode
         The method run.
     velocity_source, step_source
@@ -542,6 +548,11 @@ def track_session(
             "recovered": np.array([e.recovered for e in estimates], dtype=int),
         }
     )
+    if tracker.segment_ids is not None:
+        track["sidewalk_segment_id"] = np.array([e.segment_id for e in estimates], dtype=object)
+        track["segment_prob"] = [e.segment_prob for e in estimates]
+        track["mode_x_m"] = [e.mode_x for e in estimates]
+        track["mode_y_m"] = [e.mode_y for e in estimates]
     if tracker.recoveries:
         logger.warning("%s: the particle cloud collapsed %d time(s)", session.name, tracker.recoveries)
     snapshots = _stack_snapshots(snaps, track, frame) if save_particles else None
@@ -603,10 +614,20 @@ def _finish(result: TrackResult, frame: LocalFrame, map_layers: MapLayers | None
     lon, lat = frame.to_lonlat(track["x_m"].to_numpy(), track["y_m"].to_numpy())
     track.insert(1, "lat", np.atleast_1d(lat))
     track.insert(2, "lon", np.atleast_1d(lon))
-    if map_layers is not None and len(map_layers.layer("sidewalk")):
+    if map_layers is None or not len(map_layers.layer("sidewalk")):
+        return result
+    if "mode_x_m" in track:  # the filter's posterior mode over segments
+        mode_x, mode_y = track.pop("mode_x_m").to_numpy(), track.pop("mode_y_m").to_numpy()
+        mode_lon, mode_lat = frame.to_lonlat(mode_x, mode_y)
+        track["mode_lat"] = np.atleast_1d(mode_lat)
+        track["mode_lon"] = np.atleast_1d(mode_lon)
+    else:  # no particles (gnss mode) or no segment estimate: the polygon under the track's position
         track["sidewalk_segment_id"] = sidewalk_segments_at(
             map_layers, track["x_m"].to_numpy(), track["y_m"].to_numpy()
         )
+        track["segment_prob"] = np.nan
+        track["mode_lat"] = track["lat"]
+        track["mode_lon"] = track["lon"]
     return result
 
 
