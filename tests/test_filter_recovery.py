@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import logging
 import math
 
 import numpy as np
@@ -40,9 +41,9 @@ def test_a_diverged_cloud_recovers_with_recovery_and_stays_lost_without():
     _, err_on, injected = walk(max_fraction=0.25)
     _, err_off, injected_off = walk(max_fraction=0.0)
     assert err_on[39] > 60 and err_off[39] > 60  # both diverged by the kidnap
-    assert np.all(err_on[80:] < 10)  # back within 40 fixes (20 s)
-    assert np.all(err_off[80:] > 60)  # the robust likelihood alone cannot pull it back
-    assert sum(injected[39:80]) > 0 and sum(injected_off) == 0
+    assert np.all(err_on[100:] < 10)  # back within 60 fixes (30 s)
+    assert np.all(err_off[100:] > 60)  # the robust likelihood alone cannot pull it back
+    assert sum(injected[39:100]) > 0 and sum(injected_off) == 0
 
 
 def test_nothing_is_injected_while_the_cloud_agrees_with_gnss():
@@ -86,8 +87,9 @@ def test_injected_particles_land_around_the_fix_and_keep_current_drift_angles():
     assert np.all((p.theta >= 0.1) & (p.theta <= 0.2))
 
 
-def test_agreement_is_the_prior_weighted_mean_gaussian_kernel():
-    config = FilterConfig(n_particles=4)
+@pytest.mark.parametrize("backend", ["numba", "numpy"])
+def test_agreement_is_the_prior_weighted_mean_gaussian_kernel(backend):
+    config = FilterConfig(n_particles=4, recovery_kernel_scale=1.0, backend=backend)
     recovery = DivergenceRecovery(config, sigma_factor=1.0, rng=np.random.default_rng(0))
     p = ParticleSet(4)
     p.x[:] = [0.0, 1.0, 2.0, 1000.0]
@@ -106,3 +108,14 @@ def test_agreement_is_the_prior_weighted_mean_gaussian_kernel():
 def test_invalid_recovery_settings_are_rejected(bad):
     with pytest.raises(ValueError, match="recovery"):
         FilterConfig(**bad)
+
+
+def test_a_collapse_is_logged_at_debug_not_as_a_warning(caplog):
+    caplog.set_level(logging.DEBUG, logger="curbside.localize.filter")
+    tracker = Tracker(None, FilterConfig(n_particles=50), seed=0)
+    tracker.start_at_pose(0.0, 0.0, 0.0)
+    tracker.particles.log_weight[:] = -np.inf  # every weight zero: the next step collapses
+    est = tracker.step(0.5, displacement_en=(STEP_M, 0.0))
+    assert est.recovered and tracker.recoveries == 1
+    collapse = [r for r in caplog.records if "collapsed" in r.getMessage()]
+    assert collapse and all(r.levelno == logging.DEBUG for r in collapse)

@@ -26,7 +26,8 @@ Read it top to bottom:
    segment) and the weighted mean of the particles on it: the Bayes decision for sidewalk assignment,
    which the weighted mean of a cloud split across a street is not.
 10. :class:`Tracker`: the streaming API a navigation app calls once per footstep; it composes the
-    components, recovers from collapse and returns an :class:`Estimate`. Batch runs
+    components, recovers from collapse (and, with :class:`DivergenceRecovery`, Augmented MCL, from a
+    cloud that no longer agrees with GNSS) and returns an :class:`Estimate`. Batch runs
     (:mod:`curbside.localize.pipeline`) drive the same class.
 
 Arrays are preallocated for the particle count (the fast path allocates nothing per step), so one
@@ -589,10 +590,11 @@ class DivergenceRecovery:
         self.sigma_factor = sigma_factor
         self.kernel_sigma_factor = sigma_factor * config.recovery_kernel_scale
         self.rng = rng
+        self.fast = config.backend == "numba"
         self.w_fast = math.nan  # both start at the first fix's agreement
         self.w_slow = math.nan
         n = config.n_particles
-        self.prior_log_weight = np.empty(n)
+        self.prior_log_weight = np.full(n, -math.log(n))
         self._tmp = np.empty(n)
         self._tmp2 = np.empty(n)
 
@@ -607,6 +609,10 @@ class DivergenceRecovery:
         Uses :attr:`prior_log_weight` (normalised log-weights before this fix's update).
         """
         p, d2, tmp = particles, self._tmp, self._tmp2
+        scale = -0.5 / (self.kernel_sigma_factor * fix.accuracy_m) ** 2
+        if self.fast:
+            prior = self.prior_log_weight
+            return _log_agreement(p.x, p.y, p.bias_x, p.bias_y, prior, fix.x, fix.y, scale, d2)
         np.add(p.x, p.bias_x, out=d2)
         d2 -= fix.x
         np.square(d2, out=d2)
@@ -614,7 +620,7 @@ class DivergenceRecovery:
         tmp -= fix.y
         np.square(tmp, out=tmp)
         d2 += tmp
-        d2 *= -0.5 / (self.kernel_sigma_factor * fix.accuracy_m) ** 2
+        d2 *= scale
         d2 += self.prior_log_weight
         peak = d2.max()
         if not math.isfinite(peak):
@@ -631,9 +637,10 @@ class DivergenceRecovery:
         else:
             self.w_fast += self.alpha_fast * (w_avg - self.w_fast)
             self.w_slow += self.alpha_slow * (w_avg - self.w_slow)
-        if not self.w_slow > 0:
+        threshold = self.trigger_ratio * self.w_slow
+        if not threshold > 0:  # no fix ever agreed (or it underflowed): nothing to compare with
             return 0.0
-        return min(self.max_fraction, max(0.0, 1.0 - self.w_fast / (self.trigger_ratio * self.w_slow)))
+        return min(self.max_fraction, max(0.0, 1.0 - self.w_fast / threshold))
 
     def inject(self, particles: ParticleSet, fix: GnssFix, fraction: float) -> int:
         """Replace ``round(fraction * N)`` random particles by draws around ``fix``; return how many."""
@@ -856,6 +863,24 @@ def _segment_mode(
     return best, prob, mx / prob, my / prob
 
 
+@numba.njit(cache=True, nogil=True)
+def _log_agreement(x, y, bias_x, bias_y, prior_log_weight, fix_x, fix_y, scale, work):  # pragma: no cover
+    """:meth:`DivergenceRecovery.log_agreement` as two compiled passes (max, then sum of exp)."""
+    peak = -math.inf
+    for i in range(x.shape[0]):
+        dx = x[i] + bias_x[i] - fix_x
+        dy = y[i] + bias_y[i] - fix_y
+        v = scale * (dx * dx + dy * dy) + prior_log_weight[i]
+        work[i] = v
+        peak = max(peak, v)
+    if not math.isfinite(peak):
+        return -math.inf
+    total = 0.0
+    for i in range(x.shape[0]):
+        total += math.exp(work[i] - peak)
+    return peak + math.log(total)
+
+
 class Estimate(NamedTuple):
     """The filter's output at one footstep (a named tuple: cheap to make once per footstep).
 
@@ -977,6 +1002,7 @@ class Tracker:
         self.last_fix_t = -math.inf
         self.recoveries = 0
         self.recovery = DivergenceRecovery(self.config, self.config.gnss_sigma_factor, self.rng)
+        self._recovery_on = self.recovery.enabled
         self.injections = 0
         self.last_injected = 0
         self._inject_fraction = 0.0
@@ -1130,8 +1156,8 @@ class Tracker:
         p = self.particles
         exponent = self.gnss_likelihood.exponent(t - self.last_fix_t) if use_fix else 0.0
         dt_s = t - self.last_estimate.t if self.last_estimate is not None else 0.0
-        track_agreement = use_fix and self.recovery.enabled
-        if track_agreement:
+        track_agreement = use_fix and self._recovery_on
+        if track_agreement and self.config.resample != "always":  # else uniform, as it starts
             np.copyto(self.recovery.prior_log_weight, p.log_weight)
         if self._fast:
             self._predict_and_weigh_fast(dx, dy, dt_s, gnss_fix if use_fix else None, exponent)
@@ -1210,7 +1236,7 @@ class Tracker:
         )
         if self.config.resample == "always" or n_eff < self._ess_threshold:
             self._resample()
-        self._inject()
+        self.last_injected = self._inject() if self._inject_fraction > 0 else 0
         self.last_estimate = estimate
         return estimate
 
@@ -1227,16 +1253,15 @@ class Tracker:
         p.x, p.y, p.theta, p.scale, p.bias_x, p.bias_y = out
         p.log_weight.fill(self._log_uniform)
 
-    def _inject(self) -> None:
+    def _inject(self) -> int:
         """After resampling, inject the fraction of particles :meth:`step` asked for around the latest fix."""
-        self.last_injected = 0
-        if self._inject_fraction > 0:
-            self.last_injected = self.recovery.inject(self.particles, self.last_fix, self._inject_fraction)
-            self._inject_fraction = 0.0
-            if self.last_injected:
-                self.injections += self.last_injected
-                logger.debug("cloud disagrees with GNSS (w_fast/w_slow = %.3g): %d particles injected",
-                             self.recovery.w_fast / self.recovery.w_slow, self.last_injected)
+        k = self.recovery.inject(self.particles, self.last_fix, self._inject_fraction)
+        self._inject_fraction = 0.0
+        self.injections += k
+        if k:
+            logger.debug("cloud disagrees with GNSS (w_fast/w_slow = %.3g): %d particles injected",
+                         self.recovery.w_fast / self.recovery.w_slow, k)
+        return k
 
     def _recover(self, t: float) -> None:
         """Re-seed a collapsed cloud around the last estimate and the latest good fix; never NaN.
