@@ -153,7 +153,7 @@ default_step_cadence_s: float = 0.5
 #: A start pose inside a building is moved to the nearest free cell within this distance (m).
 filter_max_start_snap_m: float = 30.0
 
-# --- osmseg show / compare / import-datasf (helper A2) ---------------------------------------------
+# --- osmseg show / compare / import-datasf ------------------------------------------------------
 
 #: Spacing (m) of the points sampled along class boundaries for ``osmseg compare``'s boundary distance.
 compare_boundary_step_m: float = 1.0
@@ -172,7 +172,7 @@ datasf_min_area_m2: float = 1.0
 gpx_uere_m: float = 5.0
 
 # ---------------------------------------------------------------------------------------------------
-# evaluate: ground truth, metrics, simulator (helper E). Sources of each value in docs/evaluate.md.
+# evaluate: ground truth, metrics, simulator. Sources of each value in docs/evaluate.md.
 # ---------------------------------------------------------------------------------------------------
 
 #: Storey height used when an OSM building has ``building:levels`` but no ``height`` (metres).
@@ -191,7 +191,7 @@ evaluate_crossing_slack_m: float = 6.0
 #: Metrics: RoNIN's relative-trajectory-error window (seconds).
 evaluate_rte_window_s: float = 60.0
 
-# --- osmseg build: derivation rules and widths (helper A1) -------------------------------------------
+# --- osmseg build: derivation rules and widths ----------------------------------------------------
 # Documented with their sources in docs/osmseg.md.
 
 #: Carriageway width (m, curb to curb) per ``highway`` class when a way has neither ``width`` nor ``lanes``.
@@ -264,13 +264,13 @@ min_polygon_area_m2: float = 0.5
 #: GeoJSON map files keep 7).
 html_coordinate_decimals: int = 6
 
-# --- posterior mode over sidewalk segments (localize filter, helper G) ------------------------------
+# --- posterior mode over sidewalk segments (localize filter) --------------------------------------
 
 #: Reach (m) of a sidewalk segment in the nearest-segment raster: cells farther from every sidewalk
 #: belong to no segment (their particles count towards no segment's posterior probability).
 segment_raster_max_distance_m: float = 25.0
 
-# --- divergence recovery: Augmented MCL driven by GNSS (localize filter, helper H) ------------------
+# --- divergence recovery: Augmented MCL driven by GNSS (localize filter) --------------------------
 # Thrun, Burgard & Fox, Probabilistic Robotics (2005), table 8.3: short- and long-term averages of the
 # cloud's GNSS agreement (per fix); when the short one falls below the long one, a fraction of the
 # particles is re-drawn around the fix. Rates are per fix (about 2 per second): 0.02 averages ~25 s,
