@@ -554,7 +554,8 @@ def track_session(
         track["mode_x_m"] = [e.mode_x for e in estimates]
         track["mode_y_m"] = [e.mode_y for e in estimates]
     if tracker.recoveries:
-        logger.warning("%s: the particle cloud collapsed %d time(s)", session.name, tracker.recoveries)
+        # Reported by `localize run`'s summary and in the evaluation's run records; expected at w = 0.
+        logger.info("%s: the particle cloud collapsed %d time(s)", session.name, tracker.recoveries)
     snapshots = _stack_snapshots(snaps, track, frame) if save_particles else None
     result = TrackResult(track, mode, inertial.source, step_source, tracker.recoveries, snapshots, config)
     return _finish(result, frame, map_layers)
