@@ -87,6 +87,9 @@ def run_cli(
     args = parser.parse_args(argv)
     level = logging.WARNING - 10 * min(args.verbose, 2)
     logging.basicConfig(level=level, format="%(levelname)s %(name)s: %(message)s")
+    # Libraries that set their own logger levels (dask's distributed logs at INFO) still stop here.
+    for handler in logging.getLogger().handlers:
+        handler.setLevel(level)
     func: Callable[[argparse.Namespace], int | None] | None = getattr(args, "func", None)
     if func is None:
         parser.print_help(sys.stderr)
