@@ -116,10 +116,14 @@ def run_demo(out_dir: str | Path, stages: Sequence[Stage] | None = None) -> dict
     return written
 
 
+def _curbside_info_only(record: logging.LogRecord) -> bool:
+    return record.levelno >= logging.WARNING or record.name.startswith(("curbside", "__main__"))
+
+
 def _main(args: argparse.Namespace) -> int:
-    # The demo logs its own stages at INFO; dask's scheduler chatter stays at WARNING.
-    for noisy in ("distributed", "bokeh", "tornado"):
-        logging.getLogger(noisy).setLevel(logging.WARNING)
+    # The demo logs curbside's stages at INFO; other libraries (dask's scheduler) only at WARNING and up.
+    for handler in logging.getLogger().handlers:
+        handler.addFilter(_curbside_info_only)
     written = run_demo(args.out, MAP_STAGES if args.map_only else STAGES)
     print("Wrote:")
     for name, path in written.items():
