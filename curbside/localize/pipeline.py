@@ -6,8 +6,11 @@
     the raw fixes, linearly interpolated at the footsteps (no filter);
 ``inertial``
     inertial velocity + the map-aware particle filter, no GNSS (RoNIN+PF in the paper);
+``paper``
+    the paper's GNSS+RoNIN+PF, plainly: a Gaussian GNSS likelihood with sigma equal to the reported
+    accuracy, fixes under ``gnss_max_accuracy_m`` only, nothing else of ours (a baseline);
 ``fused``
-    the same filter also weighted by the GNSS fixes (GNSS+RoNIN+PF).
+    curbside's filter: the same, with the robust GNSS fusion and recovery (GNSS+RoNIN+PF).
 
 Inputs are chosen in this order. Velocity: ``velocity.csv``, else the bundled RoNIN model on
 ``imu.csv``, else the PDR baseline (``--velocity-source`` forces one). Footsteps: ``steps.csv``, else
@@ -48,7 +51,7 @@ from curbside.projection import LocalFrame
 
 logger = logging.getLogger(__name__)
 
-MODES = ("gnss", "inertial", "fused")
+MODES = ("gnss", "inertial", "paper", "fused")
 VELOCITY_SOURCES = ("auto", "file", "ronin", "pdr")
 GNSS_ASSOCIATIONS = ("interpolate", "once")
 
@@ -59,6 +62,14 @@ TRACK_COLUMNS = ("t", "lat", "lon", "x_m", "y_m", "theta_drift_deg", "speed_scal
 #: estimate in ``gnss`` mode), its posterior probability (NaN in ``gnss`` mode) and the mode estimate
 #: (the weighted mean of the particles on the MAP segment; the track's own position in ``gnss`` mode).
 SEGMENT_COLUMNS = ("sidewalk_segment_id", "segment_prob", "mode_lat", "mode_lon")
+
+#: What the ``paper`` mode changes in the filter: the plain Gaussian GNSS likelihood of Ren & Ke (2010)
+#: with sigma = the reported accuracy, no outlier mixture, no tempering, no divergence recovery.
+PAPER_OVERRIDES = {
+    "gnss_sigma_factor": 1.0, "gnss_outlier_prob": 0.0, "gnss_error_correlation_s": 0.0,
+    "gnss_bias_sigma_m": 0.0, "recovery_max_fraction": 0.0, "scale_init_sigma": 0.0,
+    "scale_noise_per_step": 0.0, "resample": "always",
+}
 
 #: Velocity samples further apart than this (s) are a gap: no motion is integrated across it.
 VELOCITY_MAX_GAP_S = 1.0
@@ -471,6 +482,8 @@ def track_session(
         overrides["n_particles"] = int(particles)
     if jaywalk_weight is not None:
         overrides["jaywalk_weight"] = float(jaywalk_weight)
+    if mode == "paper":
+        overrides.update(PAPER_OVERRIDES)
     config = replace(config, **overrides) if overrides else config
     frame = _frame_for(session, map_layers)
     # The start time is kept without the pose: it says when the walk began (an app knows when
@@ -532,7 +545,7 @@ def track_session(
     label = f"{session.name} {mode}"
     estimates, snaps = _filter_steps(
         tracker, steps[first:], disp[first:], (fx[first:], fy[first:], facc[first:]),
-        use_gnss=mode == "fused", save_particles=save_particles, progress=progress, label=label,
+        use_gnss=mode in ("paper", "fused"), save_particles=save_particles, progress=progress, label=label,
         estimates=estimates,
     )
     if not estimates:
