@@ -2,13 +2,13 @@
 
 The parameters (``docs/filter.md``, "GNSS fusion"):
 
-- ``gnss_fix_association``: ``interpolate`` (a fix at every footstep, the paper) or ``once`` (each fix
+- ``engine.fix_association``: ``interpolate`` (a fix at every footstep, the paper) or ``once`` (each fix
   at the first footstep after it);
-- ``gnss_sigma_factor``: Gaussian sigma = factor * reported accuracy;
-- ``gnss_error_correlation_s``: time constant of the GNSS error, which tempers each fix's likelihood;
-- ``gnss_outlier_prob``: weight of the flat outlier component (radius ``gnss_outlier_radius_m``, fixed);
-- ``gnss_bias_sigma_m``: the GNSS bias state, off or at the value measured here (its time constant
-  ``gnss_bias_time_s`` too is measured, not searched): the rms of the raw GNSS error at the training
+- ``filter.gnss.sigma_factor``: Gaussian sigma = factor * reported accuracy;
+- ``filter.gnss.correlation_time_s``: time constant of the GNSS error, which tempers each fix's likelihood;
+- ``filter.gnss.outlier_prob``: weight of the flat outlier component (radius fixed);
+- ``filter.gnss.bias_sigma_m``: the GNSS bias state, off or at the value measured here (its time constant
+  ``filter.gnss.bias_time_s`` too is measured, not searched): the rms of the raw GNSS error at the training
   waypoints per axis, and the lag at which its correlation falls to 1/e (first table printed).
 
 Protocol: the fused method (PDR velocity, no map: IPIN has none, N=500) runs over the full grid on the
@@ -43,27 +43,29 @@ import pandas as pd
 from ipin_fused_vs_gnss import waypoint_errors
 from tqdm import tqdm
 
-from curbside import projection, settings
+from curbside import projection
 from curbside.errors import CurbsideInputError
-from curbside.localize.filter import FilterConfig
 from curbside.localize.pipeline import track_session, valid_fixes
 from curbside.localize.readers.ipin import list_trials, read_trial
+from curbside.localize.runconfig import RunConfig
 
 HELD_OUT = "repetition04"
 #: Measured on the training trials by :func:`error_correlation` (rms 11.4 m over two axes; the
 #: correlation is 0.68 at 10-20 s, 0.37 at 20-40 s, 0.19 at 40-80 s).
 BIAS_SIGMA_M, BIAS_TIME_S = 8.0, 30.0
+#: Parameters searched, by their path in the run configuration (``localize run --set``).
 GRID = {
-    "gnss_fix_association": ("interpolate", "once"),
-    "gnss_sigma_factor": (0.33, 0.66, 1.0, 1.5),
-    "gnss_error_correlation_s": (0.0, 3.0),
-    "gnss_outlier_prob": (0.0, 0.05, 0.2),
-    "gnss_bias_sigma_m": (0.0, BIAS_SIGMA_M),
+    "engine.fix_association": ("interpolate", "once"),
+    "filter.gnss.sigma_factor": (0.33, 0.66, 1.0, 1.5),
+    "filter.gnss.correlation_time_s": (0.0, 3.0),
+    "filter.gnss.outlier_prob": (0.0, 0.05, 0.2),
+    "filter.gnss.bias_sigma_m": (0.0, BIAS_SIGMA_M),
 }
 TIE_M = 0.01
 #: The values before this tuning (the paper's association, plain Gaussian, independent fixes).
-PREVIOUS = {"gnss_fix_association": "interpolate", "gnss_sigma_factor": 1.5,
-            "gnss_error_correlation_s": 0.0, "gnss_outlier_prob": 0.0, "gnss_bias_sigma_m": 0.0}
+PREVIOUS = {"engine.fix_association": "interpolate", "filter.gnss.sigma_factor": 1.5,
+            "filter.gnss.correlation_time_s": 0.0, "filter.gnss.outlier_prob": 0.0,
+            "filter.gnss.bias_sigma_m": 0.0}
 
 _sessions: dict = {}
 
@@ -115,19 +117,13 @@ def error_correlation(trials: list[str]) -> pd.DataFrame:
 
 def _errors(params: dict, mode: str, seed: int, start_pose: bool, trials: list[str]) -> np.ndarray:
     """Pooled waypoint errors (m) of one parameter set, mode, seed and start over ``trials``."""
-    settings.gnss_fix_association = params["gnss_fix_association"]
-    config = FilterConfig(
-        n_particles=500, gnss_sigma_factor=params["gnss_sigma_factor"],
-        gnss_error_correlation_s=params["gnss_error_correlation_s"],
-        gnss_outlier_prob=params["gnss_outlier_prob"], gnss_bias_sigma_m=params["gnss_bias_sigma_m"],
-        gnss_bias_time_s=BIAS_TIME_S,
-    )
+    config = RunConfig.for_mode(mode).with_overrides({**params, "filter.gnss.bias_time_s": BIAS_TIME_S})
     out = []
     for trial in trials:
         session, frame, scored = _sessions[trial]
         try:
-            track = track_session(session, None, mode, config=config, seed=seed, velocity_source="pdr",
-                                  use_start_pose=start_pose, progress=False).track
+            track = track_session(session, None, config=config, seed=seed, velocity_source="pdr",
+                                  use_start_pose=start_pose).track
         except CurbsideInputError:  # e.g. no usable fix to start from: the same for every grid point
             out.append(np.full(int(scored.sum()), np.nan))
             continue
@@ -186,8 +182,8 @@ def main(argv: list[str] | None = None) -> int:
     # Scores within TIE_M of the best are a tie (seed noise is ~0.05 m); a tie goes to the largest outlier
     # weight: IPIN has no map and so no wrong-sidewalk fixes, and the bounded likelihood costs nothing here.
     tied = table[table["score_m"] <= table["score_m"].min() + TIE_M]
-    best = tied.sort_values(["gnss_outlier_prob", "score_m"], ascending=[False, True]).iloc[0][list(GRID)]
-    best = best.to_dict()
+    best = tied.sort_values(["filter.gnss.outlier_prob", "score_m"], ascending=[False, True]).iloc[0]
+    best = best[list(GRID)].to_dict()
     print("\nChosen:", ", ".join(f"{k} = {v}" for k, v in best.items()))
 
     check = [("chosen", best, "fused"), ("previous", PREVIOUS, "fused"),

@@ -26,13 +26,6 @@ max_bbox_area_km2: float = 25.0
 #: Attribution that must accompany any map or data derived from OpenStreetMap.
 osm_attribution: str = "© OpenStreetMap contributors (ODbL 1.0)"
 
-#: Default particle-filter parameters (the paper's values where it gives them).
-default_particles: int = 500
-default_jaywalk_weight: float = 0.4
-
-#: Map-likelihood raster resolution in metres per cell.
-raster_resolution_m: float = 0.5
-
 # --- Footstep detection and pedestrian dead reckoning (curbside.localize.steps, .pdr) ---------------
 
 #: Low-pass cut-off (Hz) applied to the accelerometer magnitude before peak picking; walking is 1.5-2.5 Hz.
@@ -76,82 +69,6 @@ ronin_stride: int = 10
 
 #: Weights loaded by ``ronin_velocity`` when no model is given (state_dict + JSON config beside it).
 ronin_default_weights: Path = Path(__file__).parent / "localize" / "ronin" / "weights" / "ronin_compact.pt"
-
-# --- Particle filter and GNSS fusion (curbside.localize.filter, pipeline) -----------------------------
-# The paper gives N=500, the jaywalking weight 0.4 and "sigma proportional to the accuracy"; the other
-# values are ours, chosen for a phone carried by a walker (documented in docs/filter.md).
-
-#: Position noise per footstep: sigma = max(floor, fraction * step length), metres, east and north.
-filter_step_noise_fraction: float = 0.15
-filter_step_noise_floor_m: float = 0.05
-
-#: Heading-drift random walk per footstep, degrees (one sigma).
-filter_theta_noise_deg: float = 0.5
-
-#: Speed-scale state (beyond the paper, off by default): each particle scales the inertial
-#: displacement by its own factor, drawn around 1 with this sigma at the start and random-walking by
-#: the second per footstep. 0 and 0 give the paper's three-state filter; on the simulated SF walks
-#: the scale state did not help (docs/filter.md), so it is an option, e.g. 0.08 and 0.002.
-filter_scale_init_sigma: float = 0.0
-filter_scale_noise_per_step: float = 0.0
-
-#: Initial spread around a known start pose: position sigma (m) and drift sigma (degrees).
-filter_init_position_sigma_m: float = 1.0
-filter_init_theta_sigma_deg: float = 5.0
-
-#: Drift sigma (degrees) when starting from a GNSS fix without a start pose; None spreads theta over
-#: the full circle (right for a game-rotation-vector velocity, whose yaw reference is arbitrary).
-filter_gnss_init_theta_sigma_deg: float | None = None
-
-#: After a collapse, particles are re-seeded around the last estimate with this sigma (metres).
-filter_recovery_sigma_m: float = 5.0
-
-#: Resampling policy: "always" (every footstep, the paper's choice) or "ess" (below a fraction of N).
-filter_resample: str = "always"
-filter_ess_fraction: float = 0.5
-
-#: GNSS likelihood sigma = factor * reported accuracy. Android/iOS report a ~68 % radius: 0.66 sigma
-#: for a 2-D Gaussian. With the correlation of successive fixes modelled (gnss_error_correlation_s),
-#: this calibrated value was the best on the IPIN 2023 training trials (benchmarks/tune_gnss_ipin.py;
-#: it was 1.5 untempered). The GNSS settings below were chosen with it; see docs/filter.md.
-gnss_sigma_factor: float = 0.66
-
-#: Fixes reporting a worse accuracy than this (metres) make no update.
-gnss_max_accuracy_m: float = 50.0
-
-#: Robust GNSS likelihood (docs/filter.md, "GNSS fusion"): weight of a flat outlier component, the
-#: uniform density over a disc of gnss_outlier_radius_m, mixed with the Gaussian. It bounds how much one
-#: fix can lower a particle's weight (multipath and wrong-sidewalk fixes report a few metres). On IPIN
-#: (no map) 0 and 0.05 tie; the tie goes to the bounded likelihood.
-gnss_outlier_prob: float = 0.05
-gnss_outlier_radius_m: float = 50.0
-
-#: Time constant (s) of the GNSS error, treated as first-order Gauss-Markov: a fix dt seconds after the
-#: previous one counts as (1 - rho) / (1 + rho) of an independent fix, rho = exp(-dt / tau). 0: none.
-#: 3 s was best on the IPIN training trials; 10 s and 30 s starve the filter of GNSS.
-gnss_error_correlation_s: float = 3.0
-
-#: GNSS bias state (beyond the paper; 0 = off): each particle carries a first-order Gauss-Markov error
-#: with this stationary sigma per axis (m) and time constant (s), and a fix measures position + bias.
-#: Measured on IPIN: 8 m and 30 s; but without a map it made errors worse there, so it is off.
-gnss_bias_sigma_m: float = 0.0
-gnss_bias_time_s: float = 30.0
-
-#: How fixes are associated with footsteps: "interpolate" (the paper: a fix interpolated at every
-#: footstep, so each 1 Hz fix is used about twice at 2 Hz footsteps) or "once" (each fix is applied at
-#: the first footstep at or after it, and never again). "interpolate" won on the IPIN training trials.
-gnss_fix_association: str = "interpolate"
-
-#: A fix is interpolated at a footstep when both bracketing fixes are this close in time (s) ...
-gnss_interp_max_gap_s: float = 2.0
-#: ... else the latest earlier fix is used if not older than this (s); staler: no update.
-gnss_max_fix_age_s: float = 3.0
-
-#: Footstep cadence (s) assumed when neither steps.csv nor imu.csv gives footsteps.
-default_step_cadence_s: float = 0.5
-
-#: A start pose inside a building is moved to the nearest free cell within this distance (m).
-filter_max_start_snap_m: float = 30.0
 
 # --- osmseg show / compare / import-datasf ------------------------------------------------------
 
@@ -263,35 +180,3 @@ min_polygon_area_m2: float = 0.5
 #: Decimals of the lon/lat coordinates written into HTML maps (6 decimals ~ 0.1 m: display only; the
 #: GeoJSON map files keep 7).
 html_coordinate_decimals: int = 6
-
-# --- posterior mode over sidewalk segments (localize filter) --------------------------------------
-
-#: Reach (m) of a sidewalk segment in the nearest-segment raster: cells farther from every sidewalk
-#: belong to no segment (their particles count towards no segment's posterior probability).
-segment_raster_max_distance_m: float = 25.0
-
-# --- divergence recovery: Augmented MCL driven by GNSS (localize filter) --------------------------
-# Thrun, Burgard & Fox, Probabilistic Robotics (2005), table 8.3: short- and long-term averages of the
-# cloud's GNSS agreement (per fix); when the short one falls below the long one, a fraction of the
-# particles is re-drawn around the fix. Rates are per fix (about 2 per second): 0.02 averages ~25 s,
-# 0.002 ~4 min, so a burst of canyon outliers lasting seconds does not trigger it, a divergence lasting
-# minutes does. Trigger and kernel scale were chosen on the IPIN 2023 training trials (no map), where
-# the GNSS is bad on floor -2 and the cloud is right: with the likelihood's own sigma (kernel scale 1)
-# a trigger of 0.5 raised the fused p90 from 7.2 to 11.6 m there, and the book's trigger of 1 with
-# kernel scale 5 to 13.5 m; these values leave it unchanged. The rates were chosen on simulated
-# validation walks (simulator seeds 11-13, not the benchmark's): 0.1 / 0.005 followed bursts of
-# outliers. See docs/filter.md, "Divergence recovery".
-
-#: Rates of the short- and long-term averages of the cloud's mean GNSS agreement, per fix.
-filter_recovery_alpha_fast: float = 0.02
-filter_recovery_alpha_slow: float = 0.002
-#: Injection starts when the short-term average falls below this fraction of the long-term one
-#: (1 is the book's rule, which also injects on the ordinary fix-to-fix fluctuations of a sound cloud).
-filter_recovery_trigger_ratio: float = 0.5
-#: At most this fraction of the particles is replaced at one fix (0 disables the recovery).
-filter_recovery_max_fraction: float = 0.25
-#: The agreement kernel's sigma, as a multiple of the GNSS likelihood's sigma (gnss_sigma_factor x
-#: accuracy): wider than the likelihood, so that canyon fixes ten or twenty metres off do not read as a
-#: diverged cloud, while one 50 m or more away still scores ~0 (at 5 m accuracy the kernel sigma is
-#: 16.5 m).
-filter_recovery_kernel_scale: float = 5.0

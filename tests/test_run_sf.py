@@ -18,8 +18,8 @@ import pytest
 import shapely
 
 from curbside import settings
-from curbside.localize.maplikelihood import BUILDING, rasterize_map
 from curbside.localize.pipeline import track_session
+from curbside.localize.raster import BUILDING, rasterize_map
 from curbside.localize.session import read_session
 from curbside.osmseg.mapio import read_map
 from curbside.projection import LocalFrame
@@ -97,4 +97,4 @@ def test_fused_keeps_the_right_sidewalk_of_mission_street(tmp_path, monkeypatch,
     snaps = results["fused"].snapshots
     raster = rasterize_map(sf_map)
     codes = raster.codes_at(snaps["x"] + snaps["origin"][0], snaps["y"] + snaps["origin"][1])
-    assert (codes == BUILDING).mean(axis=1).max() < 0.01
+    assert (codes >= BUILDING).mean(axis=1).max() < 0.01

@@ -21,7 +21,6 @@ import logging
 import os
 from pathlib import Path
 
-from curbside import settings
 from curbside.cli.common import positive_float, positive_int, unit_interval
 from curbside.errors import CurbsideInputError
 from curbside.evaluate.runner import METHODS
@@ -173,7 +172,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     ev.add_argument("--metrics-map", help="map whose sidewalk segments score every run (default: the first)")
     ev.add_argument("--methods", nargs="+", default=list(METHODS), choices=METHODS)
     ev.add_argument("--jaywalk-weights", nargs="+", type=unit_interval, default=[0.0, 0.4, 1.0])
-    ev.add_argument("--particles", nargs="+", type=positive_int, default=[settings.default_particles])
+    ev.add_argument("--particles", nargs="+", type=positive_int, default=[500])
     ev.add_argument(
         "--gnss-sigma-factors",
         nargs="+",

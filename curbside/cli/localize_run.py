@@ -2,83 +2,162 @@
 
 ::
 
-    localize run SESSION [--map MAP] [--mode gnss|inertial|fused] [--particles N]
-                 [--jaywalk-weight W] [--seed S] [--save-particles]
+    localize run SESSION [--map MAP] [--mode gnss|inertial|paper|fused] [--particles N]
+                 [--jaywalk-weight W] [--seed S] [--set KEY=VALUE ...] [--save-particles]
                  [--velocity-source auto|file|ronin|pdr] [--no-start-pose] -o OUT
+    localize run --config OUT/run.json -o OUT2          # replay a run exactly
 
 ``SESSION`` is anything :func:`curbside.localize.readers.read_any` reads (a SPEC folder, a Sensor
 Logger export, ``FILE.h5::TRIAL``, a GPX file). Writes ``OUT/track.csv``, ``OUT/track.geojson``,
-``OUT/run.json`` and, with ``--save-particles``, ``OUT/particles.npz``; ``OUT`` appears complete or
-not at all. A one-line summary goes to stdout.
+``OUT/run.json`` (every parameter) and, with ``--save-particles``, ``OUT/particles.npz``; ``OUT`` appears
+complete or not at all. A one-line summary goes to stdout.
 """
 
 from __future__ import annotations
 
 import argparse
+import json
 import logging
+from pathlib import Path
 
-from curbside import settings
 from curbside.cli.common import positive_int, unit_interval
-from curbside.localize.pipeline import MODES, VELOCITY_SOURCES, track_session
+from curbside.errors import CurbsideInputError
+from curbside.localize.pipeline import resolve_config, track_session
 from curbside.localize.readers import read_any
+from curbside.localize.runconfig import MODES, VELOCITY_SOURCES, RunConfig
 from curbside.localize.track import write_track
 from curbside.osmseg.mapio import read_map
 
 logger = logging.getLogger(__name__)
 
 
+def _replayed(path: str) -> tuple[dict, RunConfig]:
+    """``run.json``'s contents and its run configuration."""
+    try:
+        info = json.loads(Path(path).read_text(encoding="utf-8"))
+    except OSError as exc:
+        raise CurbsideInputError(path, f"cannot read ({exc.strerror or exc})") from None
+    except json.JSONDecodeError as exc:
+        raise CurbsideInputError(path, f"not JSON ({exc.msg} at line {exc.lineno})") from None
+    if not isinstance(info, dict) or not isinstance(info.get("config"), dict):
+        raise CurbsideInputError(path, "not a run.json of localize run (no 'config' object)")
+    return info, RunConfig.from_dict(info["config"], f"{path}: config")
+
+
+def _overrides(pairs: list[str]) -> dict[str, str]:
+    out = {}
+    for pair in pairs:
+        key, sep, value = pair.partition("=")
+        if not sep or not key:
+            raise CurbsideInputError("--set", f"expected KEY=VALUE, got {pair!r}")
+        out[key.strip()] = value.strip()
+    return out
+
+
 def _run(args: argparse.Namespace) -> int:
-    session = read_any(args.session)
-    layers = read_map(args.map) if args.map else None
-    result = track_session(
-        session,
-        layers,
-        args.mode,
+    info, config = _replayed(args.config) if args.config else ({}, None)
+    session_path = args.session or info.get("session")
+    if not session_path:
+        raise CurbsideInputError(
+            "localize run", "give a SESSION (or --config with a run.json that names one)"
+        )
+    map_path = args.map if args.map is not None else info.get("map")
+    session = read_any(session_path)
+    layers = read_map(map_path) if map_path else None
+    mode = args.mode if (args.mode or config is not None) else "fused"
+    config = resolve_config(
+        config,
+        mode,
         particles=args.particles,
         jaywalk_weight=args.jaywalk_weight,
         seed=args.seed,
         velocity_source=args.velocity_source,
-        use_start_pose=not args.no_start_pose,
-        save_particles=args.save_particles,
+        use_start_pose=False if args.no_start_pose else None,
     )
-    run_info = {
-        "session": str(args.session),
-        "map": str(args.map) if args.map else None,
-        "seed": args.seed,
-        "particles": args.particles,
-        "jaywalk_weight": args.jaywalk_weight,
-    }
+    config = config.with_overrides(_overrides(args.set))
+    result = track_session(session, layers, config=config, save_particles=args.save_particles)
+    run_info = {"session": _absolute(session_path), "map": _absolute(map_path) if map_path else None}
     write_track(result, args.output, run_info)
     track = result.track
     span = track["t"].iat[-1] - track["t"].iat[0] if len(track) else 0.0
     print(
-        f"{args.output}: {len(track)} footsteps over {span:.1f} s, mode {args.mode}, "
+        f"{args.output}: {len(track)} updates over {span:.1f} s, mode {result.mode}, "
         f"velocity {result.velocity_source or '-'}, steps {result.step_source}, "
         f"{result.recoveries} recoveries"
     )
     return 0
 
 
+def _absolute(path: str) -> str:
+    """A session or map path as an absolute path (an ``h5::TRIAL`` suffix kept)."""
+    file, sep, trial = str(path).partition("::")
+    return str(Path(file).resolve()) + sep + trial
+
+
 def register(subparsers: argparse._SubParsersAction) -> None:
     """Add ``run`` to the ``localize`` sub-commands."""
     parser = subparsers.add_parser(
         "run",
-        help="track one session (GNSS only, inertial + map, or fused) and write the track",
+        help="track one session (GNSS only, inertial + map, the paper's filter, or fused)",
         description="Track one session with the map-aware particle filter; writes OUT/track.csv, "
-        "OUT/track.geojson and OUT/run.json (and OUT/particles.npz with --save-particles).",
+        "OUT/track.geojson, OUT/run.json (every parameter: replay with --config) and, with "
+        "--save-particles, OUT/particles.npz.",
+        epilog="examples:\n  localize run walk/ --map map.geojson -o out/track\n"
+        "  localize run walk/ --map map.geojson --set filter.gnss.sigma_factor=1.0 -o out/t2\n"
+        "  localize run --config out/track/run.json -o out/replay     # the same track, byte for byte",
+        formatter_class=argparse.RawDescriptionHelpFormatter,
     )
-    parser.add_argument("session", help="session folder, Sensor Logger export, FILE.h5::TRIAL or .gpx")
+    parser.add_argument(
+        "session",
+        nargs="?",
+        help="session folder, Sensor Logger export, FILE.h5::TRIAL or .gpx "
+        "(default with --config: the session it names)",
+    )
     parser.add_argument("--map", help="map layers GeoJSON (osmseg build); none: no map likelihood")
-    parser.add_argument("--mode", choices=MODES, default="fused", help="method (default: fused)")
-    parser.add_argument("--particles", type=positive_int, default=settings.default_particles,
-                        help=f"number of particles (default {settings.default_particles})")
-    parser.add_argument("--jaywalk-weight", type=unit_interval, default=settings.default_jaywalk_weight,
-                        help=f"particle weight on street surface (default {settings.default_jaywalk_weight})")
-    parser.add_argument("--seed", type=int, default=0, help="random seed (default 0): same seed, same track")
+    parser.add_argument(
+        "--config",
+        metavar="RUN_JSON",
+        help="replay the run recorded in a run.json (its "
+        "parameters, session and map; options given here override them)",
+    )
+    parser.add_argument(
+        "--mode",
+        choices=MODES,
+        default=None,
+        help="method: gnss, inertial (RoNIN+PF), paper (the paper's plain GNSS+RoNIN+PF) or "
+        "fused (curbside's; the default)",
+    )
+    parser.add_argument(
+        "--particles", type=positive_int, default=None, help="number of particles (default 500)"
+    )
+    parser.add_argument(
+        "--jaywalk-weight",
+        type=unit_interval,
+        default=None,
+        help="particle weight on street surface outside crosswalks (default 0.4)",
+    )
+    parser.add_argument(
+        "--seed", type=int, default=None, help="random seed (default 0): same seed, same track"
+    )
+    parser.add_argument(
+        "--set",
+        action="append",
+        default=[],
+        metavar="KEY=VALUE",
+        help="set any parameter of run.json's config, e.g. filter.gnss.sigma_factor=1.0 or "
+        "engine.fix_association=once (repeatable)",
+    )
     parser.add_argument("--save-particles", action="store_true", help="also write OUT/particles.npz")
-    parser.add_argument("--velocity-source", choices=VELOCITY_SOURCES, default="auto",
-                        help="auto: velocity.csv, else RoNIN on imu.csv, else PDR")
-    parser.add_argument("--no-start-pose", action="store_true",
-                        help="ignore meta.json's start pose; start from the first usable GNSS fix")
+    parser.add_argument(
+        "--velocity-source",
+        choices=VELOCITY_SOURCES,
+        default=None,
+        help="auto (default): velocity.csv, else RoNIN on imu.csv, else PDR",
+    )
+    parser.add_argument(
+        "--no-start-pose",
+        action="store_true",
+        help="ignore meta.json's start pose; start from the first usable GNSS fix",
+    )
     parser.add_argument("-o", "--output", required=True, help="output folder (replaced if it exists)")
     parser.set_defaults(func=_run)

@@ -14,7 +14,6 @@ from typing import Any
 
 import numpy as np
 
-from curbside import settings
 from curbside.errors import CurbsideInputError
 from curbside.evaluate.groundtruth import groundtruth_at, waypoints_xy
 from curbside.evaluate.report import Table, write_report
@@ -63,7 +62,7 @@ def plan(
     maps: dict[str, str],
     methods: tuple[str, ...] = METHODS,
     jaywalk_weights: tuple[float, ...] = (0.0, 0.4, 1.0),
-    particles: tuple[int, ...] = (settings.default_particles,),
+    particles: tuple[int, ...] = (500,),
     gnss_sigma_factors: tuple[float | None, ...] = (None,),
     seed: int = 0,
     metrics_map: str | None = None,
@@ -328,7 +327,7 @@ def ipin_table(h5: str | Path, trials: int | None = None, seed: int = 0) -> tupl
         tracks = {}
         for method in METHODS:
             try:
-                track = track_session(session, None, method, seed=seed, progress=False).track
+                track = track_session(session, None, method, seed=seed).track
             except CurbsideInputError as exc:
                 log.warning("IPIN %s %s skipped: %s", name, method, exc)
                 continue

@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import functools
 import logging
-from dataclasses import asdict, dataclass, replace
+from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any
 
@@ -25,7 +25,6 @@ import pandas as pd
 import pyproj
 from tqdm.auto import tqdm
 
-from curbside import settings
 from curbside.errors import CurbsideInputError
 from curbside.evaluate import metrics
 from curbside.evaluate.groundtruth import groundtruth_at
@@ -66,6 +65,9 @@ class RunSpec:
         Times (s) at which to keep the particle cloud (Fig. 3); empty for none.
     velocity_source
         ``auto``, ``file``, ``ronin`` or ``pdr``.
+    overrides
+        Further ``(key, value)`` overrides of the run configuration (``filter.gnss.sigma_factor``...; see
+        :meth:`curbside.localize.runconfig.RunConfig.with_overrides`), for sweeps and tuning.
     """
 
     session: str
@@ -73,12 +75,13 @@ class RunSpec:
     map_path: str | None = None
     map_name: str = "none"
     metrics_map: str | None = None
-    jaywalk_weight: float = settings.default_jaywalk_weight
-    particles: int = settings.default_particles
+    jaywalk_weight: float = 0.4
+    particles: int = 500
     gnss_sigma_factor: float | None = None
     seed: int = 0
     snapshot_times: tuple[float, ...] = ()
     velocity_source: str = "auto"
+    overrides: tuple[tuple[str, Any], ...] = ()
 
     def key(self) -> dict[str, Any]:
         """The grouping columns of this run."""
@@ -112,28 +115,19 @@ def run_one(spec: RunSpec) -> dict[str, Any]:
         posterior-mode estimate), ``track`` (``t, x_m, y_m, gt_x_m, gt_y_m``),
         ``snapshots`` (list of ``{"t", "x", "y"}`` clouds), ``recoveries``, ``velocity_source``.
     """
-    from curbside.localize.filter import FilterConfig
-    from curbside.localize.pipeline import track_session
+    from curbside.localize.pipeline import resolve_config, track_session
 
     session = read_session(spec.session)
     if session.waypoints is None:
         raise CurbsideInputError(spec.session, "no waypoints.csv: nothing to score against")
     layers = _map(spec.map_path) if spec.map_path and spec.method != "gnss" else None
-    config = FilterConfig()
+    overrides = dict(spec.overrides)
     if spec.gnss_sigma_factor is not None:
-        config = replace(config, gnss_sigma_factor=float(spec.gnss_sigma_factor))
-    result = track_session(
-        session,
-        layers,
-        spec.method,
-        config=config,
-        particles=spec.particles,
-        jaywalk_weight=spec.jaywalk_weight,
-        seed=spec.seed,
-        velocity_source=spec.velocity_source,
-        save_particles=bool(spec.snapshot_times) and spec.method != "gnss",
-        progress=False,
-    )
+        overrides["filter.gnss.sigma_factor"] = float(spec.gnss_sigma_factor)
+    config = resolve_config(None, spec.method, particles=spec.particles, jaywalk_weight=spec.jaywalk_weight,
+                            seed=spec.seed, velocity_source=spec.velocity_source).with_overrides(overrides)
+    result = track_session(session, layers, config=config,
+                           save_particles=bool(spec.snapshot_times) and spec.method != "gnss")
     track = result.track
     if spec.metrics_map:
         frame = LocalFrame(pyproj.CRS(_map(spec.metrics_map).crs))

@@ -6,7 +6,6 @@ name and renamed into place only when every file is complete.
 
 from __future__ import annotations
 
-import dataclasses
 import json
 from pathlib import Path
 from typing import Any
@@ -14,6 +13,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
+from curbside import __version__
 from curbside.io import atomic_path
 from curbside.localize.pipeline import TrackResult
 
@@ -72,10 +72,11 @@ def track_geojson(track: pd.DataFrame, properties: dict[str, Any] | None = None)
 def write_track(result: TrackResult, out_dir: str | Path, run_info: dict[str, Any] | None = None) -> Path:
     """Write a :class:`TrackResult` into ``out_dir`` (replaced if it exists), atomically.
 
-    Files: ``track.csv`` (one row per footstep), ``track.geojson``, ``run.json`` (the method, the inputs
-    used, the number of collapses, ``run_info`` and every filter parameter) and, when the result holds
-    snapshots,
-    ``particles.npz`` (``t``, ``x``, ``y``, ``theta`` per footstep; x/y relative to ``origin``).
+    Files: ``track.csv`` (one row per update), ``track.geojson``, ``run.json`` and, when the result holds
+    snapshots, ``particles.npz`` (``t``, ``x``, ``y``, ``theta``, ``scale`` per update; x/y relative to
+    ``origin``). ``run.json`` holds ``run_info`` (the session and map paths...), what the run used and
+    produced, and the whole run configuration under ``config``: ``localize run --config run.json``
+    replays the run from it.
 
     Parameters
     ----------
@@ -84,7 +85,7 @@ def write_track(result: TrackResult, out_dir: str | Path, run_info: dict[str, An
     out_dir
         Destination folder.
     run_info
-        Extra parameters recorded in ``run.json`` (seed, particles, map...).
+        Inputs to record in ``run.json`` (``session``, ``map``...).
 
     Returns
     -------
@@ -93,13 +94,15 @@ def write_track(result: TrackResult, out_dir: str | Path, run_info: dict[str, An
     """
     out_dir = Path(out_dir)
     info = {
+        "generator": f"curbside {__version__}",
+        **(run_info or {}),
         "mode": result.mode,
         "velocity_source": result.velocity_source,
         "step_source": result.step_source,
         "rows": len(result.track),
         "recoveries": result.recoveries,
-        **(run_info or {}),
-        "filter": dataclasses.asdict(result.config) if result.config is not None else None,
+        "injections": result.injections,
+        "config": result.config.to_dict(),
     }
     with atomic_path(out_dir) as tmp:
         tmp.mkdir()

@@ -15,10 +15,13 @@ polygon is tested per cell.
 
 Class codes increase with precedence, so the grid is the element-wise maximum of the class masks:
 ``building`` overrides everything, ``crosswalk`` overrides ``street`` and ``sidewalk``, and
-``sidewalk`` overrides ``street`` (a sidewalk drawn over the carriageway edge is walkable).
+``sidewalk`` overrides ``street`` (a sidewalk drawn over the carriageway edge is walkable). Building
+cells also record how deep inside the building they lie: code ``BUILDING + k`` for a cell centre about
+``(k + 0.5) * resolution`` metres past the wall (:func:`building_depth_m`; Euclidean distance transform),
+so that a map likelihood can soften the walls by a few metres of map error without another lookup.
 
 Alongside the class codes, the same grid holds the index of the nearest sidewalk segment of every cell
-within ``settings.segment_raster_max_distance_m`` of one (-1 farther away), with the ``segment_id``
+within the segment reach (25 m by default) of one (-1 farther away), with the ``segment_id``
 strings in a lookup array: the filter sums its particle weights per segment with one ``bincount``. The
 segments are rasterised (each cell centre inside a sidewalk polygon takes that polygon's index, found
 by one vectorised STRtree query over those centres), and the Euclidean distance transform
@@ -49,14 +52,17 @@ from curbside.osmseg.mapio import MapLayers
 
 logger = logging.getLogger(__name__)
 
-#: Class codes in order of precedence (a higher code wins where polygons overlap).
+#: Class codes in order of precedence (a higher code wins where polygons overlap). Codes from
+#: ``BUILDING`` up are building cells, ``BUILDING + k`` about ``(k + 0.5)`` cells deep.
 FREE, STREET, SIDEWALK, CROSSWALK, BUILDING = 0, 1, 2, 3, 4
+#: Largest depth index stored (uint8 codes).
+MAX_DEPTH_INDEX = 255 - BUILDING
 CLASS_CODES: dict[str, int] = {
     "street": STREET, "sidewalk": SIDEWALK, "crosswalk": CROSSWALK, "building": BUILDING
 }
 
 #: Bumped whenever the rasteriser's output changes, so stale cache files are not reused.
-RASTER_FORMAT_VERSION = 2
+RASTER_FORMAT_VERSION = 3
 
 #: Rows rasterised at once: bounds the difference array's memory (rows x columns x 4 bytes).
 _ROW_BLOCK = 512
@@ -73,7 +79,7 @@ class MapRaster:
     ----------
     codes
         ``(rows, cols)`` ``uint8`` class codes (:data:`FREE`, :data:`STREET`, :data:`SIDEWALK`,
-        :data:`CROSSWALK`, :data:`BUILDING`).
+        :data:`CROSSWALK`, and from :data:`BUILDING` up building cells by depth).
     x0, y0
         South-west corner of the grid, metres in :attr:`crs`.
     resolution_m
@@ -82,7 +88,7 @@ class MapRaster:
         The map's metric CRS (WKT), for checks when a raster is reused.
     segment_index
         ``(rows, cols)`` ``int16``/``int32`` index into :attr:`segment_ids` of the nearest sidewalk segment of
-        each cell, -1 beyond ``settings.segment_raster_max_distance_m``; ``None`` for a map without
+        each cell, -1 beyond the segment reach; ``None`` for a map without
         sidewalk segments.
     segment_ids
         ``segment_id`` string of each indexed segment (``None`` with :attr:`segment_index`).
@@ -129,13 +135,11 @@ class MapRaster:
         lookup = RasterLookup(self)
         return lookup.codes_at(np.asarray(x, float), np.asarray(y, float))
 
-    def nearest_code_other_than(
-        self, x: float, y: float, avoid: int, max_distance_m: float
-    ) -> tuple[float, float] | None:
-        """Centre of the cell nearest to ``(x, y)`` whose code is not ``avoid``.
+    def nearest_free(self, x: float, y: float, max_distance_m: float) -> tuple[float, float] | None:
+        """Centre of the cell nearest to ``(x, y)`` that is not in a building.
 
         Searches a square window of half-size ``max_distance_m``; returns ``None`` when every cell in
-        it holds ``avoid``. A point outside the grid is returned unchanged (outside is free).
+        it is a building cell. A point outside the grid is returned unchanged (outside is free).
         """
         if not bool(self.contains(x, y)):
             return (x, y)
@@ -145,7 +149,7 @@ class MapRaster:
         i0, j0 = int((y - self.y0) // res), int((x - self.x0) // res)
         ilo, ihi = max(i0 - half, 0), min(i0 + half + 1, rows)
         jlo, jhi = max(j0 - half, 0), min(j0 + half + 1, cols)
-        ii, jj = np.nonzero(self.codes[ilo:ihi, jlo:jhi] != avoid)
+        ii, jj = np.nonzero(self.codes[ilo:ihi, jlo:jhi] < BUILDING)
         if len(ii) == 0:
             return None
         cx = self.x0 + (jj + jlo + 0.5) * res
@@ -241,11 +245,11 @@ class RasterLookup:
         return np.take(self.padded_segments, self.flat_indices(x, y), out=out)
 
 
-def map_hash(layers: MapLayers, resolution_m: float) -> str:
+def map_hash(layers: MapLayers, resolution_m: float, segment_reach_m: float) -> str:
     """SHA-256 hex digest of a map's content and the raster parameters (the cache key)."""
     digest = hashlib.sha256()
-    digest.update(f"v{RASTER_FORMAT_VERSION};res={resolution_m!r};".encode())
-    digest.update(f"segment_reach={float(settings.segment_raster_max_distance_m)!r};".encode())
+    digest.update(f"v{RASTER_FORMAT_VERSION};res={float(resolution_m)!r};".encode())
+    digest.update(f"segment_reach={float(segment_reach_m)!r};".encode())
     digest.update(pyproj.CRS(layers.crs).to_wkt().encode())
     digest.update(repr(sorted(CLASS_CODES.items())).encode())
     for cls in layers.gdf["class"].astype(str):
@@ -338,8 +342,7 @@ def rasterize_mask(
 
 
 def rasterize_segments(
-    layers: MapLayers, x0: float, y0: float, res: float, shape: tuple[int, int],
-    max_distance_m: float | None = None,
+    layers: MapLayers, x0: float, y0: float, res: float, shape: tuple[int, int], max_distance_m: float,
 ) -> tuple[np.ndarray, np.ndarray] | None:
     """Grid of the nearest sidewalk segment's index of every cell, and the ``segment_id`` lookup array.
 
@@ -355,7 +358,7 @@ def rasterize_segments(
     x0, y0, res, shape
         The grid: south-west corner, cell size and ``(rows, cols)``.
     max_distance_m
-        Reach of a segment (default ``settings.segment_raster_max_distance_m``).
+        Reach of a segment, metres.
 
     Returns
     -------
@@ -364,7 +367,7 @@ def rasterize_segments(
         ``shape`` and the ``str`` ids; ``None``
         when the map has no sidewalk segment.
     """
-    reach = float(settings.segment_raster_max_distance_m if max_distance_m is None else max_distance_m)
+    reach = float(max_distance_m)
     sidewalks = layers.layer("sidewalk")
     sidewalks = sidewalks[sidewalks.geometry.notna() & ~sidewalks.geometry.is_empty]
     if len(sidewalks) == 0:
@@ -397,7 +400,7 @@ def rasterize_segments(
 
 
 def rasterize_map(
-    layers: MapLayers, resolution_m: float | None = None, margin_m: float = 0.0
+    layers: MapLayers, resolution_m: float = 0.5, segment_reach_m: float = 25.0, margin_m: float = 0.0
 ) -> MapRaster:
     """Rasterise map layers into class codes (no cache; see :func:`load_or_build_raster`).
 
@@ -406,7 +409,9 @@ def rasterize_map(
     layers
         The map, in its local metric CRS.
     resolution_m
-        Cell size (default ``settings.raster_resolution_m``).
+        Cell size, metres.
+    segment_reach_m
+        Cells farther than this from every sidewalk segment belong to none.
     margin_m
         Free border added around the map's bounds.
 
@@ -414,7 +419,7 @@ def rasterize_map(
     -------
     MapRaster
     """
-    res = float(resolution_m or settings.raster_resolution_m)
+    res = float(resolution_m)
     if not res > 0:
         raise ValueError(f"raster resolution must be positive, got {res}")
     minx, miny, maxx, maxy = layers.gdf.total_bounds
@@ -429,15 +434,33 @@ def rasterize_map(
         mask = rasterize_mask(np.asarray(geoms), x0, y0, res, (rows, cols))
         codes[mask] = code
         logger.debug("rasterised %d %s polygons: %d cells", len(geoms), cls, int(mask.sum()))
-    segments = rasterize_segments(layers, float(x0), float(y0), res, (rows, cols))
+    _encode_building_depth(codes)
+    segments = rasterize_segments(layers, float(x0), float(y0), res, (rows, cols), segment_reach_m)
     segment_index, segment_ids = segments if segments is not None else (None, None)
     return MapRaster(
         codes, float(x0), float(y0), res, pyproj.CRS(layers.crs).to_wkt(), segment_index, segment_ids
     )
 
 
+def _encode_building_depth(codes: np.ndarray) -> None:
+    """Building cells become ``BUILDING + k``: ``k`` whole cells from the nearest free cell, minus one."""
+    building = codes == BUILDING
+    if not building.any():
+        return
+    # Outside the grid is free: pad with a free ring so buildings at the edge are shallow there too.
+    depth_cells = ndimage.distance_transform_edt(np.pad(building, 1))[1:-1, 1:-1]
+    k = np.minimum(np.floor(depth_cells[building]) - 1, MAX_DEPTH_INDEX)
+    codes[building] = (BUILDING + k).astype(np.uint8)
+
+
+def building_depth_m(codes: np.ndarray | int, resolution_m: float) -> np.ndarray:
+    """Depth (m) past the wall of building codes (NaN for other codes): ``(k + 0.5) * resolution``."""
+    codes = np.asarray(codes)
+    return np.where(codes >= BUILDING, (codes.astype(float) - BUILDING + 0.5) * resolution_m, np.nan)
+
+
 def load_or_build_raster(
-    layers: MapLayers, resolution_m: float | None = None, cache: bool = True
+    layers: MapLayers, resolution_m: float = 0.5, segment_reach_m: float = 25.0, cache: bool = True
 ) -> MapRaster:
     """The map's raster from the disk cache, or rasterised now and stored there.
 
@@ -445,8 +468,8 @@ def load_or_build_raster(
     ----------
     layers
         The map.
-    resolution_m
-        Cell size (default ``settings.raster_resolution_m``).
+    resolution_m, segment_reach_m
+        Cell size and segment reach (see :func:`rasterize_map`).
     cache
         Read and write ``settings.cache_dir / "rasters" / <hash>.npz``.
 
@@ -454,10 +477,10 @@ def load_or_build_raster(
     -------
     MapRaster
     """
-    res = float(resolution_m or settings.raster_resolution_m)
+    res = float(resolution_m)
     if not cache:
-        return rasterize_map(layers, res)
-    key = map_hash(layers, res)
+        return rasterize_map(layers, res, segment_reach_m)
+    key = map_hash(layers, res, segment_reach_m)
     path = Path(settings.cache_dir) / "rasters" / f"{key}.npz"
     if path.is_file():
         try:
@@ -473,7 +496,7 @@ def load_or_build_raster(
             return raster
         except (OSError, KeyError, ValueError) as exc:
             logger.warning("ignoring unreadable raster cache %s (%s)", path, exc)
-    raster = rasterize_map(layers, res)
+    raster = rasterize_map(layers, res, segment_reach_m)
     try:
         segments = (
             {} if raster.segment_index is None

@@ -1,0 +1,128 @@
+"""Frozen config dataclasses to and from plain JSON-ready dicts, so that a ``run.json`` can replay a run.
+
+Every algorithm parameter of curbside lives in a frozen dataclass (:mod:`curbside.localize.filter.config`,
+:mod:`curbside.localize.engine` ...). :func:`to_dict` writes one whole, nested configs included;
+:func:`from_dict` rebuilds it, rejecting unknown keys and wrong types with a one-line
+:class:`~curbside.errors.CurbsideInputError`, so a hand-edited ``run.json`` fails clearly.
+:func:`with_overrides` applies ``"section.field": value`` overrides (the CLI's ``--set``).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import dataclasses
+import json
+import types
+import typing
+from typing import Any, TypeVar
+
+from curbside.errors import CurbsideInputError
+
+T = TypeVar("T")
+
+
+def to_dict(config: Any) -> dict[str, Any]:
+    """A (nested) dataclass as a dict of JSON values (tuples become lists)."""
+    return dataclasses.asdict(config)
+
+
+def _coerce(kind: Any, value: Any, where: str) -> Any:
+    """``value`` as the annotated type ``kind`` (nested dataclasses, optionals, tuples, numbers)."""
+    origin = typing.get_origin(kind)
+    if dataclasses.is_dataclass(kind):
+        if not isinstance(value, dict):
+            raise CurbsideInputError(where, f"expected an object, got {value!r}")
+        return from_dict(kind, value, where)
+    if origin in (typing.Union, types.UnionType):
+        options = typing.get_args(kind)
+        if value is None and type(None) in options:
+            return None
+        for option in options:
+            if option is type(None):
+                continue
+            try:
+                return _coerce(option, value, where)
+            except CurbsideInputError:
+                continue
+        raise CurbsideInputError(where, f"{value!r} fits none of {kind}")
+    if origin is tuple:
+        if not isinstance(value, list | tuple):
+            raise CurbsideInputError(where, f"expected a list, got {value!r}")
+        args = typing.get_args(kind)
+        if len(args) == 2 and args[1] is Ellipsis:
+            return tuple(_coerce(args[0], v, where) for v in value)
+        if len(args) != len(value):
+            raise CurbsideInputError(where, f"expected {len(args)} values, got {len(value)}")
+        return tuple(_coerce(a, v, where) for a, v in zip(args, value, strict=True))
+    if origin is dict or kind is dict:
+        if not isinstance(value, dict):
+            raise CurbsideInputError(where, f"expected an object, got {value!r}")
+        return dict(value)
+    if kind is bool:
+        if not isinstance(value, bool):
+            raise CurbsideInputError(where, f"expected true or false, got {value!r}")
+        return value
+    if kind is float:
+        if isinstance(value, bool) or not isinstance(value, int | float):
+            raise CurbsideInputError(where, f"expected a number, got {value!r}")
+        return float(value)
+    if kind is int:
+        if isinstance(value, bool) or not (
+            isinstance(value, int) or (isinstance(value, float) and value.is_integer())
+        ):
+            raise CurbsideInputError(where, f"expected an integer, got {value!r}")
+        return int(value)
+    if kind is str:
+        if not isinstance(value, str):
+            raise CurbsideInputError(where, f"expected a string, got {value!r}")
+        return value
+    return value
+
+
+def from_dict(cls: type[T], data: dict[str, Any], where: str = "config") -> T:
+    """Rebuild the frozen dataclass ``cls`` from :func:`to_dict` output.
+
+    Missing keys take their defaults; unknown keys and values of the wrong type are errors.
+
+    Raises
+    ------
+    CurbsideInputError
+        Unknown key, wrong type, or a value the dataclass rejects (its ``__post_init__`` checks).
+    """
+    hints = typing.get_type_hints(cls)
+    names = {f.name for f in dataclasses.fields(cls) if f.init}
+    unknown = sorted(set(data) - names)
+    if unknown:
+        raise CurbsideInputError(where, f"unknown parameter(s) {unknown}; known: {sorted(names)}")
+    kwargs = {key: _coerce(hints[key], value, f"{where}.{key}") for key, value in data.items()}
+    try:
+        return cls(**kwargs)
+    except (TypeError, ValueError) as exc:
+        raise CurbsideInputError(where, str(exc)) from None
+
+
+def with_overrides(config: T, overrides: dict[str, Any]) -> T:
+    """A copy of ``config`` with ``{"section.field": value}`` overrides applied (nested by dots).
+
+    Values may be JSON text (``"0.5"``, ``"null"``, ``"[1, 2]"``) or Python values.
+
+    Raises
+    ------
+    CurbsideInputError
+        Unknown path or a bad value.
+    """
+    data = to_dict(config)
+    for path, value in overrides.items():
+        if isinstance(value, str):
+            with contextlib.suppress(json.JSONDecodeError):  # else a plain string value
+                value = json.loads(value)
+        node = data
+        *parents, leaf = path.split(".")
+        for part in parents:
+            if not isinstance(node.get(part), dict):
+                raise CurbsideInputError(f"--set {path}", f"no section {part!r}")
+            node = node[part]
+        if leaf not in node:
+            raise CurbsideInputError(f"--set {path}", f"no parameter {leaf!r}; known: {sorted(node)}")
+        node[leaf] = value
+    return from_dict(type(config), data)

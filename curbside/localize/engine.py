@@ -1,0 +1,349 @@
+"""The tracking engine: a session's streams in, filter updates out, the same for a file as for a live feed.
+
+:class:`SessionEngine` takes a session's rows as they come (``push``: IMU, velocity, footsteps, GNSS,
+in chunks of any size), turns them into updates of a :class:`~curbside.localize.filter.Tracker`, and
+returns each estimate as soon as every input it depends on is final (``advance``); ``finish`` flushes
+the tail. ``localize run`` pushes whole files and finishes; the live service pushes a few rows per
+request. Because an update is only made once its inputs are final, both give the same track.
+
+When the filter updates:
+
+- at every footstep (the paper), and
+- when no footstep has come for ``max_update_interval_s``, on that time grid (a detector that misses
+  steps, or a walker standing at a crossing, never leaves a stretch untracked).
+
+The first update is the start: the known start pose (``meta.json``) at its time, with the heading
+offset that turns the first ``heading_align_distance_m`` of inertial motion onto the start heading; or,
+without one, the first update time whose fix is usable. At each update the inertial displacement since
+the previous update and the fix chosen by the association rule go to :meth:`Tracker.step`.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+import pandas as pd
+
+from curbside.errors import CurbsideInputError
+from curbside.localize.filter.particles import SCALE, THETA, X, Y
+from curbside.localize.filter.tracker import Tracker
+from curbside.localize.raster import MapRaster
+from curbside.localize.runconfig import RunConfig
+from curbside.localize.streams import DisplacementIntegrator, FixStore, StepTimes
+from curbside.projection import LocalFrame
+
+logger = logging.getLogger(__name__)
+
+
+@dataclass
+class Row:
+    """One update of the track: the estimate and how the update came about.
+
+    Attributes
+    ----------
+    kind
+        ``start``, ``step`` (a footstep) or ``time`` (no footstep for ``max_update_interval_s``).
+    fix_used
+        Whether a GNSS fix weighed the particles at this update.
+    """
+
+    t: float
+    x: float
+    y: float
+    kind: str
+    fix_used: bool = False
+    theta: float = math.nan
+    scale: float = math.nan
+    n_eff: float = math.nan
+    recovered: bool = False
+    injected: int = 0
+    segment_id: str | None = None
+    segment_prob: float = math.nan
+    mode_x: float = math.nan
+    mode_y: float = math.nan
+
+
+@dataclass
+class StartPose:
+    """A known start: WGS84 position, heading clockwise from north (degrees), and its time if known."""
+
+    lat: float
+    lon: float
+    heading_deg: float
+    t: float | None = None
+
+
+@dataclass
+class _State:
+    started: bool = False
+    prev_t: float = -math.inf
+    prev_d: np.ndarray = field(default_factory=lambda: np.zeros(2))
+    finished: bool = False
+    clock: float = -math.inf
+
+
+class SessionEngine:
+    """Streams of one session -> updates of one tracker (see the module docstring).
+
+    Parameters
+    ----------
+    config
+        Method, seed, filter and engine parameters.
+    frame
+        The local metric frame (the map's).
+    raster
+        The map raster, ``None`` for no map likelihood.
+    start
+        Known start pose (used when ``config.use_start_pose``), or ``None``.
+    t_begin
+        Updates start at or after this time (the start pose's time, when the walk began).
+    cadence
+        Footsteps come from a fixed cadence (no step file and no IMU).
+    save_particles
+        Keep a copy of the particles' ``x, y, theta, scale`` at each update (:attr:`snapshots`).
+    step_means_velocity
+        The velocity rows are per-step means (PDR), not samples (see
+        :class:`~curbside.localize.streams.DisplacementIntegrator`).
+    """
+
+    def __init__(
+        self,
+        config: RunConfig,
+        frame: LocalFrame,
+        raster: MapRaster | None = None,
+        *,
+        start: StartPose | None = None,
+        t_begin: float | None = None,
+        cadence: bool = False,
+        save_particles: bool = False,
+        step_means_velocity: bool = False,
+    ) -> None:
+        self.config = config
+        self.frame = frame
+        e = config.engine
+        self.tracker = None
+        if config.mode != "gnss":
+            self.tracker = Tracker.from_config(
+                raster, config.filter, config.seed, frame, use_gnss=config.mode in ("paper", "fused")
+            )
+        self.start = start if config.use_start_pose else None
+        self.t_begin = -math.inf if t_begin is None else float(t_begin)
+        self.displacement = DisplacementIntegrator(e.velocity_max_gap_s, step_means_velocity)
+        self.steps = StepTimes(e.cadence_s if cadence else None)
+        self.fixes = FixStore(e.fix_association, e.interp_max_gap_s, e.max_fix_age_s)
+        self.rows: list[Row] = []
+        self.snapshots: list[np.ndarray] | None = [] if save_particles else None
+        self._s = _State()
+
+    # -- input ------------------------------------------------------------------------------------
+
+    def push_velocity(self, t: np.ndarray, velocity_en: np.ndarray) -> None:
+        """World-frame velocity rows (m/s east, north)."""
+        self.displacement.push(t, velocity_en)
+        self._tick(t)
+
+    def push_steps(self, t: np.ndarray, complete_until: float) -> None:
+        """Footstep times, and the time up to which every step has been reported."""
+        self.steps.push(t, complete_until)
+        self._tick(t)
+
+    def push_gnss(self, gnss: pd.DataFrame) -> None:
+        """Fixes ``t, lat, lon, accuracy_m`` (invalid ones are ignored)."""
+        if gnss is None or len(gnss) == 0:
+            return
+        x, y = self.frame.to_xy(gnss["lon"].to_numpy(float), gnss["lat"].to_numpy(float))
+        self.fixes.push(
+            gnss["t"].to_numpy(float), np.atleast_1d(x), np.atleast_1d(y), gnss["accuracy_m"].to_numpy(float)
+        )
+        self._tick(gnss["t"].to_numpy(float))
+
+    def _tick(self, t: np.ndarray) -> None:
+        t = np.asarray(t, float)
+        if len(t):
+            self._s.clock = max(self._s.clock, float(t[-1]))
+            if self.steps.cadence_s is not None:
+                first = self.t_begin if math.isfinite(self.t_begin) else float(t[0])
+                self.steps.extend_cadence(first, self._s.clock)
+
+    # -- output -----------------------------------------------------------------------------------
+
+    def advance(self) -> list[Row]:
+        """Make every update whose inputs are final; return the new rows."""
+        n0 = len(self.rows)
+        while self._advance_once():
+            pass
+        return self.rows[n0:]
+
+    def finish(self) -> list[Row]:
+        """All inputs are in: make the remaining updates; return the new rows."""
+        self._s.finished = True
+        self.steps.complete_until = math.inf
+        return self.advance()
+
+    @property
+    def data_end(self) -> float:
+        """The last time updates can be made for (velocity known; the GNSS span in ``gnss`` mode)."""
+        if self.tracker is None:
+            return self._s.clock
+        return self.displacement.complete_until
+
+    def _ready(self, t: float) -> bool:
+        s = self._s
+        if t > self.data_end and (s.finished or self.tracker is None):
+            return False
+        if s.finished:
+            return True
+        velocity_ok = self.tracker is None or self.displacement.complete_until >= t
+        return velocity_ok and s.clock >= t + self.config.engine.fix_lookahead_s
+
+    def _next_time(self) -> tuple[float, str] | None:
+        """The next update time and kind after the previous update, once it can be decided."""
+        prev = self._s.prev_t
+        fill = prev + self.config.engine.max_update_interval_s
+        step = self.steps.next_after(prev)
+        if step <= fill:
+            return step, "step"
+        if self.steps.complete_until >= fill:
+            return fill, "time"
+        return None
+
+    def _advance_once(self) -> bool:
+        if not self._s.started:
+            return self._try_start()
+        nxt = self._next_time()
+        if nxt is None or not self._ready(nxt[0]):
+            return False
+        self._update(*nxt)
+        return True
+
+    # -- the start ----------------------------------------------------------------------------------
+
+    def _first_time(self) -> float | None:
+        """The first candidate update time (``t_begin`` or the data's start)."""
+        if math.isfinite(self.t_begin):
+            return self.t_begin
+        firsts = [self.displacement.first_t, self.steps.next_after(-math.inf)]
+        fixes = self.fixes.fixes.rows()
+        if len(fixes):
+            firsts.append(float(fixes[0, 0]))
+        firsts = [f for f in firsts if math.isfinite(f)]
+        return min(firsts) if firsts else None
+
+    def _next_candidate(self) -> float | None:
+        """Before the start: the next time at which the filter could start."""
+        if self._s.prev_t == -math.inf:
+            return self._first_time()
+        nxt = self._next_time()
+        return None if nxt is None else nxt[0]
+
+    def _try_start(self) -> bool:
+        s = self._s
+        if self.start is not None and self.tracker is not None:
+            return self._start_at_pose()
+        t = self._next_candidate()
+        if t is None or not self._ready(t):
+            return False
+        s.prev_t = t
+        fix = self.fixes.at(t, hold_forever=self.tracker is None)
+        if fix is None or fix.accuracy_m >= self.config.filter.gnss.max_accuracy_m:
+            return True  # no usable fix here: try the next candidate
+        if self.tracker is None:
+            self._record(Row(t, fix.x, fix.y, "start", True))
+        else:
+            self._record_estimate(self.tracker.start_at_fix(t, fix), "start", True)
+            s.prev_d = self.displacement.at(t)
+        s.started = True
+        return True
+
+    def _start_at_pose(self) -> bool:
+        """Start at the known pose once the heading alignment can be decided."""
+        s, start = self._s, self.start
+        t0 = self._first_time()
+        if t0 is None:
+            return False
+        offset = self._heading_offset(t0, start.heading_deg)
+        if offset is None:
+            return False
+        x, y = self.frame.to_xy(start.lon, start.lat)
+        estimate = self.tracker.start_at_pose(t0, float(x), float(y), offset)
+        self._record_estimate(estimate, "start", False)
+        s.prev_t, s.prev_d, s.started = t0, self.displacement.at(t0), True
+        return True
+
+    def _heading_offset(self, t0: float, heading_deg: float) -> float | None:
+        """Offset turning the first motion after ``t0`` onto ``heading_deg``; ``None`` until decidable."""
+        knots = self.displacement.knots.rows()
+        d0 = self.displacement.at(t0)
+        later = knots[knots[:, 0] >= t0]
+        far = (
+            np.hypot(later[:, 1] - d0[0], later[:, 2] - d0[1]) >= self.config.engine.heading_align_distance_m
+        )
+        if far.any():
+            first = later[int(np.argmax(far)), 1:] - d0
+        elif self._s.finished:
+            if len(later) == 0 or np.hypot(*(later[-1, 1:] - d0)) < 0.5:
+                logger.warning(
+                    "no inertial motion to align with the start heading: heading offset starts at 0"
+                )
+                return 0.0
+            first = later[-1, 1:] - d0
+        else:
+            return None
+        offset = math.pi / 2 - math.radians(heading_deg) - math.atan2(first[1], first[0])
+        return math.atan2(math.sin(offset), math.cos(offset))
+
+    # -- one update ---------------------------------------------------------------------------------
+
+    def _update(self, t: float, kind: str) -> None:
+        s = self._s
+        hold = self.tracker is None
+        fix = self.fixes.at(t, hold_forever=hold)
+        if self.tracker is None:
+            if fix is not None:
+                self._record(Row(t, fix.x, fix.y, kind, True))
+        else:
+            d = self.displacement.at(t)
+            use = fix if self.config.mode in ("paper", "fused") else None
+            estimate = self.tracker.step(t, displacement_en=d - s.prev_d, gnss_fix=use)
+            self._record_estimate(estimate, kind, self.tracker.usable(use))
+            s.prev_d = d
+        s.prev_t = t
+        self.displacement.forget_before(t)
+        self.steps.forget_before(t)
+        self.fixes.forget_before(t - self.config.engine.max_fix_age_s)
+
+    def _record_estimate(self, e, kind: str, fix_used: bool) -> None:
+        prob = e.segment_prob if self.tracker.segments is not None else math.nan
+        self._record(
+            Row(
+                e.t,
+                e.x,
+                e.y,
+                kind,
+                fix_used,
+                e.theta,
+                e.scale,
+                e.n_eff,
+                e.recovered,
+                e.injected,
+                e.segment_id,
+                prob,
+                e.mode_x,
+                e.mode_y,
+            )
+        )
+        if self.snapshots is not None:
+            st = self.tracker.particles.state
+            self.snapshots.append(st[[X, Y, THETA, SCALE]])
+
+    def _record(self, row: Row) -> None:
+        self.rows.append(row)
+
+
+def require_rows(rows: list[Row], name: str) -> None:
+    """Raise the one-line input error of a run that produced no estimate."""
+    if not rows:
+        raise CurbsideInputError(name, "no estimate: no start pose and no usable GNSS fix to start from")

@@ -1,0 +1,68 @@
+"""The map-aware particle filter of Dubiner, Ren & Manduchi, as parts that compose.
+
+=========================  ==================================================================
+module                     part
+=========================  ==================================================================
+:mod:`.config`             every parameter: :class:`FilterConfig` and its sections
+:mod:`.particles`          :class:`ParticleSet`, normalisation, the weighted :class:`Estimate`
+:mod:`.parts`              :class:`Update`, :class:`GnssFix` and the part interfaces
+:mod:`.predict`            :class:`InertialPredictor` (heading drift, jumps, speed scale)
+:mod:`.map_likelihood`     :class:`MapLikelihood` (buildings, jaywalking, soft walls)
+:mod:`.gnss`               :class:`GnssLikelihood` (robust, tempered, optional bias state)
+:mod:`.resample`           :class:`SystematicResampler`
+:mod:`.recovery`           :class:`CollapseRecovery`, :class:`DivergenceRecovery`
+:mod:`.segments`           :class:`SegmentEstimator`: which sidewalk segment
+:mod:`.initiate`           :class:`Initiator`: start at a pose or a fix
+:mod:`.tracker`            :class:`Tracker`: the streaming filter that runs them
+=========================  ==================================================================
+
+See ``docs/filter.md`` for a drawing of the parts and how to write a new one.
+"""
+
+from curbside.localize.filter.config import (
+    FilterConfig,
+    GnssConfig,
+    MapConfig,
+    MotionConfig,
+    RecoveryConfig,
+    ResampleConfig,
+    StartConfig,
+)
+from curbside.localize.filter.gnss import GnssLikelihood
+from curbside.localize.filter.initiate import Initiator
+from curbside.localize.filter.map_likelihood import MapLikelihood
+from curbside.localize.filter.particles import Estimate, ParticleSet, normalise_and_estimate
+from curbside.localize.filter.parts import GnssFix, Likelihood, Predictor, Resampler, Update
+from curbside.localize.filter.predict import InertialPredictor
+from curbside.localize.filter.recovery import CollapseRecovery, DivergenceRecovery
+from curbside.localize.filter.resample import SystematicResampler
+from curbside.localize.filter.segments import SegmentEstimator, SegmentMode
+from curbside.localize.filter.tracker import Tracker
+
+__all__ = [
+    "CollapseRecovery",
+    "DivergenceRecovery",
+    "Estimate",
+    "FilterConfig",
+    "GnssConfig",
+    "GnssFix",
+    "GnssLikelihood",
+    "InertialPredictor",
+    "Initiator",
+    "Likelihood",
+    "MapConfig",
+    "MapLikelihood",
+    "MotionConfig",
+    "ParticleSet",
+    "Predictor",
+    "RecoveryConfig",
+    "ResampleConfig",
+    "Resampler",
+    "SegmentEstimator",
+    "SegmentMode",
+    "StartConfig",
+    "SystematicResampler",
+    "Tracker",
+    "Update",
+    "normalise_and_estimate",
+]

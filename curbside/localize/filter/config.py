@@ -1,0 +1,280 @@
+"""Every parameter of the particle filter: one frozen dataclass per part, gathered in :class:`FilterConfig`.
+
+Each part of the filter (:mod:`~curbside.localize.filter.predict`, ``map_likelihood``, ``gnss``,
+``resample``, ``recovery``, ``initiate``) takes its own section; :class:`FilterConfig` holds them all and
+is written whole to ``run.json`` (:func:`curbside.configio.to_dict`), so a run is reproducible from that
+file alone. Defaults are curbside's fused filter; :meth:`FilterConfig.preset` gives the paper's plain
+filter for comparison. ``docs/filter.md`` gives the reasoning behind each value.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+PRESETS = ("fused", "paper")
+RESAMPLE_POLICIES = ("always", "ess")
+
+
+def _check(condition: bool, message: str) -> None:
+    if not condition:
+        raise ValueError(message)
+
+
+@dataclass(frozen=True)
+class MotionConfig:
+    """The inertial predictor: how a particle moves by a step's inertial displacement.
+
+    Attributes
+    ----------
+    step_noise_fraction, step_noise_floor_m
+        Position noise per update, east and north: sigma = max(floor, fraction * step length).
+    heading_noise_deg
+        Random walk of the heading offset per update (one sigma, degrees).
+    heading_jump_prob
+        Probability per particle and update of an abrupt heading-offset jump (the phone changes hands,
+        goes into a pocket): a mixture proposal that keeps a few particles exploring other offsets.
+    heading_jump_sigma_deg
+        Sigma of a jump (degrees).
+    scale_init_sigma, scale_noise_per_step
+        Speed-scale spread around 1 at the start and its random walk per update (0 and 0: the paper's
+        three-state filter).
+    """
+
+    step_noise_fraction: float = 0.15
+    step_noise_floor_m: float = 0.05
+    heading_noise_deg: float = 0.5
+    heading_jump_prob: float = 0.0
+    heading_jump_sigma_deg: float = 30.0
+    scale_init_sigma: float = 0.0
+    scale_noise_per_step: float = 0.0
+
+    def __post_init__(self) -> None:
+        _check(
+            min(
+                self.step_noise_fraction,
+                self.step_noise_floor_m,
+                self.heading_noise_deg,
+                self.scale_init_sigma,
+                self.scale_noise_per_step,
+            )
+            >= 0,
+            "motion noise parameters must be non-negative",
+        )
+        _check(
+            0.0 <= self.heading_jump_prob <= 1.0,
+            f"heading_jump_prob must lie in [0, 1], got {self.heading_jump_prob}",
+        )
+        _check(
+            self.heading_jump_sigma_deg > 0,
+            f"heading_jump_sigma_deg must be positive, got {self.heading_jump_sigma_deg}",
+        )
+
+
+@dataclass(frozen=True)
+class StartConfig:
+    """Where the particles start.
+
+    Attributes
+    ----------
+    position_sigma_m, heading_sigma_deg
+        Spread around a known start pose.
+    fix_heading_sigma_deg
+        Heading-offset spread when starting from a GNSS fix; ``None`` for the full circle (right for a
+        velocity whose yaw reference is arbitrary).
+    fix_sigma_factor
+        Position spread around a start fix = this times its reported accuracy.
+    max_snap_m
+        A start pose in a building moves to the nearest free cell within this distance.
+    """
+
+    position_sigma_m: float = 1.0
+    heading_sigma_deg: float = 5.0
+    fix_heading_sigma_deg: float | None = None
+    fix_sigma_factor: float = 0.66
+    max_snap_m: float = 30.0
+
+    def __post_init__(self) -> None:
+        _check(
+            self.position_sigma_m >= 0 and self.heading_sigma_deg >= 0 and self.max_snap_m >= 0,
+            "start spreads and max_snap_m must be non-negative",
+        )
+        _check(self.fix_sigma_factor > 0, f"fix_sigma_factor must be positive, got {self.fix_sigma_factor}")
+
+
+@dataclass(frozen=True)
+class MapConfig:
+    """The map likelihood and its raster.
+
+    Attributes
+    ----------
+    jaywalk_weight
+        Weight of a particle on street surface outside crosswalks, in [0, 1] (the paper: 0.4).
+    wall_tolerance_m
+        Soft building edges: a particle ``d`` metres inside a building weighs ``exp(-d^2 / (2 t^2))``
+        instead of 0 (0: the paper's hard walls), and 0 beyond ``3 t``. Tolerates metre-scale map error.
+    raster_resolution_m
+        Cell size of the map raster.
+    segment_reach_m
+        Cells farther than this from every sidewalk belong to no segment.
+    """
+
+    jaywalk_weight: float = 0.4
+    wall_tolerance_m: float = 0.0
+    raster_resolution_m: float = 0.5
+    segment_reach_m: float = 25.0
+
+    def __post_init__(self) -> None:
+        _check(
+            0.0 <= self.jaywalk_weight <= 1.0, f"jaywalk_weight must lie in [0, 1], got {self.jaywalk_weight}"
+        )
+        _check(
+            self.wall_tolerance_m >= 0, f"wall_tolerance_m must be non-negative, got {self.wall_tolerance_m}"
+        )
+        _check(
+            self.raster_resolution_m > 0 and self.segment_reach_m > 0,
+            "raster_resolution_m and segment_reach_m must be positive",
+        )
+
+
+@dataclass(frozen=True)
+class GnssConfig:
+    """The GNSS likelihood (:class:`~curbside.localize.filter.gnss.GnssLikelihood`).
+
+    Attributes
+    ----------
+    sigma_factor
+        Likelihood sigma = factor * reported accuracy radius.
+    max_accuracy_m
+        Fixes reporting a worse accuracy make no update.
+    outlier_prob, outlier_radius_m
+        Weight of a flat outlier component (uniform over a disc of that radius) mixed with the
+        Gaussian; 0: the plain Gaussian.
+    correlation_time_s
+        Time constant of the GNSS error; each fix's log-likelihood is tempered by the fraction of an
+        independent fix it carries (0: independent fixes).
+    bias_sigma_m, bias_time_s
+        A GNSS bias state per particle: stationary sigma (m per axis; 0: none) and time constant of
+        the first-order Gauss-Markov error that each fix measures on top of the position.
+    """
+
+    sigma_factor: float = 0.66
+    max_accuracy_m: float = 50.0
+    outlier_prob: float = 0.05
+    outlier_radius_m: float = 50.0
+    correlation_time_s: float = 3.0
+    bias_sigma_m: float = 0.0
+    bias_time_s: float = 30.0
+
+    def __post_init__(self) -> None:
+        _check(self.sigma_factor > 0, f"sigma_factor must be positive, got {self.sigma_factor}")
+        _check(self.max_accuracy_m > 0, f"max_accuracy_m must be positive, got {self.max_accuracy_m}")
+        _check(0.0 <= self.outlier_prob < 1.0, f"outlier_prob must lie in [0, 1), got {self.outlier_prob}")
+        _check(self.outlier_radius_m > 0, f"outlier_radius_m must be positive, got {self.outlier_radius_m}")
+        _check(
+            self.correlation_time_s >= 0,
+            f"correlation_time_s must be non-negative, got {self.correlation_time_s}",
+        )
+        _check(
+            self.bias_sigma_m >= 0 and self.bias_time_s > 0,
+            f"need bias_sigma_m >= 0 and bias_time_s > 0, got {self.bias_sigma_m}, {self.bias_time_s}",
+        )
+
+
+@dataclass(frozen=True)
+class ResampleConfig:
+    """When to resample: ``"always"`` (every update, the paper) or ``"ess"`` (below ``ess_fraction * N``)."""
+
+    policy: str = "always"
+    ess_fraction: float = 0.5
+
+    def __post_init__(self) -> None:
+        _check(
+            self.policy in RESAMPLE_POLICIES,
+            f"policy must be one of {RESAMPLE_POLICIES}, got {self.policy!r}",
+        )
+        _check(0.0 < self.ess_fraction <= 1.0, f"ess_fraction must lie in (0, 1], got {self.ess_fraction}")
+
+
+@dataclass(frozen=True)
+class RecoveryConfig:
+    """Recovery from a collapsed cloud and from a cloud that no longer agrees with GNSS.
+
+    Attributes
+    ----------
+    collapse_sigma_m
+        Spread of particles re-seeded around the last estimate after every weight went to zero.
+    alpha_fast, alpha_slow
+        Rates (per fix) of the short- and long-term averages of the cloud's GNSS agreement (Augmented
+        MCL, Thrun et al. 2005, table 8.3).
+    trigger_ratio
+        Particles are injected once the short-term average falls below this fraction of the long one.
+    kernel_scale
+        The agreement kernel's sigma as a multiple of the GNSS likelihood's sigma.
+    max_fraction
+        At most this fraction of the particles is re-drawn around a fix at one update (0: off).
+    """
+
+    collapse_sigma_m: float = 5.0
+    alpha_fast: float = 0.02
+    alpha_slow: float = 0.002
+    trigger_ratio: float = 0.5
+    kernel_scale: float = 5.0
+    max_fraction: float = 0.25
+
+    def __post_init__(self) -> None:
+        _check(self.collapse_sigma_m > 0, f"collapse_sigma_m must be positive, got {self.collapse_sigma_m}")
+        _check(0.0 <= self.max_fraction <= 1.0, f"max_fraction must lie in [0, 1], got {self.max_fraction}")
+        _check(
+            0.0 < self.alpha_slow < self.alpha_fast <= 1.0
+            and 0.0 < self.trigger_ratio <= 1.0
+            and self.kernel_scale > 0,
+            "need 0 < alpha_slow < alpha_fast <= 1, 0 < trigger_ratio <= 1, kernel_scale > 0; got "
+            f"{self.alpha_slow}, {self.alpha_fast}, {self.trigger_ratio}, {self.kernel_scale}",
+        )
+
+
+@dataclass(frozen=True)
+class FilterConfig:
+    """All parameters of the particle filter.
+
+    Attributes
+    ----------
+    n_particles
+        Number of particles N (the paper: 500).
+    motion, start, map, gnss, resample, recovery
+        One section per part.
+    segment_estimate
+        Compute the posterior over sidewalk segments and its mode at each update (needs a map with
+        sidewalk segments).
+    """
+
+    n_particles: int = 500
+    motion: MotionConfig = field(default_factory=MotionConfig)
+    start: StartConfig = field(default_factory=StartConfig)
+    map: MapConfig = field(default_factory=MapConfig)
+    gnss: GnssConfig = field(default_factory=GnssConfig)
+    resample: ResampleConfig = field(default_factory=ResampleConfig)
+    recovery: RecoveryConfig = field(default_factory=RecoveryConfig)
+    segment_estimate: bool = True
+
+    def __post_init__(self) -> None:
+        _check(int(self.n_particles) >= 1, f"n_particles must be at least 1, got {self.n_particles}")
+
+    @classmethod
+    def preset(cls, name: str) -> FilterConfig:
+        """``"fused"``: curbside's filter (the defaults). ``"paper"``: the paper's plain filter.
+
+        The paper's filter (Dubiner, Ren & Manduchi; Ren & Ke 2010 for the GNSS weighting): position and
+        heading-drift noise, hard walls, a Gaussian GNSS likelihood with sigma equal to the reported
+        accuracy for fixes under a threshold, every fix counted as independent, resampling at every
+        update, no outlier model, no speed scale, no recovery beyond re-seeding a collapsed cloud.
+        """
+        if name == "fused":
+            return cls()
+        if name == "paper":
+            return cls(
+                gnss=GnssConfig(sigma_factor=1.0, outlier_prob=0.0, correlation_time_s=0.0, bias_sigma_m=0.0),
+                recovery=RecoveryConfig(max_fraction=0.0),
+                start=StartConfig(fix_sigma_factor=1.0),
+            )
+        raise ValueError(f"unknown preset {name!r}; one of {PRESETS}")

@@ -1,0 +1,175 @@
+"""Recovery policies: re-seed a collapsed cloud; re-draw part of a cloud that no longer agrees with GNSS.
+
+**Collapse** (:class:`CollapseRecovery`): every weight is zero (all particles walked into buildings, or
+``w = 0`` left none on a crossing). Half the particles go around the cloud's centre (where the last
+estimate has moved to), half around the latest usable fix (all of them when one of the two is
+missing); heading offsets and speed scales are kept (those beliefs are still informative); weights
+then come from the map alone, and are made uniform if even that kills every particle. Never NaN.
+
+**Divergence** (:class:`DivergenceRecovery`, Augmented MCL driven by GNSS; Thrun, Burgard & Fox,
+*Probabilistic Robotics* 2005, section 8.3.5): the robust GNSS likelihood bounds what one fix can do,
+so a cloud that drifted tens of metres away sees every fix as an outlier and GNSS can no longer pull it
+back. Each fix measures the cloud's agreement with it, ``w_avg = sum_i w_i exp(-d_i^2 / (2 s^2))``
+(``d_i``: the particle's expected fix to the fix, ``s = kernel_scale *`` the likelihood's sigma,
+``w_i``: the prior weights), a short- and a long-term average follow it, and when the short one falls
+well below the long one the fraction ``min(max_fraction, max(0, 1 - w_fast / (trigger_ratio *
+w_slow)))`` of the particles is re-drawn around the fix after resampling. Injected particles keep the
+heading offset, speed scale and bias of random current particles.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+
+import numba
+import numpy as np
+
+from curbside.localize.filter.config import RecoveryConfig
+from curbside.localize.filter.gnss import GnssLikelihood
+from curbside.localize.filter.map_likelihood import MapLikelihood
+from curbside.localize.filter.particles import BIAS_X, BIAS_Y, COS, SCALE, SIN, THETA, ParticleSet, X, Y
+from curbside.localize.filter.parts import GnssFix, Update
+
+logger = logging.getLogger(__name__)
+
+
+class CollapseRecovery:
+    """Re-seeds a collapsed cloud (see the module docstring).
+
+    Parameters
+    ----------
+    config
+        ``collapse_sigma_m``.
+    rng
+        The filter's seeded generator.
+    map_likelihood
+        The map (weights after re-seeding); ``None`` without a map.
+    fix_sigma_factor
+        Spread around the latest fix = this times its accuracy.
+    """
+
+    def __init__(
+        self,
+        config: RecoveryConfig,
+        rng: np.random.Generator,
+        map_likelihood: MapLikelihood | None,
+        fix_sigma_factor: float,
+    ) -> None:
+        self.config = config
+        self.rng = rng
+        self.map_likelihood = map_likelihood
+        self.fix_sigma_factor = fix_sigma_factor
+
+    def reseed(
+        self, particles: ParticleSet, fallback_xy: tuple[float, float] | None, fix: GnssFix | None
+    ) -> None:
+        """Re-seed around the cloud's centre (else ``fallback_xy``) and ``fix``; weights from the map."""
+        n, s = len(particles), particles.state
+        centres = []
+        cx, cy = float(np.mean(s[X])), float(np.mean(s[Y]))
+        if math.isfinite(cx) and math.isfinite(cy):
+            centres.append((cx, cy, self.config.collapse_sigma_m))
+        elif fallback_xy is not None:
+            centres.append((*fallback_xy, self.config.collapse_sigma_m))
+        if fix is not None:
+            centres.append((fix.x, fix.y, self.fix_sigma_factor * fix.accuracy_m))
+        if not centres:
+            centres.append((0.0, 0.0, self.config.collapse_sigma_m))
+        which = np.arange(n) % len(centres)
+        cxs, cys, sig = (np.array(v)[which] for v in zip(*centres, strict=True))
+        s[X] = cxs + sig * self.rng.standard_normal(n)
+        s[Y] = cys + sig * self.rng.standard_normal(n)
+        theta = s[THETA]
+        theta[~np.isfinite(theta)] = 0.0
+        particles.set_heading(theta.copy())
+        s[SCALE][~np.isfinite(s[SCALE])] = 1.0
+        particles.reset_weights()
+        if self.map_likelihood is not None:
+            particles.log_weight += self.map_likelihood.log_likelihood(s[X], s[Y])
+        if not np.isfinite(particles.log_weight.max()):
+            particles.reset_weights()
+
+
+class DivergenceRecovery:
+    """Augmented MCL driven by GNSS (see the module docstring).
+
+    Parameters
+    ----------
+    config
+        Rates, trigger, kernel scale and cap.
+    gnss
+        The GNSS likelihood (which fixes count, and their sigma).
+    rng
+        The filter's seeded generator (drawn from only when particles are injected).
+    """
+
+    def __init__(self, config: RecoveryConfig, gnss: GnssLikelihood, rng: np.random.Generator) -> None:
+        self.config = config
+        self.gnss = gnss
+        self.rng = rng
+        self.w_fast = math.nan  # both start at the first fix's agreement
+        self.w_slow = math.nan
+        self.injections = 0
+
+    def log_agreement(self, particles: ParticleSet, fix: GnssFix) -> float:
+        """``log w_avg`` under the current (prior, normalised) log-weights."""
+        scale = -0.5 / (self.config.kernel_scale * self.gnss.sigma_m(fix)) ** 2
+        return _log_agreement(particles.state, particles.log_weight, fix.x, fix.y, scale)
+
+    def observe(self, particles: ParticleSet, update: Update) -> float:
+        """Before the likelihoods: update both averages with ``update.fix``; the fraction to inject."""
+        if self.config.max_fraction <= 0 or not self.gnss.accepts(update.fix):
+            return 0.0
+        w_avg = math.exp(self.log_agreement(particles, update.fix))
+        if math.isnan(self.w_slow):
+            self.w_fast = self.w_slow = w_avg
+        else:
+            self.w_fast += self.config.alpha_fast * (w_avg - self.w_fast)
+            self.w_slow += self.config.alpha_slow * (w_avg - self.w_slow)
+        threshold = self.config.trigger_ratio * self.w_slow
+        if not threshold > 0:  # no fix ever agreed (or it underflowed): nothing to compare with
+            return 0.0
+        return min(self.config.max_fraction, max(0.0, 1.0 - self.w_fast / threshold))
+
+    def inject(self, particles: ParticleSet, fix: GnssFix, fraction: float) -> int:
+        """After resampling: replace ``round(fraction * N)`` random particles by draws around ``fix``."""
+        n = len(particles)
+        k = int(round(fraction * n))
+        if k == 0:
+            return 0
+        s, rng = particles.state, self.rng
+        idx = rng.choice(n, size=k, replace=False)
+        donors = rng.integers(0, n, size=k)
+        sigma = self.gnss.sigma_m(fix)
+        for row in (THETA, COS, SIN, SCALE, BIAS_X, BIAS_Y):
+            s[row, idx] = s[row, donors]
+        s[X, idx] = fix.x - s[BIAS_X, idx] + sigma * rng.standard_normal(k)
+        s[Y, idx] = fix.y - s[BIAS_Y, idx] + sigma * rng.standard_normal(k)
+        particles.log_weight[idx] = -math.log(n)
+        self.injections += k
+        logger.debug(
+            "cloud disagrees with GNSS (w_fast/w_slow = %.3g): %d particles injected",
+            self.w_fast / self.w_slow,
+            k,
+        )
+        return k
+
+
+@numba.njit(cache=True, nogil=True)
+def _log_agreement(state, log_weight, fix_x, fix_y, scale):  # pragma: no cover - compiled
+    peak = -math.inf
+    n = state.shape[1]
+    work = np.empty(n)
+    for i in range(n):
+        dx = state[X, i] + state[BIAS_X, i] - fix_x
+        dy = state[Y, i] + state[BIAS_Y, i] - fix_y
+        v = scale * (dx * dx + dy * dy) + log_weight[i]
+        work[i] = v
+        peak = max(peak, v)
+    if not math.isfinite(peak):
+        return -math.inf
+    total = 0.0
+    for i in range(n):
+        total += math.exp(work[i] - peak)
+    return peak + math.log(total)

@@ -1,0 +1,155 @@
+"""Every parameter of a tracking run, in one frozen :class:`RunConfig` written whole to ``run.json``.
+
+A run is reproducible from its ``run.json`` alone (``localize run --config run.json``): the method, the
+seed, the filter's parameters (:class:`~curbside.localize.filter.config.FilterConfig`) and the engine's
+(:class:`EngineConfig`: where velocity and footsteps come from, how fixes are matched to updates, when
+the filter advances without a footstep).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field, replace
+from typing import Any
+
+from curbside.configio import from_dict, to_dict, with_overrides
+from curbside.localize.filter.config import FilterConfig
+
+#: The methods: GNSS alone; the filter without GNSS (RoNIN+PF); the paper's plain fused filter; curbside's.
+MODES = ("gnss", "inertial", "paper", "fused")
+VELOCITY_SOURCES = ("auto", "file", "ronin", "pdr")
+STEP_SOURCES = ("auto", "file", "detect", "cadence")
+FIX_ASSOCIATIONS = ("interpolate", "once")
+
+
+def _check(condition: bool, message: str) -> None:
+    if not condition:
+        raise ValueError(message)
+
+
+@dataclass(frozen=True)
+class EngineConfig:
+    """How a session's streams become filter updates.
+
+    Attributes
+    ----------
+    velocity_source
+        ``auto`` (``velocity.csv``, else RoNIN on ``imu.csv``, else PDR), ``file``, ``ronin`` or ``pdr``.
+    step_source
+        ``auto`` (``steps.csv``, else detected in ``imu.csv``, else a fixed cadence), ``file``,
+        ``detect`` or ``cadence``.
+    cadence_s
+        Update interval when footsteps come from a fixed cadence.
+    max_update_interval_s
+        With no footstep for this long, the filter still advances (a time-grid update): no stretch of
+        walking goes untracked when the detector misses steps, and the track covers the recording.
+    fix_association
+        ``interpolate`` (the paper: the fix interpolated at every update, bracketing fixes at most
+        ``interp_max_gap_s`` apart, else the latest one not older than ``max_fix_age_s``) or ``once``
+        (each fix at the first update at or after it, and never again).
+    interp_max_gap_s, max_fix_age_s
+        See ``fix_association``.
+    velocity_max_gap_s
+        Velocity samples further apart are a gap: no motion is integrated across it.
+    heading_align_distance_m
+        With a known start heading, the heading offset turns the first this-many metres of inertial
+        motion onto it.
+    extent_tolerance_m
+        A session is outside the map when no fix lies within this distance of its extent.
+    """
+
+    velocity_source: str = "auto"
+    step_source: str = "auto"
+    cadence_s: float = 0.5
+    max_update_interval_s: float = 1.0
+    fix_association: str = "interpolate"
+    interp_max_gap_s: float = 2.0
+    max_fix_age_s: float = 3.0
+    velocity_max_gap_s: float = 1.0
+    heading_align_distance_m: float = 3.0
+    extent_tolerance_m: float = 100.0
+
+    def __post_init__(self) -> None:
+        _check(
+            self.velocity_source in VELOCITY_SOURCES,
+            f"velocity_source must be one of {VELOCITY_SOURCES}, got {self.velocity_source!r}",
+        )
+        _check(
+            self.step_source in STEP_SOURCES,
+            f"step_source must be one of {STEP_SOURCES}, got {self.step_source!r}",
+        )
+        _check(
+            self.fix_association in FIX_ASSOCIATIONS,
+            f"fix_association must be one of {FIX_ASSOCIATIONS}, got {self.fix_association!r}",
+        )
+        _check(
+            min(self.cadence_s, self.max_update_interval_s, self.velocity_max_gap_s) > 0,
+            "cadence_s, max_update_interval_s and velocity_max_gap_s must be positive",
+        )
+        _check(
+            min(
+                self.interp_max_gap_s,
+                self.max_fix_age_s,
+                self.heading_align_distance_m,
+                self.extent_tolerance_m,
+            )
+            >= 0,
+            "fix gaps, align distance and extent tolerance must be >= 0",
+        )
+
+    @property
+    def fix_lookahead_s(self) -> float:
+        """How far past an update the fixes must be known before the update can be made."""
+        return self.interp_max_gap_s if self.fix_association == "interpolate" else 0.0
+
+
+@dataclass(frozen=True)
+class RunConfig:
+    """One tracking run: method, seed, whether to use the known start pose, and every parameter.
+
+    Attributes
+    ----------
+    mode
+        ``gnss``, ``inertial``, ``paper`` or ``fused`` (:data:`MODES`).
+    seed
+        Seed of the filter: same seed and inputs, same track.
+    use_start_pose
+        Start from ``meta.json``'s start pose when there is one (the paper's setting); otherwise from
+        the first usable fix at or after the pose's time.
+    filter
+        The particle filter's parameters (the ``paper`` mode uses ``FilterConfig.preset("paper")``).
+    engine
+        How the session's streams become updates.
+    """
+
+    mode: str = "fused"
+    seed: int = 0
+    use_start_pose: bool = True
+    filter: FilterConfig = field(default_factory=FilterConfig)
+    engine: EngineConfig = field(default_factory=EngineConfig)
+
+    def __post_init__(self) -> None:
+        _check(self.mode in MODES, f"mode must be one of {MODES}, got {self.mode!r}")
+
+    @classmethod
+    def for_mode(cls, mode: str, **kwargs: Any) -> RunConfig:
+        """The default run of ``mode`` (the paper preset for ``paper``); ``kwargs`` set other fields."""
+        _check(mode in MODES, f"mode must be one of {MODES}, got {mode!r}")
+        preset = FilterConfig.preset("paper" if mode == "paper" else "fused")
+        return cls(mode=mode, filter=kwargs.pop("filter", preset), **kwargs)
+
+    def with_overrides(self, overrides: dict[str, Any]) -> RunConfig:
+        """A copy with ``{"filter.gnss.sigma_factor": 1.0, ...}`` overrides (see :mod:`curbside.configio`)."""
+        return with_overrides(self, overrides) if overrides else self
+
+    def with_particles(self, n: int) -> RunConfig:
+        """A copy with ``n`` particles."""
+        return replace(self, filter=replace(self.filter, n_particles=int(n)))
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-ready (the ``config`` member of ``run.json``)."""
+        return to_dict(self)
+
+    @classmethod
+    def from_dict(cls, data: dict[str, Any], where: str = "run.json config") -> RunConfig:
+        """Rebuild from :meth:`to_dict` output (unknown keys or bad values: one-line input error)."""
+        return from_dict(cls, data, where)

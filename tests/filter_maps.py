@@ -1,0 +1,49 @@
+"""Small synthetic maps shared by the filter and raster tests (metres in UTM zone 10, downtown SF)."""
+
+from __future__ import annotations
+
+import geopandas as gpd
+import shapely
+
+from curbside.osmseg.mapio import MapLayers
+
+UTM10 = 32610
+X0, Y0 = 551000.0, 4182000.0  # downtown San Francisco in EPSG:32610
+
+
+def box(x0: float, y0: float, x1: float, y1: float) -> shapely.Polygon:
+    """A rectangle relative to ``(X0, Y0)``."""
+    return shapely.box(X0 + x0, Y0 + y0, X0 + x1, Y0 + y1)
+
+
+def block_map() -> MapLayers:
+    """A street along x with a crosswalk, a sidewalk north of it and a building beyond."""
+    rows = [
+        ("street", box(-100, -6, 100, 6), None),
+        ("crosswalk", box(-3, -6, 3, 6), None),
+        ("sidewalk", box(-100, 6, 100, 10), "N1"),
+        ("building", box(-100, 10, 100, 60), None),
+    ]
+    gdf = gpd.GeoDataFrame(
+        {"class": [r[0] for r in rows], "segment_id": [r[2] for r in rows], "street": None, "side": None},
+        geometry=[r[1] for r in rows],
+        crs=UTM10,
+    )
+    return MapLayers(gdf)
+
+
+def two_sidewalk_map() -> MapLayers:
+    """A street along x with a sidewalk on each side: "N" (6 < y < 10) and "S" (-10 < y < -6)."""
+    bands = ((-6, 6), (6, 10), (-10, -6), (40, 45))
+    geoms = [box(-100, y0, 100, y1) for y0, y1 in bands]
+    gdf = gpd.GeoDataFrame(
+        {
+            "class": ["street", "sidewalk", "sidewalk", "building"],
+            "segment_id": [None, "N", "S", None],
+            "street": None,
+            "side": None,
+        },
+        geometry=geoms,
+        crs=UTM10,
+    )
+    return MapLayers(gdf)

@@ -1,0 +1,63 @@
+"""Run configurations to and from JSON: round trip, overrides, and one-line errors for bad files."""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+
+from curbside.cli.localize import main
+from curbside.errors import CurbsideInputError
+from curbside.localize.filter import FilterConfig
+from curbside.localize.runconfig import RunConfig
+
+
+def test_every_parameter_round_trips_through_json():
+    config = RunConfig.for_mode("paper", seed=7).with_overrides(
+        {"filter.start.fix_heading_sigma_deg": 20, "engine.max_update_interval_s": "0.75"}
+    )
+    again = RunConfig.from_dict(json.loads(json.dumps(config.to_dict())))
+    assert again == config
+    assert again.filter.gnss.sigma_factor == 1.0 and again.filter.start.fix_heading_sigma_deg == 20.0
+    assert RunConfig.from_dict({}) == RunConfig()
+
+
+def test_the_paper_preset_is_the_plain_filter():
+    paper = FilterConfig.preset("paper")
+    assert (paper.gnss.outlier_prob, paper.gnss.correlation_time_s, paper.recovery.max_fraction) == (0, 0, 0)
+    assert paper.gnss.sigma_factor == 1.0 and paper.map == FilterConfig().map
+    with pytest.raises(ValueError):
+        FilterConfig.preset("best")
+
+
+@pytest.mark.parametrize(
+    "data, words",
+    [
+        ({"filter": {"gnss": {"sigma": 1.0}}}, ["unknown parameter", "sigma"]),
+        ({"seed": "seven"}, ["seed", "integer"]),
+        ({"filter": {"n_particles": 0}}, ["n_particles"]),
+        ({"mode": "best"}, ["mode"]),
+        ({"filter": {"map": {"jaywalk_weight": True}}}, ["jaywalk_weight", "number"]),
+    ],
+)
+def test_bad_configs_are_one_line_input_errors(data, words):
+    with pytest.raises(CurbsideInputError) as info:
+        RunConfig.from_dict(data)
+    message = str(info.value)
+    assert "\n" not in message and all(w in message for w in words)
+
+
+def test_bad_overrides_name_the_parameter():
+    with pytest.raises(CurbsideInputError, match="no parameter 'sigma'"):
+        RunConfig().with_overrides({"filter.gnss.sigma": 1})
+    with pytest.raises(CurbsideInputError, match="no section 'gps'"):
+        RunConfig().with_overrides({"filter.gps.sigma_factor": 1})
+
+
+@pytest.mark.parametrize("content", ["{not json", '{"mode": "fused"}', '{"config": {"seed": "x"}}'])
+def test_localize_run_with_a_bad_run_json_exits_2(tmp_path, capsys, content):
+    bad = tmp_path / "run.json"
+    bad.write_text(content)
+    assert main(["run", "--config", str(bad), "-o", str(tmp_path / "out")]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "run.json" in err and not (tmp_path / "out").exists()

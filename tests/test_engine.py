@@ -1,0 +1,192 @@
+"""The streaming engine: the same track however the rows arrive, time-grid updates, fix association."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pandas as pd
+import pytest
+from hypothesis import HealthCheck, given
+from hypothesis import settings as hsettings
+from hypothesis import strategies as st
+from test_run import block_layers, write_walk
+
+from curbside import settings
+from curbside.localize.engine import SessionEngine, StartPose
+from curbside.localize.filter.parts import GnssFix
+from curbside.localize.pipeline import _frame_for, _start_of, track_session
+from curbside.localize.raster import rasterize_map
+from curbside.localize.runconfig import EngineConfig, RunConfig
+from curbside.localize.session import read_session
+from curbside.localize.streams import DisplacementIntegrator, FixStore
+
+
+@pytest.fixture(scope="module")
+def walk(tmp_path_factory):
+    return read_session(write_walk(tmp_path_factory.mktemp("engine") / "walk", duration_s=30.0))
+
+
+@pytest.fixture(scope="module")
+def raster():
+    return rasterize_map(block_layers(), 0.5)
+
+
+def _engine(session, raster, config: RunConfig) -> SessionEngine:
+    start, t_begin = _start_of(session)
+    return SessionEngine(config, _frame_for(session, block_layers()), raster, start=start, t_begin=t_begin)
+
+
+def _stream(session, raster, config: RunConfig, cuts: list[float]) -> pd.DataFrame:
+    """Push the session's rows in time windows ending at ``cuts``, advancing after each; then finish."""
+    engine = _engine(session, raster, config)
+    v, s, g = session.velocity, session.steps, session.gnss
+    lo = -math.inf
+    for hi in [*sorted(cuts), math.inf]:
+        vv, ss, gg = (tab[(tab["t"] > lo) & (tab["t"] <= hi)] for tab in (v, s, g))
+        engine.push_velocity(vv["t"].to_numpy(), vv[["ve", "vn"]].to_numpy())
+        engine.push_steps(ss["t"].to_numpy(), min(hi, float(s["t"].iat[-1])))
+        engine.push_gnss(gg)
+        engine.advance()
+        lo = hi
+    engine.finish()
+    return pd.DataFrame(
+        [(r.t, r.x, r.y, r.kind, r.n_eff) for r in engine.rows], columns=["t", "x", "y", "kind", "n"]
+    )
+
+
+@hsettings(max_examples=8, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(cuts=st.lists(st.floats(0.0, 30.0), max_size=25))
+def test_any_chunking_gives_the_batch_track(walk, raster, cuts):
+    config = RunConfig.for_mode("fused", seed=3)
+    batch = _stream(walk, raster, config, [])
+    streamed = _stream(walk, raster, config, cuts)
+    pd.testing.assert_frame_equal(batch, streamed)
+
+
+def test_streaming_returns_estimates_before_the_end(walk, raster):
+    engine = _engine(walk, raster, RunConfig.for_mode("fused"))
+    v, s, g = walk.velocity, walk.steps, walk.gnss
+    first = v["t"] <= 10.0
+    engine.push_velocity(v["t"][first].to_numpy(), v[["ve", "vn"]][first].to_numpy())
+    engine.push_steps(s["t"][s["t"] <= 10.0].to_numpy(), 10.0)
+    engine.push_gnss(g[g["t"] <= 10.0])
+    rows = engine.advance()
+    # every update up to 10 s minus the 2 s the fix interpolation looks ahead
+    assert rows and 7.0 < rows[-1].t <= 8.0
+
+
+def test_without_footsteps_the_filter_advances_on_the_time_grid(tmp_path):
+    folder = write_walk(tmp_path / "walk", duration_s=20.0)
+    steps = pd.read_csv(folder / "steps.csv")
+    steps[(steps["t"] < 5.0) | (steps["t"] > 12.0)].to_csv(folder / "steps.csv", index=False)  # 7 s missed
+    track = track_session(read_session(folder), block_layers(), "fused", seed=0).track
+    gap = track[(track["t"] > 5.0) & (track["t"] < 12.0)]
+    assert (gap["update"] == "time").all() and len(gap) == 7
+    assert np.diff(track["t"]).max() <= 1.0 + 1e-9
+    assert track["t"].iat[-1] > 19.0  # the whole walk is tracked
+    # the inertial velocity still moves the estimate through the gap, at walking pace
+    speed = np.hypot(np.diff(gap["x_m"]), np.diff(gap["y_m"])) / np.diff(gap["t"])
+    assert 0.8 < np.median(speed) < 1.8
+
+
+def test_fix_store_interpolates_holds_expires_and_applies_each_fix_once():
+    store = FixStore("interpolate", interp_max_gap_s=2.0, max_fix_age_s=3.0)
+    tf = np.array([0.0, 1.0, 2.0, 10.0])
+    store.push(tf, tf * 10.0, np.zeros(4), np.array([4.0, 6.0, 8.0, 8.0]))
+    assert store.at(0.5) == GnssFix(5.0, 0.0, 5.0)  # interpolated
+    assert store.at(2.5) == GnssFix(20.0, 0.0, 8.0)  # held: the next fix is 7.5 s away
+    assert store.at(6.0) is None  # 4 s stale
+    assert store.at(6.0, hold_forever=True) == GnssFix(20.0, 0.0, 8.0)
+    assert store.at(-1.0) is None
+    once = FixStore("once", 2.0, 3.0)
+    tf = np.array([0.2, 1.2, 2.2, 2.4])
+    once.push(tf, tf * 10.0, np.zeros(4), np.full(4, 5.0))
+    used = [(t, once.at(t)) for t in np.arange(0.0, 6.01, 0.5)]
+    got = [(t, f.x) for t, f in used if f is not None]
+    assert got == [(0.5, 2.0), (1.5, 12.0), (2.5, 24.0)]  # two fixes in one step: the newer one
+
+
+def test_invalid_fixes_are_dropped():
+    store = FixStore("interpolate", 2.0, 3.0)
+    store.push(np.array([0.0, 1.0, 2.0]), np.zeros(3), np.zeros(3), np.array([-1.0, np.nan, 5.0]))
+    assert len(store.fixes.rows()) == 1
+
+
+def test_displacement_integrates_velocity_in_any_chunks_and_skips_gaps():
+    t = np.array([0.0, 1.0, 2.0, 5.0, 6.0])
+    v = np.column_stack([np.ones(5), [0.0, 0.0, 0.0, 0.0, 2.0]])
+    whole, parts = DisplacementIntegrator(1.0), DisplacementIntegrator(1.0)
+    whole.push(t, v)
+    parts.push(t[:2], v[:2])
+    parts.push(t[2:3], v[2:3])
+    parts.push(t[3:], v[3:])
+    for integ in (whole, parts):
+        np.testing.assert_allclose(
+            [integ.at(x) for x in (0.0, 2.0, 5.0, 6.0)], [[0, 0], [2.0, 0], [2.0, 0], [3.0, 1.0]]
+        )
+    pdr = DisplacementIntegrator(1.0, step_means=True)
+    pdr.push(np.array([0.0, 1.0, 3.0]), np.array([[0.0, 0.0], [2.0, 0.0], [1.0, 0.0]]))
+    np.testing.assert_allclose(pdr.at(3.0), [4.0, 0.0])
+
+
+@pytest.mark.parametrize(
+    "heading, first, expected",
+    [(0.0, (1.0, 0.0), math.pi / 2), (90.0, (1.0, 0.0), 0.0), (270.0, (0.0, 1.0), math.pi / 2)],
+)
+def test_heading_offset_turns_the_first_motion_onto_the_start_heading(raster, heading, first, expected):
+    engine = SessionEngine(
+        RunConfig(),
+        _frame_for(read_session_stub(), block_layers()),
+        raster,
+        start=StartPose(0.0, 0.0, heading, 0.0),
+        t_begin=0.0,
+    )
+    t = np.arange(0.0, 10.0, 0.1)
+    engine.push_velocity(t, np.tile(first, (len(t), 1)))
+    assert engine._heading_offset(0.0, heading) == pytest.approx(expected)
+
+
+def read_session_stub():
+    from curbside.localize.session import Session
+
+    return Session(meta={"start": {"lat": 37.78, "lon": -122.4, "heading_deg": 0.0}})
+
+
+def test_run_json_replays_the_same_track_byte_for_byte(tmp_path, monkeypatch):
+    from curbside.cli.localize import main
+    from curbside.osmseg.mapio import write_map
+
+    monkeypatch.setattr(settings, "cache_dir", tmp_path / "cache")
+    folder = write_walk(tmp_path / "walk", duration_s=20.0)
+    map_file = write_map(block_layers(), tmp_path / "block.geojson")
+    assert (
+        main(
+            [
+                "run",
+                str(folder),
+                "--map",
+                str(map_file),
+                "--seed",
+                "5",
+                "--particles",
+                "300",
+                "--set",
+                "filter.gnss.sigma_factor=1.2",
+                "--set",
+                "engine.fix_association=once",
+                "-o",
+                str(tmp_path / "a"),
+            ]
+        )
+        == 0
+    )
+    assert main(["run", "--config", str(tmp_path / "a" / "run.json"), "-o", str(tmp_path / "b")]) == 0
+    assert (tmp_path / "a" / "track.csv").read_bytes() == (tmp_path / "b" / "track.csv").read_bytes()
+    replayed = RunConfig.from_dict(
+        __import__("json").loads((tmp_path / "b" / "run.json").read_text())["config"]
+    )
+    assert replayed.filter.gnss.sigma_factor == 1.2 and replayed.engine == EngineConfig(
+        fix_association="once"
+    )
+    assert replayed.filter.n_particles == 300 and replayed.seed == 5
