@@ -93,19 +93,23 @@ def test_an_outlier_fix_cannot_drag_or_kill_the_cloud():
 
 
 def test_bias_state_absorbs_a_steady_gnss_offset_instead_of_moving_the_track():
-    def final_estimate(bias_sigma_m):
+    def final_estimate(bias_sigma_factor):
         gnss = GnssConfig(
-            bias_sigma_m=bias_sigma_m, bias_time_s=30.0, outlier_prob=0.0, correlation_time_s=0.0
+            sigma_factor=0.3,
+            bias_sigma_factor=bias_sigma_factor,
+            bias_time_s=120.0,
+            outlier_prob=0.0,
+            correlation_time_s=0.0,
         )
         tracker = Tracker.from_config(None, FilterConfig(gnss=gnss), seed=0)
         tracker.start_at_pose(0.0, 0.0, 0.0)
         for k in range(1, 121):  # 60 s east at 1.3 m/s; every fix 12 m south of the truth
             fix = GnssFix(0.65 * k, -12.0, 3.0) if k % 2 == 0 else None
             estimate = tracker.step(0.5 * k, displacement_en=(0.65, 0.0), gnss_fix=fix)
-        return estimate, float(np.mean(tracker.particles.bias_y))
+        return estimate, float(np.average(tracker.particles.bias_y))
 
     plain, _ = final_estimate(0.0)
-    with_bias, bias_y = final_estimate(8.0)
+    with_bias, bias_y = final_estimate(4.0)
     assert plain.y < -10.0  # the plain filter follows the offset fixes
     assert abs(with_bias.y) < 0.5 * abs(plain.y) and bias_y < -5.0
 

@@ -27,7 +27,7 @@ from curbside.localize.filter import (
     Update,
     normalise_and_estimate,
 )
-from curbside.localize.filter.gnss import reference_log_likelihood
+from curbside.localize.filter.gnss import reference_bias_update, reference_log_likelihood
 from curbside.localize.filter.particles import reference_moments
 from curbside.localize.filter.predict import reference_predict
 from curbside.localize.filter.resample import _systematic_gather, systematic_indices
@@ -199,6 +199,34 @@ def test_tempering_counts_correlated_fixes_by_their_effective_number():
     assert GnssLikelihood(GnssConfig(correlation_time_s=0.0), 1, None).exponent(0.5) == 1.0
 
 
+def test_bias_state_update_matches_its_oracle_and_learns_a_steady_offset():
+    cfg = GnssConfig(
+        sigma_factor=0.3, bias_sigma_factor=2.0, bias_time_s=30.0, outlier_prob=0.05, correlation_time_s=0.0
+    )
+    lik = GnssLikelihood(cfg, 300, np.random.default_rng(0))
+    p = random_particles(300)
+    p.state[0], p.state[1] = (p.state[0] - X0) / 20, (p.state[1] - Y0) / 10  # within 5 m of the origin
+    fixes = [
+        GnssFix(3.0, -8.0, 4.0),
+        GnssFix(3.5, -8.2, 4.0),
+        GnssFix(60.0, 40.0, 4.0),
+    ]  # the last: an outlier
+    for k, fix in enumerate(fixes):
+        rho, prior = lik._bias_prior(fix, 1.0 if k else math.inf)
+        s_ = prior + lik.sigma_m(fix) ** 2
+        a, b = -0.5 / s_, lik.log_inlier_prob - math.log(2 * math.pi * s_)
+        ll, expected_state, r_mean = reference_bias_update(
+            p.state, fix, a, b, lik.log_outlier_density, rho, prior / s_
+        )
+        before = p.log_weight.copy()
+        lik.weigh(p, Update(float(k), 1.0, 0.0, 0.0, fix))
+        np.testing.assert_allclose(p.log_weight - before, ll, rtol=1e-12, atol=1e-12)
+        np.testing.assert_allclose(p.state, expected_state, rtol=0, atol=1e-12)
+        assert lik.bias_variance == pytest.approx((1 - r_mean * prior / s_) * prior)
+    # the first two fixes taught the bias means the offset fix - position; the outlier 70 m away did not
+    assert np.abs(p.bias_x + p.x - 3.4).mean() < 1.5 and np.abs(p.bias_y + p.y + 8.1).mean() < 1.5
+
+
 @pytest.mark.parametrize("accuracy", [-1.0, 0.0, math.nan, math.inf, 80.0])
 def test_invalid_or_inaccurate_fixes_make_no_update(accuracy):
     lik = GnssLikelihood(GnssConfig(max_accuracy_m=50.0), 2, np.random.default_rng(0))
@@ -279,7 +307,7 @@ def test_config_sections_reject_bad_values():
         lambda: GnssConfig(outlier_prob=1.0),
         lambda: GnssConfig(outlier_radius_m=0.0),
         lambda: GnssConfig(correlation_time_s=-1.0),
-        lambda: GnssConfig(bias_sigma_m=-1.0),
+        lambda: GnssConfig(bias_sigma_factor=-1.0),
         lambda: GnssConfig(bias_time_s=0.0),
         lambda: MotionConfig(heading_jump_prob=2.0),
         lambda: MapConfig(wall_tolerance_m=-1.0),

@@ -152,9 +152,13 @@ class GnssConfig:
     correlation_time_s
         Time constant of the GNSS error; each fix's log-likelihood is tempered by the fraction of an
         independent fix it carries (0: independent fixes).
-    bias_sigma_m, bias_time_s
-        A GNSS bias state per particle: stationary sigma (m per axis; 0: none) and time constant of
-        the first-order Gauss-Markov error that each fix measures on top of the position.
+    bias_sigma_factor, bias_time_s
+        A GNSS bias state (0: none): the slowly wandering error that successive fixes share, a
+        first-order Gauss-Markov process with time constant ``bias_time_s`` and stationary sigma
+        ``bias_sigma_factor`` times the reported accuracy (per axis). It is Rao-Blackwellised: each
+        particle carries the Kalman mean of its bias, all share one variance, and a fix measures
+        position + bias + white noise of sigma ``sigma_factor`` times the accuracy. It replaces
+        tempering (set ``correlation_time_s`` to 0 with it).
     """
 
     sigma_factor: float = 0.66
@@ -162,7 +166,7 @@ class GnssConfig:
     outlier_prob: float = 0.05
     outlier_radius_m: float = 50.0
     correlation_time_s: float = 3.0
-    bias_sigma_m: float = 0.0
+    bias_sigma_factor: float = 0.0
     bias_time_s: float = 30.0
 
     def __post_init__(self) -> None:
@@ -175,8 +179,9 @@ class GnssConfig:
             f"correlation_time_s must be non-negative, got {self.correlation_time_s}",
         )
         _check(
-            self.bias_sigma_m >= 0 and self.bias_time_s > 0,
-            f"need bias_sigma_m >= 0 and bias_time_s > 0, got {self.bias_sigma_m}, {self.bias_time_s}",
+            self.bias_sigma_factor >= 0 and self.bias_time_s > 0,
+            f"need bias_sigma_factor >= 0 and bias_time_s > 0, got {self.bias_sigma_factor}, "
+            f"{self.bias_time_s}",
         )
 
 
@@ -273,7 +278,7 @@ class FilterConfig:
             return cls()
         if name == "paper":
             return cls(
-                gnss=GnssConfig(sigma_factor=1.0, outlier_prob=0.0, correlation_time_s=0.0, bias_sigma_m=0.0),
+                gnss=GnssConfig(sigma_factor=1.0, outlier_prob=0.0, correlation_time_s=0.0),
                 recovery=RecoveryConfig(max_fraction=0.0),
                 start=StartConfig(fix_sigma_factor=1.0),
             )

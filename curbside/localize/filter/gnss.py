@@ -13,9 +13,17 @@ each off in the paper preset:
   Gauss-Markov with time constant ``tau``, fixes ``dt`` apart have correlation ``rho = exp(-dt / tau)``
   and ``N`` of them carry the information of ``N (1 - rho) / (1 + rho)`` independent ones (the effective
   sample size of the mean of an AR(1) series); each fix's log-likelihood is multiplied by that exponent.
-- **Bias state**: optionally each particle carries the slowly wandering GNSS error itself (rows
-  ``bias_x, bias_y``), a first-order Gauss-Markov process propagated from fix to fix; a fix then
-  measures position + bias.
+- **Bias state**: alternatively the error shared by successive fixes is modelled, not tempered: a
+  first-order Gauss-Markov bias ``b`` (time constant ``tau``, stationary sigma ``k_b`` times the
+  accuracy), with a fix measuring ``position + b + w`` (``w`` white, sigma ``k_w`` times the accuracy).
+  Given a particle's position the bias is linear-Gaussian, so it is Rao-Blackwellised (Doucet et al.
+  2000): each particle carries the Kalman mean of its bias (rows ``bias_x, bias_y``) and all share one
+  variance ``P``, which does not depend on the particle. At a fix ``dt`` after the previous one,
+  ``rho = exp(-dt / tau)``, ``P- = rho^2 P + (1 - rho^2) s_b^2``, the innovation variance is
+  ``S = P- + s_w^2``, a particle's likelihood is the mixture above with the Gaussian's variance ``S``
+  centred on ``position + rho * mean``, and its mean moves by ``r K (innovation)`` with gain
+  ``K = P- / S`` and ``r`` the particle's inlier responsibility (an outlier fix teaches the bias
+  nothing); ``P = (1 - r_mean K) P-``.
 """
 
 from __future__ import annotations
@@ -53,7 +61,7 @@ class GnssLikelihood:
                 math.pi * config.outlier_radius_m**2
             )
         self.last_fix_t = -math.inf
-        self.bias_noise = np.zeros((2, n))
+        self.bias_variance = 0.0  # per axis, shared by every particle's bias mean
 
     def accepts(self, fix: GnssFix | None) -> bool:
         """Whether ``fix`` is valid (finite position, accuracy > 0 and finite) and accurate enough."""
@@ -86,60 +94,67 @@ class GnssLikelihood:
         rho = math.exp(-max(dt_s, 0.0) / tau)
         return (1.0 - rho) / (1.0 + rho)
 
-    def _bias_step(self, dt_s: float) -> tuple[bool, float, float]:
-        """``(on, rho, innovation sigma)`` of the bias over ``dt_s``; draws the innovations."""
-        sigma = self.config.bias_sigma_m
-        if sigma <= 0:
-            return False, 1.0, 0.0
-        self.rng.standard_normal(out=self.bias_noise)
+    def _bias_prior(self, fix: GnssFix, dt_s: float) -> tuple[float, float]:
+        """``(rho, P-)``: bias decay since the last fix and the predicted bias variance (per axis)."""
+        stationary = (self.config.bias_sigma_factor * fix.accuracy_m) ** 2
         rho = math.exp(-max(dt_s, 0.0) / self.config.bias_time_s) if math.isfinite(dt_s) else 0.0
-        return True, rho, sigma * math.sqrt(1.0 - rho * rho)
+        return rho, rho * rho * self.bias_variance + (1.0 - rho * rho) * stationary
 
     def weigh(self, particles: ParticleSet, update: Update) -> None:
-        """Add the tempered log-likelihood of ``update.fix`` (nothing for no or an unusable fix)."""
+        """Add the log-likelihood of ``update.fix`` (nothing for no or an unusable fix)."""
         fix = update.fix
         if not self.accepts(fix):
             return
         dt_s = update.t - self.last_fix_t
-        a, b, c = self.coefficients(fix)
-        _add_gnss_log_likelihood(
-            particles.state,
-            particles.log_weight,
-            fix.x,
-            fix.y,
-            a,
-            b,
-            c,
-            self.exponent(dt_s),
-            *self._bias_step(dt_s),
-            self.bias_noise,
-        )
         self.last_fix_t = update.t
+        if self.config.bias_sigma_factor <= 0:
+            a, b, c = self.coefficients(fix)
+            _add_gnss_log_likelihood(particles.state, particles.log_weight, fix.x, fix.y, a, b, c,
+                                     self.exponent(dt_s))
+            return
+        rho, prior = self._bias_prior(fix, dt_s)
+        innovation = prior + self.sigma_m(fix) ** 2
+        a, b = -0.5 / innovation, self.log_inlier_prob - math.log(2.0 * math.pi * innovation)
+        gain = prior / innovation
+        mean_inlier = _add_gnss_bias_log_likelihood(particles.state, particles.log_weight, fix.x, fix.y, a, b,
+                                                    self.log_outlier_density, rho, gain)
+        self.bias_variance = (1.0 - mean_inlier * gain) * prior
 
 
 @numba.njit(cache=True, nogil=True)
-def _add_gnss_log_likelihood(
-    state, log_weight, fix_x, fix_y, a, b, c, exponent, use_bias, rho, innovation, bias_noise
-):  # pragma: no cover - compiled
+def _logaddexp(u, v):  # pragma: no cover - compiled; as numpy computes it
+    if v == -math.inf:
+        return u
+    if u >= v:
+        return u + math.log1p(math.exp(v - u))
+    return v + math.log1p(math.exp(u - v))
+
+
+@numba.njit(cache=True, nogil=True)
+def _add_gnss_log_likelihood(state, log_weight, fix_x, fix_y, a, b, c, exponent):  # pragma: no cover
     for i in range(state.shape[1]):
         ex = state[X, i] - fix_x
         ey = state[Y, i] - fix_y
-        if use_bias:
-            bx = rho * state[BIAS_X, i] + innovation * bias_noise[0, i]
-            by = rho * state[BIAS_Y, i] + innovation * bias_noise[1, i]
-            state[BIAS_X, i] = bx
-            state[BIAS_Y, i] = by
-            ex += bx
-            ey += by
+        log_weight[i] += exponent * _logaddexp((ex * ex + ey * ey) * a + b, c)
+
+
+@numba.njit(cache=True, nogil=True)
+def _add_gnss_bias_log_likelihood(state, log_weight, fix_x, fix_y, a, b, c, rho, gain):  # pragma: no cover
+    total = 0.0
+    n = state.shape[1]
+    for i in range(n):
+        bx = rho * state[BIAS_X, i]
+        by = rho * state[BIAS_Y, i]
+        ex = fix_x - state[X, i] - bx  # the innovation
+        ey = fix_y - state[Y, i] - by
         inlier = (ex * ex + ey * ey) * a + b
-        # logaddexp(inlier, c), as numpy computes it
-        if c == -math.inf:
-            ll = inlier
-        elif inlier >= c:
-            ll = inlier + math.log1p(math.exp(c - inlier))
-        else:
-            ll = c + math.log1p(math.exp(inlier - c))
-        log_weight[i] += exponent * ll
+        ll = _logaddexp(inlier, c)
+        log_weight[i] += ll
+        r = math.exp(inlier - ll)
+        total += r
+        state[BIAS_X, i] = bx + r * gain * ex
+        state[BIAS_Y, i] = by + r * gain * ey
+    return total / n
 
 
 def reference_log_likelihood(
@@ -148,3 +163,17 @@ def reference_log_likelihood(
     """The numpy oracle of the compiled likelihood without a bias state (tests only)."""
     a, b, c = coefficients
     return exponent * np.logaddexp(a * ((x - fix.x) ** 2 + (y - fix.y) ** 2) + b, c)
+
+
+def reference_bias_update(
+    state: np.ndarray, fix: GnssFix, a: float, b: float, c: float, rho: float, gain: float
+) -> tuple[np.ndarray, np.ndarray, float]:
+    """The numpy oracle of the bias-state update: ``(log-likelihood, new state, mean inlier share)``."""
+    out = state.copy()
+    bx, by = rho * state[BIAS_X], rho * state[BIAS_Y]
+    ex, ey = fix.x - state[X] - bx, fix.y - state[Y] - by
+    inlier = a * (ex**2 + ey**2) + b
+    ll = np.logaddexp(inlier, c)
+    r = np.exp(inlier - ll)
+    out[BIAS_X], out[BIAS_Y] = bx + r * gain * ex, by + r * gain * ey
+    return ll, out, float(r.mean())

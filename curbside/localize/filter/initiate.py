@@ -37,8 +37,6 @@ class Initiator:
         The map, for snapping and for the first weights; ``None`` without a map.
     scale_sigma
         Initial speed-scale spread around 1 (the motion model's).
-    bias_sigma_m
-        Initial GNSS-bias spread (the GNSS model's; 0: no bias state).
     """
 
     def __init__(
@@ -47,13 +45,11 @@ class Initiator:
         rng: np.random.Generator,
         map_likelihood: MapLikelihood | None,
         scale_sigma: float = 0.0,
-        bias_sigma_m: float = 0.0,
     ) -> None:
         self.config = config
         self.rng = rng
         self.map_likelihood = map_likelihood
         self.scale_sigma = scale_sigma
-        self.bias_sigma_m = bias_sigma_m
 
     def snap(self, x: float, y: float) -> tuple[float, float]:
         """``(x, y)`` moved out of a building to the nearest free cell (unchanged elsewhere).
@@ -92,12 +88,10 @@ class Initiator:
         )
 
     def at_fix(self, particles: ParticleSet, fix: GnssFix) -> None:
-        """Seed around a GNSS fix (the fix is position + bias, so the bias is taken off)."""
+        """Seed around a GNSS fix."""
         sigma = self.config.fix_sigma_factor * fix.accuracy_m
         spread = self.config.fix_heading_sigma_deg
         self.seed(particles, fix.x, fix.y, sigma, 0.0, None if spread is None else math.radians(spread))
-        particles.state[X] -= particles.state[BIAS_X]
-        particles.state[Y] -= particles.state[BIAS_Y]
 
     def seed(
         self,
@@ -117,11 +111,7 @@ class Initiator:
         else:
             particles.set_heading(heading_rad + heading_sigma_rad * rng.standard_normal(n))
         s[SCALE] = 1.0 + self.scale_sigma * rng.standard_normal(n) if self.scale_sigma > 0 else 1.0
-        if self.bias_sigma_m > 0:
-            s[BIAS_X] = self.bias_sigma_m * rng.standard_normal(n)
-            s[BIAS_Y] = self.bias_sigma_m * rng.standard_normal(n)
-        else:
-            s[BIAS_X] = s[BIAS_Y] = 0.0
+        s[BIAS_X] = s[BIAS_Y] = 0.0  # the bias means: nothing known yet
         particles.reset_weights()
         if self.map_likelihood is not None:
             particles.log_weight += self.map_likelihood.log_likelihood(s[X], s[Y])

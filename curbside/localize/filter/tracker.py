@@ -151,13 +151,12 @@ class Tracker:
         segments = None
         if config.segment_estimate and raster is not None and raster.segment_index is not None:
             segments = SegmentEstimator(raster, n)
-        bias = config.gnss.bias_sigma_m if use_gnss else 0.0
         return cls(
             ParticleSet(n),
             InertialPredictor(config.motion, n, rng),
             likelihoods,
             SystematicResampler(config.resample, rng),
-            Initiator(config.start, rng, map_lik, config.motion.scale_init_sigma, bias),
+            Initiator(config.start, rng, map_lik, config.motion.scale_init_sigma),
             CollapseRecovery(config.recovery, rng, map_lik, config.start.fix_sigma_factor),
             divergence,
             segments,
