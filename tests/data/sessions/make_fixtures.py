@@ -49,6 +49,7 @@ def cut(trial: str, a: float, b: float) -> dict[str, np.ndarray]:
 
 
 def clock(t: np.ndarray, v2: bool = False) -> pd.DataFrame:
+    t = np.round(t, 4)  # the logged decimals (the HDF5 holds float32: 66.0098 reads 66.00980377)
     if v2:
         return pd.DataFrame({"time": T0_V2_NS + np.round((t - 55.0) * 1e9).astype(np.int64)})
     return pd.DataFrame({"time": T0_NS + np.round((t - 60.0) * 1e9).astype(np.int64),
