@@ -360,7 +360,8 @@ def test_real_exports_of_every_kind(realdata):
     v2 = read_any(realdata / "android-v2-2021-SM-N960F-inhand-27steps")
     assert v2.meta["export_version"] == "2" and len(v2.gnss) == 24
     ios = read_any(realdata / "ios-1.10.4-2022-iphone12mini-tue")
-    world = Rotation.from_quat(ios.imu[QUAT].to_numpy()).apply(ios.imu[["ax", "ay", "az"]].to_numpy(copy=True))
+    acc = ios.imu[["ax", "ay", "az"]].to_numpy(copy=True)
+    world = Rotation.from_quat(ios.imu[QUAT].to_numpy()).apply(acc)
     assert world[:, 2].mean() == pytest.approx(9.8, abs=0.3)  # iOS sign found from the data
     with pytest.raises(CurbsideInputError, match=r"do not overlap in time \(3.2 days apart"):
         read_any(realdata / "ios-1.11-iphone13-jmandzak-root-mixed")

@@ -35,12 +35,12 @@ _OVERWRITE_HELP = "write into a non-empty folder curbside did not write (its oth
 
 
 def _simulate(args: argparse.Namespace) -> int:
+    check_output_folder(args.output, args.overwrite)  # before the slow imports and the OSM load
     from curbside.evaluate import routes as routes_mod
     from curbside.evaluate.simulate import SimulationConfig, sf6_routes, simulate_benchmark, simulate_session
     from curbside.localize.session import write_session
 
     config = SimulationConfig(write_velocity=not args.no_velocity, write_imu=args.imu)
-    check_output_folder(args.output, args.overwrite)
     if args.benchmark:
         with output_folder(args.output, "localize simulate --benchmark", overwrite=args.overwrite) as tmp:
             written = simulate_benchmark(tmp, args.seeds, config, args.osm)

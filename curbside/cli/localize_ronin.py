@@ -16,11 +16,11 @@ logger = logging.getLogger(__name__)
 
 
 def _ronin(args: argparse.Namespace) -> int:
+    out = Path(args.output) if args.output else Path(args.session) / "velocity.csv"
+    check_output_file(out)
     from curbside.localize.ronin.infer import load_model, ronin_velocity
     from curbside.localize.session import read_session
 
-    out = Path(args.output) if args.output else Path(args.session) / "velocity.csv"
-    check_output_file(out)
     session = read_session(args.session)
     if session.imu is None:
         raise CurbsideInputError(Path(args.session) / "imu.csv", "no such file: RoNIN needs imu.csv")
@@ -42,6 +42,7 @@ def _recordings(args: argparse.Namespace, keep_imu: tuple[str, ...] = ()):
 
 
 def _train(args: argparse.Namespace) -> int:
+    check_output_file(args.output)  # before hours of training
     import torch
 
     from curbside.localize.ronin.data import WindowSet
@@ -49,7 +50,6 @@ def _train(args: argparse.Namespace) -> int:
     from curbside.localize.ronin.infer import load_model
     from curbside.localize.ronin.train import TrainOptions, save_weights, train
 
-    check_output_file(args.output)  # before hours of training
     if args.device.startswith("cuda") and not torch.cuda.is_available():
         raise CurbsideInputError("--device", f"{args.device!r} requested but torch sees no CUDA device")
     recordings = _recordings(args)
