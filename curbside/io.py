@@ -170,10 +170,11 @@ def check_output_folder(folder: str | os.PathLike[str], overwrite: bool = False)
         raise CurbsideInputError(folder, "cannot write here: no write permission")
     entries = [p.name for p in dst.iterdir() if not p.name.startswith(_STAGING_PREFIX)]
     if entries and read_marker(dst) is None and not overwrite:
+        count = f"{len(entries)} entr{'y' if len(entries) == 1 else 'ies'}"
         raise CurbsideInputError(
             folder,
-            f"folder is not empty ({len(entries)} entries) and was not written by curbside; pass "
-            "--overwrite to write into it anyway (files curbside does not write are kept)",
+            f"folder is not empty ({count}) and was not written by curbside; pass --overwrite to write "
+            "into it anyway (files curbside does not write are kept)",
         )
     return dst
 
