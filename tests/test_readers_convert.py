@@ -61,6 +61,8 @@ def test_convert_picks_one_recording_of_several(tmp_path, capsys):
     assert main(["convert", str(tree), str(tmp_path / "out")]) == 2
     err = capsys.readouterr().err
     assert "holds 2 recordings (monday, tuesday); pick one as" in err and len(err.splitlines()) == 1
+    assert main(["convert", str(tree), "--list"]) == 0
+    assert capsys.readouterr().out.split() == ["monday", "tuesday"]
     assert main(["convert", f"{tree}::tuesday", str(tmp_path / "out")]) == 0
     assert read_session(tmp_path / "out").meta["source"]["recording"] == "tuesday"
 

@@ -318,6 +318,14 @@ def test_bad_files_are_one_line_input_errors(tmp_path, name, content, message):
         read_sensorlogger(folder)
 
 
+def test_unreadable_metadata_is_a_warning(tmp_path, caplog):
+    folder = _android_copy(tmp_path)
+    (folder / "Metadata.csv").write_bytes(b'version,platform\n3,"android\n')
+    with caplog.at_level(logging.WARNING):
+        session = read_sensorlogger(folder)
+    assert session.meta["platform"] == "android" and "Metadata.csv" in caplog.text
+
+
 def test_bad_sources(tmp_path):
     bad_zip = tmp_path / "broken.zip"
     bad_zip.write_bytes(b"PK\x03\x04 this is not a zip")

@@ -4,7 +4,7 @@
 
     localize convert SRC DST [--route ROUTE.csv] [--steps] [--pdr] [--overwrite]
     localize convert FILE.h5 DSTDIR --all [--steps] [--pdr] [--overwrite]
-    localize convert FILE.h5 --list
+    localize convert FILE.h5 --list          # also a zip or folder of Sensor Logger recordings
 
 ``SRC`` is anything :func:`curbside.localize.readers.read_any` reads (``SRC::RECORDING`` picks one
 recording of a zip or folder holding several). ``--all`` writes one folder per trial of an IPIN
@@ -27,7 +27,8 @@ from tqdm import tqdm
 from curbside.errors import CurbsideInputError
 from curbside.io import check_output_folder, output_folder
 from curbside.localize.pdr import pdr_velocity
-from curbside.localize.readers import ipin, read_any, split_trial
+from curbside.localize.readers import detect_format, ipin, read_any, split_trial
+from curbside.localize.readers._export import find_recordings
 from curbside.localize.session import Session, write_session
 from curbside.localize.steps import detect_steps
 
@@ -66,8 +67,11 @@ def summary_lines(session: Session, folder: Path) -> list[str]:
 def _convert(args: argparse.Namespace) -> int:
     if args.list:
         path, _ = split_trial(args.src)
-        for name in ipin.list_trials(path):
-            print(name)
+        if detect_format(path) == "sensorlogger":
+            names = sorted(find_recordings(path))
+        else:
+            names = ipin.list_trials(path)
+        print("\n".join(names))
         return 0
     if args.dst is None:
         raise CurbsideInputError("DST", "missing destination folder")
@@ -104,7 +108,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     )
     parser.add_argument("dst", nargs="?", help="destination folder: new, empty or a previous curbside output")
     parser.add_argument("--all", action="store_true", help="every trial of an .h5, one folder each under DST")
-    parser.add_argument("--list", action="store_true", help="list the trials of an .h5 and exit")
+    parser.add_argument("--list", action="store_true",
+                        help="list the trials of an .h5 (or the recordings of a zip or folder) and exit")
     parser.add_argument("--route", help="Sensor Logger: CSV lat,lon of the annotation taps, in tap order")
     parser.add_argument("--steps", action="store_true", help="add steps.csv (detected footsteps)")
     parser.add_argument("--pdr", action="store_true", help="add velocity.csv from the PDR baseline")

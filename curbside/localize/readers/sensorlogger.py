@@ -397,9 +397,14 @@ def read_sensorlogger(src: str | Path, route: str | Path | None = None) -> Sessi
     """
     export = open_export(src)
     label = export.label
-    metadata = export.read("Metadata.csv")
+    try:
+        metadata = export.read("Metadata.csv")
+    except CurbsideInputError as exc:  # the data can still be read; frames fall back to Android's
+        logger.warning("%s (ignored)", exc)
+        metadata = None
     device = _device(metadata, label)
-    meta: dict = {"source": {"format": "sensorlogger", "file": export.src.name}, **device.meta}
+    meta: dict = {"source": {"format": "sensorlogger", "file": export.src.name}, "platform": device.platform,
+                  **device.meta}
     if export.folder != ".":
         meta["source"]["recording"] = export.folder
     streams = _read_streams(export)
