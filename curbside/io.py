@@ -200,7 +200,7 @@ def _write_marker(folder: Path, command: str, files: list[str]) -> None:
     os.replace(tmp, folder / MARKER)
 
 
-def _check_conflicts(staged: Path, dst: Path, files: list[str]) -> None:
+def _check_conflicts(dst: Path, files: list[str]) -> None:
     for rel in files:
         target = dst / rel
         if target.is_dir() and not target.is_symlink():
@@ -235,7 +235,7 @@ def _commit_folder(staged: Path, dst: Path, command: str, overwrite: bool) -> No
         os.replace(staged, dst)
         return
     old = (read_marker(dst) or {}).get("files", [])
-    _check_conflicts(staged, dst, files)
+    _check_conflicts(dst, files)
     for rel in files:
         target = dst / rel
         target.parent.mkdir(parents=True, exist_ok=True)
