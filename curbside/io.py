@@ -1,8 +1,26 @@
-"""Small file helpers shared by every stage: atomic writes, opening HDF5 datasets."""
+"""File helpers shared by every stage: safe output folders, atomic writes, opening HDF5 datasets.
+
+Output rules (every command that writes goes through here):
+
+- a **file** is written to a temporary name beside it and renamed into place, so a reader sees the
+  old file or the new one, never half of one (:func:`atomic_path`);
+- a **folder** may be written when it does not exist, is empty, or holds the marker
+  ``.curbside-output`` that curbside leaves in every folder it writes (a previous curbside output).
+  Any other folder is refused unless the command was given ``--overwrite``; even then, only the files
+  the command writes are replaced, and files curbside did not write are never deleted
+  (:func:`output_folder`, :func:`check_output_folder`). The marker lists the files curbside wrote, so
+  the next run into the same folder removes its own stale files (e.g. ``particles.npz`` from a run
+  with ``--save-particles``) and nothing else;
+- a path that cannot be written (permission denied, a file where a folder should be, a read-only
+  disk) is bad input: :class:`~curbside.errors.CurbsideInputError`, not an internal error.
+"""
 
 from __future__ import annotations
 
 import contextlib
+import datetime
+import json
+import logging
 import os
 import shutil
 import tempfile
@@ -15,13 +33,274 @@ from curbside.errors import CurbsideInputError
 if TYPE_CHECKING:
     import h5py
 
+logger = logging.getLogger(__name__)
+
+#: Marker file curbside writes into every output folder: JSON with the command and the files written.
+MARKER = ".curbside-output"
+
+_STAGING_PREFIX = ".curbside-staging-"
+
+
+def _absolute(path: str | os.PathLike[str]) -> Path:
+    # abspath, not resolve: "-o ." must name the folder itself, and a symlinked folder stays a symlink
+    return Path(os.path.abspath(path))
+
+
+def _cannot_write(path: Path, exc: OSError) -> CurbsideInputError:
+    reason = exc.strerror or type(exc).__name__
+    return CurbsideInputError(path, f"cannot write here ({reason})")
+
+
+def _existing_ancestor(path: Path) -> Path:
+    """The nearest existing path at or above ``path`` (something always exists: the root)."""
+    probe = path
+    while not os.path.lexists(probe):
+        probe = probe.parent
+    return probe
+
+
+def _check_creatable(path: Path) -> None:
+    """Raise unless ``path`` (absent) could be created: its nearest existing ancestor is a writable folder."""
+    ancestor = _existing_ancestor(path.parent)
+    if not ancestor.is_dir():
+        raise CurbsideInputError(path, f"cannot write here: {ancestor} is a file, not a folder")
+    if not os.access(ancestor, os.W_OK | os.X_OK):
+        raise CurbsideInputError(path, f"cannot write here: no write permission in {ancestor}")
+
+
+def read_marker(folder: str | os.PathLike[str]) -> dict | None:
+    """The marker of a curbside output folder, or ``None`` when ``folder`` has none (or an unreadable one).
+
+    Parameters
+    ----------
+    folder
+        A folder.
+
+    Returns
+    -------
+    dict or None
+        ``{"command": str, "files": [relative paths], "written_utc": str}``.
+    """
+    path = Path(folder) / MARKER
+    try:
+        doc = json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return None
+    if not isinstance(doc, dict) or not isinstance(doc.get("files", []), list):
+        return None
+    return doc
+
+
+def note_written(path: str | os.PathLike[str]) -> None:
+    """Record in its folder's marker a file curbside added to a curbside output folder.
+
+    ``localize ronin`` writes ``velocity.csv`` into a session folder that ``localize convert`` wrote;
+    listing it lets the next conversion into that folder remove it with the other stale outputs
+    (it was computed from the old ``imu.csv``). A folder without a marker is left alone.
+
+    Parameters
+    ----------
+    path
+        The file just written.
+    """
+    path = _absolute(path)
+    doc = read_marker(path.parent)
+    if doc is None or path.name in doc["files"]:
+        return
+    _write_marker(path.parent, str(doc.get("command", "curbside")), sorted([*doc["files"], path.name]))
+
+
+def check_output_file(path: str | os.PathLike[str]) -> Path:
+    """Check early, before long work, that a file can be written at ``path``.
+
+    Parameters
+    ----------
+    path
+        The output file.
+
+    Returns
+    -------
+    pathlib.Path
+        ``path`` made absolute.
+
+    Raises
+    ------
+    CurbsideInputError
+        ``path`` is a folder, or neither it nor its missing parent folders can be written.
+    """
+    dst = _absolute(path)
+    if dst.is_dir():
+        raise CurbsideInputError(path, "is a folder; give a file name")
+    if dst.exists():
+        if not os.access(dst.parent, os.W_OK | os.X_OK):
+            raise CurbsideInputError(path, f"cannot write here: no write permission in {dst.parent}")
+    else:
+        _check_creatable(dst)
+    return dst
+
+
+def check_output_folder(folder: str | os.PathLike[str], overwrite: bool = False) -> Path:
+    """Check early, before long work, that a command may write the folder ``folder``.
+
+    Parameters
+    ----------
+    folder
+        The output folder (``.`` allowed).
+    overwrite
+        Allow a non-empty folder that curbside did not write (only the command's own files are replaced).
+
+    Returns
+    -------
+    pathlib.Path
+        ``folder`` made absolute.
+
+    Raises
+    ------
+    CurbsideInputError
+        ``folder`` is a file; it is a non-empty folder without the curbside marker and ``overwrite``
+        is off; or it cannot be written.
+    """
+    dst = _absolute(folder)
+    if not os.path.lexists(dst):
+        _check_creatable(dst)
+        return dst
+    if not dst.is_dir():
+        raise CurbsideInputError(folder, "exists and is not a folder")
+    if not os.access(dst, os.W_OK | os.X_OK):
+        raise CurbsideInputError(folder, "cannot write here: no write permission")
+    entries = [p.name for p in dst.iterdir() if not p.name.startswith(_STAGING_PREFIX)]
+    if entries and read_marker(dst) is None and not overwrite:
+        count = f"{len(entries)} entr{'y' if len(entries) == 1 else 'ies'}"
+        raise CurbsideInputError(
+            folder,
+            f"folder is not empty ({count}) and was not written by curbside; pass --overwrite to write "
+            "into it anyway (files curbside does not write are kept)",
+        )
+    return dst
+
+
+def _staged_files(staged: Path) -> list[str]:
+    files = []
+    for path in staged.rglob("*"):
+        if path.is_file() or path.is_symlink():
+            rel = path.relative_to(staged).as_posix()
+            if rel != MARKER:
+                files.append(rel)
+    return sorted(files)
+
+
+def _write_marker(folder: Path, command: str, files: list[str]) -> None:
+    doc = {
+        "command": command,
+        "written_utc": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
+        "files": files,
+    }
+    tmp = folder / f"{MARKER}.tmp"
+    tmp.write_text(json.dumps(doc, indent=1), encoding="utf-8")
+    os.replace(tmp, folder / MARKER)
+
+
+def _check_conflicts(dst: Path, files: list[str]) -> None:
+    for rel in files:
+        target = dst / rel
+        if target.is_dir() and not target.is_symlink():
+            raise CurbsideInputError(target, "is a folder where the output has a file; move it")
+        for parent in Path(rel).parents:
+            if str(parent) != "." and (dst / parent).exists() and not (dst / parent).is_dir():
+                raise CurbsideInputError(dst / parent, "is a file where the output has a folder; move it")
+
+
+def _remove_stale(dst: Path, old: list[str], new: list[str]) -> None:
+    """Delete files a previous curbside run listed in the marker and this run did not write again."""
+    keep = set(new)
+    removed_dirs = set()
+    for rel in old:
+        if rel in keep or rel == MARKER or Path(rel).is_absolute() or ".." in Path(rel).parts:
+            continue
+        path = dst / rel
+        if path.is_file() or path.is_symlink():
+            path.unlink()
+            removed_dirs.update(p for p in Path(rel).parents if str(p) != ".")
+    for rel_dir in sorted(removed_dirs, key=lambda p: len(p.parts), reverse=True):
+        with contextlib.suppress(OSError):
+            (dst / rel_dir).rmdir()  # only when empty: a user's file keeps its folder
+
+
+def _commit_folder(staged: Path, dst: Path, command: str, overwrite: bool) -> None:
+    """Move the staged folder's files onto ``dst`` under the output-folder rules."""
+    check_output_folder(dst, overwrite)  # again: the folder may have changed during the run
+    files = _staged_files(staged)
+    if not os.path.lexists(dst):
+        _write_marker(staged, command, files)
+        os.replace(staged, dst)
+        return
+    old = (read_marker(dst) or {}).get("files", [])
+    _check_conflicts(dst, files)
+    for rel in files:
+        target = dst / rel
+        target.parent.mkdir(parents=True, exist_ok=True)
+        os.replace(staged / rel, target)
+    _remove_stale(dst, [str(f) for f in old], files)
+    _write_marker(dst, command, files)
+
+
+def _staging_dir(dst: Path) -> Path:
+    """An empty temporary folder on the same file system as ``dst`` (inside it when it exists)."""
+    base = dst if dst.is_dir() else dst.parent
+    try:
+        base.mkdir(parents=True, exist_ok=True)
+        return Path(tempfile.mkdtemp(prefix=_STAGING_PREFIX if base == dst else f".{dst.name}.", dir=base))
+    except OSError as exc:
+        raise _cannot_write(dst, exc) from None
+
+
+@contextlib.contextmanager
+def output_folder(
+    folder: str | os.PathLike[str], command: str, *, overwrite: bool = False
+) -> Iterator[Path]:
+    """Yield an empty staging folder; on success move its files into ``folder`` (see the module rules).
+
+    Parameters
+    ----------
+    folder
+        Destination folder; ``.`` and existing folders are fine when the rules allow them.
+    command
+        What writes it (recorded in the marker), e.g. ``"localize convert"``.
+    overwrite
+        Allow a non-empty folder that curbside did not write; only the command's files are replaced.
+
+    Yields
+    ------
+    pathlib.Path
+        An existing, empty folder to write into.
+
+    Raises
+    ------
+    CurbsideInputError
+        The folder may not or cannot be written (checked before the block runs and again after).
+    """
+    dst = check_output_folder(folder, overwrite)
+    tmp_dir = _staging_dir(dst)
+    staged = tmp_dir / "out"
+    staged.mkdir()
+    try:
+        yield staged
+        try:
+            _commit_folder(staged, dst, command, overwrite)
+        except OSError as exc:
+            raise _cannot_write(dst, exc) from None
+    finally:
+        shutil.rmtree(tmp_dir, ignore_errors=True)
+
 
 @contextlib.contextmanager
 def atomic_path(dst: str | os.PathLike[str]) -> Iterator[Path]:
     """Yield a temporary path next to ``dst``; move it onto ``dst`` only if the block succeeds.
 
-    Works for files and for directories (the block may create either at the yielded path).
-    Nothing half-written is left behind when the block raises.
+    The block creates a file or a folder at the yielded path. A file replaces ``dst`` (never a folder:
+    that is an error). A folder is committed under the output-folder rules of :func:`output_folder`
+    without ``--overwrite``: ``dst`` must be absent, empty or a previous curbside output, and files
+    curbside did not write are kept. Nothing half-written is left behind when the block raises.
 
     Parameters
     ----------
@@ -31,17 +310,30 @@ def atomic_path(dst: str | os.PathLike[str]) -> Iterator[Path]:
     Yields
     ------
     pathlib.Path
-        A path in the same directory as ``dst`` that does not exist yet.
+        A path in the same file system as ``dst`` that does not exist yet.
+
+    Raises
+    ------
+    CurbsideInputError
+        ``dst`` cannot be written, or the block made a file where ``dst`` is a folder.
     """
-    dst = Path(dst)
-    dst.parent.mkdir(parents=True, exist_ok=True)
-    tmp_dir = Path(tempfile.mkdtemp(prefix=f".{dst.name}.", dir=dst.parent))
-    tmp = tmp_dir / dst.name
+    dst = _absolute(dst)
+    tmp_dir = _staging_dir(dst)
+    tmp = tmp_dir / (dst.name or "out")
     try:
         yield tmp
-        if dst.is_dir() and not dst.is_symlink():
-            shutil.rmtree(dst)
-        os.replace(tmp, dst)
+        if tmp.is_dir():
+            try:
+                _commit_folder(tmp, dst, "curbside", overwrite=False)
+            except OSError as exc:
+                raise _cannot_write(dst, exc) from None
+        elif os.path.lexists(tmp):
+            if dst.is_dir() and not dst.is_symlink():
+                raise CurbsideInputError(dst, "is a folder; give a file name")
+            try:
+                os.replace(tmp, dst)
+            except OSError as exc:
+                raise _cannot_write(dst, exc) from None
     finally:
         shutil.rmtree(tmp_dir, ignore_errors=True)
 

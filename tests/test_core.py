@@ -86,14 +86,19 @@ def test_atomic_path_leaves_nothing_on_failure(tmp_path):
     assert [p.name for p in tmp_path.iterdir()] == ["out.txt"]
 
 
-def test_atomic_path_replaces_a_directory(tmp_path):
+def test_atomic_path_replaces_its_own_directory_but_never_a_users(tmp_path):
     dst = tmp_path / "d"
-    dst.mkdir()
-    (dst / "old").write_text("x")
-    with atomic_path(dst) as tmp:
+    for name in ("old", "new"):  # the second write replaces the first (a previous curbside output)
+        with atomic_path(dst) as tmp:
+            tmp.mkdir()
+            (tmp / name).write_text("y")
+    assert sorted(p.name for p in dst.iterdir()) == [".curbside-output", "new"]
+    mine = tmp_path / "mine"
+    mine.mkdir()
+    (mine / "old").write_text("x")
+    with pytest.raises(CurbsideInputError, match="not written by curbside"), atomic_path(mine) as tmp:
         tmp.mkdir()
-        (tmp / "new").write_text("y")
-    assert [p.name for p in dst.iterdir()] == ["new"]
+    assert [p.name for p in mine.iterdir()] == ["old"]
 
 
 def test_utm_zone_of_san_francisco():

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import shutil
-import zipfile
 from pathlib import Path
 
 import h5py
@@ -18,7 +17,6 @@ from curbside.localize.readers._resample import interp_quaternions
 from curbside.localize.readers._tidy import STANDARD_GRAVITY, accelerometer_ms2, tidy_table
 from curbside.localize.readers.gpx import read_gpx
 from curbside.localize.readers.ipin import list_trials, read_trial
-from curbside.localize.readers.sensorlogger import read_sensorlogger
 from curbside.localize.session import read_session, write_session
 
 SESSIONS = Path(__file__).parent / "data" / "sessions"
@@ -118,6 +116,12 @@ def test_read_any_dispatches_and_requires_a_trial_name(tmp_path):
         read_any(other)
     with pytest.raises(CurbsideInputError, match="no such file"):
         read_any(tmp_path / "nothing.gpx")
+    single = tmp_path / "combined.csv"
+    single.write_text("time,seconds_elapsed\n")
+    with pytest.raises(CurbsideInputError, match="single CSV is not a recording"):
+        read_any(single)
+    with pytest.raises(CurbsideInputError, match="applies to an .h5 file, a .zip or a folder"):
+        read_any(f"{SESSIONS / 'walk.gpx'}::x")
     (tmp_path / "empty").mkdir()
     with pytest.raises(CurbsideInputError, match="neither a session folder"):
         read_any(tmp_path / "empty")
@@ -130,93 +134,6 @@ def test_converted_session_round_trips_through_the_spec_folder(tmp_path):
     for kind, table in session.tables().items():
         np.testing.assert_allclose(getattr(back, kind).to_numpy(), table.to_numpy(), rtol=1e-9)
     assert back.meta == session.meta
-
-
-# --- Sensor Logger -----------------------------------------------------------------------------------
-
-
-@pytest.mark.parametrize("export", ["sensorlogger-android", "sensorlogger-ios.zip"])
-def test_sensorlogger_export_reproduces_the_recording(export):
-    """Both platform conventions decode to the IPIN recording they were made from (make_fixtures.py)."""
-    session = read_any(SESSIONS / export)
-    ref = read_trial(H5, A520).imu
-    ref = ref.set_index((ref["t"] - 60.0).round(4))
-    imu = session.imu
-    assert len(imu) > 200
-    match = ref.loc[imu["t"].round(4)]
-    np.testing.assert_allclose(imu[["ax", "ay", "az"]], match[["ax", "ay", "az"]], atol=1e-5)
-    np.testing.assert_allclose(imu[["gx", "gy", "gz"]], match[["gx", "gy", "gz"]], atol=1e-5)
-    mine = Rotation.from_quat(imu[["qx", "qy", "qz", "qw"]].to_numpy())
-    theirs = Rotation.from_quat(match[["qx", "qy", "qz", "qw"]].to_numpy())
-    assert np.degrees((mine * theirs.inv()).magnitude()).max() < 0.01
-    assert session.meta["platform"] == ("ios" if export.endswith("zip") else "android")
-    assert session.meta["t0_unix_s"] == pytest.approx(1.7e9, abs=1e-3)
-
-
-def test_sensorlogger_repairs_location_and_reads_tap_waypoints():
-    session = read_sensorlogger(SESSIONS / "sensorlogger-android")
-    raw = pd.read_csv(SESSIONS / "sensorlogger-android" / "Location.csv")
-    assert len(session.gnss) == len(raw) - 1  # one exact duplicate dropped
-    assert session.gnss["t"].is_monotonic_increasing
-    expected = [[8.05, 49.4612756, 11.11098835]]
-    np.testing.assert_allclose(session.waypoints[["t", "lat", "lon"]].to_numpy(), expected)
-    assert session.meta["annotations"] == [{"t": 9.0, "text": "corner"}]
-
-
-def test_sensorlogger_route_gives_every_tap_a_position(tmp_path):
-    route = tmp_path / "route.csv"
-    route.write_text("lat,lon\n49.1,11.1\n49.2,11.2\n")
-    session = read_any(SESSIONS / "sensorlogger-android", route=route)
-    np.testing.assert_allclose(session.waypoints["lat"], [49.1, 49.2])
-    route.write_text("lat,lon\n49.1,11.1\n")
-    with pytest.raises(CurbsideInputError, match="1 route points for 2 taps"):
-        read_any(SESSIONS / "sensorlogger-android", route=route)
-    with pytest.raises(CurbsideInputError, match="Sensor Logger exports only"):
-        read_any(SESSIONS / "walk.gpx", route=route)
-
-
-def _android_copy(tmp_path: Path) -> Path:
-    folder = tmp_path / "export"
-    shutil.copytree(SESSIONS / "sensorlogger-android", folder)
-    return folder
-
-
-def test_sensorlogger_accelerometer_without_gravity_is_refused(tmp_path):
-    folder = _android_copy(tmp_path)
-    (folder / "TotalAcceleration.csv").unlink()
-    with pytest.raises(CurbsideInputError, match="gravity must be included"):
-        read_sensorlogger(folder)
-
-
-def test_sensorlogger_bad_files(tmp_path):
-    folder = _android_copy(tmp_path)
-    loc = pd.read_csv(folder / "Location.csv").drop(columns=["horizontalAccuracy"])
-    loc.to_csv(folder / "Location.csv", index=False)
-    with pytest.raises(CurbsideInputError, match=r"Location.csv: missing column\(s\) \['accuracy_m'\]"):
-        read_sensorlogger(folder)
-    (folder / "Location.csv").write_text("")
-    with pytest.raises(CurbsideInputError, match="malformed CSV"):
-        read_sensorlogger(folder)
-    bad_zip = tmp_path / "broken.zip"
-    bad_zip.write_bytes(b"PK\x03\x04 this is not a zip")
-    with pytest.raises(CurbsideInputError, match="unreadable zip"):
-        read_any(bad_zip)
-    empty_zip = tmp_path / "empty.zip"
-    with zipfile.ZipFile(empty_zip, "w") as zf:
-        zf.writestr("notes.txt", "hello")
-    with pytest.raises(CurbsideInputError, match="not a Sensor Logger export"):
-        read_any(empty_zip)
-
-
-def test_sensorlogger_orientation_inconsistent_with_gravity_is_refused(tmp_path):
-    folder = _android_copy(tmp_path)
-    q = pd.read_csv(folder / "Orientation.csv")
-    # A quarter turn about x puts gravity horizontal: neither sign nor direction fixes that.
-    quarter_turn = Rotation.from_euler("x", 90, degrees=True)
-    q[["qx", "qy", "qz", "qw"]] = (quarter_turn * Rotation.from_quat(q[["qx", "qy", "qz", "qw"]])).as_quat()
-    q.to_csv(folder / "Orientation.csv", index=False)
-    with pytest.raises(CurbsideInputError, match="disagree on gravity"):
-        read_sensorlogger(folder)
 
 
 # --- GPX -----------------------------------------------------------------------------------------------
@@ -233,17 +150,36 @@ def test_gpx_fixes_accuracy_from_hdop_and_timed_waypoints():
     assert session.meta["t0_utc"].startswith("2026-03-01T18:00:00")
 
 
-def test_gpx_bad_inputs(tmp_path):
+def test_gpx_routes_and_zones_are_read(tmp_path):
+    path = tmp_path / "route.gpx"
+    path.write_text(
+        "<gpx version='1.0'><rte><rtept lat='1' lon='2'><time>2026-01-01T00:00:00</time></rtept>"
+        "<rtept lat='1.001' lon='2'><time>2026-01-01T01:00:05+01:00</time><hdop>2</hdop></rtept></rte></gpx>"
+    )
+    session = read_gpx(path)
+    np.testing.assert_array_equal(session.gnss["t"], [0.0, 5.0])  # no zone = UTC; +01:00 converted
+    assert session.gnss["accuracy_m"].iat[1] == 10.0
+
+
+@pytest.mark.parametrize(
+    ("content", "message"),
+    [
+        ("<gpx><trk><trkseg><trkpt lat='1' lon='2'>", "not a readable GPX file"),
+        ("<gpx><trk><trkseg><trkpt lat='1' lon='2'/></trkseg></trk></gpx>", "no <trkpt> with a <time>"),
+        ("<kml/>", "no track, route or waypoint"),
+        ("<gpx><trk><trkseg><trkpt lat='north' lon='2'/></trkseg></trk></gpx>", "not a readable GPX file"),
+        ("\udcff", "not a readable GPX file"),
+    ],
+)
+def test_gpx_bad_inputs(tmp_path, content, message):
     bad = tmp_path / "bad.gpx"
-    bad.write_text("<gpx><trk><trkseg><trkpt lat='1' lon='2'>")
-    with pytest.raises(CurbsideInputError, match="malformed XML"):
+    bad.write_bytes(content.encode("utf-8", errors="surrogateescape"))
+    with pytest.raises(CurbsideInputError, match=message):
         read_gpx(bad)
-    bad.write_text("<gpx><trk><trkseg><trkpt lat='1' lon='2'/></trkseg></trk></gpx>")
-    with pytest.raises(CurbsideInputError, match="no <trkpt> with a <time>"):
-        read_gpx(bad)
-    bad.write_text("<kml/>")
-    with pytest.raises(CurbsideInputError, match="not <gpx>"):
-        read_gpx(bad)
+
+
+def test_gpx_latitude_out_of_range_is_refused(tmp_path):
+    bad = tmp_path / "bad.gpx"
     bad.write_text("<gpx><trk><trkseg><trkpt lat='95' lon='2'><time>2026-01-01T00:00:00Z</time>"
                    "</trkpt></trkseg></trk></gpx>")
     with pytest.raises(CurbsideInputError, match="lat/lon outside"):

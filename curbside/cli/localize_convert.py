@@ -2,14 +2,17 @@
 
 ::
 
-    localize convert SRC DST [--route ROUTE.csv] [--steps] [--pdr]
-    localize convert FILE.h5 DSTDIR --all [--steps] [--pdr]
-    localize convert FILE.h5 --list
+    localize convert SRC DST [--route ROUTE.csv] [--steps] [--pdr] [--overwrite]
+    localize convert FILE.h5 DSTDIR --all [--steps] [--pdr] [--overwrite]
+    localize convert FILE.h5 --list          # also a zip or folder of Sensor Logger recordings
 
-``SRC`` is anything :func:`curbside.localize.readers.read_any` reads. ``--all`` writes one folder per
-trial of an IPIN ``.h5`` under ``DSTDIR`` (named after the trial); ``DSTDIR`` appears complete or not
-at all. ``--steps`` adds ``steps.csv`` (detected footsteps), ``--pdr`` adds ``velocity.csv`` from the
-PDR baseline. The summary (rows and duration per file) goes to stdout.
+``SRC`` is anything :func:`curbside.localize.readers.read_any` reads (``SRC::RECORDING`` picks one
+recording of a zip or folder holding several). ``--all`` writes one folder per trial of an IPIN
+``.h5`` under ``DSTDIR`` (named after the trial); ``DSTDIR`` appears complete or not at all.
+``--steps`` adds ``steps.csv`` (detected footsteps), ``--pdr`` adds ``velocity.csv`` from the PDR
+baseline. ``DST`` must be new, empty or a previous curbside output; ``--overwrite`` allows any other
+folder, where only the session files are replaced (see :mod:`curbside.io`). The summary (rows and
+duration per file) goes to stdout.
 """
 
 from __future__ import annotations
@@ -22,9 +25,10 @@ import pandas as pd
 from tqdm import tqdm
 
 from curbside.errors import CurbsideInputError
-from curbside.io import atomic_path
+from curbside.io import check_output_folder, output_folder
 from curbside.localize.pdr import pdr_velocity
-from curbside.localize.readers import ipin, read_any, split_trial
+from curbside.localize.readers import detect_format, ipin, read_any, split_trial
+from curbside.localize.readers._export import find_recordings
 from curbside.localize.session import Session, write_session
 from curbside.localize.steps import detect_steps
 
@@ -63,28 +67,31 @@ def summary_lines(session: Session, folder: Path) -> list[str]:
 def _convert(args: argparse.Namespace) -> int:
     if args.list:
         path, _ = split_trial(args.src)
-        for name in ipin.list_trials(path):
-            print(name)
+        if detect_format(path) == "sensorlogger":
+            names = sorted(find_recordings(path))
+        else:
+            names = ipin.list_trials(path)
+        print("\n".join(names))
         return 0
     if args.dst is None:
         raise CurbsideInputError("DST", "missing destination folder")
     dst = Path(args.dst)
+    check_output_folder(dst, args.overwrite)  # before reading: fail fast on an unusable destination
     if args.all:
         path, trial = split_trial(args.src)
         if trial is not None:
             raise CurbsideInputError(args.src, "--all converts every trial; drop the ::TRIAL part")
         trials = ipin.list_trials(path)
         lines: list[str] = []
-        with atomic_path(dst) as tmp:
-            tmp.mkdir()
+        with output_folder(dst, "localize convert --all", overwrite=args.overwrite) as tmp:
             for name in tqdm(trials, desc="convert", unit="trial", disable=not sys.stderr.isatty()):
                 session = add_derived(ipin.read_trial(path, name), args.steps, args.pdr)
-                write_session(session, tmp / session.name)
+                write_session(session, tmp / session.name, command="localize convert")
                 lines += summary_lines(session, dst / session.name)
         print("\n".join(lines))
         return 0
     session = add_derived(read_any(args.src, route=args.route), args.steps, args.pdr)
-    write_session(session, dst)
+    write_session(session, dst, overwrite=args.overwrite, command="localize convert")
     print("\n".join(summary_lines(session, dst)))
     return 0
 
@@ -96,11 +103,16 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         help="write a recording (Sensor Logger, IPIN .h5, GPX, session) as a SPEC session folder",
         description=__doc__.split("\n\n")[0],
     )
-    parser.add_argument("src", help="session folder, Sensor Logger .zip/folder, FILE.h5[::TRIAL] or .gpx")
-    parser.add_argument("dst", nargs="?", help="destination folder (replaced if it exists)")
+    parser.add_argument(
+        "src", help="session folder, Sensor Logger .zip/folder[::RECORDING], FILE.h5[::TRIAL] or .gpx"
+    )
+    parser.add_argument("dst", nargs="?", help="destination folder: new, empty or a previous curbside output")
     parser.add_argument("--all", action="store_true", help="every trial of an .h5, one folder each under DST")
-    parser.add_argument("--list", action="store_true", help="list the trials of an .h5 and exit")
+    parser.add_argument("--list", action="store_true",
+                        help="list the trials of an .h5 (or the recordings of a zip or folder) and exit")
     parser.add_argument("--route", help="Sensor Logger: CSV lat,lon of the annotation taps, in tap order")
     parser.add_argument("--steps", action="store_true", help="add steps.csv (detected footsteps)")
     parser.add_argument("--pdr", action="store_true", help="add velocity.csv from the PDR baseline")
+    parser.add_argument("--overwrite", action="store_true",
+                        help="write into a non-empty folder curbside did not write (other files are kept)")
     parser.set_defaults(func=_convert)

@@ -2,16 +2,18 @@
 
 ::
 
-    localize simulate --route path1 [--seed S] [--map MAP] [--imu] [--no-velocity] -o SESSION
+    localize simulate --route path1 [--seed S] [--map MAP] [--imu] [--no-velocity] -o SESSION [--overwrite]
     localize simulate --route custom --start LON LAT --length-m M [--crossings C] [--jaywalks J] -o SESSION
-    localize simulate --benchmark sf6 [--seeds N] [--imu] -o DIR
+    localize simulate --benchmark sf6 [--seeds N] [--imu] -o DIR [--overwrite]
     localize evaluate SESSIONS... --maps A.geojson [B.geojson ...] [--map-names NAME ...]
                       [--metrics-map MAP] [--methods gnss inertial fused] [--jaywalk-weights 0 0.4 1]
                       [--particles 500 ...] [--gnss-sigma-factors F ...] [--seed S]
                       [--workers N | --scheduler ADDRESS] [--ipin H5 [--ipin-trials K]] -o REPORT_DIR
+                      [--overwrite]
 
 ``SESSIONS`` are session folders or folders of them. Each list option with several values is a
-parameter sweep (one at a time around the base values); all runs go to one report.
+parameter sweep (one at a time around the base values); all runs go to one report. Output folders
+must be new, empty or a previous curbside output unless ``--overwrite`` (see :mod:`curbside.io`).
 """
 
 from __future__ import annotations
@@ -24,18 +26,23 @@ from pathlib import Path
 from curbside.cli.common import positive_float, positive_int, unit_interval
 from curbside.errors import CurbsideInputError
 from curbside.evaluate.runner import METHODS
+from curbside.io import check_output_folder, output_folder
 
 logger = logging.getLogger(__name__)
 
+_OVERWRITE_HELP = "write into a non-empty folder curbside did not write (its other files are kept)"
+
 
 def _simulate(args: argparse.Namespace) -> int:
+    check_output_folder(args.output, args.overwrite)  # before the slow imports and the OSM load
     from curbside.evaluate import routes as routes_mod
     from curbside.evaluate.simulate import SimulationConfig, sf6_routes, simulate_benchmark, simulate_session
     from curbside.localize.session import write_session
 
     config = SimulationConfig(write_velocity=not args.no_velocity, write_imu=args.imu)
     if args.benchmark:
-        written = simulate_benchmark(args.output, args.seeds, config, args.osm)
+        with output_folder(args.output, "localize simulate --benchmark", overwrite=args.overwrite) as tmp:
+            written = simulate_benchmark(tmp, args.seeds, config, args.osm)
         print(f"{args.output}: {len(written)} sessions of the sf6 benchmark ({args.seeds} seed(s) per route)")
         return 0
     from curbside.evaluate.osmsource import load_osm
@@ -59,7 +66,7 @@ def _simulate(args: argparse.Namespace) -> int:
     session = simulate_session(route, osm, frame, args.seed, config, name=Path(args.output).name)
     if args.map:
         _check_on_map(args.map, route, frame)
-    write_session(session, args.output)
+    write_session(session, args.output, overwrite=args.overwrite, command="localize simulate")
     print(
         f"{args.output}: {route.spec.name}, {route.length_m:.0f} m, {route.crossings} crosswalk crossings, "
         f"{route.jaywalks} jaywalks, {len(session.gnss)} GNSS fixes"
@@ -98,6 +105,7 @@ def _evaluate(args: argparse.Namespace) -> int:
     from curbside.evaluate.runner import run_all
     from curbside.osmseg.mapio import read_map
 
+    check_output_folder(args.output, args.overwrite)  # before minutes of runs
     sessions = expand_sessions(args.sessions)
     for m in args.maps:
         if not Path(m).is_file():
@@ -132,16 +140,17 @@ def _evaluate(args: argparse.Namespace) -> int:
         table, rows = ipin_table(args.ipin, args.ipin_trials, args.seed)
         extra.append(table)
         extra_json["ipin"] = rows
-    write_report(
-        results,
-        args.output,
-        base,
-        reference,
-        extra,
-        [table1] if table1 else [],
-        extra_json,
-        intro=f"{len(sessions)} session(s), {len(maps)} map(s), {len(specs)} runs.",
-    )
+    with output_folder(args.output, "localize evaluate", overwrite=args.overwrite) as tmp:
+        write_report(
+            results,
+            tmp,
+            base,
+            reference,
+            extra,
+            [table1] if table1 else [],
+            extra_json,
+            intro=f"{len(sessions)} session(s), {len(maps)} map(s), {len(specs)} runs.",
+        )
     print(f"{args.output}: report over {len(sessions)} sessions, {len(specs)} runs")
     return 0
 
@@ -163,6 +172,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     sim.add_argument("--imu", action="store_true", help="also write imu.csv (100 Hz phone IMU)")
     sim.add_argument("--no-velocity", action="store_true", help="do not write velocity.csv")
     sim.add_argument("-o", "--output", required=True, help="session folder (or folder of sessions)")
+    sim.add_argument("--overwrite", action="store_true", help=_OVERWRITE_HELP)
     sim.set_defaults(func=_simulate)
 
     ev = subparsers.add_parser("evaluate", help="the paper's metrics, tables and figures over sessions")
@@ -186,4 +196,5 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     ev.add_argument("--ipin", help="IPIN 2023 HDF5: add the real-data table (no map)")
     ev.add_argument("--ipin-trials", type=positive_int, help="only the first K IPIN trials")
     ev.add_argument("-o", "--output", required=True, help="report folder")
+    ev.add_argument("--overwrite", action="store_true", help=_OVERWRITE_HELP)
     ev.set_defaults(func=_evaluate)

@@ -10,12 +10,14 @@ from pathlib import Path
 
 from curbside import settings
 from curbside.errors import CurbsideInputError
-from curbside.io import atomic_path
+from curbside.io import atomic_path, check_output_file, note_written
 
 logger = logging.getLogger(__name__)
 
 
 def _ronin(args: argparse.Namespace) -> int:
+    out = Path(args.output) if args.output else Path(args.session) / "velocity.csv"
+    check_output_file(out)
     from curbside.localize.ronin.infer import load_model, ronin_velocity
     from curbside.localize.session import read_session
 
@@ -24,9 +26,9 @@ def _ronin(args: argparse.Namespace) -> int:
         raise CurbsideInputError(Path(args.session) / "imu.csv", "no such file: RoNIN needs imu.csv")
     imu_path = Path(args.session) / "imu.csv"
     velocity = ronin_velocity(session.imu, load_model(args.weights), source=str(imu_path))
-    out = Path(args.output) if args.output else Path(args.session) / "velocity.csv"
     with atomic_path(out) as tmp:
         velocity.to_csv(tmp, index=False, float_format="%.6f")
+    note_written(out)
     span = velocity["t"].iat[-1] - velocity["t"].iat[0]
     sys.stdout.write(f"{out}: {len(velocity)} velocities over {span:.1f} s\n")
     return 0
@@ -40,6 +42,7 @@ def _recordings(args: argparse.Namespace, keep_imu: tuple[str, ...] = ()):
 
 
 def _train(args: argparse.Namespace) -> int:
+    check_output_file(args.output)  # before hours of training
     import torch
 
     from curbside.localize.ronin.data import WindowSet
@@ -77,6 +80,8 @@ def _evaluate(args: argparse.Namespace) -> int:
     from curbside.localize.ronin.evaluate import evaluate_recordings, format_summary
     from curbside.localize.ronin.infer import load_model
 
+    if args.output:
+        check_output_file(args.output)
     keep = () if args.no_pdr else (args.split,)
     recordings = [r for r in _recordings(args, keep) if r.split == args.split]
     if not recordings:

@@ -7,6 +7,7 @@ import sys
 from pathlib import Path
 
 from curbside import settings
+from curbside.io import check_output_file
 from curbside.osmseg.build import build_map
 from curbside.osmseg.crosswalks import UNMARKED_CHOICES
 from curbside.osmseg.mapio import CLASSES, MapLayers, write_map
@@ -53,6 +54,7 @@ def summary_lines(layers: MapLayers) -> list[str]:
 
 def run(args: argparse.Namespace) -> int:
     """Build the map and write it."""
+    check_output_file(args.output)
     layers = build_map(tuple(args.bbox) if args.bbox else None, args.osm, unmarked_as=args.unmarked_as)
     path = write_map(layers, args.output)
     out = sys.stdout

@@ -6,6 +6,7 @@ import argparse
 import logging
 
 from curbside.cli.osmseg_show import add_bbox_option
+from curbside.io import check_output_file
 from curbside.osmseg.build import check_bbox
 from curbside.osmseg.compare import compare_maps, format_comparison, write_comparison
 from curbside.osmseg.datasf import read_datasf
@@ -16,6 +17,8 @@ log = logging.getLogger(__name__)
 
 
 def _compare(args: argparse.Namespace) -> int:
+    if args.json:
+        check_output_file(args.json)
     a, b = read_map(args.a), read_map(args.b)
     result = compare_maps(a, b, name_b=args.b)
     print(format_comparison(result, args.a, args.b))
@@ -27,6 +30,7 @@ def _compare(args: argparse.Namespace) -> int:
 
 def _import_datasf(args: argparse.Namespace) -> int:
     bbox = check_bbox(args.bbox) if args.bbox is not None else None
+    check_output_file(args.output)
     layers = read_datasf(args.tiles, bbox=bbox, fill_holes=args.fill_holes)
     write_map(layers, args.output)
     print(format_summary(class_summary(layers).loc[["building"]]))

@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import logging
 
+from curbside.io import check_output_file
 from curbside.osmseg.build import check_bbox
 from curbside.osmseg.mapio import read_map
 from curbside.osmseg.plot import output_format, render_map
@@ -21,6 +22,7 @@ def add_bbox_option(parser: argparse.ArgumentParser, help_text: str) -> None:
 
 def _show(args: argparse.Namespace) -> int:
     output_format(args.output)
+    check_output_file(args.output)
     bbox = check_bbox(args.bbox) if args.bbox is not None else None
     layers = read_map(args.map)
     path = render_map(layers, args.output, bbox=bbox)

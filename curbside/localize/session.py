@@ -3,7 +3,7 @@
 A session is a folder of CSV files (``imu.csv``, ``velocity.csv``, ``steps.csv``, ``gnss.csv``,
 ``waypoints.csv``) and an optional ``meta.json``. :func:`read_session` validates what it reads and
 raises :class:`~curbside.errors.CurbsideInputError` (one line, naming the file) on bad input;
-:func:`write_session` writes a folder atomically.
+:func:`write_session` writes a folder atomically, under the output-folder rules of :mod:`curbside.io`.
 """
 
 from __future__ import annotations
@@ -17,7 +17,7 @@ import numpy as np
 import pandas as pd
 
 from curbside.errors import CurbsideInputError
-from curbside.io import atomic_path
+from curbside.io import output_folder
 
 #: Required and optional columns per file, in SPEC order.
 COLUMNS: dict[str, tuple[tuple[str, ...], tuple[str, ...]]] = {
@@ -198,7 +198,9 @@ def read_session(folder: str | Path) -> Session:
     return session
 
 
-def write_session(session: Session, folder: str | Path) -> Path:
+def write_session(
+    session: Session, folder: str | Path, *, overwrite: bool = False, command: str = "curbside"
+) -> Path:
     """Write ``session`` as a SPEC folder, atomically (nothing is left behind on failure).
 
     Parameters
@@ -206,17 +208,26 @@ def write_session(session: Session, folder: str | Path) -> Path:
     session
         The session; each present table is validated before anything is written.
     folder
-        Destination directory; replaced if it exists.
+        Destination directory: absent, empty, a previous curbside output, or (with ``overwrite``)
+        any folder; see :func:`curbside.io.output_folder`. Files curbside did not write are kept.
+    overwrite
+        Allow a non-empty folder that curbside did not write.
+    command
+        Recorded in the folder's ``.curbside-output`` marker.
 
     Returns
     -------
     pathlib.Path
         ``folder``.
+
+    Raises
+    ------
+    CurbsideInputError
+        A table fails validation, or the folder may not or cannot be written.
     """
     folder = Path(folder)
     tables = {k: validate_table(k, t, f"{session.name}/{k}.csv") for k, t in session.tables().items()}
-    with atomic_path(folder) as tmp:
-        tmp.mkdir()
+    with output_folder(folder, command, overwrite=overwrite) as tmp:
         for kind, table in tables.items():
             table.to_csv(tmp / f"{kind}.csv", index=False, float_format="%.10g")
         if session.meta:

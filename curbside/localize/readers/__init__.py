@@ -4,13 +4,13 @@
 
 - a folder with ``imu.csv``, ``gnss.csv``...: the SPEC session folder
   (:func:`~curbside.localize.session.read_session`);
-- a ``.zip`` or a folder of Sensor Logger CSVs (``Accelerometer.csv``...):
-  :func:`curbside.localize.readers.sensorlogger.read_sensorlogger`;
+- a ``.zip`` or a folder of Sensor Logger CSVs (``Accelerometer.csv``...), ``SRC::RECORDING`` when
+  it holds several recordings: :func:`curbside.localize.readers.sensorlogger.read_sensorlogger`;
 - ``FILE.h5::TRIAL``: one IPIN/GetSensorData trial (:func:`curbside.localize.readers.ipin.read_trial`);
   ``FILE.h5`` alone when it holds a single trial;
 - a ``.gpx`` file: a GNSS-only session (:func:`curbside.localize.readers.gpx.read_gpx`).
 
-The trial separator is ``::`` (not ``#``: ``#`` starts a comment in shells and is legal in file
+The trial (or recording) separator is ``::`` (not ``#``: ``#`` starts a comment in shells and is legal in file
 names, while ``::`` in an HDF5 file name is vanishingly rare). ``docs/sessions.md`` has the details.
 """
 
@@ -29,7 +29,7 @@ _H5_SUFFIXES = (".h5", ".hdf5")
 
 
 def split_trial(src: str | Path) -> tuple[Path, str | None]:
-    """Split ``FILE.h5::TRIAL`` into the file and the trial (``None`` when there is no separator)."""
+    """Split ``FILE.h5::TRIAL`` (or ``SRC::RECORDING``) into the path and the name (``None`` if no ``::``)."""
     text = str(src)
     if TRIAL_SEPARATOR in text:
         path, trial = text.rsplit(TRIAL_SEPARATOR, 1)
@@ -45,24 +45,31 @@ def detect_format(src: str | Path) -> str:
     CurbsideInputError
         ``src`` does not exist or is of no known format.
     """
-    path, trial = split_trial(src)
-    if trial is not None or path.suffix.lower() in _H5_SUFFIXES:
+    path, name = split_trial(src)
+    if path.suffix.lower() in _H5_SUFFIXES:
         return "ipin"
     if not path.exists():
         raise CurbsideInputError(path, "no such file or folder")
+    suffix = path.suffix.lower()
     if path.is_dir():
-        if any((path / f"{kind}.csv").is_file() for kind in COLUMNS):
+        if name is None and any((path / f"{kind}.csv").is_file() for kind in COLUMNS):
             return "spec"
         if sensorlogger.looks_like_export(path):
             return "sensorlogger"
         raise CurbsideInputError(
             path, "folder is neither a session folder (imu.csv, gnss.csv...) nor a Sensor Logger export"
         )
-    suffix = path.suffix.lower()
     if suffix == ".zip":
         return "sensorlogger"
+    if name is not None:
+        raise CurbsideInputError(src, f"'{TRIAL_SEPARATOR}NAME' applies to an .h5 file, a .zip or a folder")
     if suffix == ".gpx":
         return "gpx"
+    if suffix == ".csv":
+        raise CurbsideInputError(
+            path, "a single CSV is not a recording: give the Sensor Logger .zip (not the 'Combined CSV' "
+            "export) or its folder, or a session folder"
+        )
     raise CurbsideInputError(path, "unknown format (expected a folder, .zip, .h5[::TRIAL] or .gpx)")
 
 
@@ -72,8 +79,8 @@ def read_any(src: str | Path, *, route: str | Path | None = None) -> Session:
     Parameters
     ----------
     src
-        A SPEC session folder, a Sensor Logger ``.zip`` or folder, ``FILE.h5::TRIAL`` (or a
-        single-trial ``FILE.h5``), or a ``.gpx`` file.
+        A SPEC session folder, a Sensor Logger ``.zip`` or folder (``SRC::RECORDING`` to pick one of
+        several), ``FILE.h5::TRIAL`` (or a single-trial ``FILE.h5``), or a ``.gpx`` file.
 
     Returns
     -------

@@ -1,19 +1,21 @@
 """GPX tracks: GNSS fixes only (``gnss.csv``), plus timed ``<wpt>`` points as ground truth.
 
-Every ``<trkpt lat lon>`` with a ``<time>`` becomes a fix; ``t`` is seconds since the first fix (its
-UTC time goes to ``meta["t0_utc"]``). GPX has no accuracy radius, only dilution of precision:
-``accuracy_m = hdop * settings.gpx_uere_m`` (5 m, a typical user-equivalent range error of a phone
-receiver) when a point has ``<hdop>``; otherwise the accuracy is NaN, which the session model
-treats as an invalid fix (no GNSS update). ``<wpt>`` elements with a ``<time>`` become
-``waypoints.csv``. GPX 1.0 and 1.1 are read alike (elements are matched by local name).
+Parsing is gpxpy's (GPX 1.0 and 1.1, namespaces, extensions). Every track point of every track and
+segment (and route point) with a time becomes a fix; ``t`` is seconds since the first fix (its UTC
+time goes to ``meta["t0_utc"]``; times without a zone are taken as UTC, as GPX requires). GPX has no
+accuracy radius, only dilution of precision: ``accuracy_m = hdop * settings.gpx_uere_m`` (5 m, a
+typical user-equivalent range error of a phone receiver) when a point has ``<hdop>``; otherwise the
+accuracy is NaN, which the session model treats as an invalid fix (no GNSS update). ``<wpt>``
+elements with a ``<time>`` become ``waypoints.csv``.
 """
 
 from __future__ import annotations
 
 import logging
-import xml.etree.ElementTree as ET
 from pathlib import Path
 
+import gpxpy
+import gpxpy.gpx
 import pandas as pd
 
 from curbside import settings
@@ -24,18 +26,23 @@ from curbside.localize.session import Session
 logger = logging.getLogger(__name__)
 
 
-def _local(tag: str) -> str:
-    return tag.rsplit("}", 1)[-1]
+def _table(points) -> pd.DataFrame:
+    rows = [(p.latitude, p.longitude, p.time, p.horizontal_dilution) for p in points]
+    table = pd.DataFrame(rows, columns=["lat", "lon", "time", "hdop"])
+    table["stamp"] = pd.to_datetime(table["time"], utc=True)
+    table["hdop"] = pd.to_numeric(table["hdop"], errors="coerce")
+    return table
 
 
-def _points(root: ET.Element, name: str) -> pd.DataFrame:
-    rows = []
-    for el in root.iter():
-        if _local(el.tag) != name:
-            continue
-        children = {_local(c.tag): (c.text or "").strip() for c in el}
-        rows.append((el.get("lat"), el.get("lon"), children.get("time"), children.get("hdop")))
-    return pd.DataFrame(rows, columns=["lat", "lon", "time", "hdop"])
+def _parse(path: Path) -> gpxpy.gpx.GPX:
+    try:
+        with path.open(encoding="utf-8") as fh:
+            return gpxpy.parse(fh)
+    except (gpxpy.gpx.GPXException, ValueError, UnicodeDecodeError) as exc:
+        reason = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+        raise CurbsideInputError(path, f"not a readable GPX file ({reason})") from None
+    except OSError as exc:
+        raise CurbsideInputError(path, f"cannot read ({exc.strerror})") from None
 
 
 def read_gpx(path: str | Path) -> Session:
@@ -54,19 +61,17 @@ def read_gpx(path: str | Path) -> Session:
     Raises
     ------
     CurbsideInputError
-        Missing file, malformed XML, no track point with a time, non-numeric coordinates.
+        Missing or unreadable file, malformed GPX, no track or route point with a time.
     """
     path = Path(path)
     if not path.is_file():
         raise CurbsideInputError(path, "no such file")
-    try:
-        root = ET.parse(path).getroot()
-    except ET.ParseError as exc:
-        raise CurbsideInputError(path, f"malformed XML ({exc})") from None
-    if _local(root.tag) != "gpx":
-        raise CurbsideInputError(path, f"root element is <{_local(root.tag)}>, not <gpx>")
-    track = _points(root, "trkpt")
-    track["stamp"] = pd.to_datetime(track["time"], utc=True, errors="coerce", format="ISO8601")
+    doc = _parse(path)
+    points = [p for trk in doc.tracks for seg in trk.segments for p in seg.points]
+    points += [p for rte in doc.routes for p in rte.points]
+    if not points and not doc.waypoints:
+        raise CurbsideInputError(path, "no track, route or waypoint in it (is it a GPX file?)")
+    track = _table(points)
     untimed = track["stamp"].isna()
     if untimed.any():
         logger.info("%s: dropped %d track point(s) without a valid <time>", path, int(untimed.sum()))
@@ -75,16 +80,14 @@ def read_gpx(path: str | Path) -> Session:
         raise CurbsideInputError(path, "no <trkpt> with a <time>")
     t0 = track["stamp"].min()
     track["t"] = (track["stamp"] - t0).dt.total_seconds()
-    hdop = pd.to_numeric(track["hdop"], errors="coerce")
-    track["accuracy_m"] = hdop * settings.gpx_uere_m
-    if hdop.isna().all():
+    track["accuracy_m"] = track["hdop"] * settings.gpx_uere_m
+    if track["hdop"].isna().all():
         logger.warning("%s: no <hdop>; every fix has unknown accuracy and counts as invalid", path)
     gnss = tidy_table(track, path, ["t", "lat", "lon", "accuracy_m"], nullable=("accuracy_m",))
 
     waypoints = None
-    wpt = _points(root, "wpt")
-    wpt["stamp"] = pd.to_datetime(wpt["time"], utc=True, errors="coerce", format="ISO8601")
-    wpt = wpt[wpt["stamp"].notna()]
+    wpt = _table(doc.waypoints)
+    wpt = wpt[wpt["stamp"].notna()].copy()
     if len(wpt):
         wpt["t"] = (wpt["stamp"] - t0).dt.total_seconds()
         waypoints = tidy_table(wpt, f"{path} <wpt>", ["t", "lat", "lon"])

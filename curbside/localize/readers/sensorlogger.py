@@ -1,38 +1,42 @@
 """Sensor Logger exports (the iOS/Android app by Kelvin Choi): a ``.zip`` or a folder of CSV files.
 
-What the export holds (the app's own references, `UNITS.md`, `COORDINATES.md`, `CROSSPLATFORM.md`
-and `ORIENTATION.md` in github.com/tszheichoi/awesome-sensor-logger; ``docs/sessions.md`` quotes them):
+What the export holds (the app's references ``UNITS.md``, ``COORDINATES.md``, ``CROSSPLATFORM.md``
+and ``ORIENTATION.md`` in github.com/tszheichoi/awesome-sensor-logger; ``docs/sessions.md`` quotes
+them and lists the real exports this reader was run on):
 
-- every CSV has ``time`` (ns since the UNIX epoch, UTC) and ``seconds_elapsed`` (s since the start
-  tap, possibly negative for buffered samples). ``t`` here is ``seconds_elapsed``; the epoch of
-  ``t = 0`` goes to ``meta["t0_unix_s"]``;
+- clocks: ``time`` (ns since the UNIX epoch) in every CSV; ``seconds_elapsed`` (s since the start
+  tap) from export format 3 on. ``t`` is ``seconds_elapsed``, or for format-2 exports ``time``
+  minus a common start; streams must overlap on ``time`` (see :mod:`._export`);
 - ``Accelerometer.csv`` (``x,y,z``, m/s^2) is acceleration **without** gravity on both platforms;
-  ``TotalAcceleration.csv`` (Android only) includes gravity; ``Gravity.csv`` is the gravity vector.
-  ``imu.csv`` needs gravity included, so ``ax,ay,az`` = TotalAcceleration when present, else
-  Accelerometer + Gravity (Gravity interpolated onto the accelerometer clock). An Accelerometer
-  alone is accepted only when it is in fact about 1 g in magnitude (checked, g converted);
-- iOS reports acceleration and gravity with the opposite sign of Android on all three axes (unless
-  the app's "Standardise Units & Frames" is on), so the sign is not taken on trust: the reader
-  picks the sign (and the quaternion's direction, device-to-world or world-to-device) under which
-  the orientation rotates the measured acceleration onto +9.8 m/s^2 up, the Android/SPEC convention;
+  ``TotalAcceleration.csv`` (Android) includes it; ``Gravity.csv`` is the gravity vector. ``imu.csv``
+  needs gravity included: TotalAcceleration, else Accelerometer + Gravity, else Accelerometer +
+  gravity restored from the orientation, else an Accelerometer that in fact reads ~1 g;
+- iOS reports acceleration and gravity with the opposite sign of Android on all three axes unless
+  "Standardise Units & Frames" is on (``standardisation`` in ``Metadata.csv``). With an orientation
+  the sign is not taken on trust: the reader picks the sign (and the quaternion's direction) under
+  which the orientation rotates the measured acceleration onto +9.8 m/s^2 up; without one it follows
+  the metadata;
 - ``Gyroscope.csv``: rad/s, the same sign on both platforms;
-- ``Orientation.csv``: ``qx,qy,qz,qw`` (plus ``roll,pitch,yaw``). Android's is the rotation vector
-  (East-North-Up world frame); iOS's is CoreMotion's attitude in the x-true-north, z-up frame, so its
-  world frame is North-West-Up and is turned 90 degrees about the vertical into ENU. The platform is
-  read from ``Metadata.csv`` (``platform``: iOS or Android); without it Android is assumed (logged);
-- ``Location.csv``: ``latitude,longitude,horizontalAccuracy`` (m, about one standard deviation,
-  negative = invalid) -> ``gnss.csv``;
-- ``Annotation.csv``: taps (``text``, ``millisecond_press_duration``). A tap is a waypoint when its
-  text is ``"lat,lon"``, or when a route file gives the surveyed positions of the taps in order
-  (``route=``: a CSV with ``lat,lon`` columns, one row per tap). Other taps are kept in
-  ``meta["annotations"]``.
+- ``Orientation.csv``: ``qx,qy,qz,qw`` (column order varies between versions). Android's is the
+  rotation vector in East-North-Up; iOS's is CoreMotion's attitude in the x-true-north, z-up frame
+  (North-West-Up), turned 90 degrees about the vertical into ENU. The turn was verified on a real
+  iOS export against the magnetic field (docs/sessions.md); with ``Magnetometer.csv`` present the
+  reader repeats that check on every export (``meta["magnetic_north_deg"]``) and, for standardised
+  iOS exports, whose world frame is undocumented, follows it;
+- ``Location.csv``: ``latitude,longitude,horizontalAccuracy`` (m, ~1 sigma) -> ``gnss.csv``;
+  (0, 0) fixes are dropped;
+- ``Annotation.csv``: taps. A tap is a waypoint when its text is ``"lat,lon"``, or when a route file
+  gives the surveyed positions of the taps in order; other taps go to ``meta["annotations"]``.
+
+An empty file (0 bytes or a header only: the app writes ``Annotation.csv`` when annotations are on
+but never tapped) counts as absent, so an export with an empty ``Location.csv`` is an IMU-only
+session and one without motion files a GNSS-only session.
 """
 
 from __future__ import annotations
 
-import io
 import logging
-import zipfile
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -40,106 +44,160 @@ import pandas as pd
 from scipy.spatial.transform import Rotation
 
 from curbside.errors import CurbsideInputError
-from curbside.localize.readers._resample import merge_imu
+from curbside.localize.readers._export import check_same_clock, find_recordings, open_export
+from curbside.localize.readers._resample import interp_quaternions, merge_imu
 from curbside.localize.readers._tidy import STANDARD_GRAVITY, accelerometer_ms2, tidy_table
 from curbside.localize.session import Session
 
 logger = logging.getLogger(__name__)
 
-#: Files whose presence marks a folder as a Sensor Logger export (lower-case names).
-MARKERS = ("accelerometer.csv", "totalacceleration.csv", "gyroscope.csv", "location.csv", "orientation.csv")
-
 #: iOS world frame (x north, y west, z up) to East-North-Up: +90 degrees about the vertical.
 NWU_TO_ENU = Rotation.from_euler("z", 90.0, degrees=True)
 
+#: Largest angle (deg) between magnetic north in the world frame and the frame's north still taken as
+#: agreement: declination (up to ~20 deg in populated places) plus indoor disturbance.
+NORTH_TOLERANCE_DEG = 35.0
 
-class _Export:
-    """The CSV files of one export, by lower-case base name, from a folder or a zip."""
+_MOTION_FILES = ("TotalAcceleration.csv", "Accelerometer.csv", "Gravity.csv", "Gyroscope.csv",
+                 "Orientation.csv", "Magnetometer.csv")
+_QUAT = ["qx", "qy", "qz", "qw"]
+_ACC = ("ax", "ay", "az")
 
-    def __init__(self, src: Path) -> None:
-        self.src = src
-        self._files: dict[str, bytes | Path] = {}
-        if src.is_dir():
-            for path in src.rglob("*.csv"):
-                self._files.setdefault(path.name.lower(), path)
-        elif src.is_file():
-            try:
-                with zipfile.ZipFile(src) as zf:
-                    for info in zf.infolist():
-                        name = Path(info.filename).name.lower()
-                        if name.endswith(".csv") and not info.is_dir():
-                            self._files.setdefault(name, zf.read(info))
-            except (zipfile.BadZipFile, OSError) as exc:
-                raise CurbsideInputError(src, f"unreadable zip ({exc})") from None
+
+@dataclass
+class _Device:
+    """What ``Metadata.csv`` says about the phone and the export."""
+
+    platform: str = "android"
+    standardised: bool = False
+    meta: dict = field(default_factory=dict)
+
+
+def _device(table: pd.DataFrame | None, label: str) -> _Device:
+    if table is None or table.empty or "platform" not in table.columns:
+        logger.warning("%s: no Metadata.csv platform; assuming Android frames", label)
+        return _Device()
+    row = table.iloc[0]
+    platform = str(row["platform"]).strip().lower()
+    if platform not in ("android", "ios"):
+        logger.warning("%s: Metadata.csv platform %r unknown; assuming Android frames", label, platform)
+        platform = "android"
+    standardised = str(row.get("standardisation", "false")).strip().lower() in ("true", "1", "yes")
+    meta = {"platform": platform, "standardised": standardised}
+    for key, col in (("export_version", "version"), ("app_version", "appVersion"), ("device", "device name")):
+        if col in table.columns and pd.notna(row[col]):
+            meta[key] = str(row[col]).strip()
+    return _Device(platform, standardised, meta)
+
+
+def _read_streams(export) -> dict[str, pd.DataFrame]:
+    streams = {}
+    for name in (*_MOTION_FILES, "Location.csv", "Annotation.csv"):
+        table = export.read(name)
+        if table is None:
+            continue
+        if table.empty:
+            level = logging.INFO if name == "Annotation.csv" else logging.WARNING
+            logger.log(level, "%s/%s: no rows (empty file); ignored", export.label, name)
+            continue
+        streams[name] = table
+    return streams
+
+
+def _one_clock(streams: dict[str, pd.DataFrame], export, metadata: pd.DataFrame | None, meta: dict) -> None:
+    """Add ``t`` (s) to every table in place; record the epoch of ``t = 0`` in ``meta``."""
+    reference = next((n for n in ("TotalAcceleration.csv", "Accelerometer.csv", "Gyroscope.csv",
+                                  "Location.csv") if n in streams), next(iter(streams)))
+    check_same_clock(streams, reference, export.label)
+    ref = streams[reference]
+    t0_ns = None
+    if "time" in ref.columns and "seconds_elapsed" in ref.columns:
+        offsets = pd.to_numeric(ref["time"], errors="coerce") - 1e9 * pd.to_numeric(
+            ref["seconds_elapsed"], errors="coerce")
+        t0_ns = float(np.nanmedian(offsets))
+    elif metadata is not None and "recording epoch time" in metadata.columns:
+        t0_ns = float(metadata["recording epoch time"].iat[0]) * 1e6  # ms
+    elif "time" in ref.columns:
+        t0_ns = float(np.nanmin(pd.to_numeric(ref["time"], errors="coerce")))
+    for name, table in streams.items():
+        if "seconds_elapsed" in table.columns:
+            table["t"] = pd.to_numeric(table["seconds_elapsed"], errors="coerce")
+        elif "time" in table.columns and t0_ns is not None:
+            ns = pd.to_numeric(table["time"], errors="coerce")
+            table["t"] = (ns - int(t0_ns)) / 1e9  # difference first: float64 cannot hold ns epochs exactly
         else:
-            raise CurbsideInputError(src, "no such file or folder")
-
-    def has(self, name: str) -> bool:
-        return name.lower() in self._files
-
-    def read(self, name: str, timed: bool = True) -> pd.DataFrame | None:
-        item = self._files.get(name.lower())
-        if item is None:
-            return None
-        source = f"{self.src}/{name}"
-        try:
-            table = pd.read_csv(io.BytesIO(item) if isinstance(item, bytes) else item, skipinitialspace=True)
-        except (pd.errors.ParserError, pd.errors.EmptyDataError, UnicodeDecodeError) as exc:
-            raise CurbsideInputError(source, f"malformed CSV ({str(exc).splitlines()[0]})") from None
-        table.columns = [str(c).strip() for c in table.columns]
-        if not timed:
-            return table
-        if "seconds_elapsed" not in table.columns:
-            raise CurbsideInputError(source, "missing column 'seconds_elapsed'")
-        return table.rename(columns={"seconds_elapsed": "t"})
+            raise CurbsideInputError(f"{export.label}/{name}", "no time column ('seconds_elapsed' or 'time')")
+    if t0_ns is not None and np.isfinite(t0_ns):
+        meta["t0_unix_s"] = t0_ns / 1e9
 
 
-def looks_like_export(folder: str | Path) -> bool:
-    """Whether ``folder`` holds any of the Sensor Logger CSV files."""
-    folder = Path(folder)
-    return any(p.name.lower() in MARKERS for p in folder.glob("*.csv"))
+def _xyz(table: pd.DataFrame, source: str, cols: tuple[str, str, str]) -> pd.DataFrame:
+    table = table.rename(columns=dict(zip(("x", "y", "z"), cols, strict=True)))
+    return tidy_table(table, source, ["t", *cols])
 
 
-def _xyz(export: _Export, name: str, cols: tuple[str, str, str]) -> pd.DataFrame | None:
-    table = export.read(name)
+def _orientation(streams, label: str, device: _Device) -> pd.DataFrame | None:
+    table = streams.get("Orientation.csv")
     if table is None:
         return None
-    table = table.rename(columns=dict(zip(("x", "y", "z"), cols, strict=True)))
-    return tidy_table(table, f"{export.src}/{name}", ["t", *cols])
+    quat = tidy_table(table, f"{label}/Orientation.csv", ["t", *_QUAT])
+    norm = np.linalg.norm(quat[_QUAT].to_numpy(), axis=1)
+    if np.abs(norm - 1.0).max() > 0.05:
+        raise CurbsideInputError(f"{label}/Orientation.csv", f"qx,qy,qz,qw are not unit quaternions "
+                                 f"(norms {norm.min():.2f}-{norm.max():.2f})")
+    quat[_QUAT] = quat[_QUAT].to_numpy() / norm[:, None]
+    if device.platform == "ios":
+        quat[_QUAT] = (NWU_TO_ENU * Rotation.from_quat(quat[_QUAT].to_numpy())).as_quat()
+    return quat
 
 
-def _total_acceleration(export: _Export) -> pd.DataFrame:
-    total = _xyz(export, "TotalAcceleration.csv", ("ax", "ay", "az"))
-    if total is not None:
-        return total
-    user = _xyz(export, "Accelerometer.csv", ("ax", "ay", "az"))
-    if user is None:
-        raise CurbsideInputError(export.src, "no Accelerometer.csv or TotalAcceleration.csv")
-    gravity = _xyz(export, "Gravity.csv", ("ax", "ay", "az"))
-    if gravity is None:
-        return user
+def _includes_gravity(acce: pd.DataFrame, source: str) -> bool:
+    try:
+        accelerometer_ms2(acce, source)
+    except CurbsideInputError:
+        return False
+    return True
+
+
+def _specific_force(streams, label: str, quat: pd.DataFrame | None, device: _Device):
+    """Accelerometer including gravity, and whether its sign is still the export's (else Android's)."""
+    if "TotalAcceleration.csv" in streams:
+        return _xyz(streams["TotalAcceleration.csv"], f"{label}/TotalAcceleration.csv", _ACC), True
+    source = f"{label}/Accelerometer.csv"
+    user = _xyz(streams["Accelerometer.csv"], source, _ACC)
     t = user["t"].to_numpy()
-    for col in ("ax", "ay", "az"):
-        user[col] = user[col] + np.interp(t, gravity["t"].to_numpy(), gravity[col].to_numpy())
-    return user
+    if "Gravity.csv" in streams:
+        gravity = _xyz(streams["Gravity.csv"], f"{label}/Gravity.csv", _ACC)
+        for col in _ACC:
+            user[col] = user[col] + np.interp(t, gravity["t"].to_numpy(), gravity[col].to_numpy())
+        return user, True
+    if _includes_gravity(user, source):
+        return user, True
+    if quat is None:
+        raise CurbsideInputError(source, "acceleration without gravity, and no TotalAcceleration.csv, "
+                                 "Gravity.csv or Orientation.csv to restore it")
+    # Gravity from the attitude: "up" in the device frame is g along the world z axis seen from the phone.
+    q = interp_quaternions(t, quat["t"].to_numpy(), quat[_QUAT].to_numpy())
+    up = Rotation.from_quat(q).inv().apply([0.0, 0.0, STANDARD_GRAVITY])
+    sign = _metadata_sign(device)
+    user[list(_ACC)] = sign * user[list(_ACC)].to_numpy() + up
+    logger.warning("%s: no Gravity.csv; gravity restored from Orientation.csv", label)
+    return user, False
 
 
-def _platform(export: _Export) -> str:
-    meta = export.read("Metadata.csv", timed=False) if export.has("Metadata.csv") else None
-    if meta is not None and "platform" in meta.columns and len(meta):
-        return str(meta["platform"].iat[0]).strip().lower()
-    logger.warning("%s: no Metadata.csv platform; assuming Android frames", export.src)
-    return "android"
+def _metadata_sign(device: _Device) -> float:
+    """Accelerometer sign that turns the export's convention into Android's, from the metadata alone."""
+    return -1.0 if device.platform == "ios" and not device.standardised else 1.0
 
 
-def _gravity_convention(imu: pd.DataFrame, source: Path) -> tuple[float, bool]:
+def _gravity_convention(imu: pd.DataFrame, source: str) -> tuple[float, bool]:
     """Accelerometer sign and quaternion direction that put gravity on +z (up) in the world frame.
 
     Returns ``(sign, invert)``. With the phone flat, inverting the quaternion changes nothing
     vertically; the documented direction (device-to-world) is kept unless inverting is clearly better.
     """
-    acc = imu[["ax", "ay", "az"]].to_numpy(dtype=float, copy=True)
-    rot = Rotation.from_quat(imu[["qx", "qy", "qz", "qw"]].to_numpy())
+    acc = imu[list(_ACC)].to_numpy(dtype=float, copy=True)
+    rot = Rotation.from_quat(imu[_QUAT].to_numpy())
     up_direct = float(np.mean(rot.apply(acc)[:, 2]))
     up_inverse = float(np.mean(rot.inv().apply(acc)[:, 2]))
     invert = abs(up_inverse) > abs(up_direct) + 0.1 * STANDARD_GRAVITY
@@ -151,30 +209,148 @@ def _gravity_convention(imu: pd.DataFrame, source: Path) -> tuple[float, bool]:
     return (1.0 if up > 0 else -1.0), invert
 
 
-def _waypoints(
-    export: _Export, route: str | Path | None, meta: dict
-) -> pd.DataFrame | None:
-    taps = export.read("Annotation.csv")
-    if taps is None or taps.empty:
+def magnetic_north_deg(imu: pd.DataFrame, magnetometer: pd.DataFrame) -> float | None:
+    """Azimuth (deg, clockwise from the world frame's north) of the horizontal magnetic field.
+
+    The field measured in the phone frame is rotated into the world frame by ``imu``'s quaternions and
+    averaged as unit vectors. In a correct East-North-Up frame it points to magnetic north: the local
+    declination (a few degrees in most places) plus magnetic disturbance.
+
+    Parameters
+    ----------
+    imu
+        ``t`` and ``qx,qy,qz,qw`` (device to ENU).
+    magnetometer
+        ``t,mx,my,mz`` in the phone frame (any unit).
+
+    Returns
+    -------
+    float or None
+        In (-180, 180]; ``None`` when the two do not overlap or the field is vertical.
+    """
+    t = imu["t"].to_numpy()
+    mt = magnetometer["t"].to_numpy()
+    keep = (t >= mt[0]) & (t <= mt[-1])
+    if keep.sum() < 2:
+        return None
+    m = np.column_stack([np.interp(t[keep], mt, magnetometer[c].to_numpy()) for c in ("mx", "my", "mz")])
+    world = Rotation.from_quat(imu.loc[keep, _QUAT].to_numpy()).apply(m)
+    horizontal = np.linalg.norm(world[:, :2], axis=1)
+    good = horizontal > 1e-6
+    if not good.any():
+        return None
+    unit = world[good, :2] / horizontal[good, None]
+    east, north = unit.mean(axis=0)
+    return float(np.degrees(np.arctan2(east, north)))
+
+
+def _check_north(imu: pd.DataFrame, streams, label: str, device: _Device, meta: dict) -> None:
+    """Compare the world frame's north with magnetic north; for standardised iOS exports, follow it."""
+    if "Magnetometer.csv" not in streams:
+        if device.platform == "ios" and device.standardised:
+            logger.warning("%s: standardised iOS export without Magnetometer.csv; orientation assumed in "
+                           "CoreMotion's x-north frame (unverified for standardised exports)", label)
+        return
+    mag = _xyz(streams["Magnetometer.csv"], f"{label}/Magnetometer.csv", ("mx", "my", "mz"))
+    north = magnetic_north_deg(imu, mag)
+    if north is None:
+        return
+    snapped = 90.0 * round(north / 90.0)
+    turned = snapped != 0 and abs(north - snapped) < NORTH_TOLERANCE_DEG
+    if device.platform == "ios" and device.standardised and turned:
+        # A world frame turned by +phi about up shows north at -phi: turning by the azimuth undoes it.
+        turn = Rotation.from_euler("z", snapped, degrees=True)
+        imu[_QUAT] = (turn * Rotation.from_quat(imu[_QUAT].to_numpy())).as_quat()
+        logger.warning("%s: standardised iOS export: after the NWU->ENU turn magnetic north lies at %.0f deg;"
+                       " world frame turned %+.0f deg about the vertical to match it", label, north, snapped)
+        north = north - snapped
+    meta["magnetic_north_deg"] = round(north, 1) + 0.0  # + 0.0: no "-0.0"
+    if abs(north) > NORTH_TOLERANCE_DEG:
+        logger.warning("%s: magnetic north lies at %.0f deg in the world frame (expected within %.0f deg "
+                       "of 0): magnetic disturbance, or a wrong frame", label, north, NORTH_TOLERANCE_DEG)
+    else:
+        logger.info("%s: magnetic north at %.1f deg in the world frame", label, north)
+
+
+def _imu(streams, label: str, device: _Device, meta: dict) -> pd.DataFrame | None:
+    acc_name = next((n for n in ("TotalAcceleration.csv", "Accelerometer.csv") if n in streams), None)
+    if acc_name is None or "Gyroscope.csv" not in streams:
+        present = [n for n in _MOTION_FILES if n in streams]
+        if present:
+            logger.warning("%s: no imu.csv (needs an accelerometer and Gyroscope.csv; has %s)",
+                           label, ", ".join(present))
+        return None
+    quat = _orientation(streams, label, device)
+    acce, export_sign = _specific_force(streams, label, quat, device)
+    acce = accelerometer_ms2(acce, f"{label}/{acc_name}")
+    gyro = _xyz(streams["Gyroscope.csv"], f"{label}/Gyroscope.csv", ("gx", "gy", "gz"))
+    imu = merge_imu(acce, gyro, quat, label)
+    sign, invert = 1.0, False
+    if quat is not None and export_sign:
+        sign, invert = _gravity_convention(imu, label)
+    elif export_sign:
+        sign = _metadata_sign(device)
+    if sign < 0:
+        logger.info("%s: acceleration in the iOS sign convention; negated", label)
+        imu[list(_ACC)] *= -1.0
+    if invert:
+        logger.info("%s: orientation is world-to-device; inverted", label)
+        imu[_QUAT] = Rotation.from_quat(imu[_QUAT].to_numpy()).inv().as_quat()
+    if quat is None:
+        logger.warning("%s: no Orientation.csv; imu.csv has no quaternion (heading from it is unavailable)",
+                       label)
+    else:
+        _check_north(imu, streams, label, device, meta)
+    return imu
+
+
+def _gnss(streams, label: str) -> pd.DataFrame | None:
+    table = streams.get("Location.csv")
+    if table is None:
+        return None
+    source = f"{label}/Location.csv"
+    table = table.rename(columns={"latitude": "lat", "longitude": "lon", "horizontalAccuracy": "accuracy_m"})
+    if "accuracy_m" not in table.columns:
+        logger.warning("%s: no horizontalAccuracy column; every fix has unknown accuracy (invalid)", source)
+        table["accuracy_m"] = np.nan
+    missing = [c for c in ("lat", "lon") if c not in table.columns]
+    if missing:
+        raise CurbsideInputError(source, f"missing column(s) {missing}")
+    lat = pd.to_numeric(table["lat"], errors="coerce")
+    lon = pd.to_numeric(table["lon"], errors="coerce")
+    null_island = (lat == 0) & (lon == 0)
+    if null_island.any():
+        logger.info("%s: dropped %d fix(es) at (0, 0) (no position yet)", source, int(null_island.sum()))
+    table = table[~null_island & lat.notna() & lon.notna()]
+    if table.empty:
+        logger.warning("%s: no usable fix; the session has no gnss.csv", source)
+        return None
+    return tidy_table(table, source, ["t", "lat", "lon", "accuracy_m"], nullable=("accuracy_m",))
+
+
+def _route_waypoints(taps: pd.DataFrame, route: Path) -> pd.DataFrame:
+    try:
+        points = pd.read_csv(route, skipinitialspace=True)
+    except (OSError, pd.errors.ParserError, pd.errors.EmptyDataError, UnicodeDecodeError) as exc:
+        raise CurbsideInputError(route, f"unreadable route CSV ({str(exc).splitlines()[0]})") from None
+    if not {"lat", "lon"} <= set(points.columns):
+        raise CurbsideInputError(route, "route needs columns lat,lon (one row per tap)")
+    if len(points) != len(taps):
+        raise CurbsideInputError(route, f"{len(points)} route points for {len(taps)} taps")
+    table = pd.DataFrame({"t": taps["t"], "lat": points["lat"].to_numpy(), "lon": points["lon"].to_numpy()})
+    return tidy_table(table, route, ["t", "lat", "lon"])
+
+
+def _waypoints(streams, label: str, route: str | Path | None, meta: dict) -> pd.DataFrame | None:
+    taps = streams.get("Annotation.csv")
+    if taps is None:
         if route is not None:
             raise CurbsideInputError(route, "a route was given but the export has no Annotation.csv taps")
         return None
-    taps = taps.sort_values("t").reset_index(drop=True)
-    text = taps["text"].astype(str) if "text" in taps.columns else pd.Series([""] * len(taps))
+    taps = taps.sort_values("t", kind="stable").reset_index(drop=True)
     if route is not None:
-        route = Path(route)
-        try:
-            points = pd.read_csv(route, skipinitialspace=True)
-        except (OSError, pd.errors.ParserError, pd.errors.EmptyDataError) as exc:
-            raise CurbsideInputError(route, f"unreadable route CSV ({exc})") from None
-        if not {"lat", "lon"} <= set(points.columns):
-            raise CurbsideInputError(route, "route needs columns lat,lon (one row per tap)")
-        if len(points) != len(taps):
-            raise CurbsideInputError(route, f"{len(points)} route points for {len(taps)} taps")
-        table = pd.DataFrame(
-            {"t": taps["t"], "lat": points["lat"].to_numpy(), "lon": points["lon"].to_numpy()}
-        )
-        return tidy_table(table, route, ["t", "lat", "lon"])
+        return _route_waypoints(taps, Path(route))
+    text = taps["text"].fillna("").astype(str) if "text" in taps.columns else pd.Series([""] * len(taps))
     parts = text.str.split(",", n=1, expand=True).reindex(columns=[0, 1])
     lat = pd.to_numeric(parts[0], errors="coerce")
     lon = pd.to_numeric(parts[1], errors="coerce")
@@ -185,45 +361,22 @@ def _waypoints(
             {"t": float(t), "text": s} for t, s in zip(others["t"], text[~located], strict=True)
         ]
         logger.info("%s: %d tap(s) without 'lat,lon' text kept in meta['annotations'] (use a route file)",
-                    export.src, len(others))
+                    label, len(others))
     if not located.any():
         return None
     table = pd.DataFrame({"t": taps.loc[located, "t"], "lat": lat[located], "lon": lon[located]})
-    return tidy_table(table, f"{export.src}/Annotation.csv", ["t", "lat", "lon"])
-
-
-def _imu(export: _Export, platform: str, meta: dict) -> pd.DataFrame:
-    src = export.src
-    acce = _total_acceleration(export)
-    accel_file = "TotalAcceleration.csv" if export.has("TotalAcceleration.csv") else "Accelerometer.csv"
-    stamps = export.read(accel_file)
-    if "time" in stamps.columns:
-        epoch = stamps["time"].to_numpy(float) / 1e9 - stamps["t"].to_numpy(float)
-        meta["t0_unix_s"] = float(np.median(epoch))
-    acce = accelerometer_ms2(acce, f"{src}/Accelerometer.csv")
-    gyro = _xyz(export, "Gyroscope.csv", ("gx", "gy", "gz"))
-    quat_cols = ["qx", "qy", "qz", "qw"]
-    quat = tidy_table(export.read("Orientation.csv"), f"{src}/Orientation.csv", ["t", *quat_cols])
-    if platform == "ios":
-        quat[quat_cols] = (NWU_TO_ENU * Rotation.from_quat(quat[quat_cols].to_numpy())).as_quat()
-    imu = merge_imu(acce, gyro, quat, str(src))
-    sign, invert = _gravity_convention(imu, src)
-    if sign < 0:
-        logger.info("%s: acceleration in the iOS sign convention; negated", src)
-        imu[["ax", "ay", "az"]] *= -1.0
-    if invert:
-        logger.info("%s: orientation is world-to-device; inverted", src)
-        imu[quat_cols] = Rotation.from_quat(imu[quat_cols].to_numpy()).inv().as_quat()
-    return imu
+    return tidy_table(table, f"{label}/Annotation.csv", ["t", "lat", "lon"])
 
 
 def read_sensorlogger(src: str | Path, route: str | Path | None = None) -> Session:
-    """Read a Sensor Logger export (zip or folder) as a session.
+    """Read a Sensor Logger export (zip or folder, optionally ``SRC::RECORDING``) as a session.
 
     Parameters
     ----------
     src
-        The ``.zip`` export or the folder it unpacks to.
+        The ``.zip`` export or the folder it unpacks to. When it holds several recordings (a zip or
+        folder tree of several exports), name one: ``exports.zip::2024-02-11_15-02-01`` (the
+        folder's path inside ``src``, or its last part when that is unique).
     route
         Optional CSV of the surveyed positions (``lat,lon``) of the ``Annotation.csv`` taps, in tap
         order; without it, taps whose text is ``"lat,lon"`` are the waypoints.
@@ -231,39 +384,45 @@ def read_sensorlogger(src: str | Path, route: str | Path | None = None) -> Sessi
     Returns
     -------
     Session
-        ``imu`` (when accelerometer, gyroscope and orientation are present), ``gnss``, ``waypoints``
-        and ``meta`` (source, platform, ``t0_unix_s``).
+        ``imu`` (accelerometer + gyroscope, with the quaternion when there is an orientation),
+        ``gnss``, ``waypoints`` and ``meta`` (source, platform, device, app and export version,
+        ``t0_unix_s``, ``magnetic_north_deg``, annotations).
 
     Raises
     ------
     CurbsideInputError
-        Unreadable zip or CSV, missing columns, an accelerometer without gravity and no Gravity.csv,
-        streams that do not overlap, an orientation inconsistent with gravity, a bad route file.
+        Unreadable zip or CSV, several recordings and none chosen, streams on different clocks,
+        missing columns, acceleration without gravity and no way to restore it, an orientation
+        inconsistent with gravity, a bad route file, or neither IMU nor GNSS data.
     """
-    src = Path(src)
-    export = _Export(src)
-    if not any(export.has(m) for m in MARKERS):
-        raise CurbsideInputError(src, "not a Sensor Logger export (no Accelerometer/Location/... CSV)")
-    platform = _platform(export)
-    meta: dict = {"source": {"format": "sensorlogger", "file": src.name}, "platform": platform}
-
-    imu = None
-    if export.has("Gyroscope.csv") and export.has("Orientation.csv"):
-        imu = _imu(export, platform, meta)
-    elif export.has("Accelerometer.csv") or export.has("TotalAcceleration.csv"):
-        logger.warning("%s: no Gyroscope.csv/Orientation.csv; imu.csv not written", src)
-
-    gnss = None
-    location = export.read("Location.csv")
-    if location is not None:
-        location = location.rename(
-            columns={"latitude": "lat", "longitude": "lon", "horizontalAccuracy": "accuracy_m"}
-        )
-        gnss = tidy_table(location, f"{src}/Location.csv", ["t", "lat", "lon", "accuracy_m"],
-                          nullable=("accuracy_m",))
-    waypoints = _waypoints(export, route, meta)
+    export = open_export(src)
+    label = export.label
+    try:
+        metadata = export.read("Metadata.csv")
+    except CurbsideInputError as exc:  # the data can still be read; frames fall back to Android's
+        logger.warning("%s (ignored)", exc)
+        metadata = None
+    device = _device(metadata, label)
+    meta: dict = {"source": {"format": "sensorlogger", "file": export.src.name}, "platform": device.platform,
+                  **device.meta}
+    if export.folder != ".":
+        meta["source"]["recording"] = export.folder
+    streams = _read_streams(export)
+    if not streams:
+        raise CurbsideInputError(label, "export has no data: every motion and location file is empty")
+    _one_clock(streams, export, metadata, meta)
+    imu = _imu(streams, label, device, meta)
+    gnss = _gnss(streams, label)
+    waypoints = _waypoints(streams, label, route, meta)
     if imu is None and gnss is None:
-        raise CurbsideInputError(src, "export has neither a usable IMU (accelerometer+gyroscope+orientation) "
-                                 "nor Location.csv")
-    name = src.stem if src.is_file() else src.name
-    return Session(name=name, imu=imu, gnss=gnss, waypoints=waypoints, meta=meta)
+        raise CurbsideInputError(label, "export has neither a usable IMU (accelerometer + gyroscope) "
+                                 "nor Location.csv fixes")
+    return Session(name=export.name, imu=imu, gnss=gnss, waypoints=waypoints, meta=meta)
+
+
+def looks_like_export(folder: str | Path) -> bool:
+    """Whether ``folder`` (or a folder below it) holds Sensor Logger CSV files."""
+    return bool(find_recordings(Path(folder)))
+
+
+__all__ = ["NWU_TO_ENU", "looks_like_export", "magnetic_north_deg", "read_sensorlogger"]

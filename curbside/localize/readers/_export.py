@@ -1,0 +1,253 @@
+"""The files of one Sensor Logger recording, from a ``.zip`` or a folder tree, and their clocks.
+
+A recording is the set of CSV files in one folder of the zip or tree that holds at least one of the
+export's motion or location files (:data:`MARKERS`). Two recordings in one source (a zip of two
+exports, a folder of several days) are never mixed: the source is refused with their names unless
+one is chosen as ``SRC::NAME``. macOS archive debris (``__MACOSX/``, ``._*`` resource forks) and
+hidden files are skipped.
+
+Clocks. Every CSV has ``time`` (ns since the UNIX epoch) and, since export format 3,
+``seconds_elapsed`` (s since the start tap). Format-2 exports (2021) have ``time`` only; there the
+streams are put on one clock by subtracting a common start, and :func:`check_same_clock` verifies on
+``time`` that every stream overlaps the reference stream, which also catches files of two recordings
+copied into one folder (their ``seconds_elapsed`` both start near 0; only ``time`` tells them apart).
+"""
+
+from __future__ import annotations
+
+import io
+import logging
+import zipfile
+from dataclasses import dataclass, field
+from pathlib import Path, PurePosixPath
+
+import numpy as np
+import pandas as pd
+
+from curbside.errors import CurbsideInputError
+
+logger = logging.getLogger(__name__)
+
+#: Files whose presence marks a folder as a Sensor Logger recording (lower-case names).
+MARKERS = (
+    "accelerometer.csv",
+    "totalacceleration.csv",
+    "gyroscope.csv",
+    "location.csv",
+    "orientation.csv",
+    "gravity.csv",
+)
+
+#: Separator between a zip or folder and the recording inside it: ``export.zip::2023-06-14_10-00-00``.
+RECORDING_SEPARATOR = "::"
+
+#: Streams further apart than this (s) on the ``time`` clock come from different recordings or clocks.
+SAME_CLOCK_TOLERANCE_S = 10.0
+
+
+def _skipped(parts: tuple[str, ...]) -> bool:
+    return any(p == "__MACOSX" or p.startswith(".") for p in parts)
+
+
+def _group(names: list[tuple[PurePosixPath, object]]) -> dict[str, dict[str, object]]:
+    """Group ``(relative path, handle)`` CSV entries by folder; keep folders holding a marker file."""
+    folders: dict[str, dict[str, object]] = {}
+    for rel, handle in names:
+        if rel.suffix.lower() != ".csv" or _skipped(rel.parts):
+            continue
+        key = rel.parent.as_posix()
+        folders.setdefault(key, {}).setdefault(rel.name.lower(), handle)
+    return {k: files for k, files in folders.items() if any(m in files for m in MARKERS)}
+
+
+def find_recordings(src: Path) -> dict[str, dict[str, object]]:
+    """Recordings in a zip or a folder tree, by folder (``"."`` for the top level).
+
+    Parameters
+    ----------
+    src
+        A ``.zip`` file or a folder.
+
+    Returns
+    -------
+    dict
+        ``{folder: {lower-case file name: Path or zip member name}}``.
+
+    Raises
+    ------
+    CurbsideInputError
+        ``src`` is missing or an unreadable zip.
+    """
+    if src.is_dir():
+        entries = [(PurePosixPath(p.relative_to(src).as_posix()), p) for p in src.rglob("*") if p.is_file()]
+        return _group(entries)
+    if src.is_file():
+        try:
+            with zipfile.ZipFile(src) as zf:
+                entries = [
+                    (PurePosixPath(i.filename.replace("\\", "/")), i.filename)  # zips made on Windows
+                    for i in zf.infolist()
+                    if not i.is_dir()
+                ]
+        except (zipfile.BadZipFile, OSError) as exc:
+            raise CurbsideInputError(src, f"unreadable zip ({exc})") from None
+        return _group(entries)
+    raise CurbsideInputError(src, "no such file or folder")
+
+
+def split_recording(src: str | Path) -> tuple[Path, str | None]:
+    """Split ``SRC::NAME`` into the zip or folder and the recording name (``None`` without ``::``)."""
+    text = str(src)
+    if RECORDING_SEPARATOR in text:
+        path, name = text.rsplit(RECORDING_SEPARATOR, 1)
+        return Path(path), name.strip("/") or "."
+    return Path(text), None
+
+
+def _choose(src: Path, name: str | None, recordings: dict[str, dict[str, object]]) -> str:
+    if not recordings:
+        raise CurbsideInputError(
+            src, "not a Sensor Logger export (no Accelerometer/Gyroscope/Orientation/Location CSV in it)"
+        )
+    if name is None:
+        if len(recordings) == 1:
+            return next(iter(recordings))
+        listed = ", ".join("(top level)" if k == "." else k for k in sorted(recordings))
+        example = sorted(recordings)[0]
+        raise CurbsideInputError(
+            src,
+            f"holds {len(recordings)} recordings ({listed}); pick one as "
+            f"{src}{RECORDING_SEPARATOR}{example}",
+        )
+    if name in recordings:
+        return name
+    by_leaf = [k for k in recordings if PurePosixPath(k).name == name]
+    if len(by_leaf) == 1:
+        return by_leaf[0]
+    known = ", ".join(sorted(recordings))
+    raise CurbsideInputError(f"{src}{RECORDING_SEPARATOR}{name}", f"no such recording; it holds: {known}")
+
+
+def _looks_like_phyphox(header: str) -> bool:
+    return '"Time (s)"' in header or header.startswith("Time (s)")
+
+
+@dataclass
+class Export:
+    """The CSV files of one recording, readable by name.
+
+    Attributes
+    ----------
+    src
+        The zip or folder it came from.
+    folder
+        The recording's folder inside ``src`` (``"."`` for the top level).
+    label
+        How errors and logs name it: ``src`` or ``src::folder``.
+    """
+
+    src: Path
+    folder: str
+    label: str
+    _files: dict[str, object] = field(default_factory=dict, repr=False)
+
+    @property
+    def name(self) -> str:
+        """A session name: the recording's folder, else the file or folder name of ``src``."""
+        if self.folder != ".":
+            return PurePosixPath(self.folder).name
+        return self.src.stem if self.src.is_file() else self.src.name
+
+    def has(self, name: str) -> bool:
+        """Whether the recording has the file ``name`` (case-insensitive)."""
+        return name.lower() in self._files
+
+    def _bytes(self, name: str) -> bytes:
+        handle = self._files[name.lower()]
+        if isinstance(handle, Path):
+            return handle.read_bytes()
+        with zipfile.ZipFile(self.src) as zf:
+            return zf.read(str(handle))
+
+    def read(self, name: str) -> pd.DataFrame | None:
+        """Read ``name`` as a table: ``None`` when absent, an empty table when the file has no rows.
+
+        Raises
+        ------
+        CurbsideInputError
+            The file is not CSV, or is a phyphox export rather than Sensor Logger's.
+        """
+        if not self.has(name):
+            return None
+        source = f"{self.label}/{name}"
+        data = self._bytes(name)
+        if _looks_like_phyphox(data[:200].decode("utf-8", errors="replace")):
+            raise CurbsideInputError(source, "is a phyphox export ('Time (s)' columns), not Sensor Logger's")
+        try:
+            table = pd.read_csv(io.BytesIO(data), skipinitialspace=True)
+        except pd.errors.EmptyDataError:
+            return pd.DataFrame()
+        except (pd.errors.ParserError, UnicodeDecodeError) as exc:
+            raise CurbsideInputError(source, f"malformed CSV ({str(exc).splitlines()[0]})") from None
+        table.columns = [str(c).strip() for c in table.columns]
+        return table
+
+
+def open_export(src: str | Path) -> Export:
+    """Open the one recording in ``src`` (a zip or folder, optionally ``SRC::NAME``).
+
+    Raises
+    ------
+    CurbsideInputError
+        Missing or unreadable source, no recording in it, several recordings and none named, or an
+        unknown name.
+    """
+    path, name = split_recording(src)
+    recordings = find_recordings(path)
+    folder = _choose(path, name, recordings)
+    label = str(path) if len(recordings) == 1 and name is None else f"{path}{RECORDING_SEPARATOR}{folder}"
+    return Export(src=path, folder=folder, label=label, _files=recordings[folder])
+
+
+def epoch_s(table: pd.DataFrame) -> np.ndarray | None:
+    """The ``time`` column as UNIX seconds, or ``None`` when the table has no usable ``time``."""
+    if "time" not in table.columns:
+        return None
+    values = pd.to_numeric(table["time"], errors="coerce").to_numpy(float)
+    return values / 1e9 if np.isfinite(values).any() else None
+
+
+def check_same_clock(streams: dict[str, pd.DataFrame], reference: str, label: str) -> None:
+    """Raise unless every stream's ``time`` span overlaps the reference stream's (within a tolerance).
+
+    Parameters
+    ----------
+    streams
+        Tables by file name, as read (with ``time`` in ns where the export has it).
+    reference
+        The file whose span the others must overlap (the accelerometer's when there is one).
+    label
+        The export, for the message.
+
+    Raises
+    ------
+    CurbsideInputError
+        Two streams lie apart in time: two recordings mixed in one folder, or different clocks.
+    """
+    ref = epoch_s(streams[reference])
+    if ref is None:
+        return
+    r0, r1 = np.nanmin(ref), np.nanmax(ref)
+    for name, table in streams.items():
+        t = epoch_s(table)
+        if name == reference or t is None:
+            continue
+        t0, t1 = np.nanmin(t), np.nanmax(t)
+        if t1 < r0 - SAME_CLOCK_TOLERANCE_S or t0 > r1 + SAME_CLOCK_TOLERANCE_S:
+            gap_s = max(r0 - t1, t0 - r1)
+            gap = f"{gap_s / 86400:.1f} days" if gap_s > 86400 else f"{gap_s:.0f} s"
+            raise CurbsideInputError(
+                label,
+                f"{name} and {reference} do not overlap in time ({gap} apart on their 'time' clock): "
+                "files of different recordings, or different clocks",
+            )
