@@ -406,3 +406,29 @@ def test_ronin_velocity_is_used_when_available(imu_session, monkeypatch):
     # One metre per second, turned onto the start heading: the estimate moves at ~1 m/s.
     speed = np.hypot(np.diff(track["x_m"]), np.diff(track["y_m"])) / np.diff(track["t"])
     assert 0.5 < np.median(speed) < 1.5
+
+
+# -- the output folder ------------------------------------------------------------------------------------
+
+
+def test_an_output_folder_holding_the_users_files_is_refused_and_kept(tmp_path, capsys):
+    folder = write_walk(tmp_path / "walk", duration_s=10.0)
+    user = tmp_path / "mine"
+    user.mkdir()
+    map_file = write_map(block_layers(), user / "block.geojson")
+    assert run_cli(folder, "--map", map_file, "-o", user) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "--overwrite" in err
+    assert map_file.is_file() and sorted(p.name for p in user.iterdir()) == ["block.geojson"]
+    assert run_cli(folder, "--map", map_file, "--overwrite", "-o", user) == 0
+    assert map_file.is_file() and (user / "track.csv").is_file()
+    assert run_cli(folder, "--map", map_file, "-o", user) == 0  # now a previous curbside output
+
+
+def test_output_to_the_current_folder(tmp_path, monkeypatch):
+    folder = write_walk(tmp_path / "walk", duration_s=10.0)
+    out = tmp_path / "here"
+    out.mkdir()
+    monkeypatch.chdir(out)
+    assert run_cli(folder, "-o", ".") == 0
+    assert (out / "track.csv").is_file() and (out / "run.json").is_file()

@@ -22,6 +22,7 @@ from pathlib import Path
 
 from curbside.cli.common import positive_int, unit_interval
 from curbside.errors import CurbsideInputError
+from curbside.io import check_output_folder
 from curbside.localize.pipeline import resolve_config, track_session
 from curbside.localize.readers import read_any
 from curbside.localize.runconfig import MODES, VELOCITY_SOURCES, RunConfig
@@ -55,6 +56,7 @@ def _overrides(pairs: list[str]) -> dict[str, str]:
 
 
 def _run(args: argparse.Namespace) -> int:
+    check_output_folder(args.output, args.overwrite)
     info, config = _replayed(args.config) if args.config else ({}, None)
     session_path = args.session or info.get("session")
     if not session_path:
@@ -77,7 +79,7 @@ def _run(args: argparse.Namespace) -> int:
     config = config.with_overrides(_overrides(args.set))
     result = track_session(session, layers, config=config, save_particles=args.save_particles)
     run_info = {"session": _absolute(session_path), "map": _absolute(map_path) if map_path else None}
-    write_track(result, args.output, run_info)
+    write_track(result, args.output, run_info, overwrite=args.overwrite)
     track = result.track
     span = track["t"].iat[-1] - track["t"].iat[0] if len(track) else 0.0
     print(
@@ -159,5 +161,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         action="store_true",
         help="ignore meta.json's start pose; start from the first usable GNSS fix",
     )
-    parser.add_argument("-o", "--output", required=True, help="output folder (replaced if it exists)")
+    parser.add_argument("-o", "--output", required=True,
+                        help="output folder: new, empty or a previous curbside output")
+    parser.add_argument("--overwrite", action="store_true",
+                        help="write into a non-empty folder curbside did not write (keeping its other files)")
     parser.set_defaults(func=_run)

@@ -14,7 +14,7 @@ import numpy as np
 import pandas as pd
 
 from curbside import __version__
-from curbside.io import atomic_path
+from curbside.io import output_folder
 from curbside.localize.pipeline import TrackResult
 
 #: Decimal places of lon/lat in ``track.geojson`` (1e-7 degree is about 1 cm).
@@ -69,8 +69,13 @@ def track_geojson(track: pd.DataFrame, properties: dict[str, Any] | None = None)
     return {"type": "FeatureCollection", "features": features}
 
 
-def write_track(result: TrackResult, out_dir: str | Path, run_info: dict[str, Any] | None = None) -> Path:
-    """Write a :class:`TrackResult` into ``out_dir`` (replaced if it exists), atomically.
+def write_track(
+    result: TrackResult, out_dir: str | Path, run_info: dict[str, Any] | None = None, *,
+    overwrite: bool = False,
+) -> Path:
+    """Write a :class:`TrackResult` into ``out_dir`` atomically, under the output-folder rules of
+    :func:`curbside.io.output_folder` (a new, empty or previous curbside folder; files curbside did not
+    write are never touched).
 
     Files: ``track.csv`` (one row per update), ``track.geojson``, ``run.json`` and, when the result holds
     snapshots, ``particles.npz`` (``t``, ``x``, ``y``, ``theta``, ``scale`` per update; x/y relative to
@@ -86,6 +91,8 @@ def write_track(result: TrackResult, out_dir: str | Path, run_info: dict[str, An
         Destination folder.
     run_info
         Inputs to record in ``run.json`` (``session``, ``map``...).
+    overwrite
+        Also write into a non-empty folder curbside did not write (its other files are kept).
 
     Returns
     -------
@@ -104,8 +111,7 @@ def write_track(result: TrackResult, out_dir: str | Path, run_info: dict[str, An
         "injections": result.injections,
         "config": result.config.to_dict(),
     }
-    with atomic_path(out_dir) as tmp:
-        tmp.mkdir()
+    with output_folder(out_dir, "localize run", overwrite=overwrite) as tmp:
         result.track.to_csv(tmp / "track.csv", index=False, float_format="%.10g")
         doc = track_geojson(result.track, {"mode": result.mode})
         (tmp / "track.geojson").write_text(json.dumps(doc, separators=(",", ":")), encoding="utf-8")
