@@ -82,7 +82,8 @@ def test_each_carrying_mode_within_five_percent_of_the_ground_truth():
         assert abs(found - true) <= 0.05 * true, (mode, true, found)
 
 
-def _gait(cadence_hz: float, seconds: float, amplitude: float, seed: int, rate_hz: float = 50.0) -> pd.DataFrame:
+def _gait(cadence_hz: float, seconds: float, amplitude: float, seed: int, rate_hz: float = 50.0
+          ) -> pd.DataFrame:
     """A phone held upright (gravity on +y) bobbing at the cadence, jittered timestamps, with a gyroscope."""
     rng = np.random.default_rng(seed)
     t = np.cumsum(rng.uniform(0.8, 1.2, int(seconds * rate_hz)) / rate_hz)
@@ -126,12 +127,12 @@ def test_a_few_isolated_bumps_make_no_steps():
 
 
 def test_waving_the_phone_makes_no_steps_when_the_gyroscope_sees_it():
-    """The same rhythmic |a| with a phone turning at 6 rad/s (compass calibration) is handling, not walking."""
+    """The same rhythmic |a| with the phone turning at 6 rad/s (compass calibration) is handling."""
     imu = _gait(1.8, 20.0, 2.0, seed=11)
     assert len(detect_steps(imu)) > 25
     waving = imu.assign(gx=6.0 * np.sin(2 * np.pi * 0.9 * imu["t"]), gy=4.0, gz=0.0)
     assert len(detect_steps(waving)) == 0
-    assert len(detect_steps(waving.drop(columns=["gx", "gy", "gz"]))) > 25  # without a gyroscope it cannot tell
+    assert len(detect_steps(waving.drop(columns=["gx", "gy", "gz"]))) > 25  # no gyroscope: cannot tell
 
 
 def test_sensorlogger_and_ipin_give_the_same_steps():
@@ -157,7 +158,7 @@ def _run_in_chunks(imu: pd.DataFrame, cuts: list[int]) -> tuple[np.ndarray, list
     t, acc, gyro = _arrays(imu)
     detector = StepDetector()
     out, history = [], []
-    for lo, hi in zip([0, *cuts], [*cuts, len(t)]):
+    for lo, hi in zip([0, *cuts], [*cuts, len(t)], strict=True):
         out.append(detector.push(t[lo:hi], acc[lo:hi], None if gyro is None else gyro[lo:hi]))
         history.append((detector.complete_until, np.concatenate(out)))
     out.append(detector.finish())
