@@ -66,7 +66,7 @@ class StepConfig:
         Half-width of the window whose low-passed range scales the adaptive threshold.
     min_prominence_ms2
         Absolute floor (m/s^2) of a candidate's rise above its troughs. Sensor noise of a phone lying
-        still is ~0.05 m/s^2; the softest hand-held footsteps of IPIN 2023 rise by 0.5-0.8 m/s^2.
+        still is ~0.05 m/s^2; raising the floor to 0.8 loses 3 % of the footsteps of the IPIN walks.
     min_swing_ms2
         Least range (m/s^2) of the low-passed magnitude within ``range_halfwidth_s``. A standing person
         fidgeting with the phone swings it by under 1 m/s^2; 1.2 brings the footsteps found while
@@ -90,7 +90,8 @@ class StepConfig:
         (0.44/0.70 s in the labelled set) and rejects the irregular bumps of handling.
     min_run
         Fewest linked candidates that count as walking. With 4, the IPIN 2023 trials show 12 footsteps
-        while standing against 30 with 3; it sets most of :attr:`StepDetector.latency_s`.
+        while standing against 32 with 3 (before ``min_swing_ms2``); it sets most of
+        :attr:`StepDetector.latency_s`.
     """
 
     rate_hz: float = 50.0
