@@ -20,7 +20,7 @@ from curbside.localize.pdr import (
     waypoint_errors,
 )
 from curbside.localize.readers.ipin import read_trial
-from curbside.localize.steps import detect_steps, lowpass_taps
+from curbside.localize.steps import StepConfig, detect_steps, lowpass_taps
 from curbside.projection import LocalFrame
 
 H5 = Path(__file__).parent / "data" / "sessions" / "ipin2023-cut.h5"
@@ -62,8 +62,9 @@ def test_velocity_follows_weinberg_and_heading():
     inner = velocity.iloc[3:-3]
     config = PdrConfig()
     # The FIR low-pass passes the 2 Hz gait with the gain of its frequency response there.
-    taps = lowpass_taps(config.steps)
-    gain = abs(np.sum(taps * np.exp(-2j * np.pi * cadence / config.steps.rate_hz * np.arange(len(taps)))))
+    steps_config = StepConfig()
+    taps = lowpass_taps(steps_config)
+    gain = abs(np.sum(taps * np.exp(-2j * np.pi * cadence / steps_config.rate_hz * np.arange(len(taps)))))
     expected_speed = config.weinberg_k * (2 * amplitude * gain) ** 0.25 * cadence
     np.testing.assert_allclose(np.hypot(inner["ve"], inner["vn"]), expected_speed, rtol=0.02)
     np.testing.assert_allclose(np.degrees(np.arctan2(inner["ve"], inner["vn"])) % 360, 120.0, atol=1e-6)
@@ -91,7 +92,7 @@ def test_step_by_step_with_a_rolling_buffer_gives_the_batch_rows_exactly():
     imu = read_trial(H5, "TrainingTrial01_repetition01").imu
     steps = detect_steps(imu)
     batch = pdr_velocity(imu, steps)
-    margin = PdrConfig().margin_s + 0.05
+    margin = StepConfig().fir_margin_s + 0.05
     rows, previous = [], None
     for step in steps:
         start = step - PdrConfig().max_step_interval_s if previous is None else previous
@@ -107,8 +108,8 @@ def test_a_step_after_a_stop_uses_the_last_interval_only():
     steps = detect_steps(imu)
     late = np.append(steps[steps < 8.0], 18.0)  # ten seconds and more without a footstep
     lengths = step_lengths(imu, late)
-    start = 18.0 - config.max_step_interval_s - config.margin_s - 0.05
-    recent = imu[(imu["t"] >= start) & (imu["t"] <= 18.0 + config.margin_s + 0.05)]
+    start = 18.0 - config.max_step_interval_s - StepConfig().fir_margin_s - 0.05
+    recent = imu[(imu["t"] >= start) & (imu["t"] <= 18.0 + StepConfig().fir_margin_s + 0.05)]
     assert lengths[-1] == step_lengths(recent, late[-2:])[0]
     velocity = pdr_velocity(imu, late)
     gap = late[-1] - late[-2]

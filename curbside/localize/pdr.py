@@ -21,7 +21,7 @@ step gets a row of zero velocity (nothing is known before it). After a stop (a g
 ``PdrConfig.max_step_interval_s``) the step still moves ``L_k``, and its length and heading come from
 the last ``max_step_interval_s`` only.
 
-**Streaming.** A step's row depends only on the IMU rows within ``PdrConfig.margin_s`` of its own
+**Streaming.** A step's row depends only on the IMU rows within ``StepConfig.fir_margin_s`` of its own
 interval (the low-pass is a centred FIR on a grid anchored at the interval's start), so a live
 service can call :func:`step_velocity` for each new footstep with a rolling buffer of rows and get
 exactly what :func:`pdr_velocity` gives for the whole recording.
@@ -60,19 +60,14 @@ class PdrConfig:
     max_step_interval_s
         A longer interval between footsteps is a stop: the step's length and heading come from its last
         ``max_step_interval_s`` only.
-    steps
-        Grid rate and FIR low-pass of the magnitude (the footstep detector's, so that ``a_max`` and
-        ``a_min`` are the humps the detector saw).
+
+    The magnitude is low-passed on the footstep detector's grid with its FIR (a
+    :class:`~curbside.localize.steps.StepConfig`, passed alongside), so that ``a_max`` and ``a_min`` are
+    the humps the detector saw.
     """
 
     weinberg_k: float = 0.447
     max_step_interval_s: float = 1.5
-    steps: StepConfig = StepConfig()
-
-    @property
-    def margin_s(self) -> float:
-        """IMU rows needed on each side of a step interval (half the FIR plus one grid step)."""
-        return (self.steps.lowpass_taps // 2 + 1) / self.steps.rate_hz
 
 
 def forward_heading_vectors(imu: pd.DataFrame) -> np.ndarray:
@@ -100,20 +95,21 @@ def heading_deg(imu: pd.DataFrame) -> np.ndarray:
     return np.degrees(np.arctan2(v[:, 0], v[:, 1])) % 360.0
 
 
-def _magnitude_swing(t: np.ndarray, mag: np.ndarray, start: float, end: float, config: PdrConfig) -> float:
+def _magnitude_swing(t: np.ndarray, mag: np.ndarray, start: float, end: float, steps: StepConfig) -> float:
     """``a_max - a_min`` of the low-passed magnitude on the grid ``start + j / rate``, ``[start, end]``."""
-    rate = config.steps.rate_hz
-    half = config.steps.lowpass_taps // 2
+    rate = steps.rate_hz
+    half = steps.lowpass_taps // 2
     n = int((end - start) * rate)
     while start + n / rate > end:  # guard the truncation against rounding
         n -= 1
     grid = start + np.arange(-half, n + half + 1, dtype=float) / rate
-    smooth = fir_centered(np.interp(grid, t, mag), lowpass_taps(config.steps))
+    smooth = fir_centered(np.interp(grid, t, mag), lowpass_taps(steps))
     return float(smooth.max() - smooth.min())
 
 
 def step_velocity(
-    imu: pd.DataFrame, steps: np.ndarray, previous: float | None = None, config: PdrConfig | None = None
+    imu: pd.DataFrame, steps: np.ndarray, previous: float | None = None, config: PdrConfig | None = None,
+    step_config: StepConfig | None = None,
 ) -> pd.DataFrame:
     """Velocity rows of footsteps from the IMU rows around each step only (the streaming entry point).
 
@@ -121,14 +117,15 @@ def step_velocity(
     ----------
     imu
         ``t,ax,ay,az`` and ``qx,qy,qz,qw``. It must hold every row of the recording within
-        ``config.margin_s`` of each step interval ``(t_{k-1}, t_k]`` (a rolling buffer is enough).
+        ``step_config.fir_margin_s`` of each step interval ``(t_{k-1}, t_k]`` (a rolling buffer is
+        enough).
     steps
         Increasing footstep times (s) that follow ``previous``.
     previous
         The footstep before ``steps[0]``; ``None`` when ``steps[0]`` is the recording's first footstep
         (its row is then zero).
-    config
-        Parameters (:class:`PdrConfig` defaults when ``None``).
+    config, step_config
+        Parameters (defaults when ``None``); ``step_config`` is the footstep detector's.
 
     Returns
     -------
@@ -144,6 +141,7 @@ def step_velocity(
     if not {"qx", "qy", "qz", "qw"} <= set(imu.columns):
         raise CurbsideInputError("imu.csv", "PDR needs the orientation quaternion columns qx,qy,qz,qw")
     config = config or PdrConfig()
+    step_config = step_config or StepConfig()
     steps = np.asarray(steps, float)
     t = imu["t"].to_numpy(float)
     acc = imu[["ax", "ay", "az"]].to_numpy(float)
@@ -155,7 +153,7 @@ def step_velocity(
         if not np.isfinite(start) or end <= start or len(t) == 0:
             continue
         window_start = max(start, end - config.max_step_interval_s)
-        length = config.weinberg_k * _magnitude_swing(t, mag, window_start, end, config) ** 0.25
+        length = config.weinberg_k * _magnitude_swing(t, mag, window_start, end, step_config) ** 0.25
         lo, hi = np.searchsorted(t, [window_start, end], side="right")
         lo = min(lo, max(hi - 1, 0))
         direction = forward[lo:hi].sum(axis=0)
@@ -165,7 +163,8 @@ def step_velocity(
     return pd.DataFrame({"t": steps, "ve": velocity[:, 0], "vn": velocity[:, 1]})
 
 
-def step_lengths(imu: pd.DataFrame, steps: np.ndarray, config: PdrConfig | None = None) -> np.ndarray:
+def step_lengths(imu: pd.DataFrame, steps: np.ndarray, config: PdrConfig | None = None,
+                 step_config: StepConfig | None = None) -> np.ndarray:
     """Weinberg step length (m) of each step interval ``(steps[k-1], steps[k]]``.
 
     Parameters
@@ -174,8 +173,8 @@ def step_lengths(imu: pd.DataFrame, steps: np.ndarray, config: PdrConfig | None 
         ``t,ax,ay,az`` (m/s^2).
     steps
         Increasing footstep times (s), at least two.
-    config
-        Parameters (:class:`PdrConfig` defaults when ``None``).
+    config, step_config
+        Parameters (defaults when ``None``); ``step_config`` is the footstep detector's.
 
     Returns
     -------
@@ -183,19 +182,21 @@ def step_lengths(imu: pd.DataFrame, steps: np.ndarray, config: PdrConfig | None 
         ``len(steps) - 1`` lengths.
     """
     config = config or PdrConfig()
+    step_config = step_config or StepConfig()
     t = imu["t"].to_numpy(float)
     acc = imu[["ax", "ay", "az"]].to_numpy(float)
     mag = np.sqrt(acc[:, 0] * acc[:, 0] + acc[:, 1] * acc[:, 1] + acc[:, 2] * acc[:, 2])
     steps = np.asarray(steps, float)
     limit = config.max_step_interval_s
     return np.array([
-        config.weinberg_k * _magnitude_swing(t, mag, max(a, b - limit), b, config) ** 0.25
+        config.weinberg_k * _magnitude_swing(t, mag, max(a, b - limit), b, step_config) ** 0.25
         for a, b in zip(steps[:-1], steps[1:], strict=True)
     ])
 
 
 def pdr_velocity(
-    imu: pd.DataFrame, steps: np.ndarray | None = None, config: PdrConfig | None = None
+    imu: pd.DataFrame, steps: np.ndarray | None = None, config: PdrConfig | None = None,
+    step_config: StepConfig | None = None,
 ) -> pd.DataFrame:
     """World-frame walking velocity of a whole recording (the batch entry point).
 
@@ -204,10 +205,9 @@ def pdr_velocity(
     imu
         ``imu.csv`` table with ``t,ax,ay,az`` and the quaternion ``qx,qy,qz,qw``.
     steps
-        Footstep times (s); detected with :func:`~curbside.localize.steps.detect_steps` (the detector of
-        ``config.steps``) when ``None``.
-    config
-        Parameters (:class:`PdrConfig` defaults when ``None``).
+        Footstep times (s); detected with :func:`~curbside.localize.steps.detect_steps` when ``None``.
+    config, step_config
+        Parameters (defaults when ``None``); ``step_config`` is the footstep detector's.
 
     Returns
     -------
@@ -222,9 +222,8 @@ def pdr_velocity(
     """
     if not {"qx", "qy", "qz", "qw"} <= set(imu.columns):
         raise CurbsideInputError("imu.csv", "PDR needs the orientation quaternion columns qx,qy,qz,qw")
-    config = config or PdrConfig()
-    steps = detect_steps(imu, config.steps) if steps is None else np.asarray(steps, float)
-    return step_velocity(imu, steps, None, config)
+    steps = detect_steps(imu, step_config) if steps is None else np.asarray(steps, float)
+    return step_velocity(imu, steps, None, config, step_config)
 
 
 def integrate_velocity(velocity: pd.DataFrame, t_start: float, t: np.ndarray) -> np.ndarray:
@@ -327,7 +326,7 @@ def evaluate_ipin(
         session = ipin.read_trial(path, name)
         wp = session.waypoints
         t0, t1 = float(wp["t"].iat[0]), float(wp["t"].iat[-1])
-        steps = detect_steps(session.imu, config.steps)
+        steps = detect_steps(session.imu)
         velocity = pdr_velocity(session.imu, steps, config)
         walk = (steps > t0) & (steps <= t1)
         frame = LocalFrame.around(float(wp["lon"].iat[0]), float(wp["lat"].iat[0]))

@@ -117,6 +117,11 @@ class StepConfig:
         if not 0 < self.min_interval_s < self.max_interval_s or self.min_run < 1:
             raise ValueError("StepConfig: need 0 < min_interval_s < max_interval_s and min_run >= 1")
 
+    @property
+    def fir_margin_s(self) -> float:
+        """Data needed on each side of a stretch to low-pass it exactly (half the FIR plus one grid step)."""
+        return (self.lowpass_taps // 2 + 1) / self.rate_hz
+
     def samples(self, seconds: float) -> int:
         """Number of grid samples in ``seconds`` (at least 1)."""
         return max(1, int(round(seconds * self.rate_hz)))
