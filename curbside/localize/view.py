@@ -326,7 +326,8 @@ def view_page(runs: list[ViewRun], maps: dict[str, MapLayers] | None = None, tit
         The runs (distinct labels; see :func:`label_runs`).
     maps
         Map layers to draw under the runs, by name (the first is shown, the others listed in the layer
-        control); clipped to the runs' extent.
+        control); clipped to the runs' extent. ``None``: the maps the runs were tracked on
+        (:func:`maps_of`); ``{}``: none.
     title
         Page title (default: the sessions' names).
 
@@ -337,6 +338,8 @@ def view_page(runs: list[ViewRun], maps: dict[str, MapLayers] | None = None, tit
     """
     if not runs:
         raise CurbsideInputError("RUN", "no runs to show")
+    if maps is None:
+        maps = maps_of(runs)
     used: set[str] = set()
     run_data = [_run_data(run, _colour(run, used)) for run in runs]
     sessions = {}
@@ -350,7 +353,7 @@ def view_page(runs: list[ViewRun], maps: dict[str, MapLayers] | None = None, tit
     first = next(iter(maps.values())) if maps else None
     script = "\n".join(
         [
-            _map_overlays(maps or {}, bbox),
+            _map_overlays(maps, bbox),
             f"map.fitBounds({bounds_js(*bbox)});",
             f"const VIEW = {script_json(data)};",
             asset_text("curbside-view.js"),
