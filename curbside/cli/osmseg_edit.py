@@ -8,7 +8,7 @@ from pathlib import Path
 from curbside.cli.osmseg_show import add_bbox_option
 from curbside.errors import CurbsideInputError
 from curbside.osmseg.build import check_bbox
-from curbside.osmseg.edit import write_editor
+from curbside.osmseg.edit import file_features, write_editor
 from curbside.osmseg.mapio import read_map
 from curbside.osmseg.plot import clip_to_bbox
 
@@ -17,11 +17,14 @@ def _edit(args: argparse.Namespace) -> int:
     if Path(args.output).suffix.lower() not in (".html", ".htm"):
         raise CurbsideInputError(args.output, "the editor is an HTML page: name it .html")
     layers = read_map(args.map)
+    features = None
     if args.bbox is not None:
         layers = clip_to_bbox(layers, check_bbox(args.bbox))
-    path = write_editor(layers, Path(args.map).name, args.output)
+    else:
+        features = file_features(args.map)
+    path = write_editor(layers, Path(args.map).name, args.output, features)
     print(
-        f"{path}: editor for {len(layers.gdf):,} polygons of {args.map} "
+        f"{path}: editor for {len(features or layers.gdf):,} polygons of {args.map} "
         f"({path.stat().st_size / 1e6:.1f} MB); open it in a browser, edit, then 'save edited map'"
     )
     return 0
