@@ -206,3 +206,34 @@ def test_waypoint_error_interpolates_the_track_at_each_waypoint():
     assert waypoint_summary(errors.iloc[:0])["n_waypoints"] == 0
     with pytest.raises(CurbsideInputError, match="at least two"):
         waypoint_errors(track, pd.DataFrame({"t": [1.0], "lat": [37.79], "lon": [-122.4]}))
+
+
+# -- the pages of an evaluation report ------------------------------------------------------------------
+
+
+def test_the_evaluation_report_links_each_session_to_its_replay(runs, tmp_path):
+    from curbside.evaluate.report import write_report
+    from curbside.evaluate.runner import RunSpec, run_one
+    from curbside.osmseg.mapio import read_map
+
+    hand = tmp_path / "hand.geojson"
+    hand.write_bytes(CROSSROADS.read_bytes())
+    session = str(runs[0].parent / "walk")
+    maps = {"osm": str(CROSSROADS), "hand": str(hand)}
+    specs = [RunSpec(session, "gnss", None, "osm", str(CROSSROADS), particles=100)]
+    specs += [RunSpec(session, "fused", p, name, str(CROSSROADS), particles=100) for name, p in maps.items()]
+    results = [run_one(spec) for spec in specs]
+    base = {"map": "osm", "jaywalk_weight": specs[1].jaywalk_weight, "particles": 100,
+            "gnss_sigma_factor": None}
+    write_report(results, tmp_path / "report", base, read_map(CROSSROADS))
+    assert "- [walk](view/walk.html)" in (tmp_path / "report" / "report.md").read_text()
+    assert "<a href='view/walk.html'>walk</a>" in (tmp_path / "report" / "report.html").read_text()
+    data = _page_data((tmp_path / "report" / "view" / "walk.html").read_text(encoding="utf-8"))
+    assert [r["label"] for r in data["runs"]] == ["gnss", "fused · crossroads", "fused · hand"]
+    # the track drawn is the one scored, back in lon/lat
+    fused = data["runs"][1]
+    scored = results[1]["track"]
+    frame = LocalFrame(read_map(CROSSROADS).crs)
+    lon, lat = frame.to_lonlat(scored["x_m"].to_numpy(), scored["y_m"].to_numpy())
+    np.testing.assert_allclose(fused["lat"], lat, atol=1e-7)
+    assert fused["segment"] == results[1]["errors"]["est_segment"].tolist()

@@ -390,3 +390,106 @@ def maps_of(runs: list[ViewRun]) -> dict[str, MapLayers]:
     stems = [Path(p).stem for p in paths]
     names = stems if len(set(stems)) == len(stems) else paths
     return {name: read_map(p) for name, p in zip(names, paths, strict=True)}
+
+
+# -- the pages of `localize evaluate`'s report ----------------------------------------------------------
+
+
+def _is_view_run(spec: dict, base: dict) -> bool:
+    """A run at the report's base parameters, on any map (GNSS, which uses no map: on the base map only)."""
+    if spec["method"] == "gnss":
+        return spec["map_name"] == base["map"]
+    return all(spec[k] == base[k] for k in ("jaywalk_weight", "particles", "gnss_sigma_factor"))
+
+
+def runs_from_results(results: list[dict], base: dict) -> dict[str, list[ViewRun]]:
+    """The viewer's runs of each session of an evaluation, at its base parameters.
+
+    Parameters
+    ----------
+    results
+        :func:`curbside.evaluate.runner.run_one` outputs: ``spec``, ``track`` (``t, x_m, y_m`` in the
+        scoring frame), ``errors`` (``est_segment``), ``recoveries`` and, when the runner kept them,
+        ``particles`` (packed, :mod:`curbside.localize.particle_store`).
+    base
+        The report's base parameters (``map``, ``jaywalk_weight``, ``particles``, ``gnss_sigma_factor``).
+
+    Returns
+    -------
+    dict
+        Session folder name -> its runs, labelled (:func:`label_runs`).
+    """
+    from curbside.localize.particle_store import unpack_particles
+    from curbside.localize.session import read_session
+
+    sessions: dict[str, Session] = {}
+    frames: dict[str, LocalFrame] = {}
+    by_session: dict[str, list[ViewRun]] = {}
+    for result in results:
+        spec = result["spec"]
+        if not _is_view_run(spec, base):
+            continue
+        path = spec["session"]
+        if path not in sessions:
+            sessions[path] = read_session(path)
+        session = sessions[path]
+        if spec["metrics_map"]:
+            if spec["metrics_map"] not in frames:
+                frames[spec["metrics_map"]] = LocalFrame(pyproj.CRS(read_map(spec["metrics_map"]).crs))
+            frame = frames[spec["metrics_map"]]
+        else:  # the runner scores a run without a metrics map in the frame around the first waypoint
+            first = session.waypoints.iloc[0]
+            frame = LocalFrame.around(float(first["lon"]), float(first["lat"]))
+        scored = result["track"]
+        lon, lat = frame.to_lonlat(scored["x_m"].to_numpy(float), scored["y_m"].to_numpy(float))
+        track = pd.DataFrame({"t": scored["t"].to_numpy(float), "lat": lat, "lon": lon})
+        if "est_segment" in result["errors"]:
+            track["sidewalk_segment_id"] = result["errors"]["est_segment"].to_numpy()
+        particles = result.get("particles")
+        by_session.setdefault(Path(path).name, []).append(
+            ViewRun(
+                label=spec["method"],
+                track=track,
+                session=session,
+                session_key=str(Path(path).resolve()),
+                mode=spec["method"],
+                particles=unpack_particles(particles, path) if particles is not None else None,
+                map_path=spec["map_path"] if spec["method"] != "gnss" else None,
+                recoveries=int(result.get("recoveries", 0)),
+            )
+        )
+    for runs in by_session.values():
+        maps = {r.map_path for r in runs if r.map_path}
+        for run in runs:
+            if len(maps) > 1 and run.map_path:
+                run.label = f"{run.label} · {Path(run.map_path).stem}"
+    return by_session
+
+
+def write_session_views(results: list[dict], base: dict, out_dir: str | Path) -> dict[str, Path]:
+    """One viewer page per session of an evaluation, ``out_dir/SESSION.html``.
+
+    Parameters
+    ----------
+    results, base
+        See :func:`runs_from_results`.
+    out_dir
+        Folder of the pages (created).
+
+    Returns
+    -------
+    dict
+        Session folder name -> page path.
+    """
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    maps: dict[str, MapLayers] = {}
+    pages = {}
+    for session, runs in runs_from_results(results, base).items():
+        shown = {}
+        for path in dict.fromkeys(r.map_path for r in runs if r.map_path):
+            if path not in maps:
+                maps[path] = read_map(path)
+            shown[Path(path).stem] = maps[path]
+        pages[session] = write_view(runs, out_dir / f"{session}.html", shown)
+    return pages
