@@ -57,6 +57,7 @@ function addFeatureLayer(layer, feature, edits) {
   layer.curbside = { id: feature.id, cls: props.class, props: { ...props }, original: feature, edits: new Set(edits) };
   layer.setStyle(classStyle(props.class));
   layer.on("click", (event) => {
+    if (map.pm.globalDrawModeEnabled()) return;  // a click while drawing places a vertex
     L.DomEvent.stopPropagation(event);
     select(layer);
   });
