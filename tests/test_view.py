@@ -237,3 +237,12 @@ def test_the_evaluation_report_links_each_session_to_its_replay(runs, tmp_path):
     lon, lat = frame.to_lonlat(scored["x_m"].to_numpy(), scored["y_m"].to_numpy())
     np.testing.assert_allclose(fused["lat"], lat, atol=1e-7)
     assert fused["segment"] == results[1]["errors"]["est_segment"].tolist()
+
+
+def test_cloud_every_keeps_fewer_clouds(runs, tmp_path):
+    out = tmp_path / "view.html"
+    assert localize_main(["view", *map(str, runs), "--cloud-every", "5", "-o", str(out)]) == 0
+    cloud = _page_data(out.read_text(encoding="utf-8"))["runs"][1]["cloud"]
+    every = read_particles(runs[1] / "particles.npz")
+    assert cloud["t"] == pytest.approx(np.round(every.t[::5], 3).tolist())
+    assert len(base64.b64decode(cloud["dlat"])) == 2 * 100 * len(every.t[::5])

@@ -3,6 +3,7 @@
 ::
 
     localize view RUN [RUN ...] -o view.html [--session SESSION] [--map MAP] [--labels NAME ...]
+                  [--cloud-every K]
 
 ``RUN`` is a folder written by ``localize run -o RUN`` (``--save-particles`` adds the particle cloud).
 The session (GNSS fixes, ground truth) and the map are the ones ``RUN/run.json`` names, unless
@@ -15,6 +16,7 @@ import argparse
 import logging
 from pathlib import Path
 
+from curbside.cli.common import positive_int
 from curbside.errors import CurbsideInputError
 from curbside.localize.view import label_runs, load_run, maps_of, write_view
 from curbside.osmseg.mapio import read_map
@@ -28,7 +30,7 @@ def _view(args: argparse.Namespace) -> int:
     runs = [load_run(folder, args.session, args.map) for folder in args.runs]
     label_runs(runs, args.labels)
     maps = {Path(args.map).stem: read_map(args.map)} if args.map else maps_of(runs)
-    path = write_view(runs, args.output, maps)
+    path = write_view(runs, args.output, maps, cloud_every=args.cloud_every)
     clouds = sum(r.particles is not None for r in runs)
     print(
         f"{path}: {len(runs)} run(s), {clouds} with particle clouds, "
@@ -58,5 +60,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument(
         "--labels", nargs="+", metavar="NAME",
         help="legend names, one per run (default: the mode, then the map's name where the maps differ)",
+    )
+    parser.add_argument(
+        "--cloud-every", type=positive_int, default=1, metavar="K",
+        help="keep the particle cloud of every K-th footstep only, for long walks (default: %(default)s)",
     )
     parser.set_defaults(func=_view)

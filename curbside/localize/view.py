@@ -57,6 +57,8 @@ EXTRA_COLOURS: tuple[str, ...] = ("#1f77b4", "#8c564b", "#e377c2", "#17becf", "#
 PAGE_OFFSET_UNIT_DEG = 1e-6
 #: Metres of map kept around the tracks and the ground truth.
 MAP_MARGIN_M = 80.0
+#: Pages larger than this (MB) get a warning: they take seconds to open.
+LARGE_PAGE_MB = 20.0
 
 
 @dataclass
@@ -199,10 +201,10 @@ def _b64(values: np.ndarray, dtype: str) -> str:
     return base64.b64encode(np.ascontiguousarray(values, dtype=dtype).tobytes()).decode("ascii")
 
 
-def _cloud_data(clouds: ParticleClouds) -> dict:
-    """The clouds as base64 little-endian int16 micro-degree offsets from each footstep's mean."""
+def _cloud_data(clouds: ParticleClouds, every: int = 1) -> dict:
+    """Every ``every``-th cloud as base64 little-endian int16 micro-degree offsets from its mean."""
     to_wgs84 = pyproj.Transformer.from_crs(pyproj.CRS(clouds.crs), WGS84, always_xy=True)
-    lon, lat = to_wgs84.transform(clouds.x, clouds.y)
+    lon, lat = to_wgs84.transform(clouds.x[::every], clouds.y[::every])
     ref_lon, ref_lat = np.mean(lon, axis=1), np.mean(lat, axis=1)
     limit = np.iinfo(np.int16).max
     dlon = np.rint((lon - ref_lon[:, None]) / PAGE_OFFSET_UNIT_DEG)
@@ -211,7 +213,7 @@ def _cloud_data(clouds: ParticleClouds) -> dict:
     if far:
         log.warning("%d particle(s) more than 3 km from their cloud's mean are drawn at the edge", far)
     out = {
-        "t": _round(clouds.t, 3),
+        "t": _round(clouds.t[::every], 3),
         "n": clouds.n_particles,
         "ref_lat": _round(ref_lat, 7),
         "ref_lon": _round(ref_lon, 7),
@@ -219,8 +221,9 @@ def _cloud_data(clouds: ParticleClouds) -> dict:
         "dlon": _b64(np.clip(dlon, -limit, limit), "<i2"),
     }
     if clouds.weight is not None:
-        peak = np.maximum(clouds.weight.max(axis=1, keepdims=True), 1e-300)
-        out["alpha"] = _b64(np.rint(255 * clouds.weight / peak), "u1")
+        weight = clouds.weight[::every]
+        peak = np.maximum(weight.max(axis=1, keepdims=True), 1e-300)
+        out["alpha"] = _b64(np.rint(255 * weight / peak), "u1")
     return out
 
 
@@ -242,7 +245,7 @@ def _truth_errors(run: ViewRun) -> tuple[list | None, str | None]:
     return errors, summary
 
 
-def _run_data(run: ViewRun, colour: str) -> dict:
+def _run_data(run: ViewRun, colour: str, cloud_every: int = 1) -> dict:
     track = run.track
     errors, summary = _truth_errors(run)
     recovered = np.zeros(len(track), int)
@@ -266,7 +269,7 @@ def _run_data(run: ViewRun, colour: str) -> dict:
         "segment_prob": _round(track["segment_prob"], 3) if "segment_prob" in track else None,
         "error_m": errors,
         "waypoint_summary": summary,
-        "cloud": _cloud_data(run.particles) if run.particles is not None else None,
+        "cloud": _cloud_data(run.particles, cloud_every) if run.particles is not None else None,
     }
 
 
@@ -288,8 +291,8 @@ def _session_data(session: Session, key: str) -> dict:
     return data
 
 
-def _extent(runs: list[ViewRun]) -> tuple[float, float, float, float]:
-    """WGS84 ``(west, south, east, north)`` of the tracks and ground truths, with :data:`MAP_MARGIN_M`."""
+def _extent(runs: list[ViewRun], margin_m: float = 0.0) -> tuple[float, float, float, float]:
+    """WGS84 ``(west, south, east, north)`` of the tracks and ground truths, ``margin_m`` around."""
     lon = np.concatenate([r.track["lon"].to_numpy(float) for r in runs])
     lat = np.concatenate([r.track["lat"].to_numpy(float) for r in runs])
     for run in runs:
@@ -297,7 +300,7 @@ def _extent(runs: list[ViewRun]) -> tuple[float, float, float, float]:
             lon = np.concatenate([lon, run.session.waypoints["lon"].to_numpy(float)])
             lat = np.concatenate([lat, run.session.waypoints["lat"].to_numpy(float)])
     lon, lat = lon[np.isfinite(lon)], lat[np.isfinite(lat)]
-    pad_lat = MAP_MARGIN_M / 111_320.0
+    pad_lat = margin_m / 111_320.0
     pad_lon = pad_lat / max(np.cos(np.radians(np.mean(lat))), 0.1)
     return lon.min() - pad_lon, lat.min() - pad_lat, lon.max() + pad_lon, lat.max() + pad_lat
 
@@ -317,7 +320,12 @@ def _map_overlays(maps: dict[str, MapLayers], bbox: tuple[float, float, float, f
     return "\n".join(statements)
 
 
-def view_page(runs: list[ViewRun], maps: dict[str, MapLayers] | None = None, title: str | None = None) -> str:
+def view_page(
+    runs: list[ViewRun],
+    maps: dict[str, MapLayers] | None = None,
+    title: str | None = None,
+    cloud_every: int = 1,
+) -> str:
     """The replay page of one or more runs.
 
     Parameters
@@ -330,6 +338,9 @@ def view_page(runs: list[ViewRun], maps: dict[str, MapLayers] | None = None, tit
         (:func:`maps_of`); ``{}``: none.
     title
         Page title (default: the sessions' names).
+    cloud_every
+        Keep the particle cloud of every ``cloud_every``-th footstep only (the slider shows the latest
+        kept one): a long walk's page shrinks about that many times.
 
     Returns
     -------
@@ -341,12 +352,12 @@ def view_page(runs: list[ViewRun], maps: dict[str, MapLayers] | None = None, tit
     if maps is None:
         maps = maps_of(runs)
     used: set[str] = set()
-    run_data = [_run_data(run, _colour(run, used)) for run in runs]
+    run_data = [_run_data(run, _colour(run, used), cloud_every) for run in runs]
     sessions = {}
     for run in runs:
         if run.session is not None and run.session_key not in sessions:
             sessions[run.session_key] = _session_data(run.session, run.session_key)
-    bbox = _extent(runs)
+    bbox = _extent(runs, MAP_MARGIN_M)
     names = sorted({s["name"] for s in sessions.values()}) or [r.label for r in runs]
     title = title or f"curbside replay: {', '.join(names)}"
     data = {"runs": run_data, "sessions": list(sessions.values()), "title": title}
@@ -354,7 +365,7 @@ def view_page(runs: list[ViewRun], maps: dict[str, MapLayers] | None = None, tit
     script = "\n".join(
         [
             _map_overlays(maps, bbox),
-            f"map.fitBounds({bounds_js(*bbox)});",
+            f"map.fitBounds({bounds_js(*_extent(runs))}, {{padding: [30, 30]}});",
             f"const VIEW = {script_json(data)};",
             asset_text("curbside-view.js"),
         ]
@@ -362,25 +373,31 @@ def view_page(runs: list[ViewRun], maps: dict[str, MapLayers] | None = None, tit
     return leaflet_page(
         title,
         script,
-        attribution_html=html.escape(attribution(first)),
+        attribution_html=html.escape(attribution(first)) if first is not None else "",
         body=asset_text("curbside-view.html"),
         page_css=asset_text("curbside-view.css"),
     )
 
 
-def write_view(runs: list[ViewRun], path: str | Path, maps: dict[str, MapLayers] | None = None) -> Path:
-    """Write :func:`view_page` to an HTML file (atomically).
+def write_view(
+    runs: list[ViewRun], path: str | Path, maps: dict[str, MapLayers] | None = None, cloud_every: int = 1
+) -> Path:
+    """Write :func:`view_page` to an HTML file (atomically); warn when it is large.
 
     Returns
     -------
     pathlib.Path
         ``path``.
     """
-    page = view_page(runs, maps)
+    page = view_page(runs, maps, cloud_every=cloud_every)
     path = Path(path)
     with atomic_path(path) as tmp:
         tmp.write_text(page, encoding="utf-8")
-    log.info("wrote %s (%.1f MB)", path, path.stat().st_size / 1e6)
+    size_mb = path.stat().st_size / 1e6
+    log.info("wrote %s (%.1f MB)", path, size_mb)
+    if size_mb > LARGE_PAGE_MB:
+        log.warning("%s is %.0f MB and may open slowly; --cloud-every %d keeps fewer particle clouds",
+                    path, size_mb, max(2, round(cloud_every * size_mb / LARGE_PAGE_MB + 0.5)))
     return path
 
 
