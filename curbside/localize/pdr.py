@@ -30,6 +30,7 @@ exactly what :func:`pdr_velocity` gives for the whole recording.
 from __future__ import annotations
 
 import argparse
+import math
 import sys
 from dataclasses import dataclass
 
@@ -39,6 +40,7 @@ from scipy.spatial.transform import Rotation
 from tqdm import tqdm
 
 from curbside.errors import CurbsideInputError
+from curbside.evaluate import metrics
 from curbside.localize.readers import ipin
 from curbside.localize.steps import StepConfig, detect_steps, fir_centered, lowpass_taps
 from curbside.projection import LocalFrame
@@ -258,39 +260,40 @@ def integrate_velocity(velocity: pd.DataFrame, t_start: float, t: np.ndarray) ->
     ])
 
 
+def dead_reckoned_track(
+    velocity: pd.DataFrame, waypoints: pd.DataFrame, align_heading: bool = False
+) -> pd.DataFrame:
+    """The velocity dead-reckoned from the first waypoint, sampled at every waypoint's time.
+
+    With ``align_heading`` the track is rotated so that its displacement between the first two
+    waypoints points along the surveyed one (the known start heading of the paper's setting);
+    otherwise the rotation vector's absolute heading is used as it is.
+
+    Returns
+    -------
+    pandas.DataFrame
+        ``t, lat, lon`` at the waypoints' times.
+    """
+    frame = LocalFrame.around(float(waypoints["lon"].iat[0]), float(waypoints["lat"].iat[0]))
+    x, y = frame.to_xy(waypoints["lon"].to_numpy(), waypoints["lat"].to_numpy())
+    track = integrate_velocity(velocity, float(waypoints["t"].iat[0]), waypoints["t"].to_numpy())
+    if align_heading:
+        angle = math.atan2(y[1] - y[0], x[1] - x[0]) - math.atan2(track[1, 1], track[1, 0])
+        c, s = math.cos(angle), math.sin(angle)
+        track = track @ np.array([[c, s], [-s, c]])
+    lon, lat = frame.to_lonlat(x[0] + track[:, 0], y[0] + track[:, 1])
+    return pd.DataFrame({"t": waypoints["t"].to_numpy(float), "lat": lat, "lon": lon})
+
+
 def waypoint_errors(
     velocity: pd.DataFrame, waypoints: pd.DataFrame, align_heading: bool = False
 ) -> np.ndarray:
     """Distance (m) between dead-reckoned and surveyed positions at each waypoint after the first.
 
-    The track starts at the first waypoint at its time. With ``align_heading`` the track is also
-    rotated so that its displacement between the first two waypoints points along the surveyed one
-    (the known start heading of the paper's setting); otherwise the rotation vector's absolute
-    heading is used as it is.
-
-    Parameters
-    ----------
-    velocity
-        ``t,ve,vn`` table (e.g. from :func:`pdr_velocity`).
-    waypoints
-        ``t,lat,lon``, at least two rows.
-    align_heading
-        Rotate onto the first surveyed segment.
-
-    Returns
-    -------
-    numpy.ndarray
-        ``len(waypoints) - 1`` errors in metres.
+    Scored by :func:`curbside.evaluate.metrics.waypoint_errors` on :func:`dead_reckoned_track`.
     """
-    frame = LocalFrame.around(float(waypoints["lon"].iat[0]), float(waypoints["lat"].iat[0]))
-    x, y = frame.to_xy(waypoints["lon"].to_numpy(), waypoints["lat"].to_numpy())
-    truth = np.column_stack([x - x[0], y - y[0]])
-    track = integrate_velocity(velocity, float(waypoints["t"].iat[0]), waypoints["t"].to_numpy())
-    if align_heading:
-        angle = np.arctan2(truth[1, 1], truth[1, 0]) - np.arctan2(track[1, 1], track[1, 0])
-        c, s = np.cos(angle), np.sin(angle)
-        track = track @ np.array([[c, s], [-s, c]])
-    return np.linalg.norm(track[1:] - truth[1:], axis=1)
+    track = dead_reckoned_track(velocity, waypoints, align_heading)
+    return metrics.waypoint_errors(track, waypoints)["error_m"].to_numpy()
 
 
 def evaluate_ipin(
