@@ -102,7 +102,7 @@ def buildings(areas: gpd.GeoDataFrame, ways: gpd.GeoDataFrame) -> gpd.GeoDataFra
     -------
     geopandas.GeoDataFrame
         One row per remaining polygon: ``osm_id``, ``carved_m2`` (the area its building's passages
-        removed, islands included) and a valid Polygon ``geometry``.
+        removed, islands included) and a valid Polygon ``geometry``; no two polygons overlap.
     """
     footprints = areas[footprint_mask(areas)].reset_index(drop=True)
     geoms = shapely.make_valid(footprints.geometry.values)
@@ -133,8 +133,24 @@ def buildings(areas: gpd.GeoDataFrame, ways: gpd.GeoDataFrame) -> gpd.GeoDataFra
         (area < settings.passage_island_area_m2) | (thickness < settings.passage_island_thickness_m)
     )
     keep = (shapely.get_type_id(parts) == 3) & (area >= settings.min_polygon_area_m2) & ~island
+    parts, owner = _clean_coverage(parts[keep], owner[keep])
     return gpd.GeoDataFrame(
-        {"osm_id": footprints["osm_id"].to_numpy()[owner[keep]], "carved_m2": carved[owner[keep]]},
-        geometry=parts[keep],
+        {"osm_id": footprints["osm_id"].to_numpy()[owner], "carved_m2": carved[owner]},
+        geometry=parts,
         crs=areas.crs,
     )
+
+
+def _clean_coverage(polygons: np.ndarray, owner: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Polygons made a clean coverage (no two overlap), with the owner index of each part.
+
+    Mapped buildings overlap (a tower drawn inside its podium, neighbours whose walls cross): an
+    overlap goes to the smaller building, so nested buildings keep their own outline and id, and the
+    layer's area is the area it covers. GEOS's CoverageCleaner (:func:`shapely.coverage_clean`).
+    """
+    if len(polygons) < 2:
+        return polygons, owner
+    cleaned = shapely.coverage_clean(polygons, merge_strategy="min_area")
+    parts, row = shapely.get_parts(cleaned, return_index=True)
+    keep = (shapely.get_type_id(parts) == 3) & (shapely.area(parts) >= settings.min_polygon_area_m2)
+    return parts[keep], owner[row[keep]]
