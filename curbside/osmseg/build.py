@@ -219,8 +219,10 @@ def build_map(
         raise CurbsideInputError("--unmarked-as", f"must be one of {', '.join(UNMARKED_CHOICES)}")
     osm, clip_bbox = load_osm(bbox, osm_file)
     source = str(osm_file) if osm_file is not None else osm.source
+    from_declared_bounds = bbox is None and osm_file is not None and clip_bbox is not None
+    where = f"inside the bounds the file declares {list(clip_bbox)}" if from_declared_bounds else "in this area"
     if len(osm.ways) == 0 and len(osm.areas) == 0:
-        raise CurbsideInputError(source, "no highways or buildings in this area")
+        raise CurbsideInputError(source, f"no highways or buildings {where}")
     gdf = derive_layers(osm, unmarked_as)
     if clip_bbox is not None:
         window = bbox_polygon(clip_bbox, osm.crs)
@@ -235,11 +237,7 @@ def build_map(
         )
     gdf = gdf.reset_index(drop=True)
     if len(gdf) == 0:
-        if bbox is None and clip_bbox is not None:
-            raise CurbsideInputError(
-                source, f"no buildings or streets inside the bounds the file declares {list(clip_bbox)}"
-            )
-        raise CurbsideInputError(source, "no buildings or streets in this area")
+        raise CurbsideInputError(source, f"no buildings or streets {where}")
     if clip_bbox is None:
         minx, miny, maxx, maxy = gdf.total_bounds
         corners_x, corners_y = np.array([minx, maxx, minx, maxx]), np.array([miny, miny, maxy, maxy])
