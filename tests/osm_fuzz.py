@@ -10,6 +10,7 @@ from __future__ import annotations
 
 from xml.sax.saxutils import quoteattr
 
+import numpy as np
 from hypothesis import strategies as st
 
 #: The scene's centre (lon, lat) and the metres per degree there.
@@ -74,7 +75,8 @@ def osm_scene(draw) -> str:
         lon = lon0 + i * step_m / _M_PER_DEG_LON
         lat = lat0 + j * step_m / _M_PER_DEG_LAT
         node_tags = draw(st.one_of(st.just({}), tags(("highway", "crossing", "crossing:markings"))))
-        nodes.append(f'<node id="{nid}" version="1" lat="{lat:.7f}" lon="{lon:.7f}">{_tag_xml(node_tags)}</node>')
+        attrs = f'id="{nid}" version="1" lat="{lat:.7f}" lon="{lon:.7f}"'
+        nodes.append(f"<node {attrs}>{_tag_xml(node_tags)}</node>")
     # Way node lists: any ids, repeats allowed, sometimes closed, sometimes referring to absent nodes.
     ref = st.one_of(st.sampled_from(node_ids), st.just(9_999_999))
     ways = []
@@ -92,16 +94,18 @@ def osm_scene(draw) -> str:
             st.tuples(st.just("node"), st.sampled_from(node_ids)),
             st.tuples(st.just("relation"), st.integers(1, 3)),
         )
-        members = draw(st.lists(st.tuples(member, st.sampled_from(["outer", "inner", "", "part"])), max_size=5))
+        role = st.sampled_from(["outer", "inner", "", "part"])
+        members = draw(st.lists(st.tuples(member, role), max_size=5))
         mxml = "".join(f'<member type="{t}" ref="{r}" role="{role}"/>' for (t, r), role in members)
-        rel_tags = {"type": draw(st.sampled_from(["multipolygon", "building", "route"])), **draw(tags(("building",)))}
+        rel_type = draw(st.sampled_from(["multipolygon", "building", "route"]))
+        rel_tags = {"type": rel_type, **draw(tags(("building",)))}
         relations.append(f'<relation id="{rid}" version="1">{mxml}{_tag_xml(rel_tags)}</relation>')
     bounds = ""
     if draw(st.booleans()):
-        half = draw(st.sampled_from([10.0, 60.0]))
+        half_lat, half_lon = draw(st.sampled_from([10.0, 60.0])) / np.array([_M_PER_DEG_LAT, _M_PER_DEG_LON])
         bounds = (
-            f'<bounds minlat="{lat0 - half / _M_PER_DEG_LAT:.7f}" minlon="{lon0 - half / _M_PER_DEG_LON:.7f}" '
-            f'maxlat="{lat0 + half / _M_PER_DEG_LAT:.7f}" maxlon="{lon0 + half / _M_PER_DEG_LON:.7f}"/>'
+            f'<bounds minlat="{lat0 - half_lat:.7f}" minlon="{lon0 - half_lon:.7f}" '
+            f'maxlat="{lat0 + half_lat:.7f}" maxlon="{lon0 + half_lon:.7f}"/>'
         )
     body = "\n".join([bounds, *nodes, *ways, *relations])
     return f'<?xml version="1.0" encoding="UTF-8"?>\n<osm version="0.6" generator="fuzz">\n{body}\n</osm>\n'

@@ -220,7 +220,9 @@ def build_map(
     osm, clip_bbox = load_osm(bbox, osm_file)
     source = str(osm_file) if osm_file is not None else osm.source
     from_declared_bounds = bbox is None and osm_file is not None and clip_bbox is not None
-    where = f"inside the bounds the file declares {list(clip_bbox)}" if from_declared_bounds else "in this area"
+    where = "in this area"
+    if from_declared_bounds:
+        where = f"inside the bounds the file declares {list(clip_bbox)}"
     if len(osm.ways) == 0 and len(osm.areas) == 0:
         raise CurbsideInputError(source, f"no highways or buildings {where}")
     gdf = derive_layers(osm, unmarked_as)

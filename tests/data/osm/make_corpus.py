@@ -27,10 +27,13 @@ OUT = Path(__file__).with_name("corpus")
 
 #: name -> (source, (west, south, east, north), strategy, declare bounds).
 PIECES: dict[str, tuple[str, tuple[float, float, float, float], str, bool]] = {
-    "sf-financial-district.osm.bz2": ("sf", (-122.4030, 37.7905, -122.3995, 37.7930), "complete_ways", True),
+    "sf-financial-district.osm.bz2":
+        ("sf", (-122.4030, 37.7905, -122.3995, 37.7930), "complete_ways", True),
     "sf-soma-cut.osm.pbf": ("sf", (-122.3990, 37.7855, -122.3955, 37.7880), "simple", True),
-    "sf-union-square-nobounds.osm.gz": ("sf", (-122.4090, 37.7870, -122.4060, 37.7890), "complete_ways", False),
-    "helsinki-centre.osm.pbf": ("Helsinki.osm.pbf", (24.9420, 60.1680, 24.9470, 60.1705), "complete_ways", True),
+    "sf-union-square-nobounds.osm.gz":
+        ("sf", (-122.4090, 37.7870, -122.4060, 37.7890), "complete_ways", False),
+    "helsinki-centre.osm.pbf":
+        ("Helsinki.osm.pbf", (24.9420, 60.1680, 24.9470, 60.1705), "complete_ways", True),
     "kotka-cut.osm": ("test.osm.pbf", (26.9450, 60.5270, 26.9510, 60.5300), "simple", True),
 }  # fmt: skip
 
