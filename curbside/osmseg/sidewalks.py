@@ -88,13 +88,22 @@ def territories(pieces: np.ndarray, spacing_m: float = 3.0) -> np.ndarray:
     rank = np.arange(len(idx)) - np.searchsorted(idx, idx)
     table = np.full((len(pieces), int(rank.max()) + 1 if len(rank) else 1), None, dtype=object)
     table[idx, rank] = cells
+    return dissolve_rows(table)
+
+
+def dissolve_rows(table: np.ndarray) -> np.ndarray:
+    """Union of each row of a (rows, k) object array of polygons (``None`` pads), for a coverage.
+
+    GEOS's coverage union is fast but assumes the polygons of a row neither overlap nor meet at
+    unmatched vertices, and GEOS 3.14 refuses such a row ("CoverageUnion cannot process incorrectly
+    noded inputs"). Voronoi cells are such a coverage only up to rounding: GEOS clips the cells at
+    the diagram's extent one by one, so the shared edges of far-flung or nearly collinear samples
+    may not match. Then the overlay union (about 4x slower, no assumption) does the work.
+    """
     try:
         return shapely.coverage_union_all(table, axis=1)
     except shapely.errors.GEOSException as exc:
-        # GEOS clips boundary cells to the diagram's extent one by one, and far-flung or nearly
-        # collinear samples can leave neighbouring cells whose shared edges are not noded
-        # identically; the overlay union is slower (about 4x) but makes no such assumption.
-        log.debug("Voronoi cells are not a clean coverage (%s); dissolving them with union_all", exc)
+        log.debug("cells are not a clean coverage (%s); dissolving with union_all", exc)
         return shapely.union_all(table, axis=1)
 
 
