@@ -16,6 +16,7 @@ import numpy as np
 import shapely
 
 from curbside import settings
+from curbside.osmseg.overlay import subtract_each
 from curbside.osmseg.streets import carriageway_width, ground_level
 from curbside.osmseg.tags import column, first_number, is_in, metres
 
@@ -144,13 +145,26 @@ def buildings(areas: gpd.GeoDataFrame, ways: gpd.GeoDataFrame) -> gpd.GeoDataFra
 def _clean_coverage(polygons: np.ndarray, owner: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Polygons made a clean coverage (no two overlap), with the owner index of each part.
 
-    Mapped buildings overlap (a tower drawn inside its podium, neighbours whose walls cross): an
-    overlap goes to the smaller building, so nested buildings keep their own outline and id, and the
-    layer's area is the area it covers. GEOS's CoverageCleaner (:func:`shapely.coverage_clean`).
+    Mapped buildings overlap (a tower drawn inside its podium, neighbours whose walls cross). Each
+    overlap goes to the smaller building (ties: the earlier one): every polygon loses what it shares
+    with smaller ones, so nested buildings keep their own outline and id, and the layer's area is the
+    area it covers. Pairwise differences between the overlapping pairs only, in vectorised rounds.
     """
     if len(polygons) < 2:
         return polygons, owner
-    cleaned = shapely.coverage_clean(polygons, merge_strategy="min_area")
-    parts, row = shapely.get_parts(cleaned, return_index=True)
+    area = shapely.area(polygons)
+    big, small = shapely.STRtree(polygons).query(polygons, predicate="intersects")
+    rank = np.lexsort((np.arange(len(polygons)), area))  # by area, then index
+    order = np.empty(len(polygons), dtype=np.intp)
+    order[rank] = np.arange(len(polygons))
+    pairs = order[small] < order[big]
+    big, small = big[pairs], small[pairs]
+    shared = shapely.area(shapely.intersection(polygons[big], polygons[small])) > 0
+    cleaned = np.array(polygons, dtype=object, copy=True)
+    big, small = big[shared], small[shared]
+    if len(big):
+        cut = np.unique(big)
+        cleaned[cut] = subtract_each(polygons[cut], cut, big, polygons[small])
+    parts, row = shapely.get_parts(shapely.make_valid(cleaned), return_index=True)
     keep = (shapely.get_type_id(parts) == 3) & (shapely.area(parts) >= settings.min_polygon_area_m2)
     return parts[keep], owner[row[keep]]
