@@ -22,16 +22,19 @@ Examples
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import logging
-from collections.abc import Callable, Iterable, Mapping
+import os
+import shutil
+import uuid
+from collections.abc import Callable, Iterable, Iterator, Mapping
 from pathlib import Path
 
 import geopandas as gpd
 import numpy as np
 
 from curbside import settings
-from curbside.io import atomic_path
 
 log = logging.getLogger(__name__)
 
@@ -111,6 +114,27 @@ def load_arrays(kind: str, key: str, required: Iterable[str] = ()) -> dict[str, 
     return arrays
 
 
+@contextlib.contextmanager
+def _staged(path: Path) -> Iterator[Path]:
+    """A temporary name beside ``path`` (a file or a folder), renamed onto it when the block succeeds.
+
+    Cache entries are curbside's own: an old entry at ``path`` is replaced; nothing is left behind on
+    failure. (User-facing outputs go through :func:`curbside.io.output_folder` instead.)
+    """
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}-{uuid.uuid4().hex[:8]}")
+    try:
+        yield tmp
+        if path.is_dir():
+            shutil.rmtree(path)
+        os.replace(tmp, path)
+    finally:
+        if tmp.is_dir():
+            shutil.rmtree(tmp, ignore_errors=True)
+        elif tmp.exists():
+            tmp.unlink()
+
+
 def save_arrays(kind: str, key: str, arrays: Mapping[str, np.ndarray]) -> Path | None:
     """Store arrays as a compressed ``.npz`` entry, atomically; ``None`` (and a warning) if it cannot.
 
@@ -121,7 +145,7 @@ def save_arrays(kind: str, key: str, arrays: Mapping[str, np.ndarray]) -> Path |
         if np.asarray(value).dtype == object:
             raise TypeError(f"cache entry {kind}/{key}: array {name!r} has dtype object (would pickle)")
     try:
-        with atomic_path(path) as tmp, open(tmp, "wb") as fh:
+        with _staged(path) as tmp, open(tmp, "wb") as fh:
             np.savez_compressed(fh, **{name: np.asarray(value) for name, value in arrays.items()})
     except OSError as exc:
         log.warning("could not write cache entry %s (%s)", path, exc)
@@ -153,7 +177,7 @@ def save_frames(kind: str, key: str, frames: Mapping[str, gpd.GeoDataFrame]) -> 
     """
     folder = entry_path(kind, key, "")
     try:
-        with atomic_path(folder) as tmp:
+        with _staged(folder) as tmp:
             tmp.mkdir()
             for name, frame in frames.items():
                 frame.to_parquet(tmp / f"{name}.parquet")

@@ -23,7 +23,7 @@ by one vectorised STRtree query over those centres), and the Euclidean distance 
 (:func:`scipy.ndimage.distance_transform_edt` with ``return_indices``) hands every other cell the index
 of its nearest labelled cell.
 
-Rasters are cached under ``settings.cache_dir / "rasters"`` as ``.npz`` files named by a SHA-256 of
+Rasters are cached (:mod:`curbside.cache`, kind ``rasters``) as ``.npz`` files named by a SHA-256 of
 the map content (CRS, classes and WKB of every polygon, sidewalk ``segment_id`` strings), the
 resolution, the segment reach and the rasteriser version.
 """
@@ -33,7 +33,6 @@ from __future__ import annotations
 import hashlib
 import logging
 from dataclasses import dataclass
-from pathlib import Path
 
 import numpy as np
 import pyproj
@@ -43,8 +42,7 @@ from rasterio.transform import from_origin
 from scipy import ndimage
 from tqdm.auto import tqdm
 
-from curbside import settings
-from curbside.io import atomic_path
+from curbside import cache as disk_cache
 from curbside.osmseg.mapio import MapLayers
 
 logger = logging.getLogger(__name__)
@@ -408,10 +406,19 @@ def building_depth_m(codes: np.ndarray | int, resolution_m: float) -> np.ndarray
     return np.where(codes >= BUILDING, (codes.astype(float) - BUILDING + 0.5) * resolution_m, np.nan)
 
 
+def _arrays(raster: MapRaster) -> dict[str, np.ndarray]:
+    """A raster as the arrays of its cache entry (``segment_ids`` is a str array: no pickle)."""
+    arrays = {"codes": raster.codes, "x0": np.float64(raster.x0), "y0": np.float64(raster.y0),
+              "resolution_m": np.float64(raster.resolution_m), "crs": np.array(raster.crs)}
+    if raster.segment_index is not None:
+        arrays |= {"segment_index": raster.segment_index, "segment_ids": raster.segment_ids}
+    return arrays
+
+
 def load_or_build_raster(
     layers: MapLayers, resolution_m: float = 0.5, segment_reach_m: float = 25.0, cache: bool = True
 ) -> MapRaster:
-    """The map's raster from the disk cache, or rasterised now and stored there.
+    """The map's raster from the disk cache (:mod:`curbside.cache`), or rasterised now and stored there.
 
     Parameters
     ----------
@@ -420,7 +427,7 @@ def load_or_build_raster(
     resolution_m, segment_reach_m
         Cell size and segment reach (see :func:`rasterize_map`).
     cache
-        Read and write ``settings.cache_dir / "rasters" / <hash>.npz``.
+        Read and write the ``rasters`` entry named by :func:`map_hash`.
 
     Returns
     -------
@@ -429,34 +436,10 @@ def load_or_build_raster(
     res = float(resolution_m)
     if not cache:
         return rasterize_map(layers, res, segment_reach_m)
-    key = map_hash(layers, res, segment_reach_m)
-    path = Path(settings.cache_dir) / "rasters" / f"{key}.npz"
-    if path.is_file():
-        try:
-            with np.load(path, allow_pickle=False) as npz:
-                has_segments = "segment_index" in npz.files
-                raster = MapRaster(
-                    npz["codes"], float(npz["x0"]), float(npz["y0"]), float(npz["resolution_m"]),
-                    str(npz["crs"]),
-                    npz["segment_index"] if has_segments else None,
-                    npz["segment_ids"] if has_segments else None,
-                )
-            logger.info("map raster from cache %s", path)
-            return raster
-        except (OSError, KeyError, ValueError) as exc:
-            logger.warning("ignoring unreadable raster cache %s (%s)", path, exc)
-    raster = rasterize_map(layers, res, segment_reach_m)
-    try:
-        segments = (
-            {} if raster.segment_index is None
-            else {"segment_index": raster.segment_index, "segment_ids": raster.segment_ids}
-        )
-        with atomic_path(path) as tmp, open(tmp, "wb") as fh:
-            np.savez_compressed(
-                fh, codes=raster.codes, x0=raster.x0, y0=raster.y0, resolution_m=raster.resolution_m,
-                crs=np.array(raster.crs), **segments,
-            )
-        logger.info("map raster %dx%d cached at %s", *raster.shape, path)
-    except OSError as exc:
-        logger.warning("could not cache the map raster at %s (%s)", path, exc)
-    return raster
+    arrays = disk_cache.cached_arrays(
+        "rasters", map_hash(layers, res, segment_reach_m),
+        lambda: _arrays(rasterize_map(layers, res, segment_reach_m)),
+        required=("codes", "x0", "y0", "resolution_m", "crs"),
+    )
+    return MapRaster(arrays["codes"], float(arrays["x0"]), float(arrays["y0"]), float(arrays["resolution_m"]),
+                     str(arrays["crs"]), arrays.get("segment_index"), arrays.get("segment_ids"))
