@@ -5,7 +5,7 @@ BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 TORCH_VERSION := 2.13.0
 
-.PHONY: demo test lint bench clean install
+.PHONY: demo test lint bench clean install browser
 
 $(BIN)/python:
 	$(PY) -m venv $(VENV)
@@ -21,7 +21,16 @@ install: $(STAMP)
 demo: $(STAMP)
 	$(BIN)/python -m curbside.demo --out out
 
-test: $(STAMP)
+# Headless Chromium and its driver for the browser tests: Debian's packages, never a browser download.
+# Quiet and idempotent; where they cannot be installed the browser tests skip with a one-line reason.
+SUDO := $(if $(filter 0,$(shell id -u)),,sudo -n)
+browser:
+	@command -v chromium >/dev/null 2>&1 && command -v chromedriver >/dev/null 2>&1 || \
+	  { $(SUDO) apt-get update -qq >/dev/null && DEBIAN_FRONTEND=noninteractive \
+	    $(SUDO) apt-get install -y -qq chromium chromium-driver >/dev/null; } || \
+	  echo "note: could not install chromium and chromium-driver; the browser tests will skip"
+
+test: $(STAMP) browser
 	$(BIN)/ruff check curbside tests benchmarks
 	$(BIN)/python -m pytest -q
 

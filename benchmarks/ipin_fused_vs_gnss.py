@@ -27,22 +27,20 @@ import numpy as np
 import pandas as pd
 from tqdm import tqdm
 
+from curbside.evaluate import metrics
 from curbside.localize.pipeline import track_session, valid_fixes
 from curbside.localize.readers.ipin import list_trials, read_trial
 from curbside.projection import LocalFrame
 
 
-def waypoint_errors(track: pd.DataFrame, waypoints: pd.DataFrame, frame: LocalFrame) -> np.ndarray:
-    """Distance (m) from the track, interpolated at each waypoint time, to the waypoint (NaN outside)."""
-    wx, wy = frame.to_xy(waypoints["lon"].to_numpy(), waypoints["lat"].to_numpy())
-    tw = waypoints["t"].to_numpy()
-    t = track["t"].to_numpy()
-    if len(t) == 0:
-        return np.full(len(tw), np.nan)
-    tx, ty = frame.to_xy(track["lon"].to_numpy(), track["lat"].to_numpy())
-    err = np.hypot(np.interp(tw, t, tx) - wx, np.interp(tw, t, ty) - wy)
-    err[(tw < t[0]) | (tw > t[-1])] = np.nan
-    return err
+def waypoint_errors(track: pd.DataFrame, waypoints: pd.DataFrame) -> np.ndarray:
+    """Error (m) at every waypoint, NaN where not scored (by ``metrics.waypoint_errors``)."""
+    out = np.full(len(waypoints), np.nan)
+    if len(track) < 2:
+        return out
+    scored = metrics.waypoint_errors(track, waypoints, exclude_first=False)
+    out[np.searchsorted(waypoints["t"].to_numpy(float), scored["t"].to_numpy(float))] = scored["error_m"]
+    return out
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -80,7 +78,7 @@ def main(argv: list[str] | None = None) -> int:
             except Exception as exc:  # noqa: BLE001 - report and go on with the other trials
                 print(f"{trial} {mode}: {exc}", file=sys.stderr)
                 continue
-            errors[mode] = waypoint_errors(track, session.waypoints, frame)
+            errors[mode] = waypoint_errors(track, session.waypoints)
         tw = session.waypoints["t"].to_numpy()
         scored = (tw >= tf[0]) & (tw <= tf[-1]) if len(tf) else np.zeros(len(tw), bool)
         scored[0] = False  # the start pose: the filters are placed there

@@ -120,14 +120,14 @@ def _errors(params: dict, mode: str, seed: int, start_pose: bool, trials: list[s
     config = RunConfig.for_mode(mode).with_overrides({**params, "filter.gnss.bias_time_s": BIAS_TIME_S})
     out = []
     for trial in trials:
-        session, frame, scored = _sessions[trial]
+        session, _, scored = _sessions[trial]
         try:
             track = track_session(session, None, config=config, seed=seed, velocity_source="pdr",
                                   use_start_pose=start_pose).track
         except CurbsideInputError:  # e.g. no usable fix to start from: the same for every grid point
             out.append(np.full(int(scored.sum()), np.nan))
             continue
-        out.append(waypoint_errors(track, session.waypoints, frame)[scored])
+        out.append(waypoint_errors(track, session.waypoints)[scored])
     return np.concatenate(out)
 
 

@@ -2,31 +2,41 @@
 
 The demo is a list of stages (:data:`STAGES`) run in order on a shared :class:`DemoContext`; each stage
 returns the files it wrote, by name. The first stages build the default map from the bundled
-OpenStreetMap extract, write ``map.geojson``, ``map.png`` and ``map.html`` and print the per-class
-summary; the last simulates the six San Francisco walks, tracks them (GNSS, RoNIN+PF, GNSS+RoNIN+PF)
-and writes the benchmark report under ``benchmark/report/``.
+OpenStreetMap extract, write ``map.geojson``, ``map.png``, ``map.html`` and the map editor ``edit.html``
+and print the per-class summary; then the six San Francisco walks are simulated and tracked (GNSS,
+RoNIN+PF, GNSS+RoNIN+PF) into the benchmark report under ``benchmark/report/`` (a short summary is
+printed), and the first walk is tracked once more with its particle clouds kept, for the replay viewer
+``view.html``.
+
+Each stage logs when it starts and ends; when stderr is not a terminal (no progress bars), a stage that
+runs long also logs that it is still running every :data:`HEARTBEAT_S` seconds.
 """
 
 from __future__ import annotations
 
 import argparse
+import json
 import logging
+import sys
+import threading
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from tqdm import tqdm
-
 from curbside.cli.common import make_parser, run_cli
-from curbside.evaluate.benchmark import demo_stage
 from curbside.osmseg.build import build_map
+from curbside.osmseg.edit import file_features, write_editor
 from curbside.osmseg.mapio import write_map
 from curbside.osmseg.plot import save_html, save_png
 from curbside.osmseg.summary import class_summary, format_summary
 
 log = logging.getLogger(__name__)
+
+#: Seconds between "still running" log lines of a long stage when stderr is not a terminal.
+HEARTBEAT_S = 20.0
 
 
 @dataclass
@@ -60,11 +70,14 @@ def build_default_map(ctx: DemoContext) -> dict[str, Path]:
 
 
 def render_map_files(ctx: DemoContext) -> dict[str, Path]:
-    """Render the map to ``map.png`` and ``map.html``."""
+    """Render the map to ``map.png`` and ``map.html``, and write the map editor ``edit.html``."""
     layers = ctx.results["map"]
+    map_geojson = ctx.out_dir / "map.geojson"
+    features = file_features(map_geojson) if map_geojson.is_file() else None
     return {
         "map_png": save_png(layers, ctx.out_dir / "map.png"),
         "map_html": save_html(layers, ctx.out_dir / "map.html"),
+        "map_editor": write_editor(layers, map_geojson.name, ctx.out_dir / "edit.html", features),
     }
 
 
@@ -77,15 +90,91 @@ def print_map_summary(ctx: DemoContext) -> dict[str, Path]:
     return {}
 
 
+def benchmark_stage(ctx: DemoContext) -> dict[str, Path]:
+    """The sf6 benchmark on the demo's map: simulate, track, score; print a short summary."""
+    from curbside.evaluate.benchmark import run_benchmark
+
+    map_path = ctx.out_dir / "map.geojson"
+    existing = map_path if map_path.is_file() else None
+    paths = run_benchmark(ctx.out_dir / "benchmark", seeds=2, fast=True, workers=2, map_path=existing)
+    ctx.results["benchmark"] = paths
+    print(benchmark_headline(paths["report"]))
+    return {"benchmark_report": paths["report"] / "report.html", "benchmark_sessions": paths["sessions"]}
+
+
+def benchmark_headline(report_dir: Path) -> str:
+    """A few lines from a report's ``metrics.json``: each method's CSA and error at the base parameters."""
+    from curbside.evaluate.runner import METHOD_LABELS
+
+    doc = json.loads((report_dir / "metrics.json").read_text(encoding="utf-8"))
+    base = doc["base"]
+    lines = [
+        f"sf6 benchmark, map {base['map']}, jaywalk weight {base['jaywalk_weight']}, "
+        f"{base['particles']} particles (pooled over all footsteps):"
+    ]
+    for row in doc["pooled"]:
+        at_base = row["map"] == base["map"] and (
+            row["method"] == "gnss"
+            or (row["jaywalk_weight"] == base["jaywalk_weight"] and row["particles"] == base["particles"])
+        )
+        if at_base:
+            label = METHOD_LABELS.get(row["method"], row["method"])
+            lines.append(
+                f"  {label:<14} CSA {row['csa']:.2f}   error median {row['euclid_median_m']:.1f} m, "
+                f"p90 {row['euclid_p90_m']:.1f} m"
+            )
+    lines.append(f"  full report: {report_dir / 'report.html'} (one replay page per session in view/)")
+    return "\n".join(lines)
+
+
+def replay_stage(ctx: DemoContext) -> dict[str, Path]:
+    """Track the first benchmark walk in each mode with its particle clouds, and write ``view.html``."""
+    from curbside.cli.localize import main as localize_main
+
+    sessions = sorted(p for p in Path(ctx.results["benchmark"]["sessions"]).iterdir() if p.is_dir())
+    runs = []
+    for mode in ("gnss", "inertial", "fused"):
+        out = ctx.out_dir / "runs" / mode
+        args = ["-v", "run", str(sessions[0]), "--map", str(ctx.out_dir / "map.geojson"), "--mode", mode,
+                "--save-particles", "-o", str(out)]
+        if localize_main(args) != 0:
+            raise RuntimeError(f"localize run failed on {sessions[0]} ({mode})")
+        runs.append(str(out))
+    if localize_main(["-v", "view", *runs, "-o", str(ctx.out_dir / "view.html")]) != 0:
+        raise RuntimeError("localize view failed")
+    return {"runs": ctx.out_dir / "runs", "replay_viewer": ctx.out_dir / "view.html"}
+
+
 #: The map stages: build, render and summarise the default area.
 MAP_STAGES: list[Stage] = [
     Stage("build the default map", build_default_map),
-    Stage("render the map", render_map_files),
+    Stage("render the map and write its editor", render_map_files),
     Stage("summarise the map", print_map_summary),
 ]
 
-#: The demo's stages, in order: the map, then the six-walk benchmark on it.
-STAGES: list[Stage] = [*MAP_STAGES, Stage("sf6 benchmark report", demo_stage)]
+#: The demo's stages, in order: the map, the six-walk benchmark on it, a replay of one walk.
+STAGES: list[Stage] = [
+    *MAP_STAGES, Stage("sf6 benchmark report", benchmark_stage), Stage("replay viewer", replay_stage)
+]
+
+
+@contextmanager
+def _heartbeat(name: str, every_s: float) -> Iterator[None]:
+    """Log that stage ``name`` is still running every ``every_s`` seconds until the block ends."""
+    done = threading.Event()
+    started = time.perf_counter()
+
+    def beat() -> None:
+        while not done.wait(every_s):
+            log.info("%s: still running (%.0f s)", name, time.perf_counter() - started)
+
+    thread = threading.Thread(target=beat, name="demo-heartbeat", daemon=True)
+    thread.start()
+    try:
+        yield
+    finally:
+        done.set()
+        thread.join()
 
 
 def run_demo(out_dir: str | Path, stages: Sequence[Stage] | None = None) -> dict[str, Path]:
@@ -101,18 +190,25 @@ def run_demo(out_dir: str | Path, stages: Sequence[Stage] | None = None) -> dict
     Returns
     -------
     dict[str, pathlib.Path]
-        Every file written, by name (``map_geojson``, ``map_png``, ``map_html``...).
+        Every file written, by name (``map_geojson``, ``map_png``, ``map_html``...), each path once.
     """
     ctx = DemoContext(Path(out_dir))
     ctx.out_dir.mkdir(parents=True, exist_ok=True)
+    stages = list(stages or STAGES)
     written: dict[str, Path] = {}
-    for stage in tqdm(list(stages or STAGES), desc="demo", unit="stage", disable=None):
+    quiet_terminal = not sys.stderr.isatty()
+    for i, stage in enumerate(stages, 1):
+        log.info("stage %d/%d: %s", i, len(stages), stage.name)
         started = time.perf_counter()
-        paths = stage.run(ctx)
-        written.update(paths)
-        log.info("%s: %.1f s", stage.name, time.perf_counter() - started)
+        if quiet_terminal:
+            with _heartbeat(stage.name, HEARTBEAT_S):
+                paths = stage.run(ctx)
+        else:
+            paths = stage.run(ctx)
         for name, path in paths.items():
-            log.info("  wrote %s: %s", name, path)
+            if path not in written.values():
+                written[name] = path
+        log.info("stage %d/%d: %s done in %.1f s", i, len(stages), stage.name, time.perf_counter() - started)
     return written
 
 
@@ -127,7 +223,7 @@ def _main(args: argparse.Namespace) -> int:
     written = run_demo(args.out, MAP_STAGES if args.map_only else STAGES)
     print("Wrote:")
     for name, path in written.items():
-        print(f"  {name:12s} {path}")
+        print(f"  {name:18s} {path}")
     return 0
 
 
@@ -135,7 +231,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of ``python -m curbside.demo``."""
     parser = make_parser(
         "curbside.demo",
-        "Build the default map, render and summarise it, then run the six-walk SF benchmark report.",
+        "Build the default map, render it, write its editor and summarise it, run the six-walk SF "
+        "benchmark report, and replay one walk in the viewer.",
     )
     parser.add_argument("--out", default="out", help="output folder (default: out)")
     parser.add_argument("--map-only", action="store_true", help="stop after the map stages (no benchmark)")

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import re
+import time
 
 import pytest
 
@@ -22,7 +23,7 @@ def small_build(monkeypatch, test_data):
 
 def test_demo_writes_geojson_png_html_and_prints_the_summary(tmp_path, small_build, capsys):
     written = demo.run_demo(tmp_path / "out", demo.MAP_STAGES)
-    assert set(written) == {"map_geojson", "map_png", "map_html"}
+    assert set(written) == {"map_geojson", "map_png", "map_html", "map_editor"}
     assert all(p.is_file() and p.parent == tmp_path / "out" for p in written.values())
     assert written["map_png"].read_bytes()[:4] == b"\x89PNG"
     assert "L.geoJson(" in written["map_html"].read_text(encoding="utf-8")
@@ -50,7 +51,8 @@ def test_later_stages_append_and_see_earlier_results(tmp_path, small_build):
 def test_demo_command_line(tmp_path, small_build, capsys):
     assert demo.main(["--out", str(tmp_path / "o"), "--map-only"]) == 0
     assert "map_html" in capsys.readouterr().out
-    assert sorted(p.name for p in (tmp_path / "o").iterdir()) == ["map.geojson", "map.html", "map.png"]
+    names = sorted(p.name for p in (tmp_path / "o").iterdir())
+    assert names == ["edit.html", "map.geojson", "map.html", "map.png"]
 
 
 @pytest.mark.slow
@@ -66,3 +68,43 @@ def test_demo_end_to_end_on_the_bundled_default_area(tmp_path, capsys):
     assert metrics, "the benchmark report has metrics"
     html = (tmp_path / "benchmark" / "report" / "report.html").read_text(encoding="utf-8")
     assert "Correct Sidewalk Assignment" in html or "CSA" in html
+    # a short summary, not the report; each file listed once; the replay of one walk with its clouds
+    assert "# curbside evaluation report" not in out and "Table 2" not in out
+    assert re.search(r"^  GNSS\+RoNIN\+PF +CSA \d\.\d\d +error median", out, re.M)
+    assert len(set(written.values())) == len(written)
+    page = written["replay_viewer"].read_text(encoding="utf-8")
+    assert page.count('"cloud":{') == 2  # inertial and fused keep their particle clouds
+
+
+def test_each_output_is_listed_once(tmp_path, small_build):
+    again = demo.Stage("again", lambda ctx: {"same_map": ctx.out_dir / "map.geojson"})
+    written = demo.run_demo(tmp_path, [*demo.MAP_STAGES, again])
+    assert "same_map" not in written and list(written.values()).count(tmp_path / "map.geojson") == 1
+
+
+def test_long_stages_log_progress_when_stderr_is_not_a_terminal(tmp_path, monkeypatch, caplog):
+    monkeypatch.setattr(demo, "HEARTBEAT_S", 0.05)
+    slow = demo.Stage("slow stage", lambda ctx: time.sleep(0.3) or {})
+    with caplog.at_level("INFO", logger="curbside.demo"):
+        demo.run_demo(tmp_path, [slow])  # pytest captures stderr: not a terminal
+    lines = [r.getMessage() for r in caplog.records]
+    assert lines[0] == "stage 1/1: slow stage"
+    assert sum("slow stage: still running" in line for line in lines) >= 3
+    assert re.fullmatch(r"stage 1/1: slow stage done in 0\.\d s", lines[-1])
+
+
+def test_the_headline_is_a_few_lines_from_the_reports_metrics(tmp_path):
+    pooled = [
+        {"map": "osm", "method": "gnss", "jaywalk_weight": 0.4, "particles": 500, "csa": 0.5,
+         "euclid_median_m": 9.0, "euclid_p90_m": 20.0},
+        {"map": "osm", "method": "fused", "jaywalk_weight": 0.4, "particles": 500, "csa": 0.81,
+         "euclid_median_m": 3.25, "euclid_p90_m": 7.0},
+        {"map": "osm", "method": "fused", "jaywalk_weight": 0.0, "particles": 500, "csa": 0.7,
+         "euclid_median_m": 4.0, "euclid_p90_m": 9.0},
+    ]
+    base = {"map": "osm", "jaywalk_weight": 0.4, "particles": 500, "gnss_sigma_factor": None}
+    (tmp_path / "metrics.json").write_text(json.dumps({"base": base, "pooled": pooled}))
+    lines = demo.benchmark_headline(tmp_path).splitlines()
+    assert len(lines) == 4
+    assert lines[1] == "  GNSS           CSA 0.50   error median 9.0 m, p90 20.0 m"
+    assert lines[2] == "  GNSS+RoNIN+PF  CSA 0.81   error median 3.2 m, p90 7.0 m"

@@ -21,6 +21,7 @@ import shapely
 from curbside import settings
 from curbside.cli.localize import main as localize_main
 from curbside.errors import CurbsideInputError
+from curbside.localize.particle_store import unpack_particles
 from curbside.localize.pipeline import track_session
 from curbside.localize.raster import BUILDING, rasterize_map
 from curbside.localize.runconfig import RunConfig
@@ -209,7 +210,9 @@ def test_cli_writes_track_files_and_same_seed_same_track(tmp_path, map_file, cap
     kinds = [f["geometry"]["type"] for f in doc["features"]]
     assert kinds[0] == "LineString" and kinds.count("Point") == len(track)
     with np.load(tmp_path / "a" / "particles.npz") as npz:
-        assert npz["x"].shape == (len(track), 500)
+        clouds = unpack_particles(npz)
+    assert clouds.x.shape == (len(track), 500)
+    assert np.abs(clouds.y.mean(axis=1) - track["y_m"]).max() < 0.06  # decimetre storage
     info = json.loads((tmp_path / "a" / "run.json").read_text())
     assert info["velocity_source"] == "file" and info["step_source"] == "file" and info["config"]["seed"] == 3
     assert info["config"]["filter"]["n_particles"] == 500

@@ -101,7 +101,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     parser = subparsers.add_parser(
         "convert",
         help="write a recording (Sensor Logger, IPIN .h5, GPX, session) as a SPEC session folder",
-        description=__doc__.split("\n\n")[0],
+        description="Write any supported recording (a Sensor Logger export, a trial of an IPIN 2023 "
+        ".h5, a GPX track, a session folder) as a SPEC session folder of plain CSV files; --all writes "
+        "every trial of an .h5, --steps adds detected footsteps and --pdr a PDR velocity.csv.",
     )
     parser.add_argument(
         "src", help="session folder, Sensor Logger .zip/folder[::RECORDING], FILE.h5[::TRIAL] or .gpx"

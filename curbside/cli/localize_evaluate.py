@@ -157,16 +157,27 @@ def _evaluate(args: argparse.Namespace) -> int:
 
 def register(subparsers: argparse._SubParsersAction) -> None:
     """Add ``simulate`` and ``evaluate`` to ``subparsers``."""
-    sim = subparsers.add_parser("simulate", help="simulate walks on real SF sidewalks (sessions)")
+    sim = subparsers.add_parser(
+        "simulate",
+        help="simulate walks on real SF sidewalks (sessions)",
+        description="Simulate a walk on the real sidewalks and crosswalks of downtown San Francisco (the "
+        "bundled OpenStreetMap extract) and write it as a session folder: waypoints.csv (the ground "
+        "truth), gnss.csv (an urban-canyon error model driven by OSM building heights), steps.csv, "
+        "velocity.csv (RoNIN-like) and, with --imu, imu.csv. One of the six benchmark routes shaped like "
+        "the paper's Table 1, a custom route, or the whole sf6 benchmark.",
+    )
     what = sim.add_mutually_exclusive_group(required=True)
     what.add_argument("--route", help="one benchmark route (path1 .. path6), or 'custom'")
     what.add_argument("--benchmark", choices=["sf6"], help="all six routes, --seeds recordings each")
-    sim.add_argument("--seed", type=int, default=1, help="seed of one session (default 1)")
+    sim.add_argument("--seed", type=int, default=1, help="seed of one session (default: %(default)s)")
     sim.add_argument("--start", nargs=2, type=float, metavar=("LON", "LAT"), help="custom route: start")
     sim.add_argument("--length-m", type=positive_float, help="custom route: length in metres")
-    sim.add_argument("--crossings", type=int, default=0, help="custom route: crosswalk crossings")
-    sim.add_argument("--jaywalks", type=int, default=0, help="custom route: crossings off crosswalks")
-    sim.add_argument("--seeds", type=positive_int, default=3, help="recordings per route for --benchmark")
+    sim.add_argument("--crossings", type=int, default=0,
+                     help="custom route: crosswalk crossings (default: %(default)s)")
+    sim.add_argument("--jaywalks", type=int, default=0,
+                     help="custom route: crossings off crosswalks (default: %(default)s)")
+    sim.add_argument("--seeds", type=positive_int, default=3,
+                     help="recordings per route for --benchmark (default: %(default)s)")
     sim.add_argument("--map", help="check the route against this map (extent, buildings)")
     sim.add_argument("--osm", help="OSM extract for heights and footways (default: the bundled one)")
     sim.add_argument("--imu", action="store_true", help="also write imu.csv (100 Hz phone IMU)")
@@ -175,26 +186,45 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     sim.add_argument("--overwrite", action="store_true", help=_OVERWRITE_HELP)
     sim.set_defaults(func=_simulate)
 
-    ev = subparsers.add_parser("evaluate", help="the paper's metrics, tables and figures over sessions")
-    ev.add_argument("sessions", nargs="+", help="session folders or folders of sessions")
+    ev = subparsers.add_parser(
+        "evaluate",
+        help="the paper's metrics, tables and figures over sessions",
+        description="Track every session with each method, map and parameter, score every footstep "
+        "against the ground truth (waypoints.csv) and write a report folder: metrics.json (SPEC metric "
+        "names), report.md and report.html (the paper's tables and figures), and view/SESSION.html, a "
+        "replay page per session. Each list option with several values is a sweep, one parameter at a "
+        "time around the first values. Compare an automatic and a hand-corrected map (osmseg edit) with "
+        "--maps auto.geojson hand.geojson.",
+    )
+    ev.add_argument("sessions", nargs="+", help="session folders or folders of them")
     ev.add_argument("--maps", nargs="+", required=True, help="map GeoJSONs (map sources to compare)")
     ev.add_argument("--map-names", nargs="+", help="labels of the maps (default: file stems)")
     ev.add_argument("--metrics-map", help="map whose sidewalk segments score every run (default: the first)")
-    ev.add_argument("--methods", nargs="+", default=list(METHODS), choices=METHODS)
-    ev.add_argument("--jaywalk-weights", nargs="+", type=unit_interval, default=[0.0, 0.4, 1.0])
-    ev.add_argument("--particles", nargs="+", type=positive_int, default=[500])
+    ev.add_argument("--methods", nargs="+", default=list(METHODS), choices=METHODS,
+                    help="methods to run: gnss (GNSS only), inertial (RoNIN+PF), fused (GNSS+RoNIN+PF) "
+                    "(default: all three)")
+    ev.add_argument("--jaywalk-weights", nargs="+", type=unit_interval, default=[0.0, 0.4, 1.0], metavar="W",
+                    help="particle weight on the street surface, in [0, 1]; the paper's sweep "
+                    "(default: 0 0.4 1)")
+    ev.add_argument("--particles", nargs="+", type=positive_int, default=[500],
+                    metavar="N", help="particle counts (default: 500)")
     ev.add_argument(
         "--gnss-sigma-factors",
         nargs="+",
         type=positive_float,
+        metavar="F",
         help="GNSS sigma = factor x accuracy (default: the filter's)",
     )
-    ev.add_argument("--velocity-source", default="auto", choices=["auto", "file", "ronin", "pdr"])
-    ev.add_argument("--seed", type=int, default=0, help="filter seed")
-    ev.add_argument("--workers", type=positive_int, help="dask LocalCluster worker processes (1: serial)")
-    ev.add_argument("--scheduler", help="address of an existing dask scheduler")
+    ev.add_argument("--velocity-source", default="auto", choices=["auto", "file", "ronin", "pdr"],
+                    help="auto: velocity.csv, else RoNIN on imu.csv, else PDR (default: %(default)s)")
+    ev.add_argument("--seed", type=int, default=0, help="filter seed (default: %(default)s)")
+    ev.add_argument("--workers", type=positive_int,
+                    help="dask LocalCluster worker processes; 1 runs serially (default: one per CPU, "
+                    "at most one per run)")
+    ev.add_argument("--scheduler", help="address of an existing dask scheduler (instead of --workers)")
     ev.add_argument("--ipin", help="IPIN 2023 HDF5: add the real-data table (no map)")
     ev.add_argument("--ipin-trials", type=positive_int, help="only the first K IPIN trials")
-    ev.add_argument("-o", "--output", required=True, help="report folder")
+    ev.add_argument("-o", "--output", required=True,
+                    help="report folder: new, empty or a previous curbside output")
     ev.add_argument("--overwrite", action="store_true", help=_OVERWRITE_HELP)
     ev.set_defaults(func=_evaluate)

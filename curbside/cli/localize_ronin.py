@@ -104,30 +104,53 @@ def _add_data_args(p: argparse.ArgumentParser) -> None:
 
 def register(subparsers: argparse._SubParsersAction) -> None:
     """Add ``ronin``, ``train-ronin`` and ``ronin-eval``."""
-    p = subparsers.add_parser("ronin", help="write velocity.csv from a session's imu.csv (RoNIN)")
+    p = subparsers.add_parser(
+        "ronin",
+        help="write velocity.csv from a session's imu.csv (RoNIN)",
+        description="Estimate the walker's horizontal velocity from the phone IMU with RoNIN (learned "
+        "inertial odometry, Herath et al. 2020) and write it as velocity.csv (t, ve, vn in m/s), which "
+        "`localize run` then uses instead of running RoNIN itself.",
+    )
     p.add_argument("session", metavar="SESSION", help="session folder holding imu.csv")
-    p.add_argument("-o", "--output", metavar="CSV", help="output file (default SESSION/velocity.csv)")
+    p.add_argument("-o", "--output", metavar="CSV", help="output file (default: SESSION/velocity.csv)")
     p.add_argument("--weights", metavar="PT", help="weights .pt with its .json (default: the bundled model)")
     p.set_defaults(func=_ronin)
 
-    p = subparsers.add_parser("train-ronin", help="train a RoNIN model from HDF5 datasets")
+    p = subparsers.add_parser(
+        "train-ronin",
+        help="train a RoNIN model from HDF5 datasets",
+        description="Train a RoNIN velocity network on IMU recordings with ground-truth motion (Indoor "
+        "Location Competition 2.0, IPIN 2023 Track 3, RoNIN-layout HDF5), keep the weights with the best "
+        "validation loss and calibrate their output scale on the validation recordings.",
+    )
     _add_data_args(p)
-    p.add_argument("--arch", choices=["compact", "resnet18"], default="compact")
-    p.add_argument("--epochs", type=int, default=12)
-    p.add_argument("--windows-per-epoch", type=int, default=120_000)
-    p.add_argument("--batch-size", type=int, default=256)
-    p.add_argument("--lr", type=float, default=1e-3)
-    p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--device", default="cpu", help="torch device (cpu, cuda)")
-    p.add_argument("--threads", type=int, default=2, help="CPU threads for torch")
+    p.add_argument("--arch", choices=["compact", "resnet18"], default="compact",
+                   help="network: compact (a small 1-D ResNet that trains on two CPU cores) or resnet18 "
+                   "(RoNIN's) (default: %(default)s)")
+    p.add_argument("--epochs", type=int, default=12, help="training epochs (default: %(default)s)")
+    p.add_argument("--windows-per-epoch", type=int, default=120_000,
+                   help="training windows drawn per epoch (default: %(default)s)")
+    p.add_argument("--batch-size", type=int, default=256, help="windows per batch (default: %(default)s)")
+    p.add_argument("--lr", type=float, default=1e-3,
+                   help="Adam learning rate, cosine decay to lr/100 (default: %(default)s)")
+    p.add_argument("--seed", type=int, default=0,
+                   help="seed of initialisation, window draws and augmentation (default: %(default)s)")
+    p.add_argument("--device", default="cpu", help="torch device: cpu, cuda (default: %(default)s)")
+    p.add_argument("--threads", type=int, default=2, help="CPU threads for torch (default: %(default)s)")
     p.add_argument("--checkpoint", metavar="PT", help="resumable checkpoint, written every epoch")
     p.add_argument("-o", "--output", metavar="PT", required=True, help="best weights (config .json beside)")
     p.set_defaults(func=_train)
 
-    p = subparsers.add_parser("ronin-eval", help="RoNIN and PDR figures on held-out recordings")
+    p = subparsers.add_parser(
+        "ronin-eval",
+        help="RoNIN and PDR figures on held-out recordings",
+        description="Score RoNIN weights (and the step-and-heading PDR baseline) on held-out recordings: "
+        "ATE, RTE and the error at ground-truth points, per recording and pooled.",
+    )
     _add_data_args(p)
     p.add_argument("--weights", metavar="PT", help="weights .pt (default: the bundled model)")
-    p.add_argument("--split", default="test", choices=["test", "val", "train"])
+    p.add_argument("--split", default="test", choices=["test", "val", "train"],
+                   help="recordings to score (default: %(default)s)")
     p.add_argument("--no-pdr", action="store_true", help="skip the PDR baseline")
     p.add_argument("-o", "--output", metavar="JSON", help="write the full report here")
     p.set_defaults(func=_evaluate)

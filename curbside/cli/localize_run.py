@@ -22,6 +22,7 @@ from pathlib import Path
 
 from curbside.cli.common import positive_int, unit_interval
 from curbside.errors import CurbsideInputError
+from curbside.evaluate.metrics import format_waypoint_summary, waypoint_errors, waypoint_summary
 from curbside.io import check_output_folder
 from curbside.localize.pipeline import resolve_config, track_session
 from curbside.localize.readers import read_any
@@ -79,6 +80,10 @@ def _run(args: argparse.Namespace) -> int:
     config = config.with_overrides(_overrides(args.set))
     result = track_session(session, layers, config=config, save_particles=args.save_particles)
     run_info = {"session": _absolute(session_path), "map": _absolute(map_path) if map_path else None}
+    summary = None
+    if session.waypoints is not None and len(session.waypoints) >= 2:
+        summary = waypoint_summary(waypoint_errors(result.track, session.waypoints))
+        run_info["waypoint_error"] = summary
     write_track(result, args.output, run_info, overwrite=args.overwrite)
     track = result.track
     span = track["t"].iat[-1] - track["t"].iat[0] if len(track) else 0.0
@@ -87,6 +92,8 @@ def _run(args: argparse.Namespace) -> int:
         f"velocity {result.velocity_source or '-'}, steps {result.step_source}, "
         f"{result.recoveries} recoveries"
     )
+    if summary is not None:
+        print(f"{args.output}: {format_waypoint_summary(summary)}")
     return 0
 
 

@@ -1,14 +1,14 @@
 """``osmseg``: derive, show and compare map layers.
 
-Sub-commands live one per module (``osmseg_build``, ``osmseg_show``, ``osmseg_compare``); each
-exposes ``register(subparsers)``.
+Sub-commands live one per module (``osmseg_build``, ``osmseg_show``, ``osmseg_edit``,
+``osmseg_compare``); each exposes ``register(subparsers)``.
 """
 
 from __future__ import annotations
 
 from collections.abc import Sequence
 
-from curbside.cli import osmseg_build, osmseg_compare, osmseg_show
+from curbside.cli import osmseg_build, osmseg_compare, osmseg_edit, osmseg_show
 from curbside.cli.common import make_parser, run_cli
 
 
@@ -20,7 +20,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         "Map data © OpenStreetMap contributors (ODbL).",
     )
     sub = parser.add_subparsers(title="commands", metavar="COMMAND")
-    for module in (osmseg_build, osmseg_show, osmseg_compare):
+    for module in (osmseg_build, osmseg_show, osmseg_edit, osmseg_compare):
         module.register(sub)
     return run_cli("osmseg", parser, argv)
 

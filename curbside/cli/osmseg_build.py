@@ -32,7 +32,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         help="area in WGS84 degrees (default: the bundled extract's default area, or the whole --osm file)",
     )
     p.add_argument("--osm", type=Path, metavar="FILE", help=".osm, .osm.bz2, .osm.gz or .osm.pbf file")
-    p.add_argument("-o", "--output", type=Path, default=Path("map.geojson"), help="output GeoJSON")
+    p.add_argument("-o", "--output", type=Path, default=Path("map.geojson"),
+                   help="output GeoJSON (default: %(default)s)")
     p.add_argument(
         "--unmarked-as",
         choices=UNMARKED_CHOICES,

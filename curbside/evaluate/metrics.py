@@ -249,3 +249,91 @@ def rte_m(t: np.ndarray, est_xy: np.ndarray, gt_xy: np.ndarray, window_s: float 
     sq = np.sum(d**2, axis=1)
     sq = sq[np.isfinite(sq)]
     return float(np.sqrt(sq.mean())) if len(sq) else float("nan")
+
+
+#: Names of :func:`waypoint_summary`'s figures, in print order.
+WAYPOINT_METRIC_NAMES: tuple[str, ...] = (
+    "waypoint_median_m", "waypoint_p90_m", "waypoint_max_m", "n_waypoints"
+)
+
+
+def waypoint_errors(track: pd.DataFrame, waypoints: pd.DataFrame, exclude_first: bool = True) -> pd.DataFrame:
+    """Error of a track at surveyed waypoints: the one place curbside scores a track against them.
+
+    The estimate is interpolated linearly in time at each waypoint's ``t`` and compared with the
+    surveyed point, in a local metric frame around the first waypoint. Only waypoints inside the
+    track's time span are scored (a GNSS track spans only the fixes), and, with ``exclude_first``, not
+    the first waypoint: a filter started from the known start pose is exact there.
+
+    Parameters
+    ----------
+    track
+        ``t, lat, lon`` per footstep (``track.csv``); rows without an estimate (NaN) are skipped.
+    waypoints
+        ``t, lat, lon`` (``waypoints.csv``).
+    exclude_first
+        Leave the first waypoint out.
+
+    Returns
+    -------
+    pandas.DataFrame
+        One row per scored waypoint: ``t, lat, lon`` (surveyed), ``est_lat, est_lon`` and ``error_m``.
+
+    Raises
+    ------
+    CurbsideInputError
+        Fewer than two waypoints, or a track with fewer than two estimates.
+    """
+    from curbside.projection import LocalFrame
+
+    if waypoints is None or len(waypoints) < 2:
+        raise CurbsideInputError("waypoints.csv", "scoring at waypoints needs at least two of them")
+    est = track[["t", "lat", "lon"]].dropna()
+    if len(est) < 2:
+        raise CurbsideInputError("track", "scoring at waypoints needs at least two estimates")
+    t = est["t"].to_numpy(float)
+    wt = waypoints["t"].to_numpy(float)
+    keep = (wt >= t[0]) & (wt <= t[-1])
+    if exclude_first:
+        keep[0] = False
+    scored = waypoints.loc[keep, ["t", "lat", "lon"]].reset_index(drop=True)
+    frame = LocalFrame.around(float(waypoints["lon"].iat[0]), float(waypoints["lat"].iat[0]))
+    ex, ey = frame.to_xy(est["lon"].to_numpy(float), est["lat"].to_numpy(float))
+    wx, wy = frame.to_xy(scored["lon"].to_numpy(float), scored["lat"].to_numpy(float))
+    at = scored["t"].to_numpy(float)
+    ix, iy = np.interp(at, t, ex), np.interp(at, t, ey)
+    est_lon, est_lat = frame.to_lonlat(ix, iy)
+    scored["est_lat"] = np.atleast_1d(est_lat)
+    scored["est_lon"] = np.atleast_1d(est_lon)
+    scored["error_m"] = np.hypot(ix - wx, iy - wy)
+    return scored
+
+
+def waypoint_summary(errors: pd.DataFrame) -> dict[str, float]:
+    """Median, 90th percentile and largest error of :func:`waypoint_errors`, and how many waypoints.
+
+    Returns
+    -------
+    dict
+        :data:`WAYPOINT_METRIC_NAMES`; NaN figures when no waypoint was scored.
+    """
+    e = errors["error_m"].to_numpy(float)
+    if len(e) == 0:
+        return {name: (0 if name == "n_waypoints" else float("nan")) for name in WAYPOINT_METRIC_NAMES}
+    return {
+        "waypoint_median_m": float(np.median(e)),
+        "waypoint_p90_m": float(np.percentile(e, 90)),
+        "waypoint_max_m": float(e.max()),
+        "n_waypoints": len(e),
+    }
+
+
+def format_waypoint_summary(summary: dict[str, float]) -> str:
+    """One line for a command's output, e.g. ``error at 12 waypoints: median 3.1 m, p90 7.9 m, max 9.4 m``."""
+    n = int(summary["n_waypoints"])
+    if n == 0:
+        return "error at waypoints: no waypoint inside the track's time span"
+    return (
+        f"error at {n} waypoint{'s' if n != 1 else ''}: median {summary['waypoint_median_m']:.1f} m, "
+        f"p90 {summary['waypoint_p90_m']:.1f} m, max {summary['waypoint_max_m']:.1f} m"
+    )

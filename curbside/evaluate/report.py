@@ -415,7 +415,8 @@ def write_report(
     extra_json: dict[str, Any] | None = None,
     intro: str = "",
 ) -> dict[str, Path]:
-    """Write ``metrics.json``, ``report.md``, ``report.html`` and ``figures/`` (atomically, as one folder).
+    """Write ``metrics.json``, ``report.md``, ``report.html``, ``figures/`` and ``view/`` (a replay page per
+    session, linked from the report) atomically, as one folder.
 
     Parameters
     ----------
@@ -509,9 +510,22 @@ def write_report(
             )
         )
         (tmp / "metrics.json").write_text(json.dumps(_json_ready(doc), indent=1), encoding="utf-8")
+        # -- the replay viewer: one page per session (curbside.localize.view) --------------------------
+        from curbside.localize.view import write_session_views
+
+        views = {name: f"view/{name}.html" for name in write_session_views(results, base, tmp / "view")}
+        views_md = "## Replay each session\n\n" + "".join(
+            f"- [{name}]({href})\n" for name, href in sorted(views.items())
+        )
+        views_html = "<h2>Replay each session</h2><ul>" + "".join(
+            f"<li><a href='{html.escape(href)}'>{html.escape(name)}</a></li>"
+            for name, href in sorted(views.items())
+        ) + "</ul>"
+        # -- end of the replay viewer's links ------------------------------------------------------------
         md = ["# curbside evaluation report", "", intro, ""]
         md += [t.markdown() for t in tables]
         md += [f"![{alt}](figures/{name})\n" for name, alt, _ in figures]
+        md += [views_md]
         (tmp / "report.md").write_text("\n".join(md), encoding="utf-8")
         imgs = "".join(
             f"<figure><img alt='{alt}' "
@@ -526,7 +540,7 @@ def write_report(
         page = (
             f"<!doctype html><html><head><meta charset='utf-8'><title>curbside report</title>"
             f"<style>{style}</style></head><body><h1>curbside evaluation report</h1>"
-            f"<p>{html.escape(intro)}</p>{''.join(t.html() for t in tables)}{imgs}"
+            f"<p>{html.escape(intro)}</p>{''.join(t.html() for t in tables)}{imgs}{views_html}"
             f"<p class='note'>{html.escape(settings.osm_attribution)}</p></body></html>"
         )
         (tmp / "report.html").write_text(page, encoding="utf-8")

@@ -190,8 +190,9 @@ def valid_fixes(gnss: pd.DataFrame | None, frame: LocalFrame) -> tuple[np.ndarra
     return gnss["t"].to_numpy(float)[ok], np.atleast_1d(x), np.atleast_1d(y), acc[ok]
 
 
-def _velocity(session: Session, source: str, steps: np.ndarray | None) -> tuple[pd.DataFrame, str]:
+def _velocity(session: Session, config: RunConfig, steps: np.ndarray | None) -> tuple[pd.DataFrame, str]:
     """The session's world-frame velocity and its source name (see the module docstring)."""
+    source = config.engine.velocity_source
     if source in ("auto", "file") and session.velocity is not None:
         return session.velocity, "file"
     if source == "file":
@@ -211,11 +212,12 @@ def _velocity(session: Session, source: str, steps: np.ndarray | None) -> tuple[
             logger.warning("RoNIN unavailable (%s): falling back to PDR", exc)
     from curbside.localize.pdr import pdr_velocity
 
-    return pdr_velocity(session.imu, steps), "pdr"
+    return pdr_velocity(session.imu, steps, config.engine.pdr, config.engine.steps), "pdr"
 
 
-def _steps(session: Session, source: str) -> tuple[np.ndarray | None, str]:
+def _steps(session: Session, config: RunConfig) -> tuple[np.ndarray | None, str]:
     """Footstep times (``None`` for a fixed cadence) and their source."""
+    source = config.engine.step_source
     if source in ("auto", "file") and session.steps is not None:
         return session.steps["t"].to_numpy(float), "file"
     if source == "file":
@@ -223,7 +225,7 @@ def _steps(session: Session, source: str) -> tuple[np.ndarray | None, str]:
     if source in ("auto", "detect") and session.imu is not None:
         from curbside.localize.steps import detect_steps
 
-        return np.asarray(detect_steps(session.imu), float), "detected"
+        return np.asarray(detect_steps(session.imu, config.engine.steps), float), "detected"
     if source == "detect":
         raise CurbsideInputError(f"{session.name}/imu.csv", "no imu.csv to detect footsteps in")
     return None, "cadence"
@@ -302,10 +304,10 @@ def track_session(
             start if config.use_start_pose else None,
             config.engine.extent_tolerance_m,
         )
-    steps, step_source = _steps(session, config.engine.step_source)
+    steps, step_source = _steps(session, config)
     velocity, velocity_source = None, None
     if config.mode != "gnss":
-        velocity, velocity_source = _velocity(session, config.engine.velocity_source, steps)
+        velocity, velocity_source = _velocity(session, config, steps)
         if len(velocity) < 2:
             raise CurbsideInputError(
                 session.name, f"the {velocity_source} velocity has fewer than two samples"

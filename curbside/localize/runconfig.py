@@ -13,6 +13,8 @@ from typing import Any
 
 from curbside.configio import from_dict, to_dict, with_overrides
 from curbside.localize.filter.config import FilterConfig
+from curbside.localize.pdr import PdrConfig
+from curbside.localize.steps import StepConfig
 
 #: The methods: GNSS alone; the filter without GNSS (RoNIN+PF); the paper's plain fused filter; curbside's.
 MODES = ("gnss", "inertial", "paper", "fused")
@@ -55,6 +57,11 @@ class EngineConfig:
         motion onto it.
     extent_tolerance_m
         A session is outside the map when no fix lies within this distance of its extent.
+    steps
+        The footstep detector (:class:`~curbside.localize.steps.StepConfig`).
+    pdr
+        Pedestrian dead reckoning, the velocity when RoNIN is not available
+        (:class:`~curbside.localize.pdr.PdrConfig`).
     """
 
     velocity_source: str = "auto"
@@ -67,6 +74,8 @@ class EngineConfig:
     velocity_max_gap_s: float = 1.0
     heading_align_distance_m: float = 3.0
     extent_tolerance_m: float = 100.0
+    steps: StepConfig = field(default_factory=StepConfig)
+    pdr: PdrConfig = field(default_factory=PdrConfig)
 
     def __post_init__(self) -> None:
         _check(

@@ -15,6 +15,7 @@ import pandas as pd
 
 from curbside import __version__
 from curbside.io import output_folder
+from curbside.localize.particle_store import pack_snapshots, write_particles
 from curbside.localize.pipeline import TrackResult
 
 #: Decimal places of lon/lat in ``track.geojson`` (1e-7 degree is about 1 cm).
@@ -117,6 +118,7 @@ def write_track(
         (tmp / "track.geojson").write_text(json.dumps(doc, separators=(",", ":")), encoding="utf-8")
         (tmp / "run.json").write_text(json.dumps(info, indent=2, default=_json_value), encoding="utf-8")
         if result.snapshots is not None:
-            with open(tmp / "particles.npz", "wb") as fh:
-                np.savez_compressed(fh, **result.snapshots)
+            track = result.track
+            packed = pack_snapshots(result.snapshots, track["x_m"].to_numpy(), track["y_m"].to_numpy())
+            write_particles(packed, tmp / "particles.npz")
     return out_dir

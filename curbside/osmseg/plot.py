@@ -8,7 +8,6 @@ maps with only some of the classes. Drawing happens in the map's local metric CR
 from __future__ import annotations
 
 import html
-import json
 import logging
 import math
 from pathlib import Path
@@ -19,40 +18,17 @@ from matplotlib.axes import Axes
 from matplotlib.figure import Figure
 from matplotlib.patches import Patch, Rectangle
 
-from curbside import settings
 from curbside.errors import CurbsideInputError
 from curbside.io import atomic_path
-from curbside.osmseg.mapio import MapLayers, to_geojson
+from curbside.osmseg.mapio import MapLayers
+from curbside.osmseg.style import BACKGROUND, CLASS_STYLE
+from curbside.osmseg.webmap import attribution, bounds_js, class_features, class_overlay_js, leaflet_page
 from curbside.projection import WGS84
 
 log = logging.getLogger(__name__)
 
-#: Drawing style of each class: fill, outline, hatch and legend label. Drawn bottom to top in this order.
-CLASS_STYLE: dict[str, dict[str, object]] = {
-    "street": {"facecolor": "#8e9aab", "edgecolor": "none", "linewidth": 0.0, "label": "street (jaywalking)"},
-    "crosswalk": {
-        "facecolor": "#f4cf3a",
-        "edgecolor": "#b8961b",
-        "hatchcolor": "white",
-        "hatch": "////",
-        "linewidth": 0.3,
-        "label": "crosswalk",
-    },
-    "sidewalk": {
-        "facecolor": "#bfe5a6", "edgecolor": "#5f9a4a", "linewidth": 0.3, "label": "sidewalk segment"
-    },
-    "building": {"facecolor": "#6f4646", "edgecolor": "#3f2626", "linewidth": 0.2, "label": "building"},
-}
-#: Colour of the space no polygon covers (freely walkable).
-BACKGROUND = "#f3efe6"
 #: Output formats by file extension.
 FORMATS: dict[str, str] = {".png": "png", ".html": "html", ".htm": "html"}
-#: The vendored Leaflet (script, stylesheet, licence) that HTML pages inline.
-WEB_ASSETS = Path(__file__).resolve().parents[1] / "data" / "web"
-
-
-def _attribution(layers: MapLayers) -> str:
-    return str(layers.meta.get("attribution") or settings.osm_attribution)
 
 
 def _title(layers: MapLayers) -> str:
@@ -162,7 +138,7 @@ def plot_map(layers: MapLayers, ax: Axes, title: str | None = None) -> Axes:
     _scale_bar(ax, extent)
     ax.legend(handles=handles, loc="upper right", fontsize=8, framealpha=0.9)
     ax.text(
-        0.995, 0.005, _attribution(layers), transform=ax.transAxes, ha="right", va="bottom", fontsize=7,
+        0.995, 0.005, attribution(layers), transform=ax.transAxes, ha="right", va="bottom", fontsize=7,
         bbox={"facecolor": "white", "edgecolor": "none", "alpha": 0.8, "pad": 1.5}, zorder=11,
     )
     ax.set_title(title or _title(layers), fontsize=11)
@@ -200,82 +176,6 @@ def save_png(layers: MapLayers, path: str | Path, width_in: float = 12.0, dpi: i
     return path
 
 
-def _script_json(value: object) -> str:
-    """``value`` as JSON that can sit inside a ``<script>`` element (no ``</script>`` can close it)."""
-    return json.dumps(value, separators=(",", ":"), ensure_ascii=False).replace("<", "\\u003c")
-
-
-def _class_layer_js(cls: str, features: list[dict]) -> str:
-    """One ``L.geoJson`` overlay statement: the class's polygons, style and layer-control label."""
-    style = CLASS_STYLE[cls]
-    stroke = style["edgecolor"] if style["edgecolor"] != "none" else style["facecolor"]
-    path_style = {
-        "fillColor": style["facecolor"], "color": stroke, "weight": 0 if cls == "street" else 1,
-        "opacity": 1, "fillOpacity": 0.9,
-    }
-    label = (
-        f'<span class="swatch" style="background:{style["facecolor"]};border-color:{stroke}"></span> '
-        f"{html.escape(str(style['label']))} ({len(features):,})"
-    )
-    collection = {"type": "FeatureCollection", "features": features}
-    interactive = ", onEachFeature: describeSegment" if cls == "sidewalk" else ", interactive: false"
-    return (
-        f"layers.addOverlay(L.geoJson({_script_json(collection)}, "
-        f"{{style: () => ({_script_json(path_style)}){interactive}}}).addTo(map), {_script_json(label)});"
-    )
-
-
-_SOURCE_MAP = "//# sourceMappingURL=leaflet.js.map"
-_PAGE = """<!DOCTYPE html>
-<html lang="en">
-<head>
-<meta charset="utf-8">
-<meta name="viewport" content="width=device-width, initial-scale=1.0">
-<title>{title}</title>
-<style>
-{leaflet_css}
-</style>
-<style>
-html, body, #map {{ height: 100%; width: 100%; margin: 0; padding: 0; }}
-.leaflet-container {{ background: {background}; }}
-.leaflet-tooltip td:first-child {{ color: #666; padding-right: 0.6em; }}
-.swatch {{ display: inline-block; width: 0.9em; height: 0.9em; border: 1px solid; vertical-align: -0.1em; }}
-</style>
-<script>
-{leaflet_js}
-</script>
-</head>
-<body>
-<div id="map"></div>
-<script>
-"use strict";
-const map = L.map("map", {{preferCanvas: true, maxZoom: 22, zoomSnap: 0.25}});
-map.attributionControl.addAttribution({attribution});
-L.control.scale().addTo(map);
-const layers = L.control.layers(null, null, {{collapsed: false}}).addTo(map);
-const SEGMENT_FIELDS = [["segment", "segment_id"], ["street", "street"], ["side", "side"]];
-function segmentTable(layer) {{
-  const table = document.createElement("table");
-  for (const [label, key] of SEGMENT_FIELDS) {{
-    const row = table.insertRow();
-    row.insertCell().textContent = label;
-    row.insertCell().textContent = layer.feature.properties[key] ?? "\u2014";
-  }}
-  return table;
-}}
-function describeSegment(feature, layer) {{
-  layer.bindTooltip(segmentTable, {{sticky: true}});
-  layer.on("mouseover", () => layer.setStyle({{weight: 3}}));
-  layer.on("mouseout", () => layer.setStyle({{weight: 1}}));
-}}
-{class_layers}
-map.fitBounds({bounds});
-</script>
-</body>
-</html>
-"""
-
-
 def html_page(layers: MapLayers) -> str:
     """A self-contained interactive map page: plain Leaflet, inlined, with no tile server.
 
@@ -296,24 +196,11 @@ def html_page(layers: MapLayers) -> str:
     str
         The HTML document.
     """
-    doc = to_geojson(layers, precision=settings.html_coordinate_decimals)
-    by_class: dict[str, list[dict]] = {cls: [] for cls in CLASS_STYLE}
-    for feature in doc["features"]:
-        props = feature["properties"]
-        if props["class"] != "sidewalk":
-            feature = {**feature, "properties": {}}  # the layer says the class; only sidewalks need fields
-        by_class[props["class"]].append(feature)
+    by_class = class_features(layers)
     west, south, east, north = layers.gdf.to_crs(WGS84).total_bounds
-    return _PAGE.format(
-        title=html.escape(_title(layers)),
-        leaflet_css=(WEB_ASSETS / "leaflet.css").read_text(encoding="utf-8"),
-        # the source map is not vendored; without the comment no devtools asks for it
-        leaflet_js=(WEB_ASSETS / "leaflet.js").read_text(encoding="utf-8").replace(_SOURCE_MAP, ""),
-        background=BACKGROUND,
-        attribution=_script_json(html.escape(_attribution(layers))),
-        class_layers="\n".join(_class_layer_js(cls, f) for cls, f in by_class.items() if f),
-        bounds=_script_json([[south, west], [north, east]]),
-    )
+    script = "\n".join(class_overlay_js(cls, f) for cls, f in by_class.items() if f)
+    script += f"\nmap.fitBounds({bounds_js(west, south, east, north)});"
+    return leaflet_page(_title(layers), script, attribution_html=html.escape(attribution(layers)))
 
 
 def save_html(layers: MapLayers, path: str | Path) -> Path:

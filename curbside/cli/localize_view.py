@@ -1,0 +1,68 @@
+"""``localize view``: the replay viewer, one offline HTML page over one or more run folders.
+
+::
+
+    localize view RUN [RUN ...] -o view.html [--session SESSION] [--map MAP] [--labels NAME ...]
+                  [--cloud-every K]
+
+``RUN`` is a folder written by ``localize run -o RUN`` (``--save-particles`` adds the particle cloud).
+The session (GNSS fixes, ground truth) and the map are the ones ``RUN/run.json`` names, unless
+``--session`` / ``--map`` say otherwise.
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+from pathlib import Path
+
+from curbside.cli.common import positive_int
+from curbside.errors import CurbsideInputError
+from curbside.localize.view import label_runs, load_run, maps_of, write_view
+from curbside.osmseg.mapio import read_map
+
+log = logging.getLogger(__name__)
+
+
+def _view(args: argparse.Namespace) -> int:
+    if Path(args.output).suffix.lower() not in (".html", ".htm"):
+        raise CurbsideInputError(args.output, "the viewer is an HTML page: name it .html")
+    runs = [load_run(folder, args.session, args.map) for folder in args.runs]
+    label_runs(runs, args.labels)
+    maps = {Path(args.map).stem: read_map(args.map)} if args.map else maps_of(runs)
+    path = write_view(runs, args.output, maps, cloud_every=args.cloud_every)
+    clouds = sum(r.particles is not None for r in runs)
+    print(
+        f"{path}: {len(runs)} run(s), {clouds} with particle clouds, "
+        f"{path.stat().st_size / 1e6:.1f} MB; open it in a browser (works offline)"
+    )
+    return 0
+
+
+def register(subparsers: argparse._SubParsersAction) -> None:
+    """Add ``view`` to the ``localize`` sub-commands."""
+    parser = subparsers.add_parser(
+        "view",
+        help="replay one or more runs in an offline HTML page (time slider, particle clouds)",
+        description=(
+            "Write one self-contained HTML page (no network needed) replaying runs of `localize run`: "
+            "each run's estimate track and particle cloud at each footstep (with --save-particles), "
+            "the session's GNSS fixes with their accuracy circles and the ground truth when it has "
+            "waypoints, over the map layers. A time slider with play/pause steps through the walk; a "
+            "panel shows the sidewalk segment and its probability, the error against the ground truth, "
+            "n_eff and the recoveries."
+        ),
+    )
+    parser.add_argument("runs", nargs="+", metavar="RUN", help="run folder(s) written by `localize run -o`")
+    parser.add_argument("-o", "--output", required=True, help="output page (.html)")
+    parser.add_argument("--session", help="session to show (default: the one each run.json names)")
+    parser.add_argument("--map", help="map GeoJSON to draw (default: the map(s) the runs were tracked on)")
+    parser.add_argument(
+        "--labels", nargs="+", metavar="NAME",
+        help="legend names, one per run (default: the mode, then the map's name where the maps differ)",
+    )
+    parser.add_argument(
+        "--cloud-every", type=positive_int, default=1, metavar="K",
+        help="keep the particle cloud of every K-th footstep only, for long walks (default: %(default)s)",
+    )
+    parser.set_defaults(func=_view)

@@ -1,0 +1,50 @@
+"""``osmseg edit``: write the map editor, an offline HTML page that corrects a map and saves it."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+from curbside.cli.osmseg_show import add_bbox_option
+from curbside.errors import CurbsideInputError
+from curbside.osmseg.build import check_bbox
+from curbside.osmseg.edit import file_features, write_editor
+from curbside.osmseg.mapio import read_map
+from curbside.osmseg.plot import clip_to_bbox
+
+
+def _edit(args: argparse.Namespace) -> int:
+    if Path(args.output).suffix.lower() not in (".html", ".htm"):
+        raise CurbsideInputError(args.output, "the editor is an HTML page: name it .html")
+    layers = read_map(args.map)
+    features = None
+    if args.bbox is not None:
+        layers = clip_to_bbox(layers, check_bbox(args.bbox))
+    else:
+        features = file_features(args.map)
+    path = write_editor(layers, Path(args.map).name, args.output, features)
+    print(
+        f"{path}: editor for {len(features or layers.gdf):,} polygons of {args.map} "
+        f"({path.stat().st_size / 1e6:.1f} MB); open it in a browser, edit, then 'save edited map'"
+    )
+    return 0
+
+
+def register(subparsers: argparse._SubParsersAction) -> None:
+    """Add ``osmseg edit`` to ``subparsers``."""
+    parser = subparsers.add_parser(
+        "edit",
+        help="write an offline HTML map editor (move vertices, draw, delete, change class, save GeoJSON)",
+        description=(
+            "Write a self-contained HTML page (no network needed) to correct a map by hand: click a "
+            "polygon, drag its vertices, change its class or sidewalk fields, delete it, or draw new "
+            "polygons. 'Save edited map' downloads a GeoJSON of the curbside schema that records which "
+            "features were edited; use it like any map, e.g. `osmseg compare MAP EDITED` or "
+            "`localize evaluate SESSIONS --maps MAP EDITED`."
+        ),
+    )
+    parser.add_argument("map", help="map GeoJSON (osmseg build output or hand-labelled)")
+    parser.add_argument("-o", "--output", required=True, help="output page (.html)")
+    add_bbox_option(parser, "edit only this WGS84 window (polygons clipped at its edges; the saved map "
+                    "covers the window only)")
+    parser.set_defaults(func=_edit)

@@ -1,0 +1,304 @@
+// curbside replay viewer. Runs after the page skeleton of curbside/osmseg/webmap.py has created `map`
+// (canvas renderer) and `layers` (the layer control), with `VIEW` = {runs, sessions, title} inlined by
+// curbside/localize/view.py. Times are seconds on the session clock.
+
+const OFFSET_UNIT_DEG = 1e-6;
+const GNSS_COLOUR = "#1f77b4";
+const ui = {
+  title: document.getElementById("view-title"),
+  clock: document.getElementById("clock"),
+  rows: document.querySelector("#run-table tbody"),
+  gnssNow: document.getElementById("gnss-now"),
+  summaries: document.getElementById("summaries"),
+  play: document.getElementById("play"),
+  slider: document.getElementById("slider"),
+  speed: document.getElementById("speed"),
+  timeLabel: document.getElementById("time-label"),
+};
+
+function bytesOf(b64) {
+  const text = atob(b64);
+  const bytes = new Uint8Array(text.length);
+  for (let i = 0; i < text.length; i++) bytes[i] = text.charCodeAt(i);
+  return bytes;
+}
+
+// Little-endian int16 (every browser platform is little-endian; the page writes "<i2").
+const int16sOf = (b64) => new Int16Array(bytesOf(b64).buffer);
+
+// Index of the last element of the sorted array `ts` that is <= t; -1 before the first.
+function lastAtOrBefore(ts, t) {
+  let lo = 0, hi = ts.length - 1, found = -1;
+  while (lo <= hi) {
+    const mid = (lo + hi) >> 1;
+    if (ts[mid] <= t) { found = mid; lo = mid + 1; } else { hi = mid - 1; }
+  }
+  return found;
+}
+
+function interpolate(ts, values, t) {
+  if (t <= ts[0]) return values[0];
+  if (t >= ts[ts.length - 1]) return values[values.length - 1];
+  const k = lastAtOrBefore(ts, t);
+  const f = (t - ts[k]) / (ts[k + 1] - ts[k]);
+  return values[k] + f * (values[k + 1] - values[k]);
+}
+
+function swatch(colour, text) {
+  const span = document.createElement("span");
+  span.className = "swatch";
+  span.style.background = colour;
+  span.style.borderColor = colour;
+  const label = document.createElement("span");
+  label.append(span, " ", text);
+  return label.outerHTML;
+}
+
+// A canvas over the map, redrawn for the current time by `draw(ctx, map)`.
+const TimeCanvas = L.Layer.extend({
+  initialize(draw, options) {
+    this._draw = draw;
+    L.setOptions(this, options);
+  },
+  onAdd(target) {
+    this._canvas = L.DomUtil.create("canvas", "curbside-time-canvas leaflet-zoom-hide");
+    this.getPane().appendChild(this._canvas);
+    target.on("moveend zoomend resize", this._reset, this);
+    this._reset();
+  },
+  onRemove(target) {
+    target.off("moveend zoomend resize", this._reset, this);
+    L.DomUtil.remove(this._canvas);
+    this._canvas = null;
+  },
+  redraw() {
+    if (!this._canvas) return;
+    const ctx = this._canvas.getContext("2d");
+    const ratio = window.devicePixelRatio || 1;
+    ctx.setTransform(ratio, 0, 0, ratio, 0, 0);
+    ctx.clearRect(0, 0, this._canvas.width, this._canvas.height);
+    this._draw(ctx, this._map);
+  },
+  _reset() {
+    const size = this._map.getSize();
+    const ratio = window.devicePixelRatio || 1;
+    this._canvas.width = size.x * ratio;
+    this._canvas.height = size.y * ratio;
+    this._canvas.style.width = `${size.x}px`;
+    this._canvas.style.height = `${size.y}px`;
+    L.DomUtil.setPosition(this._canvas, this._map.containerPointToLayerPoint([0, 0]));
+    this.redraw();
+  },
+});
+
+const state = { index: 0, time: 0, playing: false, clouds: [] };
+// Panes: the clouds above the map and tracks, the current positions above the clouds.
+map.createPane("clouds").style.zIndex = 450;
+map.createPane("now").style.zIndex = 460;
+const now = { pane: "now", renderer: L.canvas({ pane: "now" }), interactive: false };
+
+// -- the static and moving layers ------------------------------------------------------------------
+const sessionViews = VIEW.sessions.map((s) => {
+  const prefix = VIEW.sessions.length > 1 ? `${s.name}: ` : "";
+  const view = { data: s };
+  if (s.truth) {
+    const line = L.polyline(s.truth.lat.map((lat, i) => [lat, s.truth.lon[i]]),
+      { color: "#000", weight: 2, dashArray: "6 4", interactive: false });
+    const dots = s.truth.lat.map((lat, i) => L.circleMarker([lat, s.truth.lon[i]],
+      { radius: 2.5, color: "#000", weight: 1, fillColor: "#fff", fillOpacity: 1, interactive: false }));
+    view.truthMarker = L.circleMarker([s.truth.lat[0], s.truth.lon[0]],
+      { ...now, radius: 6, color: "#fff", weight: 2, fillColor: "#000", fillOpacity: 1 });
+    layers.addOverlay(L.layerGroup([line, ...dots, view.truthMarker]).addTo(map),
+      swatch("#000", `${prefix}ground truth (${s.truth.t.length} waypoints)`));
+  }
+  if (s.gnss) {
+    const g = s.gnss;
+    const dots = g.lat.map((lat, i) => L.circleMarker([lat, g.lon[i]],
+      { radius: 2, stroke: false, fillColor: GNSS_COLOUR, fillOpacity: 0.55, interactive: false }));
+    view.circle = L.circle([g.lat[0], g.lon[0]],
+      { radius: g.acc[0], color: GNSS_COLOUR, weight: 1.5, fillOpacity: 0.12, interactive: false });
+    view.fixMarker = L.circleMarker([g.lat[0], g.lon[0]],
+      { ...now, radius: 5, color: "#fff", weight: 1.5, fillColor: GNSS_COLOUR, fillOpacity: 1 });
+    layers.addOverlay(L.layerGroup([...dots, view.circle, view.fixMarker]).addTo(map),
+      swatch(GNSS_COLOUR, `${prefix}GNSS fixes and accuracy (${g.t.length})`));
+  }
+  return view;
+});
+const sessionIndex = new Map(VIEW.sessions.map((s, i) => [s.key, i]));
+
+const runViews = VIEW.runs.map((r) => {
+  const path = L.polyline(r.lat.map((lat, i) => [lat, r.lon[i]]).filter((p) => p[0] !== null),
+    { color: r.colour, weight: 2, opacity: 0.75, interactive: false });
+  const marker = L.circleMarker([r.lat[0], r.lon[0]],
+    { ...now, radius: 6, color: "#fff", weight: 2, fillColor: r.colour, fillOpacity: 1 });
+  layers.addOverlay(L.layerGroup([path, marker]).addTo(map), swatch(r.colour, `${r.label}: track and estimate`));
+  const view = { data: r, marker, cloud: null, row: ui.rows.insertRow(), session: sessionIndex.get(r.session) };
+  view.row.insertCell().innerHTML = swatch(r.colour, r.label);
+  view.cells = ["segment", "prob", "error", "neff", "recoveries"].map((name) => {
+    const cell = view.row.insertCell();
+    if (name !== "segment") cell.className = "num";
+    return cell;
+  });
+  if (r.waypoint_summary) {
+    const item = document.createElement("li");
+    item.textContent = `${r.label}: ${r.waypoint_summary}`;
+    ui.summaries.append(item);
+  }
+  return view;
+});
+
+function drawCloud(view) {
+  return (ctx, target) => {
+    const c = view.cloud;
+    const k = lastAtOrBefore(c.t, state.time);
+    if (k < 0) return;
+    ctx.fillStyle = view.data.colour;
+    const base = k * c.n;
+    const refLat = c.ref_lat[k], refLon = c.ref_lon[k];
+    if (!c.alpha) {
+      ctx.globalAlpha = 0.55;
+      ctx.beginPath();
+    }
+    for (let i = 0; i < c.n; i++) {
+      const p = target.latLngToContainerPoint([refLat + c.dlat[base + i] * OFFSET_UNIT_DEG,
+        refLon + c.dlon[base + i] * OFFSET_UNIT_DEG]);
+      if (c.alpha) {
+        ctx.globalAlpha = 0.1 + 0.8 * c.alpha[base + i] / 255;
+        ctx.fillRect(p.x - 1.5, p.y - 1.5, 3, 3);
+      } else {
+        ctx.rect(p.x - 1.5, p.y - 1.5, 3, 3);
+      }
+    }
+    if (!c.alpha) ctx.fill();
+    ctx.globalAlpha = 1;
+  };
+}
+
+// -- the timeline --------------------------------------------------------------------------------
+const timeline = Array.from(new Set(VIEW.runs.flatMap((r) => r.t))).sort((a, b) => a - b);
+const t0 = timeline[0];
+
+function fmt(value, digits, unit = "") {
+  return value === null || value === undefined ? "\u2014" : `${value.toFixed(digits)}${unit}`;
+}
+
+function clockText(t) {
+  const s = t - t0;
+  const mm = Math.floor(s / 60), ss = (s - 60 * mm).toFixed(1).padStart(4, "0");
+  return `t = ${t.toFixed(1)} s (${mm}:${ss} into the walk)`;
+}
+
+function updateSession(view, t) {
+  const s = view.data;
+  if (view.truthMarker) {
+    view.truthMarker.setLatLng([interpolate(s.truth.t, s.truth.lat, t), interpolate(s.truth.t, s.truth.lon, t)]);
+  }
+  if (view.circle) {
+    const k = lastAtOrBefore(s.gnss.t, t);
+    const j = Math.max(k, 0);
+    view.circle.setLatLng([s.gnss.lat[j], s.gnss.lon[j]]).setRadius(s.gnss.acc[j]);
+    view.fixMarker.setLatLng([s.gnss.lat[j], s.gnss.lon[j]]);
+    view.circle.setStyle({ opacity: k < 0 ? 0 : 1, fillOpacity: k < 0 ? 0 : 0.12 });
+    return k < 0 ? "no GNSS fix yet" :
+      `GNSS fix ${(t - s.gnss.t[k]).toFixed(1)} s ago, accuracy ${s.gnss.acc[k].toFixed(0)} m`;
+  }
+  return "";
+}
+
+function updateRun(view, t) {
+  const r = view.data;
+  const k = lastAtOrBefore(r.t, t);
+  const [segment, prob, error, neff, recoveries] = view.cells;
+  if (k < 0 || r.lat[k] === null) {
+    view.marker.setStyle({ opacity: 0, fillOpacity: 0 });
+    for (const cell of view.cells) cell.textContent = "\u2014";
+    return;
+  }
+  view.marker.setLatLng([r.lat[k], r.lon[k]]).setStyle({ opacity: 1, fillOpacity: 1 });
+  segment.textContent = r.segment ? (r.segment[k] ?? "\u2014") : "\u2014";
+  prob.textContent = r.segment_prob ? fmt(r.segment_prob[k], 2) : "\u2014";
+  error.textContent = r.error_m ? fmt(r.error_m[k], 1, " m") : "\u2014";
+  neff.textContent = r.n_eff ? fmt(r.n_eff[k], 0) : "\u2014";
+  recoveries.textContent = `${r.recoveries_so_far[k]} / ${r.recoveries}`;
+  view.row.classList.toggle("recovered", k > 0 && r.recoveries_so_far[k] > r.recoveries_so_far[k - 1]);
+}
+
+function setIndex(index) {
+  state.index = Math.min(Math.max(index, 0), timeline.length - 1);
+  showTime(timeline[state.index]);
+  ui.slider.value = String(state.index);
+}
+
+function showTime(t) {
+  state.time = t;
+  const gnss = sessionViews.map((view) => updateSession(view, t)).filter(Boolean);
+  ui.gnssNow.textContent = gnss.join("; ");
+  for (const view of runViews) updateRun(view, t);
+  for (const cloud of state.clouds) cloud.redraw();
+  ui.clock.textContent = clockText(t);
+  ui.timeLabel.textContent = `${state.index + 1} / ${timeline.length}`;
+}
+
+// -- playback ------------------------------------------------------------------------------------
+let lastFrame = null;
+function frame(now) {
+  if (!state.playing) return;
+  if (lastFrame !== null) {
+    const t = state.time + (now - lastFrame) / 1000 * Number(ui.speed.value);
+    const index = lastAtOrBefore(timeline, t);
+    if (index >= timeline.length - 1) {
+      setIndex(timeline.length - 1);
+      setPlaying(false);
+      return;
+    }
+    state.index = index;
+    ui.slider.value = String(index);
+    showTime(t);
+  }
+  lastFrame = now;
+  requestAnimationFrame(frame);
+}
+
+function setPlaying(playing) {
+  if (playing && state.index >= timeline.length - 1) setIndex(0);
+  state.playing = playing;
+  ui.play.innerHTML = playing ? "&#10074;&#10074;" : "&#9654;";
+  ui.play.setAttribute("aria-label", playing ? "pause" : "play");
+  lastFrame = null;
+  if (playing) requestAnimationFrame(frame);
+}
+
+ui.title.textContent = VIEW.title;
+document.title = VIEW.title;
+ui.slider.max = String(timeline.length - 1);
+ui.slider.addEventListener("input", () => { setPlaying(false); setIndex(Number(ui.slider.value)); });
+ui.play.addEventListener("click", () => setPlaying(!state.playing));
+document.addEventListener("keydown", (event) => {
+  if (event.key === " " && event.target.tagName !== "BUTTON" && event.target.tagName !== "SELECT") {
+    event.preventDefault();
+    setPlaying(!state.playing);
+  }
+});
+setIndex(0);
+
+// First render: the map, tracks and fixes; then the clouds are decoded and the slider enabled.
+requestAnimationFrame(() => {
+  performance.mark("curbside:first-render");
+  for (const view of runViews) {
+    const r = view.data;
+    if (!r.cloud) continue;
+    view.cloud = {
+      t: r.cloud.t, n: r.cloud.n, ref_lat: r.cloud.ref_lat, ref_lon: r.cloud.ref_lon,
+      dlat: int16sOf(r.cloud.dlat), dlon: int16sOf(r.cloud.dlon),
+      alpha: r.cloud.alpha ? bytesOf(r.cloud.alpha) : null,
+    };
+    const layer = new TimeCanvas(drawCloud(view), { pane: "clouds" }).addTo(map);
+    state.clouds.push(layer);
+    layers.addOverlay(layer, swatch(r.colour, `${r.label}: particles (N = ${r.cloud.n})`));
+  }
+  setIndex(0);
+  ui.slider.disabled = false;
+  ui.play.disabled = false;
+  performance.mark("curbside:slider-ready");
+});
+window.curbsideView = { timeline, state, setIndex };

@@ -1,0 +1,29 @@
+"""How the map classes look, in the PNG figures (:mod:`curbside.osmseg.plot`) and the HTML pages
+(:mod:`curbside.osmseg.webmap`) alike."""
+
+from __future__ import annotations
+
+#: Drawing style of each class: fill, outline, hatch and legend label. Drawn bottom to top in this order.
+CLASS_STYLE: dict[str, dict[str, object]] = {
+    "street": {"facecolor": "#8e9aab", "edgecolor": "none", "linewidth": 0.0, "label": "street (jaywalking)"},
+    "crosswalk": {
+        "facecolor": "#f4cf3a",
+        "edgecolor": "#b8961b",
+        "hatchcolor": "white",
+        "hatch": "////",
+        "linewidth": 0.3,
+        "label": "crosswalk",
+    },
+    "sidewalk": {
+        "facecolor": "#bfe5a6", "edgecolor": "#5f9a4a", "linewidth": 0.3, "label": "sidewalk segment"
+    },
+    "building": {"facecolor": "#6f4646", "edgecolor": "#3f2626", "linewidth": 0.2, "label": "building"},
+}
+#: Colour of the space no polygon covers (freely walkable).
+BACKGROUND = "#f3efe6"
+
+
+def stroke_colour(cls: str) -> str:
+    """The outline colour of a class in HTML (its fill when it has no outline)."""
+    style = CLASS_STYLE[cls]
+    return str(style["edgecolor"] if style["edgecolor"] != "none" else style["facecolor"])
