@@ -12,9 +12,11 @@ At an update with inertial displacement ``(dx, dy)`` (metres east/north over the
    an inertial step grows with its length, and the floor keeps a standing cloud alive.
 
 The predictor owns a :class:`~curbside.localize.filter.random.Stream` seeded from the filter's
-generator, and its one compiled loop (:func:`_predict`) draws the normals as it goes: first the jumps
-(the gap to the next jumping particle is geometric: ``O(jumps)`` draws, not ``O(N)``), then for each
-particle the normals of ``x``, ``y``, ``theta`` and, with a scale random walk, ``scale``.
+generator, and its compiled kernel (:func:`_predict`) draws the normals as it goes, with no buffer:
+first the jumps (each particle jumps independently; the gap to the next jumping particle is geometric,
+so that costs ``O(jumps)`` draws, not ``O(N)``), then for each particle the normals of ``x``, ``y``,
+``theta`` and, with a scale random walk, ``scale``. A second, branch-free loop turns and moves the
+particles (:func:`curbside.localize.filter.kernelmath.sincos`: it runs on SIMD lanes).
 :func:`reference_draws` replays that order and :func:`reference_predict` is the numpy oracle the tests
 compare the kernel with.
 """
@@ -48,7 +50,7 @@ class InertialPredictor:
     config
         Noise parameters.
     n
-        Number of particles.
+        Number of particles (the parts' common signature; nothing is allocated per particle).
     rng
         The filter's seeded generator (seeds the predictor's own :attr:`stream`).
     """
