@@ -8,8 +8,27 @@ from __future__ import annotations
 import os
 from pathlib import Path
 
-#: Root of the on-disk caches (Overpass responses, map rasters).
-cache_dir: Path = Path(os.environ.get("CURBSIDE_CACHE_DIR", "cache"))
+import platformdirs
+
+
+def _default_cache_dir() -> Path:
+    """``$CURBSIDE_CACHE_DIR`` if set, else the user's cache folder (``~/.cache/curbside`` on Linux)."""
+    override = os.environ.get("CURBSIDE_CACHE_DIR")
+    if override:
+        return Path(override).expanduser()
+    return Path(platformdirs.user_cache_dir("curbside", appauthor=False))
+
+
+#: Root of the on-disk caches (:mod:`curbside.cache`): Overpass responses (``overpass/``), the
+#: simulator's OSM tables (``osmsource/``), map rasters (``rasters/``). Safe to delete at any time.
+cache_dir: Path = _default_cache_dir()
+
+#: Seconds to wait for Overpass to accept a connection (and to answer its status query) before the
+#: build gives up with a one-line error; a dead network fails in this time, not osmnx's minutes.
+overpass_connect_timeout_s: float = 5.0
+
+#: Seconds an Overpass query may run (osmnx's ``requests_timeout``) once the server is reachable.
+overpass_timeout_s: float = 180.0
 
 #: The bundled OpenStreetMap extract (downtown San Francisco, 2026). © OpenStreetMap contributors, ODbL.
 default_osm_file: Path = Path(__file__).parent / "data" / "sf-downtown-2026.osm.bz2"

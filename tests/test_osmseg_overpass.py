@@ -5,6 +5,7 @@ from __future__ import annotations
 import http.server
 import socket
 import threading
+import time
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -14,6 +15,7 @@ import shapely
 
 from curbside import settings
 from curbside.cli.osmseg import main as osmseg_main
+from curbside.osmseg import overpass as overpass_module
 from curbside.osmseg.build import build_map
 from curbside.osmseg.mapio import CLASSES
 
@@ -109,7 +111,7 @@ def test_overpass_unreachable(overpass, tmp_path, capsys, monkeypatch):
     status = osmseg_main(["build", "--bbox", *(str(v) for v in BBOX), "-o", str(out)])
     err = capsys.readouterr().err
     assert status == 2
-    assert "Overpass request failed" in err and len(err.strip().splitlines()) == 1
+    assert "cannot reach the Overpass server" in err and len(err.strip().splitlines()) == 1
     assert not out.exists()
 
 
@@ -122,3 +124,58 @@ def test_overpass_server_error(overpass, tmp_path, capsys):
     assert status == 2
     assert "Overpass request failed" in err
     assert not out.exists()
+
+
+def test_no_network_fails_fast_with_one_line(overpass, tmp_path, capsys, monkeypatch):
+    # osmnx's defaults: rate limiting on, so an unknown server status used to cost a 60 s pause.
+    with socket.socket() as sock:
+        sock.bind(("127.0.0.1", 0))
+        port = sock.getsockname()[1]
+    monkeypatch.setattr(ox.settings, "overpass_url", f"http://127.0.0.1:{port}/api")
+    monkeypatch.setattr(ox.settings, "overpass_rate_limit", True)
+    out = tmp_path / "map.geojson"
+    start = time.perf_counter()
+    status = osmseg_main(["build", "--bbox", *(str(v) for v in BBOX), "-o", str(out)])
+    elapsed_s = time.perf_counter() - start
+    err = capsys.readouterr().err
+    assert status == 2
+    assert "cannot reach the Overpass server" in err and len(err.strip().splitlines()) == 1
+    assert elapsed_s < 10.0
+    assert not out.exists()
+
+
+def test_silent_server_times_out_quickly(overpass, tmp_path, capsys, monkeypatch):
+    # A server that accepts connections and never answers (a black-holed network).
+    silent = socket.socket()
+    silent.bind(("127.0.0.1", 0))
+    silent.listen(8)
+    monkeypatch.setattr(ox.settings, "overpass_url", f"http://127.0.0.1:{silent.getsockname()[1]}/api")
+    monkeypatch.setattr(ox.settings, "overpass_rate_limit", True)
+    monkeypatch.setattr(settings, "overpass_connect_timeout_s", 0.5)
+    out = tmp_path / "map.geojson"
+    start = time.perf_counter()
+    try:
+        status = osmseg_main(["build", "--bbox", *(str(v) for v in BBOX), "-o", str(out)])
+    finally:
+        silent.close()
+    assert status == 2
+    assert time.perf_counter() - start < 5.0
+    assert len(capsys.readouterr().err.strip().splitlines()) == 1
+
+
+def test_cached_response_is_used_when_offline(overpass, monkeypatch):
+    first = build_map(BBOX)
+    # Offline, the query runs with the short timeout: the cache must still answer it.
+    monkeypatch.setattr(overpass_module, "overpass_reachable", lambda url, timeout_s: False)
+    again = build_map(BBOX)
+    assert overpass.requests == 1
+    assert len(again.gdf) == len(first.gdf)
+
+
+def test_caches_go_to_the_cache_folder_not_the_working_directory(overpass, tmp_path, monkeypatch):
+    work = tmp_path / "work"
+    work.mkdir()
+    monkeypatch.chdir(work)
+    build_map(BBOX)
+    assert not any(work.iterdir())
+    assert any((settings.cache_dir / "overpass").iterdir())

@@ -29,7 +29,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         nargs=4,
         type=float,
         metavar=("W", "S", "E", "N"),
-        help="area in WGS84 degrees (default: the bundled extract's default area, or the whole --osm file)",
+        help="area in WGS84 degrees (default: the bundled extract's default area; with --osm, the bounds "
+        "the file declares, else all of it)",
     )
     p.add_argument("--osm", type=Path, metavar="FILE", help=".osm, .osm.bz2, .osm.gz or .osm.pbf file")
     p.add_argument("-o", "--output", type=Path, default=Path("map.geojson"),

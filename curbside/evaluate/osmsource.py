@@ -1,33 +1,31 @@
 """What the simulator reads from OpenStreetMap: building heights and the mapped pedestrian network.
 
-The map layers (``osmseg build``) keep no heights and no footway centrelines, so the simulator reads
-the OSM file itself, once, with :func:`osmnx.features_from_xml`, and caches the two tables it needs
-(pickled GeoDataFrames in local UTM) under ``settings.cache_dir / "evaluate"``, keyed by the file's
-content hash.
+The map layers (``osmseg build``) keep no heights and no footway centrelines, so the simulator takes
+them from the same reader as ``osmseg build`` (:func:`curbside.osmseg.reader.read_osm_file`, with tag
+values parsed by :mod:`curbside.osmseg.tags`) and caches the three tables it needs as GeoParquet
+(:mod:`curbside.cache`, kind ``osmsource``), keyed by the file's content and the height parameters.
 """
 
 from __future__ import annotations
 
-import hashlib
 import logging
-import pickle
-import re
 from dataclasses import dataclass
 from pathlib import Path
 
 import geopandas as gpd
 import numpy as np
-import osmnx as ox
 import pandas as pd
 
-from curbside import settings
+from curbside import cache, settings
 from curbside.errors import CurbsideInputError
-from curbside.io import atomic_path
-from curbside.projection import utm_crs_for
+from curbside.osmseg.reader import read_osm_file
+from curbside.osmseg.tags import column, first_number, is_in, metres
 
 log = logging.getLogger(__name__)
 
-_NUMBER = re.compile(r"^\s*([0-9]+(?:\.[0-9]+)?)\s*(m|ft|')?", re.IGNORECASE)
+#: Bumped whenever the tables' content changes, so older cache entries are not reused.
+_FORMAT_VERSION = 2
+_TABLES = ("buildings", "footways", "roads")
 
 
 @dataclass
@@ -60,73 +58,57 @@ class OsmSource:
 def parse_height_m(height: pd.Series, levels: pd.Series) -> np.ndarray:
     """Building heights in metres from OSM ``height`` and ``building:levels`` strings.
 
-    ``height`` may carry a unit (``"93 m"``, ``"300 ft"``, ``"40'"``); a missing or unparsable height
-    falls back to levels, then to the default height.
+    ``height`` may carry a unit (``"93 m"``, ``"300 ft"``, ``"40'"``; :func:`~curbside.osmseg.tags.metres`);
+    a missing or unparsable height falls back to levels times ``settings.evaluate_level_height_m``,
+    then to ``settings.evaluate_default_height_m``.
     """
-    out = np.full(len(height), np.nan)
-    for i, value in enumerate(height.to_numpy(object)):
-        m = _NUMBER.match(str(value)) if isinstance(value, str | int | float) and value == value else None
-        if m:
-            unit = (m.group(2) or "m").lower()
-            out[i] = float(m.group(1)) * (0.3048 if unit in ("ft", "'") else 1.0)
-    lv = pd.to_numeric(levels, errors="coerce").to_numpy(float)
-    out = np.where(np.isfinite(out), out, lv * settings.evaluate_level_height_m)
+    out = metres(height)
+    out = np.where(np.isfinite(out), out, first_number(levels) * settings.evaluate_level_height_m)
     return np.where(np.isfinite(out) & (out > 0), out, settings.evaluate_default_height_m)
 
 
-def _column(frame: pd.DataFrame, name: str) -> pd.Series:
-    return frame[name] if name in frame else pd.Series([None] * len(frame), index=frame.index)
-
-
-def _read(osm_file: Path) -> OsmSource:
-    try:
-        feats = ox.features_from_xml(osm_file)
-    except Exception as exc:  # noqa: BLE001 - osmnx raises many types for unreadable XML
-        raise CurbsideInputError(osm_file, f"not readable as OSM XML ({exc})") from None
-    if len(feats) == 0:
-        raise CurbsideInputError(osm_file, "no OSM features")
-    minx, miny, maxx, maxy = feats.total_bounds
-    crs = utm_crs_for((minx + maxx) / 2, (miny + maxy) / 2)
-    feats = feats.to_crs(crs)
-    ids = [f"{kind[0]}{oid}" for kind, oid in feats.index]
-    feats = feats.assign(osm_id=ids).reset_index(drop=True)
-    polys = feats.geom_type.isin(["Polygon", "MultiPolygon"])
-    is_building = _column(feats, "building").notna() & polys
-    underground = _column(feats, "location").astype(str).eq("underground")
-    b = feats[is_building & ~underground]
+def _read(osm_file: Path) -> dict[str, gpd.GeoDataFrame]:
+    osm = read_osm_file(osm_file)
+    areas = osm.areas
+    underground = is_in(column(areas, "location"), ["underground"])
+    b = areas[column(areas, "building").notna().to_numpy() & ~underground]
     buildings = gpd.GeoDataFrame(
         {
-            "height_m": parse_height_m(_column(b, "height"), _column(b, "building:levels")),
-            "osm_id": b["osm_id"].to_numpy(),
+            "height_m": parse_height_m(column(b, "height"), column(b, "building:levels")),
+            "osm_id": b["osm_id"].astype(str).to_numpy(),
         },
         geometry=b.geometry.to_numpy(),
-        crs=crs,
+        crs=osm.crs,
     )
-    lines = feats[feats.geom_type == "LineString"]
-    footway = _column(lines, "footway")
-    fw = lines[footway.isin(["sidewalk", "crossing"])]
+    lines = osm.ways
+    fw = lines[is_in(column(lines, "footway"), ["sidewalk", "crossing"])]
     footways = gpd.GeoDataFrame(
         {
-            "kind": _column(fw, "footway").to_numpy(),
-            "covered": _column(fw, "covered").astype(str).eq("yes").to_numpy(),
-            "osm_id": fw["osm_id"].to_numpy(),
+            "kind": column(fw, "footway").to_numpy(dtype=object),
+            "covered": is_in(column(fw, "covered"), ["yes"]),
+            "osm_id": [f"w{i}" for i in fw["osm_id"]],
         },
         geometry=fw.geometry.to_numpy(),
-        crs=crs,
+        crs=osm.crs,
     )
-    road_classes = settings.evaluate_road_classes
-    rd = lines[_column(lines, "highway").isin(road_classes) & ~_column(lines, "tunnel").eq("yes")]
+    tunnel = is_in(column(lines, "tunnel"), ["yes"])
+    rd = lines[is_in(column(lines, "highway"), settings.evaluate_road_classes) & ~tunnel]
     roads = gpd.GeoDataFrame(
-        {"name": _column(rd, "name").to_numpy()}, geometry=rd.geometry.to_numpy(), crs=crs
+        {"name": column(rd, "name").to_numpy(dtype=object)}, geometry=rd.geometry.to_numpy(), crs=osm.crs
     )
     log.info(
         "OSM %s: %d buildings, %d footways, %d roads",
-        osm_file.name,
-        len(buildings),
-        len(footways),
-        len(roads),
+        osm_file.name, len(buildings), len(footways), len(roads),
     )
-    return OsmSource(buildings, footways, roads)
+    return {"buildings": buildings, "footways": footways, "roads": roads}
+
+
+def _strings_as_objects(gdf: gpd.GeoDataFrame) -> gpd.GeoDataFrame:
+    """String columns read back from Parquet as plain objects with None where missing."""
+    for col in gdf.columns.drop(gdf.geometry.name):
+        if not (pd.api.types.is_numeric_dtype(gdf[col]) or pd.api.types.is_bool_dtype(gdf[col])):
+            gdf[col] = gdf[col].astype(object).where(gdf[col].notna(), None)
+    return gdf
 
 
 def load_osm(osm_file: str | Path | None = None) -> OsmSource:
@@ -135,24 +117,24 @@ def load_osm(osm_file: str | Path | None = None) -> OsmSource:
     Parameters
     ----------
     osm_file
-        ``.osm`` / ``.osm.bz2`` XML; default the bundled downtown San Francisco extract.
+        ``.osm``, ``.osm.bz2``, ``.osm.gz`` or ``.osm.pbf``; default the bundled downtown San
+        Francisco extract.
 
     Returns
     -------
     OsmSource
+
+    Raises
+    ------
+    CurbsideInputError
+        A missing or unreadable file, or one without highways or buildings.
     """
     osm_file = Path(osm_file or settings.default_osm_file)
     if not osm_file.is_file():
         raise CurbsideInputError(osm_file, "no such OSM file")
-    digest = hashlib.sha1(osm_file.read_bytes()).hexdigest()[:16]
-    cache = Path(settings.cache_dir) / "evaluate" / f"osm-{digest}-v1.pkl"
-    if cache.is_file():
-        try:
-            with cache.open("rb") as fh:
-                return pickle.load(fh)
-        except (OSError, pickle.UnpicklingError, EOFError, AttributeError):
-            log.warning("ignoring unreadable cache %s", cache)
-    source = _read(osm_file)
-    with atomic_path(cache) as tmp, tmp.open("wb") as fh:
-        pickle.dump(source, fh)
-    return source
+    key = cache.content_key(
+        f"osmsource-v{_FORMAT_VERSION}", osm_file, settings.evaluate_level_height_m,
+        settings.evaluate_default_height_m, tuple(settings.evaluate_road_classes),
+    )  # fmt: skip
+    tables = cache.cached_frames("osmsource", key, lambda: _read(osm_file), _TABLES)
+    return OsmSource(*(_strings_as_objects(tables[name]) for name in _TABLES))

@@ -30,7 +30,7 @@ from curbside.osmseg.crosswalks import UNMARKED_CHOICES
 from curbside.osmseg.crosswalks import crosswalks as derive_crosswalks
 from curbside.osmseg.mapio import MapLayers
 from curbside.osmseg.overlay import polygons_only, subtract
-from curbside.osmseg.reader import OsmData, bbox_polygon, read_osm_file
+from curbside.osmseg.reader import OsmData, bbox_polygon, clip_to_bbox, read_osm_file
 from curbside.osmseg.sidewalks import sidewalk_segments
 from curbside.osmseg.streets import carriageways
 from curbside.projection import LocalFrame
@@ -38,6 +38,10 @@ from curbside.projection import LocalFrame
 log = logging.getLogger(__name__)
 
 BBox = tuple[float, float, float, float]
+
+#: Elements this far (m) outside the area to build are still read, so that sidewalks, crosswalks and
+#: buildings at its edge come out whole before the map is clipped.
+READ_MARGIN_M = 60.0
 
 
 def check_bbox(bbox: BBox, source: str = "--bbox") -> BBox:
@@ -87,12 +91,17 @@ def load_osm(bbox: BBox | None, osm_file: str | Path | None) -> tuple[OsmData, B
     Returns
     -------
     (OsmData, bbox)
-        ``bbox`` is the area to clip to (None: the whole file).
+        ``bbox`` is the area to clip to: the one asked for, else the bounds the file declares
+        (``<bounds>``, PBF header box), else None (the whole file).
     """
     if bbox is not None:
         bbox = check_bbox(bbox)
     if osm_file is not None:
-        return read_osm_file(osm_file, bbox), bbox
+        osm = read_osm_file(osm_file, bbox)
+        if bbox is None and osm.bounds is not None:
+            log.info("clipping to the bounds %s declares: %s", osm.source, osm.bounds)
+            return clip_to_bbox(osm, osm.bounds, READ_MARGIN_M), osm.bounds
+        return osm, bbox
     if bbox is None:
         bbox = settings.default_bbox
     if _inside(bbox, settings.default_extract_bbox):
@@ -190,7 +199,8 @@ def build_map(
         ``settings.default_bbox`` when no file is given.
     osm_file
         ``.osm``, ``.osm.bz2``, ``.osm.gz`` or ``.osm.pbf``. ``None``: the bundled extract when the
-        bbox lies inside ``settings.default_extract_bbox``, else Overpass through osmnx.
+        bbox lies inside ``settings.default_extract_bbox``, else Overpass through osmnx. With no
+        ``bbox`` the map is clipped to the bounds the file declares, if it declares any.
     unmarked_as
         ``"crosswalk"`` (default) or ``"street"``: what unmarked crossings become.
 
@@ -209,8 +219,12 @@ def build_map(
         raise CurbsideInputError("--unmarked-as", f"must be one of {', '.join(UNMARKED_CHOICES)}")
     osm, clip_bbox = load_osm(bbox, osm_file)
     source = str(osm_file) if osm_file is not None else osm.source
+    from_declared_bounds = bbox is None and osm_file is not None and clip_bbox is not None
+    where = "in this area"
+    if from_declared_bounds:
+        where = f"inside the bounds the file declares {list(clip_bbox)}"
     if len(osm.ways) == 0 and len(osm.areas) == 0:
-        raise CurbsideInputError(source, "no highways or buildings in this area")
+        raise CurbsideInputError(source, f"no highways or buildings {where}")
     gdf = derive_layers(osm, unmarked_as)
     if clip_bbox is not None:
         window = bbox_polygon(clip_bbox, osm.crs)
@@ -225,7 +239,7 @@ def build_map(
         )
     gdf = gdf.reset_index(drop=True)
     if len(gdf) == 0:
-        raise CurbsideInputError(source, "no buildings or streets in this area")
+        raise CurbsideInputError(source, f"no buildings or streets {where}")
     if clip_bbox is None:
         minx, miny, maxx, maxy = gdf.total_bounds
         corners_x, corners_y = np.array([minx, maxx, minx, maxx]), np.array([miny, miny, maxy, maxy])

@@ -16,6 +16,7 @@ import numpy as np
 import shapely
 
 from curbside import settings
+from curbside.osmseg.overlay import subtract_each
 from curbside.osmseg.streets import carriageway_width, ground_level
 from curbside.osmseg.tags import column, first_number, is_in, metres
 
@@ -102,7 +103,7 @@ def buildings(areas: gpd.GeoDataFrame, ways: gpd.GeoDataFrame) -> gpd.GeoDataFra
     -------
     geopandas.GeoDataFrame
         One row per remaining polygon: ``osm_id``, ``carved_m2`` (the area its building's passages
-        removed, islands included) and a valid Polygon ``geometry``.
+        removed, islands included) and a valid Polygon ``geometry``; no two polygons overlap.
     """
     footprints = areas[footprint_mask(areas)].reset_index(drop=True)
     geoms = shapely.make_valid(footprints.geometry.values)
@@ -133,8 +134,37 @@ def buildings(areas: gpd.GeoDataFrame, ways: gpd.GeoDataFrame) -> gpd.GeoDataFra
         (area < settings.passage_island_area_m2) | (thickness < settings.passage_island_thickness_m)
     )
     keep = (shapely.get_type_id(parts) == 3) & (area >= settings.min_polygon_area_m2) & ~island
+    parts, owner = _clean_coverage(parts[keep], owner[keep])
     return gpd.GeoDataFrame(
-        {"osm_id": footprints["osm_id"].to_numpy()[owner[keep]], "carved_m2": carved[owner[keep]]},
-        geometry=parts[keep],
+        {"osm_id": footprints["osm_id"].to_numpy()[owner], "carved_m2": carved[owner]},
+        geometry=parts,
         crs=areas.crs,
     )
+
+
+def _clean_coverage(polygons: np.ndarray, owner: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Polygons made a clean coverage (no two overlap), with the owner index of each part.
+
+    Mapped buildings overlap (a tower drawn inside its podium, neighbours whose walls cross). Each
+    overlap goes to the smaller building (ties: the earlier one): every polygon loses what it shares
+    with smaller ones, so nested buildings keep their own outline and id, and the layer's area is the
+    area it covers. Pairwise differences between the overlapping pairs only, in vectorised rounds.
+    """
+    if len(polygons) < 2:
+        return polygons, owner
+    area = shapely.area(polygons)
+    big, small = shapely.STRtree(polygons).query(polygons, predicate="intersects")
+    rank = np.lexsort((np.arange(len(polygons)), area))  # by area, then index
+    order = np.empty(len(polygons), dtype=np.intp)
+    order[rank] = np.arange(len(polygons))
+    pairs = order[small] < order[big]
+    big, small = big[pairs], small[pairs]
+    shared = shapely.area(shapely.intersection(polygons[big], polygons[small])) > 0
+    cleaned = np.array(polygons, dtype=object, copy=True)
+    big, small = big[shared], small[shared]
+    if len(big):
+        cut = np.unique(big)
+        cleaned[cut] = subtract_each(polygons[cut], cut, big, polygons[small])
+    parts, row = shapely.get_parts(shapely.make_valid(cleaned), return_index=True)
+    keep = (shapely.get_type_id(parts) == 3) & (shapely.area(parts) >= settings.min_polygon_area_m2)
+    return parts[keep], owner[row[keep]]

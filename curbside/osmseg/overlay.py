@@ -76,3 +76,22 @@ def subtract(geoms: np.ndarray, obstacles: np.ndarray) -> np.ndarray:
         sel = rank == r
         out[geom_i[sel]] = shapely.difference(out[geom_i[sel]], obstacles[obst_i[sel]])
     return out
+
+
+def subtract_each(
+    geoms: np.ndarray, ids: np.ndarray, pair_id: np.ndarray, pair_obstacle: np.ndarray
+) -> np.ndarray:
+    """``geoms[k]`` minus every ``pair_obstacle[p]`` whose ``pair_id[p] == ids[k]`` (``ids`` sorted).
+
+    Like :func:`subtract`, but with the pairs given instead of found by overlap: one vectorised
+    difference per round, a round per obstacle rank.
+    """
+    out = np.array(geoms, dtype=object, copy=True)
+    slot = np.searchsorted(ids, pair_id)
+    order = np.argsort(slot, kind="stable")
+    slot, obstacles = slot[order], np.asarray(pair_obstacle, dtype=object)[order]
+    rank = np.arange(len(slot)) - np.searchsorted(slot, slot)
+    for r in range(int(rank.max()) + 1 if len(rank) else 0):
+        sel = rank == r
+        out[slot[sel]] = shapely.difference(out[slot[sel]], obstacles[sel])
+    return out

@@ -1,13 +1,17 @@
 """Stage 1 (network source): OSM elements of a bbox from Overpass, through osmnx.
 
-osmnx downloads and caches the response (``settings.cache_dir / "overpass"``) and builds a feature
-table; :func:`fetch_overpass` converts it into the :class:`~curbside.osmseg.reader.OsmData` that the
-pyosmium file reader produces, so the derivation is shared.
+osmnx downloads and caches the response (``settings.cache_dir / "overpass"``, beside the other
+caches of :mod:`curbside.cache`) and builds a feature table; :func:`fetch_overpass` converts it into
+the :class:`~curbside.osmseg.reader.OsmData` that the pyosmium file reader produces, so the
+derivation is shared.
 """
 
 from __future__ import annotations
 
+import contextlib
 import logging
+from collections.abc import Iterator
+from pathlib import Path
 
 import geopandas as gpd
 import numpy as np
@@ -80,8 +84,39 @@ def features_to_osmdata(features: gpd.GeoDataFrame, bbox: tuple[float, float, fl
     return OsmData(ways, areas, nodes, source="overpass", timestamp=None)
 
 
+def overpass_reachable(url: str, timeout_s: float) -> bool:
+    """Whether the Overpass server at ``url`` answers its status query within ``timeout_s``.
+
+    Any HTTP answer counts (a server that lacks the status endpoint is still there).
+    """
+    try:
+        requests.get(f"{url.rstrip('/')}/status", timeout=timeout_s)
+    except requests.RequestException as exc:
+        log.info("Overpass at %s is unreachable (%s)", url, type(exc).__name__)
+        return False
+    return True
+
+
+@contextlib.contextmanager
+def _osmnx_settings(**values) -> Iterator[None]:
+    """Set ``osmnx.settings`` attributes for one query and restore them after."""
+    saved = {name: getattr(ox.settings, name) for name in values}
+    for name, value in values.items():
+        setattr(ox.settings, name, value)
+    try:
+        yield
+    finally:
+        for name, value in saved.items():
+            setattr(ox.settings, name, value)
+
+
 def fetch_overpass(bbox: tuple[float, float, float, float], *, margin_m: float = 60.0) -> OsmData:
     """Download buildings and highways of a bbox from Overpass (osmnx, cached on disk).
+
+    The server is asked for its status first, with ``settings.overpass_connect_timeout_s``: when it
+    does not answer (no network), osmnx's rate-limit pause (60 s when the status is unknown) is
+    skipped and the query gets the same short timeout, so the build fails in seconds -- or is
+    answered from the cache, whose keys do not depend on either timeout.
 
     Parameters
     ----------
@@ -93,25 +128,39 @@ def fetch_overpass(bbox: tuple[float, float, float, float], *, margin_m: float =
     Returns
     -------
     OsmData
+        ``bounds`` is ``bbox``.
 
     Raises
     ------
     CurbsideInputError
-        No OSM data in the area, or the Overpass request failed.
+        No OSM data in the area, Overpass unreachable, or the request failed.
     """
     west, south, east, north = bbox
     pad_lat = margin_m / 111_320.0
     pad_lon = pad_lat / max(np.cos(np.radians((south + north) / 2)), 1e-6)
     query = (west - pad_lon, south - pad_lat, east + pad_lon, north + pad_lat)
-    ox.settings.cache_folder = str(settings.cache_dir / "overpass")
-    ox.settings.use_cache = True
-    log.info("querying Overpass at %s for %s", ox.settings.overpass_url, query)
+    url = ox.settings.overpass_url
+    reachable = overpass_reachable(url, settings.overpass_connect_timeout_s)
+    query_settings = _osmnx_settings(
+        cache_folder=str(Path(settings.cache_dir) / "overpass"),
+        use_cache=True,
+        # The server-side timeout is written into the query (and so into osmnx's cache key): fixed.
+        overpass_settings=f"[out:json][timeout:{int(settings.overpass_timeout_s)}]{{maxsize}}",
+        requests_timeout=settings.overpass_timeout_s if reachable else settings.overpass_connect_timeout_s,
+        overpass_rate_limit=ox.settings.overpass_rate_limit and reachable,
+    )
+    log.info("querying Overpass at %s for %s", url, query)
     try:
-        features = ox.features_from_bbox(query, OVERPASS_TAGS)
+        with query_settings:
+            features = ox.features_from_bbox(query, OVERPASS_TAGS)
     except InsufficientResponseError:
         raise CurbsideInputError("overpass", f"no OSM buildings or highways in bbox {list(bbox)}") from None
     except (requests.RequestException, ResponseStatusCodeError) as exc:
-        raise CurbsideInputError(
-            ox.settings.overpass_url, f"Overpass request failed ({type(exc).__name__})"
-        ) from None
-    return clip_to_bbox(features_to_osmdata(features, bbox), bbox, margin_m)
+        if not reachable:
+            problem = "cannot reach the Overpass server (no network?); build offline with --osm FILE"
+        else:
+            problem = f"Overpass request failed ({type(exc).__name__})"
+        raise CurbsideInputError(url, problem) from None
+    data = features_to_osmdata(features, bbox)
+    data.bounds = bbox
+    return clip_to_bbox(data, bbox, margin_m)

@@ -10,8 +10,10 @@ representation, so both sources share the derivation.
 
 from __future__ import annotations
 
+import contextlib
 import logging
-from dataclasses import dataclass
+from collections.abc import Iterator
+from dataclasses import dataclass, field
 from datetime import datetime, timezone
 from pathlib import Path
 
@@ -26,6 +28,8 @@ from curbside.errors import CurbsideInputError
 from curbside.projection import LocalFrame
 
 log = logging.getLogger(__name__)
+
+BBox = tuple[float, float, float, float]
 
 #: File name endings ``--osm`` accepts (pyosmium reads compressed XML itself).
 OSM_SUFFIXES: tuple[str, ...] = (".osm", ".osm.bz2", ".osm.gz", ".osm.pbf")
@@ -64,6 +68,11 @@ class OsmData:
         The file name, or ``"overpass"``.
     timestamp
         ISO 8601 time of the newest element, when the source records one.
+    bounds
+        (west, south, east, north) WGS84 degrees the source declares it covers (an OSM file's
+        ``<bounds>`` or PBF header box, the bbox of an Overpass query); ``None`` when it declares none.
+        Ways that leave the area run on past it with none of their surroundings, so maps are clipped
+        to it.
     """
 
     ways: gpd.GeoDataFrame
@@ -71,6 +80,7 @@ class OsmData:
     nodes: gpd.GeoDataFrame
     source: str
     timestamp: str | None = None
+    bounds: tuple[float, float, float, float] | None = None
 
     @property
     def crs(self) -> CRS:
@@ -116,7 +126,9 @@ def clip_to_bbox(data: OsmData, bbox: tuple[float, float, float, float], margin_
     def keep(gdf: gpd.GeoDataFrame) -> gpd.GeoDataFrame:
         return gdf[shapely.intersects(gdf.geometry.values, window)].reset_index(drop=True)
 
-    return OsmData(keep(data.ways), keep(data.areas), keep(data.nodes), data.source, data.timestamp)
+    return OsmData(
+        keep(data.ways), keep(data.areas), keep(data.nodes), data.source, data.timestamp, data.bounds
+    )
 
 
 def _check_path(path: Path) -> None:
@@ -139,7 +151,11 @@ def read_osm_file(
 ) -> OsmData:
     """Read highway ways, buildings and crossing nodes from an OSM file with pyosmium.
 
-    One streaming pass with node locations (plus osmium's relation pass for multipolygons).
+    A pass over relations (building multipolygons) and one streaming pass with node locations.
+    Highway ways are cut where they refer to nodes the file lacks (an extract cut at its bounds):
+    each run of two or more known nodes becomes its own line, so a road that leaves the extract and
+    comes back is not joined across the gap. A building ring with missing nodes is closed over the
+    nodes it has (its part inside the extract stays a building).
 
     Parameters
     ----------
@@ -154,101 +170,146 @@ def read_osm_file(
     Returns
     -------
     OsmData
+        With ``bounds`` from the file's header (``<bounds>`` or the PBF header box), if it has any.
 
     Raises
     ------
     CurbsideInputError
-        Missing file, unsupported extension, or a file osmium cannot parse.
+        Missing file, unsupported extension, a file osmium cannot parse (not OSM, truncated,
+        corrupt), or one without highways, buildings or crossings.
     """
     path = Path(path)
     _check_path(path)
-    members, rel_tags = _building_relation_members(path)
-    way_ids: list[int] = []
-    way_tags: list[dict[str, str]] = []
-    way_lens: list[int] = []
-    way_coords: list[tuple[float, float]] = []
-    area_ids: list[str] = []
-    area_tags: list[dict[str, str]] = []
-    area_lens: list[int] = []
-    area_coords: list[tuple[float, float]] = []
-    member_coords: dict[int, list[tuple[float, float]]] = {}
-    node_ids: list[int] = []
-    node_tags: list[dict[str, str]] = []
-    node_coords: list[tuple[float, float]] = []
-    # osmium's location index holds only positive ids; extracts and editors use negative ones too.
-    negative_nodes: dict[int, tuple[float, float]] = {}
-    newest = 0.0
-    keys = frozenset(TAG_KEYS)
-    processor = osmium.FileProcessor(str(path)).with_locations()
-    try:
-        for obj in processor:
-            if obj.is_node() and obj.id < 0:
-                negative_nodes[obj.id] = (obj.location.lon, obj.location.lat)
-            elif obj.is_way() and obj.id in members:
-                member_coords[obj.id] = _way_coords(obj, negative_nodes)
-            if not obj.tags:
-                continue
-            stamp = obj.timestamp.timestamp()
-            if stamp > newest:
-                newest = stamp
-            if obj.is_node():
-                if obj.tags.get("highway") in _NODE_HIGHWAY_VALUES:
-                    node_ids.append(obj.id)
-                    node_tags.append({t.k: t.v for t in obj.tags if t.k in keys})
-                    node_coords.append((obj.location.lon, obj.location.lat))
-            elif obj.is_way():
-                if "highway" in obj.tags:
-                    coords = _way_coords(obj, negative_nodes)
-                    if len(coords) >= 2:
-                        way_ids.append(obj.id)
-                        way_tags.append({t.k: t.v for t in obj.tags if t.k in keys})
-                        way_lens.append(len(coords))
-                        way_coords.extend(coords)
-                elif "building" in obj.tags and obj.is_closed():
-                    coords = _way_coords(obj, negative_nodes)
-                    if len(coords) >= 4:
-                        area_ids.append(f"w{obj.id}")
-                        area_tags.append({t.k: t.v for t in obj.tags if t.k in keys})
-                        area_lens.append(len(coords))
-                        area_coords.extend(coords)
-    except RuntimeError as exc:
-        raise CurbsideInputError(path, f"not a readable OSM file ({_first_line(exc)})") from None
-    log.info("read %s: %d ways, %d areas, %d nodes", path.name, len(way_ids), len(area_ids), len(node_ids))
-
-    way_xy = np.array(way_coords, dtype=float).reshape(-1, 2)
-    area_xy = np.array(area_coords, dtype=float).reshape(-1, 2)
-    node_xy = np.array(node_coords, dtype=float).reshape(-1, 2)
-    every_xy = np.concatenate([way_xy, area_xy, node_xy])
+    with _osmium_errors(path):
+        members, rel_tags, bounds = _building_relations(path)
+        elements = _read_elements(path, members)
+    log.info(
+        "read %s: %d ways, %d areas, %d nodes",
+        path.name, len(elements.way_ids), len(elements.area_ids), len(elements.node_ids),
+    )  # fmt: skip
+    every_xy = np.concatenate([np.reshape(c, (-1, 2)) for c in elements.coords()])
     if len(every_xy) == 0:
         raise CurbsideInputError(path, "no highways, buildings or crossings in this file")
     frame = LocalFrame.around(*((every_xy.min(0) + every_xy.max(0)) / 2)) if bbox is None else frame_for(bbox)
-    rel_ids, rel_tags, rel_polys = _assemble_relations(members, rel_tags, member_coords, frame, keys)
+    keys = frozenset(TAG_KEYS)
+    rel_ids, rel_tags, rel_polys = _assemble_relations(members, rel_tags, elements.member_runs, frame, keys)
+    way_xy, area_xy, node_xy = (np.array(c, dtype=float).reshape(-1, 2) for c in elements.coords())
     data = OsmData(
-        ways=make_table(way_ids, _rings_or_lines(way_xy, way_lens, frame, closed=False), way_tags, frame.crs),
+        ways=make_table(
+            elements.way_ids,
+            _rings_or_lines(way_xy, elements.way_lens, frame, closed=False),
+            elements.way_tags,
+            frame.crs,
+        ),
         areas=make_table(
-            area_ids + rel_ids,
-            np.concatenate([_rings_or_lines(area_xy, area_lens, frame, closed=True), rel_polys]),
-            area_tags + rel_tags,
+            elements.area_ids + rel_ids,
+            np.concatenate([_rings_or_lines(area_xy, elements.area_lens, frame, closed=True), rel_polys]),
+            elements.area_tags + rel_tags,
             frame.crs,
         ),
         nodes=make_table(
-            node_ids, shapely.points(np.column_stack(frame.to_xy(*node_xy.T))), node_tags, frame.crs
+            elements.node_ids,
+            shapely.points(np.column_stack(frame.to_xy(*node_xy.T))),
+            elements.node_tags,
+            frame.crs,
         ),
         source=path.name,
-        timestamp=_iso(newest),
+        timestamp=_iso(elements.newest),
+        bounds=bounds,
     )
     return data if bbox is None else clip_to_bbox(data, bbox, margin_m)
 
 
-def _way_coords(way: osmium.osm.Way, negative_nodes: dict[int, tuple[float, float]]) -> list:
-    """(lon, lat) of a way's nodes whose location is known."""
-    coords = []
+@contextlib.contextmanager
+def _osmium_errors(path: Path) -> Iterator[None]:
+    """Turn what osmium raises on a file it cannot parse into a one-line :class:`CurbsideInputError`."""
+    try:
+        yield
+    except (RuntimeError, osmium.InvalidLocationError) as exc:
+        raise CurbsideInputError(path, f"not a readable OSM file ({_first_line(exc)})") from None
+
+
+@dataclass
+class _Elements:
+    """What the streaming pass collects: concatenated (lon, lat) per kind, with ids and tags."""
+
+    way_ids: list[int] = field(default_factory=list)
+    way_tags: list[dict[str, str]] = field(default_factory=list)
+    way_lens: list[int] = field(default_factory=list)
+    way_coords: list[tuple[float, float]] = field(default_factory=list)
+    area_ids: list[str] = field(default_factory=list)
+    area_tags: list[dict[str, str]] = field(default_factory=list)
+    area_lens: list[int] = field(default_factory=list)
+    area_coords: list[tuple[float, float]] = field(default_factory=list)
+    node_ids: list[int] = field(default_factory=list)
+    node_tags: list[dict[str, str]] = field(default_factory=list)
+    node_coords: list[tuple[float, float]] = field(default_factory=list)
+    #: Relation member way id -> its runs of known (lon, lat).
+    member_runs: dict[int, list[list[tuple[float, float]]]] = field(default_factory=dict)
+    newest: float = 0.0
+
+    def coords(self) -> tuple[list, list, list]:
+        return self.way_coords, self.area_coords, self.node_coords
+
+
+def _read_elements(path: Path, members: dict[int, list[tuple[int, str]]]) -> _Elements:
+    """The streaming pass: highway ways, building ways, crossing nodes, member ways' coordinates."""
+    out = _Elements()
+    keys = frozenset(TAG_KEYS)
+    # osmium's location index holds only positive ids; extracts and editors use negative ones too.
+    negative_nodes: dict[int, tuple[float, float]] = {}
+    for obj in osmium.FileProcessor(str(path)).with_locations():
+        if obj.is_node() and obj.id < 0 and obj.location.valid():
+            negative_nodes[obj.id] = (obj.location.lon, obj.location.lat)
+        elif obj.is_way() and obj.id in members:
+            out.member_runs[obj.id] = _known_runs(obj, negative_nodes)
+        if not obj.tags:
+            continue
+        out.newest = max(out.newest, obj.timestamp.timestamp())
+        if obj.is_node():
+            if obj.tags.get("highway") in _NODE_HIGHWAY_VALUES and obj.location.valid():
+                out.node_ids.append(obj.id)
+                out.node_tags.append({t.k: t.v for t in obj.tags if t.k in keys})
+                out.node_coords.append((obj.location.lon, obj.location.lat))
+        elif obj.is_way() and "highway" in obj.tags:
+            way_tags = {t.k: t.v for t in obj.tags if t.k in keys}
+            for run in _known_runs(obj, negative_nodes):
+                out.way_ids.append(obj.id)
+                out.way_tags.append(way_tags)
+                out.way_lens.append(len(run))
+                out.way_coords.extend(run)
+        elif obj.is_way() and "building" in obj.tags and obj.is_closed():
+            # A ring cut by the extract's edge is closed across the gap: the part inside stays.
+            ring = [c for c in _locations(obj, negative_nodes) if c is not None]
+            if len(set(ring)) >= 3:
+                ring.append(ring[0])
+                out.area_ids.append(f"w{obj.id}")
+                out.area_tags.append({t.k: t.v for t in obj.tags if t.k in keys})
+                out.area_lens.append(len(ring))
+                out.area_coords.extend(ring)
+    return out
+
+
+def _locations(way: osmium.osm.Way, negative_nodes: dict[int, tuple[float, float]]) -> list:
+    """(lon, lat) of each of the way's nodes, ``None`` where the file lacks the node."""
+    out: list[tuple[float, float] | None] = []
     for n in way.nodes:
         if n.location.valid():
-            coords.append((n.lon, n.lat))
-        elif n.ref in negative_nodes:
-            coords.append(negative_nodes[n.ref])
-    return coords
+            out.append((n.lon, n.lat))
+        else:
+            out.append(negative_nodes.get(n.ref))
+    return out
+
+
+def _known_runs(way: osmium.osm.Way, negative_nodes: dict[int, tuple[float, float]]) -> list:
+    """The way's (lon, lat) split where a node is missing: runs of two or more known nodes."""
+    runs: list[list[tuple[float, float]]] = [[]]
+    for loc in _locations(way, negative_nodes):
+        if loc is not None:
+            runs[-1].append(loc)
+        elif runs[-1]:
+            runs.append([])
+    return [run for run in runs if len(run) >= 2]
 
 
 def _iso(epoch_s: float) -> str | None:
@@ -269,43 +330,54 @@ def _rings_or_lines(lonlat: np.ndarray, lengths: list[int], frame: LocalFrame, *
     return shapely.make_valid(polys)
 
 
-def _building_relation_members(
+def _building_relations(
     path: Path,
-) -> tuple[dict[int, list[tuple[int, str]]], dict[int, dict[str, str]]]:
-    """Building multipolygon relations: way id -> [(relation id, role)], and relation tags.
+) -> tuple[dict[int, list[tuple[int, str]]], dict[int, dict[str, str]], BBox | None]:
+    """Building multipolygon relations and the header's bounds, from a pass over relations only.
 
-    A first pass over relations only, so that the main pass can keep the member ways' coordinates.
+    Returns
+    -------
+    members
+        Way id -> [(relation id, role)], so that the main pass keeps the member ways' coordinates.
+    rel_tags
+        Relation id -> tags.
+    bounds
+        The header's (west, south, east, north), or ``None`` when it has no valid box.
     """
     members: dict[int, list[tuple[int, str]]] = {}
     rel_tags: dict[int, dict[str, str]] = {}
-    try:
-        for rel in osmium.FileProcessor(str(path), osmium.osm.RELATION):
-            if rel.tags.get("type") != "multipolygon" or "building" not in rel.tags:
-                continue
-            for m in rel.members:
-                if m.type == "w":
-                    members.setdefault(m.ref, []).append((rel.id, m.role))
-            rel_tags[rel.id] = dict(rel.tags)
-    except RuntimeError as exc:
-        raise CurbsideInputError(path, f"not a readable OSM file ({_first_line(exc)})") from None
-    return members, rel_tags
+    processor = osmium.FileProcessor(str(path), osmium.osm.RELATION)
+    box = processor.header.box()
+    bounds = None
+    if box.valid() and box.bottom_left.lon < box.top_right.lon and box.bottom_left.lat < box.top_right.lat:
+        bounds = (box.bottom_left.lon, box.bottom_left.lat, box.top_right.lon, box.top_right.lat)
+    for rel in processor:
+        if rel.tags.get("type") != "multipolygon" or "building" not in rel.tags:
+            continue
+        for m in rel.members:
+            if m.type == "w":
+                members.setdefault(m.ref, []).append((rel.id, m.role))
+        rel_tags[rel.id] = dict(rel.tags)
+    return members, rel_tags, bounds
 
 
 def _assemble_relations(
     members: dict[int, list[tuple[int, str]]],
     rel_tags: dict[int, dict[str, str]],
-    member_coords: dict[int, list[tuple[float, float]]],
+    member_runs: dict[int, list[list[tuple[float, float]]]],
     frame: LocalFrame,
     keys: frozenset[str],
 ) -> tuple[list[str], list[dict[str, str]], np.ndarray]:
-    """Polygons of building multipolygon relations: polygonized outer ways minus inner ways."""
-    way_ids = [w for w in members if len(member_coords.get(w, ())) >= 2]
-    if not way_ids:
+    """Polygons of building multipolygon relations: polygonized outer ways minus inner ways.
+
+    Members the file lacks are skipped; a relation whose outer ways close no ring gives no polygon.
+    """
+    runs = [(w, run) for w in members for run in member_runs.get(w, ())]
+    if not runs:
         return [], [], np.array([], dtype=object)
-    lengths = [len(member_coords[w]) for w in way_ids]
-    lonlat = np.array([c for w in way_ids for c in member_coords[w]], dtype=float)
-    lines = _rings_or_lines(lonlat, lengths, frame, closed=False)
-    uses = [(i, rel_id, role == "inner") for i, w in enumerate(way_ids) for rel_id, role in members[w]]
+    lonlat = np.array([c for _, run in runs for c in run], dtype=float)
+    lines = _rings_or_lines(lonlat, [len(run) for _, run in runs], frame, closed=False)
+    uses = [(i, rel_id, role == "inner") for i, (w, _) in enumerate(runs) for rel_id, role in members[w]]
     line_i, rel_of, inner = (np.array(v) for v in zip(*uses, strict=True))
     rel_ids, rel_row = np.unique(rel_of, return_inverse=True)
 
@@ -316,7 +388,7 @@ def _assemble_relations(
         parts, owner = shapely.get_parts(faces, return_index=True)
         return shapely.union_all(_padded_rows(owner, parts, len(rel_ids)), axis=1)
 
-    polys = shapely.difference(rings(~inner), rings(inner))
+    polys = shapely.make_valid(shapely.difference(rings(~inner), rings(inner)))
     keep = ~shapely.is_empty(polys)
     ids = [f"r{r}" for r in rel_ids[keep]]
     tags = [{k: v for k, v in rel_tags[int(r)].items() if k in keys} for r in rel_ids[keep]]

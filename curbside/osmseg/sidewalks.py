@@ -11,6 +11,8 @@ the building line, split wherever a crosswalk crosses it.
 
 from __future__ import annotations
 
+import logging
+
 import geopandas as gpd
 import numpy as np
 import pandas as pd
@@ -20,6 +22,8 @@ from curbside import settings
 from curbside.osmseg.overlay import subtract
 from curbside.osmseg.streets import MINOR_SERVICES, node_keys, sidewalk_sides
 from curbside.osmseg.tags import column, is_in
+
+log = logging.getLogger(__name__)
 
 
 def split_at_junctions(roads: gpd.GeoDataFrame, block_ends: np.ndarray) -> gpd.GeoDataFrame:
@@ -84,7 +88,23 @@ def territories(pieces: np.ndarray, spacing_m: float = 3.0) -> np.ndarray:
     rank = np.arange(len(idx)) - np.searchsorted(idx, idx)
     table = np.full((len(pieces), int(rank.max()) + 1 if len(rank) else 1), None, dtype=object)
     table[idx, rank] = cells
-    return shapely.coverage_union_all(table, axis=1)
+    return dissolve_rows(table)
+
+
+def dissolve_rows(table: np.ndarray) -> np.ndarray:
+    """Union of each row of a (rows, k) object array of polygons (``None`` pads), for a coverage.
+
+    GEOS's coverage union is fast but assumes the polygons of a row neither overlap nor meet at
+    unmatched vertices, and GEOS 3.14 refuses such a row ("CoverageUnion cannot process incorrectly
+    noded inputs"). Voronoi cells are such a coverage only up to rounding: GEOS clips the cells at
+    the diagram's extent one by one, so the shared edges of far-flung or nearly collinear samples
+    may not match. Then the overlay union (about 4x slower, no assumption) does the work.
+    """
+    try:
+        return shapely.coverage_union_all(table, axis=1)
+    except shapely.errors.GEOSException as exc:
+        log.debug("cells are not a clean coverage (%s); dissolving with union_all", exc)
+        return shapely.union_all(table, axis=1)
 
 
 def junction_keys(lines: np.ndarray) -> np.ndarray:
@@ -205,15 +225,17 @@ def sidewalk_segments(
     parts, part_of = parts[polygonal], part_of[polygonal]
     piece = piece_of[part_of]
     way_row = road[piece]
-    # Number the parts of one way side in order along the way.
+    # Number the parts of one way side in order along the way (a way the reader cut where its file
+    # lacks nodes has several rows: they are numbered on, in order).
+    osm_id = carrying["osm_id"].to_numpy()[way_row]
     along = shapely.line_locate_point(carrying.geometry.values[way_row], shapely.centroid(parts))
     table = pd.DataFrame(
-        {"way": way_row, "side": side[part_of], "k": pieces["k"].to_numpy()[piece], "along": along}
-    )
-    table = table.sort_values(["way", "side", "k", "along"], kind="stable")
-    table["n"] = table.groupby(["way", "side"]).cumcount()
+        {"osm_id": osm_id, "row": way_row, "side": side[part_of], "k": pieces["k"].to_numpy()[piece],
+         "along": along}
+    )  # fmt: skip
+    table = table.sort_values(["osm_id", "side", "row", "k", "along"], kind="stable")
+    table["n"] = table.groupby(["osm_id", "side"]).cumcount()
     table = table.sort_index()
-    osm_id = carrying["osm_id"].to_numpy()[way_row]
     segment_id = (
         "w" + pd.Series(osm_id).astype(str) + "-" + table["n"].astype(str).to_numpy()
         + "-" + table["side"].map({"left": "L", "right": "R"}).to_numpy()

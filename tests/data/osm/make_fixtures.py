@@ -1,8 +1,9 @@
-"""Regenerate the recorded Overpass response from the bundled extract.
+"""Regenerate the osmseg test fixtures: the recorded Overpass response and the hand-written scenes.
 
 ``python tests/data/osm/make_fixtures.py`` writes ``overpass-sansome-pine.json``: every building and
 highway way with a node inside :data:`BBOX` (complete, with all their nodes) and the crossing nodes
-inside it, in Overpass JSON, as ``osmnx.features_from_bbox`` would receive it from a server.
+inside it, in Overpass JSON, as ``osmnx.features_from_bbox`` would receive it from a server; and the
+scenes of :func:`write_scenes`, each in metres around :data:`ORIGIN`.
 """
 
 from __future__ import annotations
@@ -79,6 +80,10 @@ class Scene:
         self.node_tags: dict[int, dict[str, str]] = {}
         self.ways: list[tuple[int, list[int], dict[str, str]]] = []
         self.relations: list[tuple[int, list[tuple[int, str]], dict[str, str]]] = []
+        #: (x0, y0, x1, y1) metres of the ``<bounds>`` element, if any.
+        self.bounds: tuple[float, float, float, float] | None = None
+        #: Nodes ways refer to but the file leaves out (as an extract cut at its bounds does).
+        self.left_out: set[int] = set()
 
     def node(self, x: float, y: float, **tags: str) -> int:
         key = (round(x, 3), round(y, 3))
@@ -105,7 +110,12 @@ class Scene:
         from xml.sax.saxutils import quoteattr
 
         lines = ['<?xml version="1.0" encoding="UTF-8"?>', '<osm version="0.6" generator="curbside tests">']
+        if self.bounds is not None:
+            (w, s), (e, n) = _lonlat(*self.bounds[:2]), _lonlat(*self.bounds[2:])
+            lines.append(f'  <bounds minlat="{s:.7f}" minlon="{w:.7f}" maxlat="{n:.7f}" maxlon="{e:.7f}"/>')
         for (x, y), nid in sorted(self.nodes.items(), key=lambda kv: kv[1]):
+            if nid in self.left_out:
+                continue
             lon, lat = _lonlat(x, y)
             tags = self.node_tags.get(nid, {})
             attrs = f'id="{nid}" version="1" timestamp="2026-01-02T03:04:05Z" lat="{lat:.7f}" lon="{lon:.7f}"'
@@ -202,12 +212,75 @@ def relation_building() -> Scene:
     return s
 
 
+def feet_widths() -> Scene:
+    """Whole-number tags and one in feet: ``width="40'"`` used to crash the build.
+
+    Every ``width`` in the table is a whole number, so pandas parsed the column as integers, and the
+    feet-to-metres product (12.192 m) could not be put back: a TypeError "cannot safely cast
+    non-equivalent object to int64" (first seen on a US extract).
+    """
+    s = Scene()
+    s.way([(-60, 0), (60, 0)], highway="residential", width="40'", name="Imperial Street")
+    s.way([(0, -60), (0, 0)], highway="residential", width="12", lanes="2")
+    s.box(10, 15, 40, 40, building="yes", height="300 ft")
+    s.box(-40, 15, -10, 40, building="yes", height="6'6\"")
+    return s
+
+
+def past_bounds() -> Scene:
+    """An extract whose ways leave its ``<bounds>``: a street runs 1.5 km east past them.
+
+    Only the 160 x 120 m inside the bounds has buildings; past them the extract holds just the ways
+    that leave it, and blocks without buildings would look like open walkable space.
+    """
+    s = Scene()
+    s.bounds = (-80.0, -60.0, 80.0, 60.0)
+    s.way([(-80, 0), (0, 0), (1500, 0)], highway="residential", name="Long Street")
+    s.way([(0, -60), (0, 0), (0, 60)], highway="residential", name="Short Street")
+    s.way([(40, 0), (40, -400)], highway="service")
+    for sx in (-1, 1):
+        for sy in (-1, 1):
+            s.box(sx * 10, sy * 10, sx * 70, sy * 50, building="yes")
+    return s
+
+
+def overlapping_buildings() -> Scene:
+    """Buildings drawn over each other: a tower inside its podium, neighbours whose walls cross."""
+    s = Scene()
+    s.way([(-80, 0), (80, 0)], highway="residential", name="Tower Street")
+    s.box(-60, 10, 0, 50, building="commercial", height="12")
+    s.box(-45, 20, -15, 40, building="office", height="150")
+    s.box(-5, 10, 40, 45, building="yes")  # overlaps the podium by 5 m
+    s.box(35, 15, 60, 45, building="yes")  # and its other neighbour by 5 m
+    return s
+
+
+def cut_at_bounds() -> Scene:
+    """An extract cut like ``osmium extract -s simple``: ways refer to nodes the file lacks.
+
+    The street leaves the bounds and comes back; joining its known nodes across the gap would draw a
+    street straight through the building between. A building cut by the bounds keeps the part inside.
+    """
+    s = Scene()
+    s.bounds = (-60.0, -20.0, 60.0, 60.0)
+    street = [(-60, 0), (-30, 0), (-20, -40), (20, -40), (30, 0), (60, 0)]
+    s.way(street, highway="residential", name="Loop Street")
+    s.box(-25, 10, 25, 40, building="yes")
+    s.way([(35, 10), (55, 10), (55, 80), (35, 80), (35, 10)], building="yes")
+    s.left_out = {s.node(-20, -40), s.node(20, -40), s.node(55, 80)}
+    return s
+
+
 def write_scenes() -> None:
     crossroads(mapped_sidewalks=True).write("crossroads-mapped-sidewalks.osm")
     crossroads(mapped_sidewalks=False).write("crossroads-crossing-nodes.osm")
     wide_road().write("wide-road.osm")
     passage().write("building-passage.osm")
     relation_building().write("relation-building.osm")
+    feet_widths().write("feet-widths.osm")
+    past_bounds().write("past-bounds.osm")
+    overlapping_buildings().write("overlapping-buildings.osm")
+    cut_at_bounds().write("cut-at-bounds.osm")
     empty = Scene()
     empty.node(0, 0, amenity="bench")
     empty.way([(0, 0), (5, 5)], barrier="fence")
