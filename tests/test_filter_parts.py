@@ -29,7 +29,7 @@ from curbside.localize.filter import (
 )
 from curbside.localize.filter.gnss import reference_bias_update, reference_log_likelihood
 from curbside.localize.filter.particles import reference_moments
-from curbside.localize.filter.predict import reference_predict
+from curbside.localize.filter.predict import reference_draws, reference_predict
 from curbside.localize.filter.resample import _systematic_gather, systematic_indices
 from curbside.localize.filter.segments import segment_posterior
 from curbside.localize.raster import RasterLookup, rasterize_map
@@ -82,36 +82,31 @@ def test_predictor_noise_scales_with_step_length():
     np.testing.assert_allclose(spreads, [0.05, 0.2, 0.4], rtol=0.03)
 
 
-def test_compiled_predictor_matches_its_oracle_with_jumps_and_scale_noise():
-    cfg = MotionConfig(heading_jump_prob=0.05, heading_jump_sigma_deg=40.0, scale_noise_per_step=0.01)
+@pytest.mark.parametrize("scale_noise", [0.0, 0.01])
+def test_compiled_predictor_matches_its_oracle_fed_the_same_draws(scale_noise):
+    cfg = MotionConfig(heading_jump_prob=0.05, heading_jump_sigma_deg=40.0, scale_noise_per_step=scale_noise)
     p = random_particles(500)
     pred = InertialPredictor(cfg, 500, np.random.default_rng(2))
-    before = p.state.copy()
-    jumps = pred.draw(500)
-    assert len(jumps[0]) > 5  # 5 % of 500
-    expected = reference_predict(
-        before,
-        pred.noise,
-        0.6,
-        0.3,
-        pred.position_sigma(0.6, 0.3),
-        pred.theta_sigma,
-        pred.scale_sigma,
-        *jumps,
-    )
-    from curbside.localize.filter.predict import _predict
+    before, replay = p.state.copy(), pred.stream.copy()
+    pred.predict(p, 0.6, 0.3)
+    noise, jump_idx, jump_rad = reference_draws(replay, 500, cfg.heading_jump_prob, pred.jump_sigma,
+                                                scale_noise > 0)
+    assert 5 < len(jump_idx) < 50  # 5 % of 500
+    expected = reference_predict(before, noise, 0.6, 0.3, pred.position_sigma(0.6, 0.3), pred.theta_sigma,
+                                 pred.scale_sigma, jump_idx, jump_rad)
+    np.testing.assert_allclose(p.state, expected, rtol=1e-15, atol=1e-12)  # sin/cos within an ulp
+    np.testing.assert_array_equal(pred.stream.state, replay.state)  # the kernel drew exactly these
 
-    _predict(
-        p.state,
-        pred.noise,
-        0.6,
-        0.3,
-        pred.position_sigma(0.6, 0.3),
-        pred.theta_sigma,
-        pred.scale_sigma,
-        *jumps,
-    )
-    np.testing.assert_allclose(p.state, expected, rtol=0, atol=1e-12)
+
+def test_predictor_turns_by_huge_heading_offsets_with_the_c_library():
+    # Beyond kernelmath.LIMIT radians the polynomial sine/cosine would lose accuracy: the kernel falls
+    # back to math.sin / math.cos for the whole update.
+    p = ParticleSet(3)
+    p.set_heading(np.array([0.1, 2000.0, -5000.5]))
+    InertialPredictor(QUIET, 3, np.random.default_rng(0)).predict(p, 1.0, 0.0)
+    np.testing.assert_array_equal(p.state[3], np.cos(p.theta))
+    np.testing.assert_array_equal(p.state[4], np.sin(p.theta))
+    np.testing.assert_array_equal(p.x, np.cos(p.theta))
 
 
 def test_heading_jumps_move_a_few_particles_by_tens_of_degrees():

@@ -14,6 +14,8 @@ module                     part
 :mod:`.segments`           :class:`SegmentEstimator`: which sidewalk segment
 :mod:`.initiate`           :class:`Initiator`: start at a pose or a fix
 :mod:`.tracker`            :class:`Tracker`: the streaming filter that runs them
+:mod:`.random`             :class:`~.random.Stream`: seeded normals and uniforms drawn inside kernels
+:mod:`.kernelmath`         ``sincos``, ``exp``, ``logaddexp`` that vectorise inside kernels
 =========================  ==================================================================
 
 See ``docs/filter.md`` for a drawing of the parts and how to write a new one.

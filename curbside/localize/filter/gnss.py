@@ -34,6 +34,7 @@ import numba
 import numpy as np
 
 from curbside.localize.filter.config import GnssConfig
+from curbside.localize.filter.kernelmath import exp, logaddexp
 from curbside.localize.filter.particles import BIAS_X, BIAS_Y, ParticleSet, X, Y
 from curbside.localize.filter.parts import GnssFix, Update
 
@@ -121,24 +122,16 @@ class GnssLikelihood:
         self.bias_variance = (1.0 - mean_inlier * gain) * prior
 
 
-@numba.njit(cache=True, nogil=True)
-def _logaddexp(u, v):  # pragma: no cover - compiled; as numpy computes it
-    if v == -math.inf:
-        return u
-    if u >= v:
-        return u + math.log1p(math.exp(v - u))
-    return v + math.log1p(math.exp(u - v))
-
-
-@numba.njit(cache=True, nogil=True)
+# The kernels use kernelmath's exp and logaddexp, which vectorise under error_model="numpy".
+@numba.njit(cache=True, nogil=True, error_model="numpy")
 def _add_gnss_log_likelihood(state, log_weight, fix_x, fix_y, a, b, c, exponent):  # pragma: no cover
     for i in range(state.shape[1]):
         ex = state[X, i] - fix_x
         ey = state[Y, i] - fix_y
-        log_weight[i] += exponent * _logaddexp((ex * ex + ey * ey) * a + b, c)
+        log_weight[i] += exponent * logaddexp((ex * ex + ey * ey) * a + b, c)
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(cache=True, nogil=True, error_model="numpy")
 def _add_gnss_bias_log_likelihood(state, log_weight, fix_x, fix_y, a, b, c, rho, gain):  # pragma: no cover
     total = 0.0
     n = state.shape[1]
@@ -148,9 +141,9 @@ def _add_gnss_bias_log_likelihood(state, log_weight, fix_x, fix_y, a, b, c, rho,
         ex = fix_x - state[X, i] - bx  # the innovation
         ey = fix_y - state[Y, i] - by
         inlier = (ex * ex + ey * ey) * a + b
-        ll = _logaddexp(inlier, c)
+        ll = logaddexp(inlier, c)
         log_weight[i] += ll
-        r = math.exp(inlier - ll)
+        r = exp(inlier - ll)
         total += r
         state[BIAS_X, i] = bx + r * gain * ex
         state[BIAS_Y, i] = by + r * gain * ey

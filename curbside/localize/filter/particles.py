@@ -28,6 +28,7 @@ from typing import NamedTuple
 import numba
 import numpy as np
 
+from curbside.localize.filter.kernelmath import exp
 from curbside.projection import LocalFrame
 
 FIELDS = ("x", "y", "theta", "cos_theta", "sin_theta", "scale", "bias_x", "bias_y")
@@ -92,6 +93,9 @@ class ParticleSet:
     bias_y = _row(BIAS_Y, "GNSS bias north, metres.")
 
 
+_new_tuple = tuple.__new__  # a named tuple from the kernel's tuple, without its constructor's overhead
+
+
 class Moments(NamedTuple):
     """Weighted moments of the cloud after normalisation.
 
@@ -119,25 +123,26 @@ class Moments(NamedTuple):
 
 def normalise_and_estimate(particles: ParticleSet) -> Moments:
     """Normalise the log-weights in place (log-sum-exp), fill ``particles.weights``, return the moments."""
-    return Moments(*_normalise_and_estimate(particles.state, particles.log_weight, particles.weights))
+    moments = _normalise_and_estimate(particles.state, particles.log_weight, particles.weights)
+    return _new_tuple(Moments, moments)
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(cache=True, nogil=True, error_model="numpy")  # kernelmath.exp vectorises under it
 def _normalise_and_estimate(state, log_weight, weights):  # pragma: no cover - compiled
     n = log_weight.shape[0]
     peak = -math.inf
+    has_nan = False
     for i in range(n):
         lw = log_weight[i]
-        if lw != lw:
-            return False, 0.0, 0.0, 0.0, 0.0, 0.0
+        has_nan |= lw != lw
         peak = max(peak, lw)
-    if peak == -math.inf:
+    if has_nan or peak == -math.inf:
         return False, 0.0, 0.0, 0.0, 0.0, 0.0
+    for i in range(n):
+        weights[i] = exp(log_weight[i] - peak)
     total = 0.0
     for i in range(n):
-        w = math.exp(log_weight[i] - peak)
-        weights[i] = w
-        total += w
+        total += weights[i]
     log_total = math.log(total)
     ex = ey = esc = ec = es = sq = 0.0
     for i in range(n):

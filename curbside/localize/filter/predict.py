@@ -11,9 +11,14 @@ At an update with inertial displacement ``(dx, dy)`` (metres east/north over the
    position noise of sigma ``max(step_noise_floor_m, step_noise_fraction * |(dx, dy)|)``: the error of
    an inertial step grows with its length, and the floor keeps a standing cloud alive.
 
-The random numbers are drawn with the filter's seeded numpy generator into preallocated buffers; the
-arithmetic is one compiled loop (:func:`_predict`). :func:`reference_predict` is the numpy oracle the
-tests compare it with.
+The predictor owns a :class:`~curbside.localize.filter.random.Stream` seeded from the filter's
+generator, and its compiled kernel (:func:`_predict`) draws the normals as it goes, with no buffer:
+first the jumps (each particle jumps independently; the gap to the next jumping particle is geometric,
+so that costs ``O(jumps)`` draws, not ``O(N)``), then for each particle the normals of ``x``, ``y``,
+``theta`` and, with a scale random walk, ``scale``. A second, branch-free loop turns and moves the
+particles (:func:`curbside.localize.filter.kernelmath.sincos`: it runs on SIMD lanes).
+:func:`reference_draws` replays that order and :func:`reference_predict` is the numpy oracle the tests
+compare the kernel with.
 """
 
 from __future__ import annotations
@@ -24,7 +29,17 @@ import numba
 import numpy as np
 
 from curbside.localize.filter.config import MotionConfig
+from curbside.localize.filter.kernelmath import in_range, sincos
 from curbside.localize.filter.particles import COS, SCALE, SIN, THETA, ParticleSet, X, Y
+from curbside.localize.filter.random import (
+    Stream,
+    draw_random,
+    draw_standard_normal,
+    load,
+    next_double,
+    standard_normal,
+    store,
+)
 
 
 class InertialPredictor:
@@ -35,69 +50,114 @@ class InertialPredictor:
     config
         Noise parameters.
     n
-        Number of particles.
+        Number of particles (the parts' common signature; nothing is allocated per particle).
     rng
-        The filter's seeded generator.
+        The filter's seeded generator (seeds the predictor's own :attr:`stream`).
     """
 
     def __init__(self, config: MotionConfig, n: int, rng: np.random.Generator) -> None:
         self.config = config
-        self.rng = rng
+        self.stream = Stream(rng)
         self.theta_sigma = math.radians(config.heading_noise_deg)
         self.scale_sigma = config.scale_noise_per_step
         self.jump_sigma = math.radians(config.heading_jump_sigma_deg)
-        self.noise = np.zeros((4, n))  # standard normals: x, y, theta, scale
-        # Without a scale random walk its row stays zero and is not drawn (fewer normals per update).
-        self._drawn = self.noise if self.scale_sigma > 0 else self.noise[:3]
-        self._no_jumps = (np.zeros(0, np.int64), np.zeros(0))
 
     def position_sigma(self, dx: float, dy: float) -> float:
         """Position noise sigma (m) of a step with displacement ``(dx, dy)``."""
         return max(self.config.step_noise_floor_m, self.config.step_noise_fraction * math.hypot(dx, dy))
 
-    def draw(self, n: int) -> tuple[np.ndarray, np.ndarray]:
-        """Draw this update's standard normals into :attr:`noise`; return the jumps ``(index, radians)``."""
-        self.rng.standard_normal(out=self._drawn)
-        if self.config.heading_jump_prob <= 0:
-            return self._no_jumps
-        k = int(self.rng.binomial(n, self.config.heading_jump_prob))
-        if k == 0:
-            return self._no_jumps
-        return self.rng.integers(0, n, k), self.jump_sigma * self.rng.standard_normal(k)
-
     def predict(self, particles: ParticleSet, dx: float, dy: float) -> None:
         """Move ``particles`` in place by the step displacement ``(dx, dy)`` metres (east, north)."""
-        jump_idx, jump_rad = self.draw(len(particles))
         _predict(
             particles.state,
-            self.noise,
+            self.stream.state,
             dx,
             dy,
             self.position_sigma(dx, dy),
             self.theta_sigma,
             self.scale_sigma,
-            jump_idx,
-            jump_rad,
+            self.config.heading_jump_prob,
+            self.jump_sigma,
         )
 
 
 @numba.njit(cache=True, nogil=True)
 def _predict(
-    state, noise, dx, dy, sigma_xy, sigma_theta, sigma_scale, jump_idx, jump_rad
-):  # pragma: no cover
-    for j in range(jump_idx.shape[0]):
-        state[THETA, jump_idx[j]] += jump_rad[j]
-    for i in range(state.shape[1]):
-        th = state[THETA, i] + sigma_theta * noise[2, i]
-        sc = state[SCALE, i] + sigma_scale * noise[3, i]
-        c = math.cos(th)
-        s = math.sin(th)
+    state, rng_state, dx, dy, sigma_xy, sigma_theta, sigma_scale, jump_prob, jump_sigma
+):  # pragma: no cover - compiled
+    n = state.shape[1]
+    s = load(rng_state)
+    if jump_prob > 0:
+        log_miss = math.log1p(-jump_prob)
+        i = -1
+        while True:
+            u, s = next_double(s)
+            gap = math.floor(math.log1p(-u) / log_miss)  # particles skipped before the next jump
+            if gap >= n - 1 - i:
+                break
+            i += 1 + int(gap)
+            z, s = standard_normal(s)
+            state[THETA, i] += jump_sigma * z
+    out_of_range = False
+    for i in range(n):  # the draws (one stream: a sequential loop)
+        zx, s = standard_normal(s)
+        zy, s = standard_normal(s)
+        zt, s = standard_normal(s)
+        th = state[THETA, i] + sigma_theta * zt
         state[THETA, i] = th
-        state[SCALE, i] = sc
-        state[COS, i] = c
-        state[SIN, i] = s
-        state[X, i] += (c * dx - s * dy) * sc + sigma_xy * noise[0, i]
-        state[Y, i] += (s * dx + c * dy) * sc + sigma_xy * noise[1, i]
+        out_of_range |= not in_range(th)
+        if sigma_scale > 0:
+            zs, s = standard_normal(s)
+            state[SCALE, i] += sigma_scale * zs
+        state[X, i] += sigma_xy * zx
+        state[Y, i] += sigma_xy * zy
+    store(rng_state, s)
+    if out_of_range:  # heading offsets beyond a thousand radians: the C library's sine and cosine
+        for i in range(n):
+            _move(state, i, math.cos(state[THETA, i]), math.sin(state[THETA, i]), dx, dy)
+    else:  # no calls, no branches: SIMD
+        for i in range(n):
+            sn, c = sincos(state[THETA, i])
+            _move(state, i, c, sn, dx, dy)
+
+
+@numba.njit(inline="always", cache=True, nogil=True)
+def _move(state, i, c, sn, dx, dy):  # pragma: no cover - compiled
+    sc = state[SCALE, i]
+    state[COS, i] = c
+    state[SIN, i] = sn
+    state[X, i] += (c * dx - sn * dy) * sc
+    state[Y, i] += (sn * dx + c * dy) * sc
+
+
+def reference_draws(
+    stream: Stream, n: int, jump_prob: float, jump_sigma: float, scale_walk: bool
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The draws of one :func:`_predict` call, in its order, from ``stream`` (tests only; advances it).
+
+    Returns
+    -------
+    noise
+        ``(4, n)`` standard normals of ``x, y, theta, scale`` (``scale`` zero without a scale walk).
+    jump_idx, jump_rad
+        The particles that jump and their jumps (radians).
+    """
+    state = stream.state
+    jump_idx, jump_rad = [], []
+    if jump_prob > 0:
+        i = -1
+        while True:
+            gap = math.floor(math.log1p(-draw_random(state)) / math.log1p(-jump_prob))
+            if gap >= n - 1 - i:
+                break
+            i += 1 + int(gap)
+            jump_idx.append(i)
+            jump_rad.append(jump_sigma * draw_standard_normal(state))
+    noise = np.zeros((4, n))
+    for i in range(n):
+        for row in range(4 if scale_walk else 3):
+            noise[row, i] = draw_standard_normal(state)
+    return noise, np.array(jump_idx, dtype=np.int64), np.array(jump_rad)
 
 
 def reference_predict(
@@ -116,7 +176,9 @@ def reference_predict(
     np.add.at(out[THETA], jump_idx, jump_rad)
     out[THETA] += sigma_theta * noise[2]
     out[SCALE] += sigma_scale * noise[3]
+    out[X] += sigma_xy * noise[0]
+    out[Y] += sigma_xy * noise[1]
     out[COS], out[SIN] = np.cos(out[THETA]), np.sin(out[THETA])
-    out[X] += (out[COS] * dx - out[SIN] * dy) * out[SCALE] + sigma_xy * noise[0]
-    out[Y] += (out[SIN] * dx + out[COS] * dy) * out[SCALE] + sigma_xy * noise[1]
+    out[X] += (out[COS] * dx - out[SIN] * dy) * out[SCALE]
+    out[Y] += (out[SIN] * dx + out[COS] * dy) * out[SCALE]
     return out

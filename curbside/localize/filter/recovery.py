@@ -27,6 +27,7 @@ import numpy as np
 
 from curbside.localize.filter.config import RecoveryConfig
 from curbside.localize.filter.gnss import GnssLikelihood
+from curbside.localize.filter.kernelmath import exp
 from curbside.localize.filter.map_likelihood import MapLikelihood
 from curbside.localize.filter.particles import BIAS_X, BIAS_Y, COS, SCALE, SIN, THETA, ParticleSet, X, Y
 from curbside.localize.filter.parts import GnssFix, Update
@@ -156,20 +157,22 @@ class DivergenceRecovery:
         return k
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(cache=True, nogil=True, error_model="numpy")  # kernelmath.exp vectorises under it
 def _log_agreement(state, log_weight, fix_x, fix_y, scale):  # pragma: no cover - compiled
-    peak = -math.inf
     n = state.shape[1]
     work = np.empty(n)
     for i in range(n):
         dx = state[X, i] + state[BIAS_X, i] - fix_x
         dy = state[Y, i] + state[BIAS_Y, i] - fix_y
-        v = scale * (dx * dx + dy * dy) + log_weight[i]
-        work[i] = v
-        peak = max(peak, v)
+        work[i] = scale * (dx * dx + dy * dy) + log_weight[i]
+    peak = -math.inf
+    for i in range(n):
+        peak = max(peak, work[i])
     if not math.isfinite(peak):
         return -math.inf
+    for i in range(n):
+        work[i] = exp(work[i] - peak)
     total = 0.0
     for i in range(n):
-        total += math.exp(work[i] - peak)
+        total += work[i]
     return peak + math.log(total)

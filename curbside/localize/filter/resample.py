@@ -1,17 +1,21 @@
 """Systematic resampling: ``N`` draws at the evenly spaced positions ``(u0 + k) / N`` of the weights' CDF.
 
 The same rule as :func:`filterpy.monte_carlo.systematic_resample` (which draws ``u0`` from numpy's global
-generator; here ``u0`` comes from the filter's seeded one), compiled as one merge pass over the weights
-that gathers every state row at once into the particle set's spare array.
+generator; here ``u0`` comes from the resampler's own seeded stream), compiled as one merge pass over
+the weights that gathers every state row at once into the particle set's spare array; the same kernel
+draws ``u0`` and makes the weights uniform.
 """
 
 from __future__ import annotations
+
+import math
 
 import numba
 import numpy as np
 
 from curbside.localize.filter.config import ResampleConfig
 from curbside.localize.filter.particles import ParticleSet
+from curbside.localize.filter.random import Stream, draw_random
 
 
 class SystematicResampler:
@@ -22,24 +26,33 @@ class SystematicResampler:
     config
         Policy (``"always"``, the paper's, or ``"ess"``) and ESS threshold.
     rng
-        The filter's seeded generator (one uniform per resampling).
+        The filter's seeded generator (seeds the resampler's :attr:`stream`: one uniform per
+        resampling).
     """
 
     def __init__(self, config: ResampleConfig, rng: np.random.Generator) -> None:
         self.config = config
-        self.rng = rng
+        self.stream = Stream(rng)
 
     def resample(self, particles: ParticleSet, n_eff: float) -> bool:
         """Resample when the policy says so (weights then uniform); return whether it did."""
         if self.config.policy == "ess" and n_eff >= self.config.ess_fraction * len(particles):
             return False
-        _systematic_gather(particles.weights, self.rng.random(), particles.state, particles.spare)
-        particles.swap()
-        particles.reset_weights()
+        p = particles
+        _resample(p.weights, p.log_weight, self.stream.state, p.state, p.spare)
+        p.swap()
         return True
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def _resample(weights, log_weight, rng_state, state, out):  # pragma: no cover - compiled
+    _systematic_gather(weights, draw_random(rng_state), state, out)
+    n = weights.shape[0]
+    log_weight[:] = -math.log(n)  # as ParticleSet.reset_weights
+    weights[:] = 1.0 / n
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")  # no zero-division check in the loop
 def _systematic_gather(weights, u0, state, out):  # pragma: no cover - compiled
     # One merge pass: position k goes to the first particle whose cumulative weight exceeds it.
     n = weights.shape[0]

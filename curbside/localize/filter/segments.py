@@ -18,6 +18,8 @@ import numpy as np
 from curbside.localize.filter.particles import ParticleSet
 from curbside.localize.raster import MapRaster, RasterLookup
 
+_new_tuple = tuple.__new__  # a named tuple from the kernel's tuple, without its constructor's overhead
+
 
 class SegmentMode(NamedTuple):
     """The posterior mode over sidewalk segments at one update.
@@ -54,6 +56,7 @@ class SegmentEstimator:
             raise ValueError("the map raster has no sidewalk segments")
         lookup = RasterLookup(raster)
         self.segment_ids = raster.segment_ids
+        self._segment_id_str = [str(v) for v in raster.segment_ids]
         self._grid = (
             lookup.padded_segments,
             lookup.inv_res,
@@ -68,9 +71,14 @@ class SegmentEstimator:
 
     def mode(self, particles: ParticleSet) -> SegmentMode:
         """The MAP segment under the current normalised weights."""
-        return SegmentMode(
-            *_segment_mode(particles.weights, particles.state, *self._grid, self._segment_of, self._sums)
+        return _new_tuple(
+            SegmentMode,
+            _segment_mode(particles.weights, particles.state, *self._grid, self._segment_of, self._sums),
         )
+
+    def segment_id(self, segment: int) -> str:
+        """The ``segment_id`` string of segment index ``segment``."""
+        return self._segment_id_str[segment]
 
 
 @numba.njit(cache=True, nogil=True)

@@ -43,6 +43,10 @@ from curbside.projection import LocalFrame
 
 logger = logging.getLogger(__name__)
 
+# A named tuple from a complete tuple of its fields, without the keyword handling of its constructor
+# (half the cost, once per update).
+_new_tuple = tuple.__new__
+
 
 def _valid_fix(fix: GnssFix | None) -> bool:
     return (
@@ -267,20 +271,23 @@ class Tracker:
             raise ValueError("step() needs velocity_en and dt, or displacement_en")
         if not (math.isfinite(dx) and math.isfinite(dy) and math.isfinite(t)):
             raise ValueError(f"non-finite inertial displacement ({dx}, {dy}) or time at t={t}")
-        if not self.started:
+        last = self.last_estimate
+        if last is None:
             return self.start_at_fix(t, gnss_fix) if _valid_fix(gnss_fix) else None
-        update = Update(t, t - self.last_estimate.t, dx, dy, gnss_fix)
-        self.predictor.predict(self.particles, dx, dy)
-        inject = self.divergence.observe(self.particles, update) if self.divergence is not None else 0.0
+        # Once per footstep: attributes are read once into locals (this is most of the update at small N).
+        particles, divergence = self.particles, self.divergence
+        update = Update(t, t - last.t, dx, dy, gnss_fix)
+        self.predictor.predict(particles, dx, dy)
+        inject = 0.0 if divergence is None else divergence.observe(particles, update)
         for likelihood in self.likelihoods:
-            likelihood.weigh(self.particles, update)
-        if self.usable(gnss_fix):
+            likelihood.weigh(particles, update)
+        if gnss_fix is not None and self.usable(gnss_fix):
             self.last_fix = gnss_fix
         return self._conclude(t, inject)
 
     def _conclude(self, t: float, inject_fraction: float) -> Estimate:
         """Normalise, recover from a collapse, estimate, resample, inject."""
-        p = self.particles
+        p, segments = self.particles, self.segments
         m = normalise_and_estimate(p)
         collapsed = not m.ok
         if collapsed:
@@ -290,15 +297,18 @@ class Tracker:
             self.collapse.reseed(p, None if last is None else (last.x, last.y), self.last_fix)
             m = normalise_and_estimate(p)
         segment_id, prob, mode_x, mode_y = None, 0.0, m.x, m.y
-        if self.segments is not None:
-            mode = self.segments.mode(p)
+        if segments is not None:
+            mode = segments.mode(p)
             if mode.segment >= 0:
-                segment_id, prob = str(self.segments.segment_ids[mode.segment]), mode.prob
+                segment_id, prob = segments.segment_id(mode.segment), mode.prob
                 mode_x, mode_y = mode.x, mode.y
         self.resampler.resample(p, m.n_eff)
         injected = 0
         if inject_fraction > 0:
             injected = self.divergence.inject(p, self.last_fix, inject_fraction)
-        self.last_estimate = Estimate(t, m.x, m.y, m.theta, m.scale, m.n_eff, collapsed, self.frame,
-                                      segment_id, prob, mode_x, mode_y, injected)
-        return self.last_estimate
+        self.last_estimate = estimate = _new_tuple(
+            Estimate,
+            (t, m.x, m.y, m.theta, m.scale, m.n_eff, collapsed, self.frame, segment_id, prob, mode_x, mode_y,
+             injected),
+        )
+        return estimate
