@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pandas as pd
 import pytest
+import torch
 from conftest import TEST_DATA
 from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
@@ -118,7 +119,8 @@ def test_windows_sit_on_a_uniform_grid_anchored_at_each_segment(real_tables, ref
 
 def test_inference_is_bit_identical_whatever_shares_the_batch(test_data):
     """Windows of two sessions mixed in one call, in any order and position, give each window the
-    velocity it gets alone; so does a lone window padded to the batch shape."""
+    velocity it gets alone; so do a lone window padded to the batch shape, another batch shape and
+    another number of threads."""
     model = load_model()
     sessions = [whole(real_imu(test_data, trial))[1] for trial in TRIALS]
     alone = [infer_windows(model, w) for w in sessions]
@@ -129,6 +131,12 @@ def test_inference_is_bit_identical_whatever_shares_the_batch(test_data):
     assert np.array_equal(velocity, np.concatenate(alone))
     assert np.array_equal(infer_windows(model, sessions[1][7:8]), alone[1][7:8])
     assert np.array_equal(infer_windows(model, sessions[0][:100], batch_size=32), alone[0][:100])
+    threads = torch.get_num_threads()
+    try:
+        torch.set_num_threads(1 if threads > 1 else 2)
+        assert np.array_equal(infer_windows(model, sessions[1]), alone[1])
+    finally:
+        torch.set_num_threads(threads)
 
 
 def test_infer_windows_rejects_other_shapes():
