@@ -281,11 +281,6 @@ class WorldFrameStream:
         """Time of the first row not yet emitted (``inf`` when none is held back)."""
         return float(self._pending[0, 0]) if len(self._pending) else np.inf
 
-    @property
-    def last_time(self) -> float:
-        """Time of the last row accepted (``-inf`` before any)."""
-        return float(self._last_t)
-
     def push(self, imu: pd.DataFrame) -> None:
         """Append rows ``t,ax,ay,az,gx,gy,gz[,qx,qy,qz,qw]`` (SPEC ``imu.csv``), any number.
 
@@ -293,7 +288,7 @@ class WorldFrameStream:
         ------
         CurbsideInputError
             Missing or changed columns, non-numeric values, timestamps not increasing (the stream
-            is left as it was); after the start-up decision: rate below ``min_rate_hz``, all-zero
+            is left as it was); at the start-up decision: rate below ``min_rate_hz``, all-zero
             gyroscope, unusable quaternion (the stream is then unusable).
         """
         if self.finished:
