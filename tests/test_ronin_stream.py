@@ -68,7 +68,7 @@ def reference(real_tables) -> dict[str, tuple[np.ndarray, np.ndarray]]:
     return {name: whole(table) for name, table in real_tables.items()}
 
 
-@settings(max_examples=12, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@settings(max_examples=30, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
 @given(orientation=st.sampled_from(["quaternion", "gyroscope"]),
        sizes=st.lists(st.integers(min_value=1, max_value=80), min_size=1, max_size=12))
 @example(orientation="quaternion", sizes=[1])

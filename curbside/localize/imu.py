@@ -19,7 +19,8 @@ the chunking** (a live session streamed in small batches gives what the whole fi
 3. **Gaps.** A gap longer than :attr:`ImuConfig.max_gap_s` starts a new segment (its number is
    emitted with every sample); shorter gaps are bridged by the resampling downstream.
 4. **Orientation.** With ``qx,qy,qz,qw`` the quaternion, read in the chosen convention. Without it
-   the gyroscope is integrated causally per segment (:class:`GyroscopeIntegrator`).
+   the gyroscope is integrated causally per segment
+   (:class:`~curbside.localize.gyro.GyroscopeIntegrator`).
 5. **Saturation.** A sample where a channel sits in a flat top above a plausible floor (three equal
    values in a row above 2 g or 4 rad/s) counts as saturated (:func:`saturation_mask`); the count is
    kept and logged, values are left as clipped by the sensor.
