@@ -14,6 +14,7 @@ from typing import Any
 from curbside.configio import from_dict, to_dict, with_overrides
 from curbside.localize.filter.config import FilterConfig
 from curbside.localize.pdr import PdrConfig
+from curbside.localize.ronin.stream import RoninStreamConfig
 from curbside.localize.steps import StepConfig
 
 #: The methods: GNSS alone; the filter without GNSS (RoNIN+PF); the paper's plain fused filter; curbside's.
@@ -62,6 +63,9 @@ class EngineConfig:
     pdr
         Pedestrian dead reckoning, the velocity when RoNIN is not available
         (:class:`~curbside.localize.pdr.PdrConfig`).
+    ronin
+        RoNIN on the IMU stream: rate, window, stride, inference batch and IMU preprocessing
+        (:class:`~curbside.localize.ronin.stream.RoninStreamConfig`).
     """
 
     velocity_source: str = "auto"
@@ -76,6 +80,7 @@ class EngineConfig:
     extent_tolerance_m: float = 100.0
     steps: StepConfig = field(default_factory=StepConfig)
     pdr: PdrConfig = field(default_factory=PdrConfig)
+    ronin: RoninStreamConfig = field(default_factory=RoninStreamConfig)
 
     def __post_init__(self) -> None:
         _check(
