@@ -205,7 +205,8 @@ def _velocity(session: Session, config: RunConfig, steps: np.ndarray | None) -> 
         try:
             from curbside.localize.ronin.infer import ronin_velocity
 
-            velocity = ronin_velocity(session.imu, config=config.engine.ronin, source=f"{session.name}/imu.csv")
+            source_name = f"{session.name}/imu.csv"
+            velocity = ronin_velocity(session.imu, config=config.engine.ronin, source=source_name)
             return velocity, "ronin"
         except (ImportError, CurbsideInputError) as exc:
             if source == "ronin":
