@@ -191,10 +191,10 @@ def ipin_checks(
             continue
         ref = baseline.get(key, float("nan"))
         if not math.isfinite(ref):
-            checks.append(Check(label, "ipin2023", f"{fused[key]:.1f} m (no baseline)", None))
+            checks.append(Check(label, "ipin2023", f"{fused[key]:.2f} m (no baseline)", None))
             continue
         checks.append(
-            Check(label, "ipin2023", f"{fused[key]:.1f} vs {ref:.1f} m", fused[key] <= ref + tolerance_m)
+            Check(label, "ipin2023", f"{fused[key]:.2f} vs {ref:.2f} m", fused[key] <= ref + tolerance_m)
         )
     return checks
 

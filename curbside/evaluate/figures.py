@@ -220,7 +220,7 @@ def fig_particles(results: list[dict], layers: MapLayers | None, base: dict[str,
     ] + class_handles(layers)
     fig.legend(handles=handles, loc="lower center", ncol=4, fontsize=8, frameon=False)
     fig.suptitle(f"Fig. 3  Particle clouds ({config_label(base)})")
-    fig.tight_layout(rect=(0, 0.09, 1, 1))
+    fig.tight_layout(rect=(0, 0.09, 1, 0.95))
     return fig
 
 

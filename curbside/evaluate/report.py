@@ -86,6 +86,12 @@ def records(frame: pd.DataFrame) -> list[dict[str, Any]]:
     return [json_ready(dict(r)) for r in frame.astype(object).where(frame.notna(), None).to_dict("records")]
 
 
+def _td(cell: str) -> str:
+    """An HTML cell; a ``PASS`` or ``FAIL`` verdict gets the class ``pass`` or ``fail``."""
+    cls = f" class='{cell.lower()}'" if cell in ("PASS", "FAIL") else ""
+    return f"<td{cls}>{html.escape(cell)}</td>"
+
+
 class Table:
     """A small table rendered both as Markdown and HTML."""
 
@@ -104,7 +110,7 @@ class Table:
     def html(self) -> str:
         """An HTML table."""
         head = "".join(f"<th>{html.escape(h)}</th>" for h in self.header)
-        body = "".join("<tr>" + "".join(f"<td>{html.escape(c)}</td>" for c in r) + "</tr>" for r in self.rows)
+        body = "".join("<tr>" + "".join(_td(c) for c in r) + "</tr>" for r in self.rows)
         note = f"<p class='note'>{html.escape(self.note)}</p>" if self.note else ""
         return f"<h3>{html.escape(self.title)}</h3><table><tr>{head}</tr>{body}</table>{note}"
 

@@ -293,6 +293,7 @@ def benchmark_sessions(
     n_routes: int | None = None,
     world: World | None = None,
     write_imu: bool = False,
+    config: SimulationConfig | None = None,
 ) -> list[Path]:
     """Simulate (or reuse) every session of a subset and split into ``out_dir``.
 
@@ -314,6 +315,9 @@ def benchmark_sessions(
         A :func:`load_world` result.
     write_imu
         Also write ``imu.csv``.
+    config
+        Simulation models in place of ``profile``'s (e.g. to calibrate one component); the
+        sessions' seeds stay those of the subset and split.
 
     Returns
     -------
@@ -322,7 +326,7 @@ def benchmark_sessions(
     """
     seed_list = session_seeds(split, seeds)
     world = world or load_world()
-    config = SimulationConfig(profile=profile, write_imu=write_imu)
+    config = config or SimulationConfig(profile=profile, write_imu=write_imu)
     route_list = benchmark_routes(subset, split, n_routes, world)
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
@@ -351,7 +355,7 @@ def benchmark_sessions(
     manifest = {
         "subset": subset,
         "split": split,
-        "profile": profile,
+        "profile": config.profile,
         "session_seeds": list(seed_list),
         "sessions": [p.name for p in written],
         "routes": [
