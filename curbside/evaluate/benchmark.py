@@ -328,7 +328,7 @@ def demo_stage(ctx: Any) -> dict[str, Path]:
         Path(ctx.out_dir) / "benchmark", config, map_path=map_path if map_path.is_file() else None, workers=2
     )
     print(benchmark_summary(paths["report"]), end="")
-    return {f"benchmark_{name.replace('.', '_')}": path for name, path in paths.items()}
+    return {"benchmark_report_html": paths["report.html"], "benchmark_metrics_json": paths["metrics.json"]}
 
 
 def ipin_errors(

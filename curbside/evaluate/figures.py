@@ -150,12 +150,11 @@ def fig_tracks(
         runs = [r for r in results if r["session"] == first[path] and is_base(r, base)]
         tracks = {r["spec"]["method"]: r["track"] for r in runs}
         gt = next(iter(tracks.values()))
-        bounds = (
-            gt["gt_x_m"].min() - 40,
-            gt["gt_y_m"].min() - 40,
-            gt["gt_x_m"].max() + 40,
-            gt["gt_y_m"].max() + 40,
-        )
+        # a square around the walk, 40 m beyond it: every panel the same shape
+        cx = (gt["gt_x_m"].min() + gt["gt_x_m"].max()) / 2
+        cy = (gt["gt_y_m"].min() + gt["gt_y_m"].max()) / 2
+        half = max(np.ptp(gt["gt_x_m"]), np.ptp(gt["gt_y_m"])) / 2 + 40
+        bounds = (cx - half, cy - half, cx + half, cy + half)
         draw_map(ax, layers, bounds)
         ax.plot(gt["gt_x_m"], gt["gt_y_m"], color="0.3", lw=2, zorder=2)
         for m in METHODS:
@@ -168,9 +167,11 @@ def fig_tracks(
         ax.axis("off")
     handles = [plt.Line2D([], [], color="0.3", lw=2, label="ground truth")]
     handles += _method_handles([m for m in METHODS if m in shown]) + class_handles(layers)
-    fig.legend(handles=handles, loc="lower center", ncol=min(5, len(handles)), fontsize=8, frameon=False)
+    ncol = min(len(handles), 3 if cols == 1 else 5)
+    fig.legend(handles=handles, loc="lower center", ncol=ncol, fontsize=8, frameon=False)
     fig.suptitle(f"{title} ({config_label(base)})")
-    fig.tight_layout(rect=(0, 0.06 if rows == 1 else 0.035, 1, 1))
+    legend_in = 0.22 * math.ceil(len(handles) / ncol) + 0.15
+    fig.tight_layout(rect=(0, legend_in / fig.get_figheight(), 1, 1))
     return fig
 
 
@@ -315,7 +316,7 @@ def fig_session_medians(per_session: pd.DataFrame, base: dict[str, Any], ratio_l
         ax.set_ylabel(f"{METHOD_LABELS[method]} median error (m)")
         ax.set_title(METHOD_LABELS[method])
         ax.grid(alpha=0.3)
-        ax.legend(fontsize=7, loc="upper left")
+        ax.legend(fontsize=7, loc="upper right")  # above the 1.5x line: the empty corner
     fig.suptitle(f"Per-session median error against GNSS ({config_label(base)})")
     fig.tight_layout()
     return fig

@@ -370,7 +370,7 @@ def generate_route(
         if accept is not None and not accept(pts):
             continue
         pts, kinds = _simplify(pts, kinds)
-        log.info("%s: accepted walk %d (covered %.0f%%)", spec.name, attempt, 100 * covered)
+        log.debug("%s: accepted walk %d (covered %.0f%%)", spec.name, attempt, 100 * covered)
         return Route(spec, pts, kinds, n_cross, n_jay, float(covered), seed, attempt)
     raise CurbsideInputError(spec.name, f"no route found in {max_attempts} random walks")
 
