@@ -37,6 +37,7 @@ from curbside.evaluate.gnss_model import GnssErrorModel, simulate_gnss
 from curbside.evaluate.inertial_model import (
     GRAVITY,
     ImuModel,
+    InertialErrors,
     PhoneVelocityErrorModel,
     VelocityErrorModel,
     inertial_errors,
@@ -44,7 +45,7 @@ from curbside.evaluate.inertial_model import (
     simulate_velocity,
 )
 from curbside.evaluate.osmsource import OsmSource, load_osm
-from curbside.evaluate.walker import PhoneWalkerModel, WalkerModel, simulate_walk
+from curbside.evaluate.walker import PhoneWalkerModel, Walk, WalkerModel, simulate_walk
 from curbside.io import atomic_path
 from curbside.localize.session import Session, write_session
 from curbside.projection import WGS84, LocalFrame
@@ -168,6 +169,29 @@ def simulate_session(
     )
     wlon, wlat = frame.to_lonlat(walk.waypoint_xy[:, 0], walk.waypoint_xy[:, 1])
     waypoints = pd.DataFrame({"t": np.round(walk.waypoint_t, 3), "lat": wlat, "lon": wlon})
+    meta = _session_meta(route, walk, fixes, errors, config, seed, (float(wlat[0]), float(wlon[0])))
+    steps = pd.DataFrame({"t": np.round(walk.step_t, 3)}) if config.write_steps else None
+    return Session(
+        name=name or f"{route.spec.name}-s{seed}",
+        imu=imu,
+        velocity=velocity,
+        steps=steps,
+        gnss=gnss,
+        waypoints=waypoints,
+        meta=meta,
+    )
+
+
+def _session_meta(
+    route: routes_mod.Route,
+    walk: Walk,
+    fixes: pd.DataFrame,
+    errors: InertialErrors,
+    config: SimulationConfig,
+    seed: int,
+    start_latlon: tuple[float, float],
+) -> dict:
+    """``meta.json`` of a simulated session: the start pose, the parameters, the realised events."""
     first = walk.waypoint_xy[1] - walk.waypoint_xy[0]
     gnss_err = np.hypot(fixes["x_m"] - fixes["true_x_m"], fixes["y_m"] - fixes["true_y_m"])
     events = {
@@ -177,10 +201,10 @@ def simulate_session(
             for s in walk.stops
         ],
     }
-    meta = {
+    return {
         "start": {
-            "lat": float(wlat[0]),
-            "lon": float(wlon[0]),
+            "lat": start_latlon[0],
+            "lon": start_latlon[1],
             "heading_deg": float(np.degrees(np.arctan2(first[0], first[1])) % 360),
         },
         "simulation": {
@@ -205,16 +229,6 @@ def simulate_session(
             "config": config.as_dict(),
         },
     }
-    steps = pd.DataFrame({"t": np.round(walk.step_t, 3)}) if config.write_steps else None
-    return Session(
-        name=name or f"{route.spec.name}-s{seed}",
-        imu=imu,
-        velocity=velocity,
-        steps=steps,
-        gnss=gnss,
-        waypoints=waypoints,
-        meta=meta,
-    )
 
 
 def sf6_routes(osm: OsmSource | None = None) -> tuple[list[routes_mod.Route], LocalFrame, OsmSource]:

@@ -349,29 +349,44 @@ def benchmark_sessions(
         session = simulate_session(route, world.osm, world.frame, sim_seed, config, name=folder.name)
         session.meta["simulation"].update({"subset": subset, "split": split, "session_seed": seed})
         written.append(write_session(session, folder))
+    _write_manifest(out_dir, subset, split, seed_list, written, route_list, world, config_dict)
+    log.info("%s/%s: %d sessions (%d reused) in %s", subset, split, len(written), reused, out_dir)
+    return written
+
+
+def _write_manifest(
+    out_dir: Path,
+    subset: str,
+    split: str,
+    seed_list: tuple[int, ...],
+    written: list[Path],
+    route_list: list[routes_mod.Route],
+    world: World,
+    config_dict: dict,
+) -> None:
+    """``routes.geojson`` and ``benchmark.json`` (subset, split, seeds, sessions, routes, parameters)."""
     table = routes_geojson(route_list, world.frame)
     with atomic_path(out_dir / "routes.geojson") as tmp:
         tmp.write_text(table.to_json(), encoding="utf-8")
+    routes = [
+        {
+            "name": r.spec.name,
+            "route_seed": r.seed,
+            "length_m": round(r.length_m, 1),
+            "crossings": r.crossings,
+            "jaywalks": r.jaywalks,
+            **r.extra,
+        }
+        for r in route_list
+    ]
     manifest = {
         "subset": subset,
         "split": split,
-        "profile": config.profile,
+        "profile": config_dict["profile"],
         "session_seeds": list(seed_list),
         "sessions": [p.name for p in written],
-        "routes": [
-            {
-                "name": r.spec.name,
-                "route_seed": r.seed,
-                "length_m": round(r.length_m, 1),
-                "crossings": r.crossings,
-                "jaywalks": r.jaywalks,
-                **r.extra,
-            }
-            for r in route_list
-        ],
+        "routes": routes,
         "config": config_dict,
     }
     with atomic_path(out_dir / "benchmark.json") as tmp:
         tmp.write_text(json.dumps(manifest, indent=2), encoding="utf-8")
-    log.info("%s/%s: %d sessions (%d reused) in %s", subset, split, len(written), reused, out_dir)
-    return written

@@ -212,6 +212,72 @@ def _ipin_summary(h5: str | Path, seed: int) -> tuple[dict[str, dict[str, float]
     return summary, table
 
 
+def _maps(
+    out_dir: Path, map_path: str | Path | None, datasf_tiles: list[str | Path] | None
+) -> dict[str, str]:
+    """The OSM map (built into ``out_dir`` unless given or already there) and the DataSF one."""
+    if map_path is None:
+        map_path = out_dir / "map.geojson"
+        if not map_path.is_file():
+            from curbside.osmseg.build import build_map
+
+            log.info("building the OSM map -> %s", map_path)
+            write_map(build_map(), map_path)
+    elif not Path(map_path).is_file():
+        raise CurbsideInputError(map_path, "no such map file")
+    maps = {OSM_MAP: str(map_path)}
+    if datasf_tiles:
+        maps[DATASF_MAP] = str(datasf_osm_map(map_path, list(datasf_tiles), out_dir / "map-datasf.geojson"))
+    return maps
+
+
+def _run_info(
+    config: SuiteConfig, maps: dict[str, str], specs: list[RunSpec], sessions: dict[str, list[Path]]
+) -> dict[str, Any]:
+    """What ``run.json`` records besides the inputs: versions, parameters, machine, every run."""
+    return {
+        "generator": f"curbside {curbside.__version__}",
+        "git_commit": _git_commit(),
+        "suite": asdict(config),
+        "simulation": SimulationConfig(profile=config.profile).as_dict(),
+        "maps": maps,
+        "machine": {
+            "cpus": os.cpu_count(),
+            "platform": platform.platform(),
+            "python": platform.python_version(),
+        },
+        "runs": [asdict(s) for s in specs],
+        "sessions": {k: [p.name for p in v] for k, v in sessions.items()},
+    }
+
+
+def simulate_suite(
+    out_dir: str | Path, config: SuiteConfig, osm_file: str | Path | None = None
+) -> dict[str, list[Path]]:
+    """Simulate (or reuse) every session of a benchmark into ``out_dir/sessions/<profile>/<split>/``.
+
+    Returns
+    -------
+    dict
+        Session folders per subset.
+    """
+    world = load_world(str(osm_file) if osm_file else None)
+    root = Path(out_dir) / "sessions" / config.profile / config.split
+    return {
+        subset: benchmark_sessions(
+            root / subset,
+            subset,
+            config.split,
+            config.profile,
+            config.seeds,
+            config.routes_of(subset),
+            world,
+            config.write_imu,
+        )
+        for subset in config.subsets
+    }
+
+
 def run_suite(
     out_dir: str | Path,
     config: SuiteConfig | None = None,
@@ -255,36 +321,10 @@ def run_suite(
     out_dir.mkdir(parents=True, exist_ok=True)
     timings: dict[str, float] = {}
     start = time.perf_counter()
-    if map_path is None:
-        map_path = out_dir / "map.geojson"
-        if not map_path.is_file():
-            from curbside.osmseg.build import build_map
-
-            log.info("building the OSM map -> %s", map_path)
-            write_map(build_map(), map_path)
-    elif not Path(map_path).is_file():
-        raise CurbsideInputError(map_path, "no such map file")
-    maps = {OSM_MAP: str(map_path)}
-    if datasf_tiles:
-        maps[DATASF_MAP] = str(datasf_osm_map(map_path, list(datasf_tiles), out_dir / "map-datasf.geojson"))
+    maps = _maps(out_dir, map_path, datasf_tiles)
     timings["maps_s"] = time.perf_counter() - start
-
     start = time.perf_counter()
-    world = load_world(str(osm_file) if osm_file else None)
-    root = out_dir / "sessions" / config.profile / config.split
-    sessions = {
-        subset: benchmark_sessions(
-            root / subset,
-            subset,
-            config.split,
-            config.profile,
-            config.seeds,
-            config.routes_of(subset),
-            world,
-            config.write_imu,
-        )
-        for subset in config.subsets
-    }
+    sessions = simulate_suite(out_dir, config, osm_file)
     timings["simulate_s"] = time.perf_counter() - start
 
     specs = plan_suite(sessions, maps, config)
@@ -301,46 +341,20 @@ def run_suite(
 
     pooled = pooled_by_subset(results)
     per_session = pooled_by_subset(results, ("session",))
-    checks = criteria.done_when(
-        pooled,
-        per_session,
-        config.jaywalk_weight,
-        OSM_MAP,
-        DATASF_MAP if DATASF_MAP in maps else None,
-        ipin_summary["fused"] if ipin_summary else None,
-    )
+    datasf = DATASF_MAP if DATASF_MAP in maps else None
+    ipin_fused = ipin_summary["fused"] if ipin_summary else None
+    checks = criteria.done_when(pooled, per_session, config.jaywalk_weight, OSM_MAP, datasf, ipin_fused)
     run_info = {
-        "generator": f"curbside {curbside.__version__}",
-        "git_commit": _git_commit(),
-        "suite": asdict(config),
-        "simulation": SimulationConfig(profile=config.profile).as_dict(),
-        "maps": maps,
+        **_run_info(config, maps, specs, sessions),
         "datasf_tiles": [str(t) for t in datasf_tiles or []],
         "ipin": str(ipin) if ipin else None,
         "workers": workers,
         "scheduler": scheduler,
-        "machine": {
-            "cpus": os.cpu_count(),
-            "platform": platform.platform(),
-            "python": platform.python_version(),
-        },
-        "runs": [asdict(s) for s in specs],
-        "sessions": {k: [p.name for p in v] for k, v in sessions.items()},
     }
     start = time.perf_counter()
-    paths = write_suite_report(
-        results,
-        out_dir / "report",
-        config,
-        pooled,
-        per_session,
-        checks,
-        read_map(map_path),
-        run_info,
-        timings,
-        ipin_summary,
-        ipin_tab,
-    )
+    layers = read_map(maps[OSM_MAP])
+    tables_in = (pooled, per_session, checks, layers, run_info, timings, ipin_summary, ipin_tab)
+    paths = write_suite_report(results, out_dir / "report", config, *tables_in)
     log.info("report written in %.0f s", time.perf_counter() - start)
     return {"report": out_dir / "report", **paths}
 

@@ -262,6 +262,50 @@ def _figures(results, layers, config, pooled_path, ratios, figdir) -> list[tuple
     return out
 
 
+def _tables(
+    pooled: pd.DataFrame,
+    per_session: pd.DataFrame,
+    checks: list[criteria.Check],
+    config,
+    counts: dict[str, int],
+    events: dict[str, dict],
+    run_info: dict[str, Any],
+    ipin_table: Table | None,
+) -> list[Table]:
+    """Every table of the report, in order."""
+    w = config.jaywalk_weight
+    limit = criteria.DoneWhen().session_ratio_max
+    tables = [checks_table(checks)]
+    for subset in config.subsets:
+        tables.append(subset_table(pooled, subset, w, counts[subset]))
+        sweep = sweep_table(pooled, subset)
+        if sweep is not None:
+            tables.append(sweep)
+    datasf = map_table(pooled, w)
+    if datasf is not None:
+        tables.append(datasf)
+    if ipin_table is not None:
+        tables.append(ipin_table)
+    tables.append(profile_table(run_info["simulation"]))
+    tables += [session_table(per_session, s, w, events, limit) for s in config.subsets]
+    return tables
+
+
+def _intro(config, counts, gnss_median, n_runs, timings, workers, checks) -> str:
+    """The report's opening paragraph: what ran, on what, how long, and the verdict."""
+    total_s = sum(timings.values())
+    subsets = ", ".join(
+        f"{s} {counts[s]} sessions (GNSS median {gnss_median[s]:.1f} m)" for s in config.subsets
+    )
+    stages = ", ".join(f"{k.removesuffix('_s')} {v:.0f} s" for k, v in timings.items())
+    return (
+        f"Profile '{config.profile}', split '{config.split}', {config.seeds} seed(s) per route: {subsets}. "
+        f"{n_runs} runs, N = {config.particles}, filter seed {config.filter_seed}, every method on the same "
+        f"sessions. Time: {total_s / 60:.1f} min ({stages}) with {workers} worker(s). "
+        f"Done when: {criteria.overall(checks)}."
+    )
+
+
 def write_suite_report(
     results: list[dict],
     out_dir: str | Path,
@@ -280,7 +324,6 @@ def write_suite_report(
 
     out_dir = Path(out_dir)
     w = config.jaywalk_weight
-    limit = criteria.DoneWhen().session_ratio_max
     counts = {
         s: int(per_session.loc[per_session["subset"] == s, "session"].nunique()) for s in config.subsets
     }
@@ -292,28 +335,8 @@ def write_suite_report(
         s: _base(pooled[pooled["subset"] == s], w).query("method == 'gnss'")["euclid_median_m"].iat[0]
         for s in config.subsets
     }
-    tables = [checks_table(checks)]
-    for subset in config.subsets:
-        tables.append(subset_table(pooled, subset, w, counts[subset]))
-        sweep = sweep_table(pooled, subset)
-        if sweep is not None:
-            tables.append(sweep)
-    datasf = map_table(pooled, w)
-    if datasf is not None:
-        tables.append(datasf)
-    if ipin_table is not None:
-        tables.append(ipin_table)
-    tables.append(profile_table(run_info["simulation"]))
-    tables += [session_table(per_session, s, w, events, limit) for s in config.subsets]
-    total_s = sum(timings.values())
-    intro = (
-        f"Profile '{config.profile}', split '{config.split}', {config.seeds} seed(s) per route: "
-        + ", ".join(f"{s} {counts[s]} sessions (GNSS median {gnss_median[s]:.1f} m)" for s in config.subsets)
-        + f". {len(results)} runs, N = {config.particles}, filter seed {config.filter_seed}, every method on "
-        f"the same sessions. Time: {total_s / 60:.1f} min ("
-        + ", ".join(f"{k.removesuffix('_s')} {v:.0f} s" for k, v in timings.items())
-        + f") with {run_info['workers']} worker(s). Done when: {criteria.overall(checks)}."
-    )
+    tables = _tables(pooled, per_session, checks, config, counts, events, run_info, ipin_table)
+    intro = _intro(config, counts, gnss_median, len(results), timings, run_info["workers"], checks)
     doc = {
         "generator": f"curbside {curbside.__version__}",
         "suite": run_info["suite"],
