@@ -82,7 +82,9 @@ def test_dask_results_equal_serial(sessions):
     parallel = runner.run_all(specs, workers=2)
     from dask.distributed import LocalCluster
 
-    with LocalCluster(n_workers=1, processes=False, dashboard_address=None) as cluster:
+    with LocalCluster(
+        n_workers=1, processes=False, dashboard_address=":0", scheduler_kwargs={"dashboard": False}
+    ) as cluster:
         existing = runner.run_all(specs, scheduler=cluster.scheduler_address)
     for a, b, c in zip(serial, parallel, existing, strict=True):
         assert a["spec"] == b["spec"] == c["spec"]
