@@ -5,7 +5,7 @@ BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 TORCH_VERSION := 2.13.0
 
-.PHONY: demo test lint bench clean install browser
+.PHONY: demo test lint bench benchmark clean install browser
 
 $(BIN)/python:
 	$(PY) -m venv $(VENV)
@@ -36,6 +36,15 @@ test: $(STAMP) browser
 
 lint: $(STAMP)
 	$(BIN)/ruff check curbside tests benchmarks
+
+# The accuracy benchmark of docs/evaluate.md (phone profile, test split; ~6 min on 2 cores), with the
+# DataSF map and the held-out IPIN trials when ../shared/data has them. `make bench` is the speed one.
+SHARED := ../shared/data
+benchmark: $(STAMP)
+	$(BIN)/localize benchmark \
+		$(if $(wildcard $(SHARED)/datasf/*.topojson),--datasf-tiles $(wildcard $(SHARED)/datasf/*.topojson)) \
+		$(if $(wildcard $(SHARED)/ipin2023/ipin2023-t3.h5),--ipin $(SHARED)/ipin2023/ipin2023-t3.h5) \
+		-o out/benchmark
 
 bench: $(STAMP)
 	$(BIN)/python benchmarks/bench_osmseg.py

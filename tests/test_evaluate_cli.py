@@ -56,8 +56,10 @@ def test_plan_sweeps_one_parameter_at_a_time(tmp_path, sessions):
     assert fused == {(0.0, 500, None), (0.4, 500, None), (1.0, 500, None), (0.4, 100, None), (0.4, 500, 2.0)}
     inertial = [s for s in specs if s.method == "inertial"]
     assert all(s.gnss_sigma_factor is None for s in inertial)
-    # per session and map: 1 gnss + 4 inertial + 5 fused
-    assert len(specs) == 2 * 2 * (1 + 4 + 5)
+    paper = {(s.jaywalk_weight, s.particles, s.gnss_sigma_factor) for s in specs if s.method == "paper"}
+    assert paper == fused
+    # per session and map: 1 gnss + 4 inertial + 5 paper + 5 fused
+    assert len(specs) == 2 * 2 * (1 + 4 + 5 + 5)
 
 
 def test_expand_sessions(tmp_path, sessions):
@@ -80,7 +82,9 @@ def test_dask_results_equal_serial(sessions):
     parallel = runner.run_all(specs, workers=2)
     from dask.distributed import LocalCluster
 
-    with LocalCluster(n_workers=1, processes=False, dashboard_address=None) as cluster:
+    with LocalCluster(
+        n_workers=1, processes=False, dashboard_address=":0", scheduler_kwargs={"dashboard": False}
+    ) as cluster:
         existing = runner.run_all(specs, scheduler=cluster.scheduler_address)
     for a, b, c in zip(serial, parallel, existing, strict=True):
         assert a["spec"] == b["spec"] == c["spec"]
@@ -130,7 +134,7 @@ def test_evaluate_writes_the_report(tmp_path, sessions):
         "across_p90_m",
     ):
         assert name in pooled
-    assert set(pooled["method"]) == {"gnss", "inertial", "fused"}
+    assert set(pooled["method"]) == {"gnss", "inertial", "paper", "fused"}
     assert set(pooled["map"]) == {"osm", "copy"}
     # the same map under two names gives the same numbers
     fused = pooled[(pooled["method"] == "fused") & (pooled["jaywalk_weight"] == 0.4)].set_index("map")
@@ -247,10 +251,13 @@ def test_ipin_table_scores_methods_at_the_same_waypoints():
     h5 = Path(__file__).parent / "data" / "sessions" / "ipin2023-cut.h5"
     table, rows = ipin_table(h5)
     frame = pd.DataFrame(rows)
-    assert set(frame["method"]) == {"gnss", "inertial", "fused"}
+    assert set(frame["method"]) == {"gnss", "inertial", "paper", "fused"}
     counts = frame.groupby("trial")["n_waypoints"].nunique()
     assert (counts == 1).all()  # every method at the same waypoints of a trial
-    assert [r[0] for r in table.rows] == ["gnss", "inertial", "fused"]
+    assert [r[0] for r in table.rows] == ["GNSS", "RoNIN+PF", "paper PF", "curbside fused"]
+    # held out: only the repetition04 trials RoNIN never saw (none in this cut)
+    held_out, _ = ipin_table(h5, held_out=True)
+    assert "0 held-out trials" in held_out.title
 
 
 def test_simulate_a_custom_route(tmp_path):

@@ -10,6 +10,7 @@ import shapely
 from curbside.evaluate import gnss_model, routes
 from curbside.evaluate import simulate as sim
 from curbside.evaluate.groundtruth import groundtruth_at
+from curbside.evaluate.inertial_model import inertial_errors
 from curbside.evaluate.osmsource import load_osm, parse_height_m
 from curbside.localize.session import read_session, write_session
 
@@ -124,7 +125,8 @@ def test_imu_has_gravity_gait_and_consistent_orientation(sf):
     route_list, frame, osm = sf
     rng = np.random.default_rng(0)
     walk = sim.simulate_walk(route_list[5], sim.WalkerModel(), rng)
-    imu = sim.simulate_imu(walk, sim.ImuModel(), sim.VelocityErrorModel(), rng)
+    errors = inertial_errors(walk, sim.VelocityErrorModel(), rng, rng)
+    imu = sim.simulate_imu(walk, sim.ImuModel(), errors, rng)
     from scipy.spatial.transform import Rotation
 
     acc = np.array(imu[["ax", "ay", "az"]], dtype=float)
@@ -144,3 +146,158 @@ def test_writing_imu_leaves_the_other_files_unchanged(sf):
     assert plain.imu is None and with_imu.imu is not None
     for kind in ("gnss", "velocity", "steps", "waypoints"):
         pd.testing.assert_frame_equal(getattr(plain, kind), getattr(with_imu, kind))
+
+
+# -- the phone profile: each error component shows its magnitude ------------------------------------------
+
+
+def _straight_route(length_m: float = 1500.0, kinds: tuple[str, ...] = ("sidewalk",)) -> routes.Route:
+    """A synthetic route east along y = 0, split into equal legs of the given kinds."""
+    xs = np.linspace(0.0, length_m, len(kinds) + 1)
+    spec = routes.RouteSpec("synthetic", (0.0, 0.0), length_m, 0, 0, "test")
+    return routes.Route(spec, np.column_stack([xs, np.zeros_like(xs)]), np.asarray(kinds), 0, 0, 0.0, 0)
+
+
+def _quiet(**fields) -> sim.VelocityErrorModel:
+    """A velocity model with every error off except ``fields``."""
+    off = dict(
+        heading_bias_deg=0.0, heading_drift_deg_per_min=0.0, heading_walk_deg_per_sqrt_min=0.0,
+        scale_sd=0.0, scale_wander_sd=0.0, noise_mps=0.0,
+    )
+    return sim.VelocityErrorModel(**{**off, **fields})
+
+
+def _velocity(route, model, seed=0, walker=None):
+    rng = np.random.default_rng(seed)
+    walk = sim.simulate_walk(route, walker or sim.WalkerModel(wander_m=0.0), rng, stop_rng=rng)
+    errors = inertial_errors(walk, model, rng, np.random.default_rng(seed + 1))
+    return walk, errors, sim.simulate_velocity(walk, model, errors, rng)
+
+
+def _heading_error_deg(velocity: pd.DataFrame) -> np.ndarray:
+    """Compass heading of the velocity minus the true heading (due east, 90 deg), unwrapped."""
+    return np.degrees(np.unwrap(np.arctan2(velocity["ve"], velocity["vn"]))) - 90.0
+
+
+def test_phone_bias_is_the_recorded_constant_heading_error():
+    _, errors, velocity = _velocity(_straight_route(), _quiet(heading_bias_deg=10.0))
+    bias = errors.events["heading_bias_deg"]
+    assert abs(bias) > 0.5
+    inner = slice(20, -20)  # away from the walk's start and end, where the 1 s window sees a stop
+    np.testing.assert_allclose(_heading_error_deg(velocity)[inner], bias, atol=0.05)
+
+
+def test_phone_jumps_happen_at_the_recorded_times_with_the_recorded_sizes():
+    model = _quiet(heading_jump_rate_per_min=1.0, heading_jump_deg=(20.0, 40.0))
+    _, errors, velocity = _velocity(_straight_route(3000.0), model, seed=3)
+    jumps = errors.events["heading_jumps"]
+    assert len(jumps) >= 2
+    err = _heading_error_deg(velocity)
+    t = velocity["t"].to_numpy()
+    times = np.array([j["t_s"] for j in jumps])
+    checked = 0
+    for jump in jumps:
+        alone = np.sum(np.abs(times - jump["t_s"]) < 4) == 1
+        if not (alone and 3 < jump["t_s"] < t[-1] - 3):
+            continue
+        checked += 1
+        before = err[(t > jump["t_s"] - 3) & (t < jump["t_s"] - 1)].mean()
+        after = err[(t > jump["t_s"] + 1) & (t < jump["t_s"] + 3)].mean()
+        assert 20 <= abs(jump["deg"]) <= 40
+        assert after - before == pytest.approx(jump["deg"], abs=0.1)
+    assert checked >= 2
+
+
+def test_phone_heading_random_walk_grows_at_its_rate():
+    # the variogram of the realised heading error: E[(h(t + tau) - h(t))^2] = q^2 tau (tau in minutes)
+    model = _quiet(heading_walk_deg_per_sqrt_min=5.0)
+    route = _straight_route(1200.0)
+    rng = np.random.default_rng(0)
+    walk = sim.simulate_walk(route, sim.WalkerModel(wander_m=0.0), rng)
+    lag = 600  # samples at 10 Hz: one minute
+    sq = []
+    for seed in range(40):
+        errors = inertial_errors(walk, model, np.random.default_rng(seed), np.random.default_rng(seed))
+        h = errors.heading_deg
+        sq.append((h[lag:] - h[:-lag]) ** 2)
+    assert np.sqrt(np.mean(np.concatenate(sq))) == pytest.approx(5.0, rel=0.15)
+
+
+def test_phone_drift_is_linear_at_the_recorded_rate():
+    _, errors, velocity = _velocity(_straight_route(2000.0), _quiet(heading_drift_deg_per_min=3.0), seed=5)
+    rate = errors.events["heading_drift_deg_per_min"]
+    t = velocity["t"].to_numpy()
+    inner = (t > 5) & (t < t[-1] - 5)
+    slope = np.polyfit(t[inner] / 60.0, _heading_error_deg(velocity)[inner], 1)[0]
+    assert abs(rate) > 0.3 and slope == pytest.approx(rate, abs=0.02)
+
+
+def test_phone_speed_scale_and_step_noise():
+    route = _straight_route(1500.0)
+    _, errors, velocity = _velocity(route, _quiet(scale_sd=0.12), seed=2)
+    dist = np.sum(np.hypot(velocity["ve"], velocity["vn"]).to_numpy()[1:] * np.diff(velocity["t"]))
+    assert dist / route.length_m == pytest.approx(errors.events["speed_scale"], abs=0.01)
+    walk, _, noisy = _velocity(route, _quiet(speed_noise_cv=0.15), seed=2)
+    speed = np.hypot(noisy["ve"], noisy["vn"]).to_numpy()[20:-20]
+    assert np.std(speed / walk.speed_mps) == pytest.approx(0.15, rel=0.25)
+
+
+def test_stops_give_exact_ground_truth_no_footsteps_and_phantom_motion(tmp_path):
+    route = _straight_route(300.0, ("sidewalk", "crossing", "sidewalk"))
+    walker = sim.WalkerModel(wander_m=0.0, crosswalk_stop_prob=1.0, crosswalk_wait_s=(20.0, 20.0))
+    model = _quiet(phantom_mps=0.25)
+    walk, errors, velocity = _velocity(route, model, seed=1, walker=walker)
+    (stop,) = walk.stops
+    assert stop.kind == "crossing" and stop.wait_s == pytest.approx(20.0)
+    # two taps at the kerb, on arrival and departure; the ground truth holds still between them
+    taps = pd.DataFrame({"t": walk.waypoint_t, "x": walk.waypoint_xy[:, 0], "y": walk.waypoint_xy[:, 1]})
+    assert len(taps) == len(route.xy) + 1
+    kerb = taps[np.isclose(taps["x"], 100.0)]
+    assert kerb["t"].diff().iat[1] == pytest.approx(20.0)
+    standing = walk.standing(walk.t)
+    np.testing.assert_allclose(walk.xy[standing], [[100.0, 0.0]] * standing.sum(), atol=1e-9)
+    gt_x = np.interp(walk.t, taps["t"], taps["x"])
+    assert np.abs(gt_x - walk.xy[:, 0]).max() < 0.05
+    # no footsteps while standing; the walking clock is unchanged by the stop
+    steps = walk.step_t
+    assert not ((steps > stop.t_s) & (steps < stop.t_s + stop.wait_s)).any()
+    plain = sim.simulate_walk(route, sim.WalkerModel(wander_m=0.0), np.random.default_rng(1))
+    assert len(steps) == len(plain.step_t)
+    # phantom motion while standing, at its RMS speed; none while walking (no other noise here)
+    v = velocity[["ve", "vn"]].to_numpy()
+    still = walk.standing(velocity["t"].to_numpy())
+    assert np.sqrt(np.mean(np.sum(v[still] ** 2, axis=1))) == pytest.approx(0.25, rel=0.5)
+    _, _, without = _velocity(route, _quiet(), seed=1, walker=walker)
+    np.testing.assert_array_equal(v[~still], without[["ve", "vn"]].to_numpy()[~still])
+    tv = velocity["t"].to_numpy()
+    inner = walk.standing(tv - 0.6) & walk.standing(tv + 0.6)  # RoNIN's 1 s window ramps at the edges
+    assert inner.sum() > 150 and np.abs(without[["ve", "vn"]].to_numpy()[inner]).max() < 1e-9
+
+
+def test_phone_session_records_its_events_and_nominal_is_unchanged(sf):
+    route_list, frame, osm = sf
+    phone = sim.simulate_session(route_list[0], osm, frame, 4, sim.SimulationConfig(profile="phone"))
+    again = sim.simulate_session(route_list[0], osm, frame, 4, sim.SimulationConfig(profile="phone"))
+    pd.testing.assert_frame_equal(phone.velocity, again.velocity)
+    simulation = phone.meta["simulation"]
+    assert simulation["profile"] == "phone"
+    events = simulation["events"]
+    expected = {"heading_bias_deg", "heading_drift_deg_per_min", "heading_jumps", "speed_scale", "stops"}
+    assert expected <= set(events)
+    for stop in events["stops"]:  # each stop is a pair of taps at one place
+        wp = phone.waypoints
+        at = wp[(wp["t"] - stop["t_s"]).abs() < 0.01].index[0]
+        assert wp["t"].iat[at + 1] - wp["t"].iat[at] == pytest.approx(stop["wait_s"], abs=0.01)
+        assert (wp["lat"].iat[at], wp["lon"].iat[at]) == (wp["lat"].iat[at + 1], wp["lon"].iat[at + 1])
+    nominal = sim.simulate_session(route_list[0], osm, frame, 4)
+    nominal_models = sim.SimulationConfig(walker=sim.WalkerModel(), velocity=sim.VelocityErrorModel())
+    explicit = sim.simulate_session(route_list[0], osm, frame, 4, nominal_models)
+    pd.testing.assert_frame_equal(nominal.velocity, explicit.velocity)
+    assert nominal.meta["simulation"]["events"]["stops"] == []
+
+
+def test_unknown_profile_is_refused():
+    from curbside.errors import CurbsideInputError
+
+    with pytest.raises(CurbsideInputError, match="unknown profile"):
+        sim.SimulationConfig(profile="pocket")

@@ -5,15 +5,20 @@
     localize simulate --route path1 [--seed S] [--map MAP] [--imu] [--no-velocity] -o SESSION [--overwrite]
     localize simulate --route custom --start LON LAT --length-m M [--crossings C] [--jaywalks J] -o SESSION
     localize simulate --benchmark sf6 [--seeds N] [--imu] -o DIR [--overwrite]
+    localize simulate ... [--profile nominal|phone]
     localize evaluate SESSIONS... --maps A.geojson [B.geojson ...] [--map-names NAME ...]
                       [--metrics-map MAP] [--methods gnss inertial fused] [--jaywalk-weights 0 0.4 1]
                       [--particles 500 ...] [--gnss-sigma-factors F ...] [--seed S]
                       [--workers N | --scheduler ADDRESS] [--ipin H5 [--ipin-trials K]] -o REPORT_DIR
                       [--overwrite]
+    localize benchmark [--profile phone|nominal] [--split test|tune] [--subsets paper6 downtown open]
+                       [--seeds 3] [--map MAP] [--datasf-tiles T ...] [--ipin H5] [--workers 2] -o OUT
 
 ``SESSIONS`` are session folders or folders of them. Each list option with several values is a
-parameter sweep (one at a time around the base values); all runs go to one report. Output folders
-must be new, empty or a previous curbside output unless ``--overwrite`` (see :mod:`curbside.io`).
+parameter sweep (one at a time around the base values); all runs go to one report. ``benchmark``
+simulates (or reuses) the benchmark's subsets, runs every method, checks issue 9's "done when" and
+writes ``OUT/report/`` (:mod:`curbside.evaluate.suite`). Output folders must be new, empty or a
+previous curbside output unless ``--overwrite`` (see :mod:`curbside.io`).
 """
 
 from __future__ import annotations
@@ -28,6 +33,13 @@ from curbside.errors import CurbsideInputError
 from curbside.evaluate.runner import METHODS
 from curbside.io import check_output_folder, output_folder
 
+# The choices of the simulator and benchmark options, kept here so that ``localize --help`` need not
+# import the simulator (tests check them against curbside.evaluate.simulate / .subsets).
+PROFILES = ("nominal", "phone")
+SUBSETS = ("paper6", "downtown", "open")
+SPLITS = ("test", "tune")
+DEFAULT_ROUTES = {"downtown": 8, "open": 6}
+
 logger = logging.getLogger(__name__)
 
 _OVERWRITE_HELP = "write into a non-empty folder curbside did not write (its other files are kept)"
@@ -39,11 +51,14 @@ def _simulate(args: argparse.Namespace) -> int:
     from curbside.evaluate.simulate import SimulationConfig, sf6_routes, simulate_benchmark, simulate_session
     from curbside.localize.session import write_session
 
-    config = SimulationConfig(write_velocity=not args.no_velocity, write_imu=args.imu)
+    config = SimulationConfig(profile=args.profile, write_velocity=not args.no_velocity, write_imu=args.imu)
     if args.benchmark:
         with output_folder(args.output, "localize simulate --benchmark", overwrite=args.overwrite) as tmp:
             written = simulate_benchmark(tmp, args.seeds, config, args.osm)
-        print(f"{args.output}: {len(written)} sessions of the sf6 benchmark ({args.seeds} seed(s) per route)")
+        print(
+            f"{args.output}: {len(written)} sessions of the sf6 benchmark ({args.seeds} seed(s) per route, "
+            f"profile {args.profile})"
+        )
         return 0
     from curbside.evaluate.osmsource import load_osm
     from curbside.projection import LocalFrame
@@ -155,8 +170,38 @@ def _evaluate(args: argparse.Namespace) -> int:
     return 0
 
 
+def _benchmark(args: argparse.Namespace) -> int:
+    from curbside.evaluate.suite import SuiteConfig, run_suite, suite_summary
+
+    for path in [*(args.datasf_tiles or []), *([args.ipin] if args.ipin else [])]:
+        if not Path(path).is_file():
+            raise CurbsideInputError(path, "no such file")
+    config = SuiteConfig(
+        profile=args.profile,
+        split=args.split,
+        subsets=tuple(args.subsets),
+        seeds=args.seeds,
+        downtown_routes=args.downtown_routes,
+        open_routes=args.open_routes,
+        particles=args.particles,
+        filter_seed=args.seed,
+    )
+    paths = run_suite(
+        args.output,
+        config,
+        map_path=args.map,
+        datasf_tiles=args.datasf_tiles,
+        workers=args.workers,
+        scheduler=args.scheduler,
+        ipin=args.ipin,
+    )
+    print(suite_summary(paths["report"]), end="")
+    print(f"{paths['report.html']}")
+    return 0
+
+
 def register(subparsers: argparse._SubParsersAction) -> None:
-    """Add ``simulate`` and ``evaluate`` to ``subparsers``."""
+    """Add ``simulate``, ``evaluate`` and ``benchmark`` to ``subparsers``."""
     sim = subparsers.add_parser(
         "simulate",
         help="simulate walks on real SF sidewalks (sessions)",
@@ -182,6 +227,13 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     sim.add_argument("--osm", help="OSM extract for heights and footways (default: the bundled one)")
     sim.add_argument("--imu", action="store_true", help="also write imu.csv (100 Hz phone IMU)")
     sim.add_argument("--no-velocity", action="store_true", help="do not write velocity.csv")
+    sim.add_argument(
+        "--profile",
+        choices=PROFILES,
+        default="nominal",
+        help="inertial error model: nominal (RoNIN's published levels) or phone (a phone in a hand: "
+        "heading jumps, drift, speed scale, stops at kerbs); default nominal",
+    )
     sim.add_argument("-o", "--output", required=True, help="session folder (or folder of sessions)")
     sim.add_argument("--overwrite", action="store_true", help=_OVERWRITE_HELP)
     sim.set_defaults(func=_simulate)
@@ -228,3 +280,30 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                     help="report folder: new, empty or a previous curbside output")
     ev.add_argument("--overwrite", action="store_true", help=_OVERWRITE_HELP)
     ev.set_defaults(func=_evaluate)
+
+    bench = subparsers.add_parser(
+        "benchmark",
+        help="the benchmark: simulated subsets x every method, done-when checks, report",
+        description="Simulate (or reuse) the benchmark's sessions (paper6, downtown, open), track them with "
+        "GNSS, RoNIN+PF, the paper's method and curbside fused, and write OUT/report/ with the tables, "
+        "figures and issue 9's done-when checks (PASS/FAIL).",
+    )
+    bench.add_argument("--profile", choices=PROFILES, default="phone", help="default: phone")
+    bench.add_argument("--split", choices=SPLITS, default="test", help="test (scored) or tune (default test)")
+    bench.add_argument("--subsets", nargs="+", choices=SUBSETS, default=list(SUBSETS), help="default: all")
+    bench.add_argument("--seeds", type=positive_int, default=3, help="sessions per route (default 3)")
+    bench.add_argument("--downtown-routes", type=positive_int, default=DEFAULT_ROUTES["downtown"])
+    bench.add_argument("--open-routes", type=positive_int, default=DEFAULT_ROUTES["open"])
+    bench.add_argument("--map", help="the OSM map to track on (default: build it into OUT/map.geojson)")
+    bench.add_argument(
+        "--datasf-tiles", nargs="+", help="DataSF 2013 building tiles: add the DataSF-buildings map"
+    )
+    bench.add_argument("--ipin", help="IPIN 2023 HDF5: also score the held-out trials (real phones, no map)")
+    bench.add_argument("--particles", type=positive_int, default=500,
+                       help="particles per filter (default 500)")
+    bench.add_argument("--seed", type=int, default=0, help="filter seed (default 0)")
+    bench.add_argument("--workers", type=positive_int, default=2, help="dask worker processes (1: serial)")
+    bench.add_argument("--scheduler", help="address of an existing dask scheduler")
+    bench.add_argument("-o", "--output", required=True,
+                       help="output folder (its sessions are reused when they match)")
+    bench.set_defaults(func=_benchmark)

@@ -14,10 +14,11 @@ from typing import Any
 
 import numpy as np
 
+from curbside import settings
 from curbside.errors import CurbsideInputError
 from curbside.evaluate.groundtruth import groundtruth_at, waypoints_xy
 from curbside.evaluate.report import Table, write_report
-from curbside.evaluate.runner import METHODS, RunSpec, run_all
+from curbside.evaluate.runner import METHOD_LABELS, METHODS, RunSpec, run_all
 from curbside.localize.session import Session, read_session
 from curbside.osmseg.mapio import read_map, write_map
 from curbside.projection import LocalFrame
@@ -203,7 +204,12 @@ def datasf_osm_map(osm_map: str | Path, tiles: list[str | Path], out_path: str |
     buildings = read_datasf(tiles, bbox=tuple(bbox) if bbox else None).gdf.to_crs(osm.crs)
     rest = osm.gdf[osm.gdf["class"] != "building"]
     gdf = gpd.GeoDataFrame(pd.concat([buildings, rest], ignore_index=True), crs=osm.crs)
-    meta = {**osm.meta, "source": "DataSF 2013 buildings + " + str(osm.meta.get("source", "OSM"))}
+    meta = {
+        **osm.meta,
+        "source": "DataSF 2013 buildings + " + str(osm.meta.get("source", "OSM")),
+        "attribution": "Buildings: DataSF 2013 (ODC PDDL); streets and sidewalks: "
+        + str(osm.meta.get("attribution") or settings.osm_attribution),
+    }
     return write_map(MapLayers(gdf, meta), out_path)
 
 
@@ -281,39 +287,81 @@ def run_benchmark(
 
 
 def benchmark_summary(report_dir: str | Path) -> str:
-    """The tables of a report (Markdown, no figures): what ``make demo`` prints at the end."""
-    text = (Path(report_dir) / "report.md").read_text(encoding="utf-8")
-    return text.split("![", 1)[0].rstrip() + "\n"
+    """A few lines per subset (or per method) from a report's ``metrics.json``: what a terminal shows.
+
+    A ``localize benchmark`` report gives :func:`curbside.evaluate.suite.suite_summary`; a
+    ``localize evaluate`` report gives CSA, median and p90 per method at its base configuration.
+    """
+    doc = json.loads((Path(report_dir) / "metrics.json").read_text(encoding="utf-8"))
+    if "suite" in doc:
+        from curbside.evaluate.suite import suite_summary
+
+        return suite_summary(report_dir)
+    base = doc["base"]
+    lines = [f"map '{base['map']}', w = {base['jaywalk_weight']:g}    CSA  median  p90 (m)"]
+    for row in doc["pooled"]:
+        at_base = row["map"] == base["map"] and (
+            row["method"] == "gnss"
+            or (row["jaywalk_weight"] == base["jaywalk_weight"] and row["particles"] == base["particles"]
+                and row["gnss_sigma_factor"] == base["gnss_sigma_factor"])
+        )
+        if at_base:
+            lines.append(
+                f"  {METHOD_LABELS[row['method']]:<16} {row['csa']:.2f}  {row['euclid_median_m']:5.1f}  "
+                f"{row['euclid_p90_m']:5.1f}"
+            )
+    return "\n".join(lines) + "\n"
 
 
 def demo_stage(ctx: Any) -> dict[str, Path]:
-    """A ``curbside.demo`` stage: the sf6 benchmark on the demo's map, its tables printed at the end.
+    """A ``curbside.demo`` stage: a small benchmark on the demo's map, a short summary printed at the end.
 
-    ``ctx`` is the demo's context (``ctx.out_dir``); the report goes to ``out_dir/benchmark/report``.
+    The ``phone`` profile, test split, one seed per route: the six paper-like routes, four downtown
+    and two open ones (about 90 runs, a few minutes on 2 cores). The report goes to
+    ``ctx.out_dir/benchmark/report``.
     """
+    from curbside.evaluate.suite import SuiteConfig, run_suite
+
     map_path = Path(ctx.out_dir) / "map.geojson"
-    paths = run_benchmark(
-        Path(ctx.out_dir) / "benchmark",
-        seeds=2,
-        fast=True,
-        workers=2,
-        map_path=map_path if map_path.is_file() else None,
+    config = SuiteConfig(seeds=1, downtown_routes=4, open_routes=2)
+    paths = run_suite(
+        Path(ctx.out_dir) / "benchmark", config, map_path=map_path if map_path.is_file() else None, workers=2
     )
-    print(benchmark_summary(paths["report"]))
-    return {f"benchmark_{name.replace('.', '_')}": path for name, path in paths.items()}
+    print(benchmark_summary(paths["report"]), end="")
+    return {"benchmark_report_html": paths["report.html"], "benchmark_metrics_json": paths["metrics.json"]}
 
 
-def ipin_table(h5: str | Path, trials: int | None = None, seed: int = 0) -> tuple[Table, list[dict]]:
-    """Real data without a map: GNSS vs RoNIN+PF vs GNSS+RoNIN+PF at the surveyed IPIN 2023 waypoints.
+def ipin_errors(
+    h5: str | Path, trials: int | None = None, seed: int = 0, held_out: bool = False
+) -> tuple[dict[str, np.ndarray], list[dict], int]:
+    """Every method's errors at the surveyed IPIN 2023 waypoints (real data, no map).
 
     Each trial is tracked from its start pose; the estimate is interpolated at each waypoint time and
     compared with the surveyed point. All methods are scored at the same waypoints: those inside every
     method's track (the GNSS track spans only the fixes), the start waypoint excluded.
+
+    Parameters
+    ----------
+    h5
+        ``ipin2023-t3.h5``.
+    trials
+        Only the first ``trials`` trials (after ``held_out``'s selection).
+    seed
+        Filter seed.
+    held_out
+        Only the ``repetition04`` trials, which the bundled RoNIN model never saw.
+
+    Returns
+    -------
+    (dict, list of dict, int)
+        Errors (m) pooled per method; one row per trial and method (``trial, method, n_waypoints,
+        median_m``); the number of trials read.
     """
     from curbside.localize.pipeline import track_session
     from curbside.localize.readers.ipin import list_trials, read_trial
+    from curbside.localize.ronin.data import IPIN_TEST_MARK
 
-    names = list_trials(h5)[: trials or None]
+    names = [n for n in list_trials(h5) if not held_out or IPIN_TEST_MARK in n][: trials or None]
     errors: dict[str, list[np.ndarray]] = {m: [] for m in METHODS}
     rows = []
     for name in names:
@@ -352,20 +400,30 @@ def ipin_table(h5: str | Path, trials: int | None = None, seed: int = 0) -> tupl
                     "median_m": float(np.median(e)) if len(e) else None,
                 }
             )
+    pooled = {m: np.concatenate(v) if v else np.array([]) for m, v in errors.items()}
+    return pooled, rows, len(names)
+
+
+def ipin_table(
+    h5: str | Path, trials: int | None = None, seed: int = 0, held_out: bool = False
+) -> tuple[Table, list[dict]]:
+    """Real data without a map: every method at the surveyed IPIN 2023 waypoints (:func:`ipin_errors`)."""
+    errors, rows, n_trials = ipin_errors(h5, trials, seed, held_out)
     table_rows = []
     for m in METHODS:
-        e = np.concatenate(errors[m]) if errors[m] else np.array([])
+        e = errors[m]
         table_rows.append(
             [
-                m,
+                METHOD_LABELS[m],
                 str(len(e)),
                 f"{np.median(e):.1f}" if len(e) else "n/a",
                 f"{np.percentile(e, 90):.1f}" if len(e) else "n/a",
                 f"{e.mean():.1f}" if len(e) else "n/a",
             ]
         )
+    which = "held-out " if held_out else ""
     table = Table(
-        f"IPIN 2023 Track 3 ({len(names)} trials, no map): error at surveyed waypoints (m)",
+        f"IPIN 2023 Track 3 ({n_trials} {which}trials, no map): error at surveyed waypoints (m)",
         ["method", "waypoints", "median", "p90", "mean"],
         table_rows,
     )

@@ -15,19 +15,22 @@ import math
 from pathlib import Path
 from typing import Any
 
-import matplotlib
+import numpy as np
+import pandas as pd
 
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
-import pandas as pd  # noqa: E402
-
-import curbside  # noqa: E402
-from curbside import settings  # noqa: E402
-from curbside.evaluate.metrics import METRIC_NAMES  # noqa: E402
-from curbside.evaluate.runner import METHOD_LABELS, METHODS, MODE_SUFFIX, pool  # noqa: E402
-from curbside.io import atomic_path  # noqa: E402
-from curbside.osmseg.mapio import MapLayers  # noqa: E402
+import curbside
+from curbside import settings
+from curbside.evaluate.figures import (
+    fig_cdf,
+    fig_particles,
+    fig_per_path,
+    fig_tracks,
+    save_png,
+)
+from curbside.evaluate.metrics import METRIC_NAMES
+from curbside.evaluate.runner import METHOD_LABELS, METHODS, MODE_SUFFIX, pool
+from curbside.io import atomic_path
+from curbside.osmseg.mapio import MapLayers
 
 #: The paper's Tables 2-4 (Dubiner, Ren, Manduchi), per method.
 PAPER: dict[str, Any] = {
@@ -42,11 +45,22 @@ PAPER: dict[str, Any] = {
     "along_median_m": {"gnss": 6.2, "inertial": 11.3, "fused": 9.0},
     "across_median_m": {"gnss": 8.1, "inertial": 4.7, "fused": 3.1},
 }
-METHOD_COLORS = {"gnss": "#d62728", "inertial": "#2ca02c", "fused": "#9467bd"}
-CLASS_COLORS = {"building": "#c9a0a0", "street": "#a9adb8", "crosswalk": "#f2e394", "sidewalk": "#bfe3b4"}
 
 
-def _fmt(value: Any, digits: int = 2) -> str:
+def paper_value(name: str, method: str, jaywalk_weight: float | None = None) -> float | None:
+    """The paper's published figure for a metric and method (``paper`` and ``fused`` both show the
+    paper's GNSS+RoNIN+PF column); ``None`` where the paper has none."""
+    column = "fused" if method == "paper" else method
+    table = PAPER.get(name)
+    if table is None:
+        return None
+    if name == "csa":
+        table = table.get(round(float(jaywalk_weight if jaywalk_weight is not None else 0.4), 2), {})
+    return table.get(column)
+
+
+def fmt_value(value: Any, digits: int = 2) -> str:
+    """A table cell: ``n/a`` for missing or non-finite values, ``digits`` decimals for floats."""
     if value is None or (isinstance(value, float) and not math.isfinite(value)):
         return "n/a"
     if isinstance(value, float):
@@ -54,11 +68,12 @@ def _fmt(value: Any, digits: int = 2) -> str:
     return str(value)
 
 
-def _json_ready(value: Any) -> Any:
+def json_ready(value: Any) -> Any:
+    """``value`` with numpy scalars unwrapped, keys as strings and non-finite floats as ``None``."""
     if isinstance(value, dict):
-        return {str(k): _json_ready(v) for k, v in value.items()}
+        return {str(k): json_ready(v) for k, v in value.items()}
     if isinstance(value, list | tuple):
-        return [_json_ready(v) for v in value]
+        return [json_ready(v) for v in value]
     if isinstance(value, np.generic):
         value = value.item()
     if isinstance(value, float) and not math.isfinite(value):
@@ -66,8 +81,15 @@ def _json_ready(value: Any) -> Any:
     return value
 
 
-def _records(frame: pd.DataFrame) -> list[dict[str, Any]]:
-    return [_json_ready(dict(r)) for r in frame.astype(object).where(frame.notna(), None).to_dict("records")]
+def records(frame: pd.DataFrame) -> list[dict[str, Any]]:
+    """A frame as JSON-ready row dicts (NaN as ``None``)."""
+    return [json_ready(dict(r)) for r in frame.astype(object).where(frame.notna(), None).to_dict("records")]
+
+
+def _td(cell: str) -> str:
+    """An HTML cell; a ``PASS`` or ``FAIL`` verdict gets the class ``pass`` or ``fail``."""
+    cls = f" class='{cell.lower()}'" if cell in ("PASS", "FAIL") else ""
+    return f"<td{cls}>{html.escape(cell)}</td>"
 
 
 class Table:
@@ -88,7 +110,7 @@ class Table:
     def html(self) -> str:
         """An HTML table."""
         head = "".join(f"<th>{html.escape(h)}</th>" for h in self.header)
-        body = "".join("<tr>" + "".join(f"<td>{html.escape(c)}</td>" for c in r) + "</tr>" for r in self.rows)
+        body = "".join("<tr>" + "".join(_td(c) for c in r) + "</tr>" for r in self.rows)
         note = f"<p class='note'>{html.escape(self.note)}</p>" if self.note else ""
         return f"<h3>{html.escape(self.title)}</h3><table><tr>{head}</tr>{body}</table>{note}"
 
@@ -116,8 +138,8 @@ def paper_tables(pooled: pd.DataFrame, map_name: str, base: dict[str, Any]) -> l
         row = [f"w = {w:g}"]
         for m in methods:
             r = _lookup(pooled, m, jaywalk_weight=w, **where)
-            paper = PAPER["csa"].get(round(float(w), 2), {}).get(m)
-            row.append(f"{_fmt(None if r is None else r['csa'])} ({_fmt(paper)})")
+            paper = paper_value("csa", m, w)
+            row.append(f"{fmt_value(None if r is None else r['csa'])} ({fmt_value(paper)})")
         rows2.append(row)
     tables = [
         Table(
@@ -139,7 +161,8 @@ def paper_tables(pooled: pd.DataFrame, map_name: str, base: dict[str, Any]) -> l
             row = [name]
             for m in methods:
                 r = _lookup(pooled, m, jaywalk_weight=w0, **where)
-                row.append(f"{_fmt(None if r is None else r[name], 1)} ({_fmt(PAPER[name][m], 1)})")
+                ours = fmt_value(None if r is None else r[name], 1)
+                row.append(f"{ours} ({fmt_value(paper_value(name, m), 1)})")
             rows.append(row)
         tables.append(Table(f"{title}, w = {w0:g}, map '{map_name}'", header, rows))
     rows = []
@@ -147,7 +170,7 @@ def paper_tables(pooled: pd.DataFrame, map_name: str, base: dict[str, Any]) -> l
         row = [name]
         for m in methods:
             r = _lookup(pooled, m, jaywalk_weight=w0, **where)
-            row.append(_fmt(None if r is None else r[name], 1))
+            row.append(fmt_value(None if r is None else r[name], 1))
         rows.append(row)
     tables.append(
         Table(
@@ -169,7 +192,7 @@ def mode_tables(
         row = [f"w = {w:g}"]
         for m in methods:
             r = _lookup(pooled, m, jaywalk_weight=w, **where)
-            row.append("-" if r is None else f"{_fmt(r['csa'])} / {_fmt(r[f'csa{MODE_SUFFIX}'])}")
+            row.append("-" if r is None else f"{fmt_value(r['csa'])} / {fmt_value(r[f'csa{MODE_SUFFIX}'])}")
         rows.append(row)
     header = [""] + [METHOD_LABELS[m] for m in methods]
     errors = []
@@ -177,7 +200,8 @@ def mode_tables(
         row = [name]
         for m in methods:
             r = _lookup(pooled, m, jaywalk_weight=w0, **where)
-            row.append("-" if r is None else f"{_fmt(r[name], 1)} / {_fmt(r[f'{name}{MODE_SUFFIX}'], 1)}")
+            mode = None if r is None else r[f"{name}{MODE_SUFFIX}"]
+            row.append("-" if r is None else f"{fmt_value(r[name], 1)} / {fmt_value(mode, 1)}")
         errors.append(row)
     return [
         Table(
@@ -207,7 +231,7 @@ def map_table(pooled: pd.DataFrame, base: dict[str, Any]) -> Table:
             )
             if r is not None:
                 rows.append(
-                    [map_name, METHOD_LABELS[m]] + [_fmt(r[n], 2 if n == "csa" else 1) for n in names]
+                    [map_name, METHOD_LABELS[m]] + [fmt_value(r[n], 2 if n == "csa" else 1) for n in names]
                 )
     return Table(
         "Map sources compared",
@@ -238,168 +262,16 @@ def sweep_tables(pooled: pd.DataFrame, base: dict[str, Any]) -> list[Table]:
                 str(r["map"]),
                 METHOD_LABELS[r["method"]],
                 "default" if pd.isna(r[param]) else f"{r[param]:g}",
-                _fmt(r["csa"]),
-                _fmt(r["euclid_median_m"], 1),
-                _fmt(r["euclid_p90_m"], 1),
-                _fmt(r["across_median_m"], 1),
+                fmt_value(r["csa"]),
+                fmt_value(r["euclid_median_m"], 1),
+                fmt_value(r["euclid_p90_m"], 1),
+                fmt_value(r["across_median_m"], 1),
             ]
             for _, r in sub.iterrows()
         ]
         header = ["map", "method", labels[param], "csa", "euclid_median_m", "euclid_p90_m", "across_median_m"]
         tables.append(Table(f"Sweep: {labels[param]}", header, rows))
     return tables
-
-
-# -- figures ------------------------------------------------------------------------------------------------
-
-
-def _draw_map(ax, layers: MapLayers | None, bounds: tuple[float, float, float, float]) -> None:
-    if layers is None:
-        return
-    x0, y0, x1, y1 = bounds
-    sub = layers.gdf.cx[x0:x1, y0:y1]
-    for cls, color in CLASS_COLORS.items():
-        part = sub[sub["class"] == cls]
-        if len(part):
-            part.plot(ax=ax, color=color, edgecolor="white", linewidth=0.2, zorder=0)
-
-
-def fig_tracks(results: list[dict], layers: MapLayers | None, base: dict[str, Any]) -> plt.Figure:
-    """Fig. 1: ground truth, waypoints and the three methods' footsteps, one panel per path."""
-    first: dict[str, str] = {}
-    for r in results:
-        first.setdefault(r["path"], r["session"])
-    paths = list(first)
-    cols = min(3, len(paths))
-    rows = math.ceil(len(paths) / cols)
-    fig, axes = plt.subplots(rows, cols, figsize=(5.5 * cols, 5.2 * rows), squeeze=False)
-    for ax, path in zip(axes.ravel(), paths, strict=False):
-        runs = [r for r in results if r["session"] == first[path] and _is_base(r, base)]
-        tracks = {r["spec"]["method"]: r["track"] for r in runs}
-        gt = next(iter(tracks.values()))
-        x0, x1 = gt["gt_x_m"].min() - 40, gt["gt_x_m"].max() + 40
-        y0, y1 = gt["gt_y_m"].min() - 40, gt["gt_y_m"].max() + 40
-        _draw_map(ax, layers, (x0, y0, x1, y1))
-        ax.plot(gt["gt_x_m"], gt["gt_y_m"], color="0.4", lw=2, label="ground truth", zorder=2)
-        for m in METHODS:
-            if m in tracks:
-                tr = tracks[m]
-                ax.scatter(
-                    tr["x_m"], tr["y_m"], s=3, color=METHOD_COLORS[m], label=METHOD_LABELS[m], zorder=3
-                )
-        ax.set_xlim(x0, x1)
-        ax.set_ylim(y0, y1)
-        ax.set_aspect("equal")
-        ax.set_title(f"{path} ({first[path]})")
-        ax.set_xticks([])
-        ax.set_yticks([])
-    for ax in axes.ravel()[len(paths) :]:
-        ax.axis("off")
-    axes.ravel()[0].legend(loc="lower left", fontsize=7, markerscale=3)
-    fig.suptitle("Fig. 1  Tracks per path (map " + str(base.get("map", "")) + ")")
-    fig.tight_layout()
-    return fig
-
-
-def fig_particles(results: list[dict], layers: MapLayers | None, base: dict[str, Any]) -> plt.Figure | None:
-    """Fig. 3: particle clouds of RoNIN+PF and GNSS+RoNIN+PF at the chosen moments."""
-    runs = [r for r in results if r["snapshots"]]
-    if not runs:
-        return None
-    session = runs[0]["session"]
-    runs = [r for r in runs if r["session"] == session]
-    n = len(runs[0]["snapshots"])
-    fig, axes = plt.subplots(1, n, figsize=(6 * n, 6), squeeze=False)
-    for k, ax in enumerate(axes.ravel()):
-        gt_track = runs[0]["track"]
-        t = runs[0]["snapshots"][k]["t"]
-        i = int(np.argmin(np.abs(gt_track["t"].to_numpy() - t)))
-        cx, cy = gt_track["gt_x_m"].iat[i], gt_track["gt_y_m"].iat[i]
-        bounds = (cx - 45, cy - 45, cx + 45, cy + 45)
-        _draw_map(ax, layers, bounds)
-        for r in runs:
-            snap = r["snapshots"][k]
-            m = r["spec"]["method"]
-            ax.scatter(snap["x"], snap["y"], s=2, alpha=0.5, color=METHOD_COLORS[m], label=METHOD_LABELS[m])
-        fix = runs[0]["snapshots"][k].get("fix")
-        if fix is not None:
-            ax.add_patch(plt.Circle(fix[:2], fix[2], color="#1f77b4", alpha=0.15, zorder=1))
-            ax.plot(*fix[:2], "o", color="#1f77b4", ms=9, label=f"GNSS fix (accuracy {fix[2]:.0f} m)")
-        ax.plot(cx, cy, "k*", ms=12, label="ground truth")
-        ax.set_xlim(bounds[0], bounds[2])
-        ax.set_ylim(bounds[1], bounds[3])
-        ax.set_aspect("equal")
-        ax.set_title(f"{session}, t = {t:.0f} s")
-        ax.set_xticks([])
-        ax.set_yticks([])
-        handles, labels = ax.get_legend_handles_labels()
-        legend = ax.legend(handles, labels, loc="lower left", fontsize=7)
-        for handle in legend.legend_handles[: len(runs)]:
-            handle.set_sizes([20])
-    fig.suptitle("Fig. 3  Particle clouds")
-    fig.tight_layout()
-    return fig
-
-
-def fig_cdf(results: list[dict], base: dict[str, Any]) -> plt.Figure:
-    """Fig. 4: CDF of the Euclidean error over all footsteps, per method."""
-    fig, ax = plt.subplots(figsize=(6.5, 4.5))
-    for m in METHODS:
-        errs = [r["errors"] for r in results if r["spec"]["method"] == m and _is_base(r, base)]
-        if not errs:
-            continue
-        e = pd.concat(errs)
-        e = np.sort(e.loc[~e["missing"], "euclid_m"].to_numpy())
-        ax.plot(e, np.arange(1, len(e) + 1) / len(e), color=METHOD_COLORS[m], label=METHOD_LABELS[m])
-    ax.set_xlabel("Euclidean error (m)")
-    ax.set_ylabel("CDF")
-    ax.set_xlim(0, 60)
-    ax.grid(alpha=0.3)
-    ax.legend()
-    ax.set_title("Fig. 4  Euclidean error CDF")
-    fig.tight_layout()
-    return fig
-
-
-def fig_per_path(pooled_path: pd.DataFrame) -> plt.Figure:
-    """Fig. 5: mean Euclidean error per path per method."""
-    paths = list(pooled_path["path"].unique())
-    fig, ax = plt.subplots(figsize=(max(6, 1.3 * len(paths)), 4.5))
-    width = 0.27
-    for j, m in enumerate(METHODS):
-        sub = pooled_path[pooled_path["method"] == m].set_index("path")
-        vals = [sub["euclid_mean_m"].get(p, np.nan) for p in paths]
-        ax.bar(
-            np.arange(len(paths)) + (j - 1) * width,
-            vals,
-            width,
-            color=METHOD_COLORS[m],
-            label=METHOD_LABELS[m],
-        )
-    ax.set_xticks(np.arange(len(paths)), paths)
-    ax.set_ylabel("mean Euclidean error (m)")
-    ax.legend()
-    ax.set_title("Fig. 5  Mean error per path")
-    fig.tight_layout()
-    return fig
-
-
-def _is_base(result: dict, base: dict[str, Any]) -> bool:
-    spec = result["spec"]
-    if spec["method"] == "gnss":
-        return spec["map_name"] == base["map"]
-    return (
-        spec["map_name"] == base["map"]
-        and spec["jaywalk_weight"] == base["jaywalk_weight"]
-        and spec["particles"] == base["particles"]
-        and spec["gnss_sigma_factor"] == base["gnss_sigma_factor"]
-    )
-
-
-def _png(fig: plt.Figure, path: Path) -> bytes:
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return path.read_bytes()
 
 
 # -- the report ---------------------------------------------------------------------------------------------
@@ -471,9 +343,9 @@ def write_report(
         "paper": {
             k: ({str(w): v for w, v in val.items()} if k == "csa" else val) for k, val in PAPER.items()
         },
-        "pooled": _records(pooled),
-        "per_path": _records(per_path),
-        "per_session": _records(per_session),
+        "pooled": records(pooled),
+        "per_path": records(per_path),
+        "per_session": records(per_session),
         "definitions": {
             "csa_on_crossing": (
                 f"ground truth > {settings.evaluate_on_sidewalk_m} m from every sidewalk: correct when the "
@@ -493,23 +365,24 @@ def write_report(
             (
                 "fig1_tracks.png",
                 "Fig. 1 tracks",
-                _png(fig_tracks(results, layers, base), figdir / "fig1_tracks.png"),
+                save_png(fig_tracks(results, layers, base), figdir / "fig1_tracks.png"),
             )
         )
         fig3 = fig_particles(results, layers, base)
         if fig3 is not None:
             figures.append(
-                ("fig3_particles.png", "Fig. 3 particles", _png(fig3, figdir / "fig3_particles.png"))
+                ("fig3_particles.png", "Fig. 3 particles", save_png(fig3, figdir / "fig3_particles.png"))
             )
-        figures.append(("fig4_cdf.png", "Fig. 4 CDF", _png(fig_cdf(results, base), figdir / "fig4_cdf.png")))
+        fig4 = save_png(fig_cdf(results, base), figdir / "fig4_cdf.png")
+        figures.append(("fig4_cdf.png", "Fig. 4 CDF", fig4))
         figures.append(
             (
                 "fig5_per_path.png",
                 "Fig. 5 per path",
-                _png(fig_per_path(base_path), figdir / "fig5_per_path.png"),
+                save_png(fig_per_path(base_path, base), figdir / "fig5_per_path.png"),
             )
         )
-        (tmp / "metrics.json").write_text(json.dumps(_json_ready(doc), indent=1), encoding="utf-8")
+        (tmp / "metrics.json").write_text(json.dumps(json_ready(doc), indent=1), encoding="utf-8")
         # -- the replay viewer: one page per session (curbside.localize.view) --------------------------
         from curbside.localize.view import write_session_views
 

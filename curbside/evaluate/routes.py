@@ -15,6 +15,7 @@ requested length and simplified; its remaining vertices are the ground-truth way
 from __future__ import annotations
 
 import logging
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import networkx as nx
@@ -309,7 +310,13 @@ def _simplify(pts: np.ndarray, kinds: np.ndarray, tolerance_m: float = 0.75) -> 
 
 
 def generate_route(
-    wg: WalkGraph, spec: RouteSpec, frame: LocalFrame, seed: int, max_attempts: int = 20000
+    wg: WalkGraph,
+    spec: RouteSpec,
+    frame: LocalFrame,
+    seed: int,
+    max_attempts: int = 20000,
+    accept: Callable[[np.ndarray], bool] | None = None,
+    exact_counts: bool = True,
 ) -> Route:
     """Draw a route that satisfies ``spec`` (deterministic for a given seed).
 
@@ -325,6 +332,11 @@ def generate_route(
         Seed of the random walks.
     max_attempts
         Random walks tried before giving up.
+    accept
+        A further condition on the polyline (``(n, 2)`` metres, before simplification), checked last
+        (e.g. "under open sky").
+    exact_counts
+        ``False``: ``spec.crossings`` and ``spec.jaywalks`` are maxima, not exact counts.
 
     Raises
     ------
@@ -344,14 +356,21 @@ def generate_route(
             continue
         pts, kinds = _cut(*walk[:2], spec.length_m)
         n_cross, n_jay = _runs(kinds, "crossing"), _runs(kinds, "jaywalk")
-        if kinds[-1] != "sidewalk" or n_cross != spec.crossings or n_jay != spec.jaywalks:
+        counts_ok = (
+            (n_cross, n_jay) == (spec.crossings, spec.jaywalks)
+            if exact_counts
+            else n_cross <= spec.crossings and n_jay <= spec.jaywalks
+        )
+        if kinds[-1] != "sidewalk" or not counts_ok:
             continue
         line = shapely.linestrings(pts)
         covered = shapely.intersection(line, wg.covered).length / line.length
         if covered < spec.covered_share:
             continue
+        if accept is not None and not accept(pts):
+            continue
         pts, kinds = _simplify(pts, kinds)
-        log.info("%s: accepted walk %d (covered %.0f%%)", spec.name, attempt, 100 * covered)
+        log.debug("%s: accepted walk %d (covered %.0f%%)", spec.name, attempt, 100 * covered)
         return Route(spec, pts, kinds, n_cross, n_jay, float(covered), seed, attempt)
     raise CurbsideInputError(spec.name, f"no route found in {max_attempts} random walks")
 

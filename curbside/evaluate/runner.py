@@ -34,9 +34,19 @@ from curbside.projection import LocalFrame
 
 log = logging.getLogger(__name__)
 
-METHODS: tuple[str, ...] = ("gnss", "inertial", "fused")
-#: The paper's names for the methods.
-METHOD_LABELS: dict[str, str] = {"gnss": "GNSS", "inertial": "RoNIN+PF", "fused": "GNSS+RoNIN+PF"}
+METHODS: tuple[str, ...] = ("gnss", "inertial", "paper", "fused")
+#: Report names of the methods: the paper's for its three, "paper PF" for the paper's GNSS+RoNIN+PF
+#: re-implemented plainly (``track_session``'s ``paper`` mode), "curbside fused" for ours.
+METHOD_LABELS: dict[str, str] = {
+    "gnss": "GNSS",
+    "inertial": "RoNIN+PF",
+    "paper": "paper PF",
+    "fused": "curbside fused",
+}
+#: Seconds a dask worker process is given to exit at shutdown. Finalising a worker's interpreter
+#: (numba, shapely, pandas) takes 1-2 s alone and more on a loaded machine, past the nanny's default
+#: of 4 s, which then logs "Worker process still alive ... killing" and kills it.
+WORKER_CLOSE_TIMEOUT_S = 60.0
 #: Suffix of the metrics scored on the posterior-mode estimate (``csa_mode``...).
 MODE_SUFFIX = "_mode"
 
@@ -50,7 +60,7 @@ class RunSpec:
     session
         Session folder.
     method
-        ``gnss``, ``inertial`` or ``fused``.
+        ``gnss``, ``inertial``, ``paper`` or ``fused``.
     map_path
         Map used by the filter (``None``: no map likelihood; always ``None`` for ``gnss``).
     map_name
@@ -229,7 +239,9 @@ def run_all(
             n_workers=workers,
             threads_per_worker=1,
             processes=True,
-            dashboard_address=None,
+            # no dashboard; the scheduler's HTTP routes on a free port, not 8787 (often taken)
+            dashboard_address=":0",
+            scheduler_kwargs={"dashboard": False},
             silence_logs=logging.WARNING,
         )
         client = Client(cluster)
@@ -247,7 +259,15 @@ def run_all(
     finally:
         client.close()
         if cluster is not None:
+            cluster.sync(_close_workers, cluster, WORKER_CLOSE_TIMEOUT_S)
             cluster.close()
+
+
+async def _close_workers(cluster, timeout_s: float) -> None:
+    """Close a local cluster's worker processes, each with ``timeout_s`` to exit on its own."""
+    import asyncio
+
+    await asyncio.gather(*(w.close(timeout=timeout_s) for w in list(cluster.workers.values())))
 
 
 def pool(results: list[dict[str, Any]], by: tuple[str, ...]) -> pd.DataFrame:

@@ -1,0 +1,329 @@
+"""The report figures: the paper's Figs. 1, 3, 4 and 5, and the benchmark's per-session comparison.
+
+Every figure shows the four methods in the same colours (:data:`METHOD_COLORS`). Map figures draw
+the map classes with a legend, a scale bar and the map's attribution ("© OpenStreetMap
+contributors"); figures of one configuration say which jaywalk weight and which map they show.
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+from typing import Any
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
+import pandas as pd  # noqa: E402
+from matplotlib.patches import Patch  # noqa: E402
+from mpl_toolkits.axes_grid1.anchored_artists import AnchoredSizeBar  # noqa: E402
+
+from curbside import settings  # noqa: E402
+from curbside.evaluate.runner import METHOD_LABELS, METHODS  # noqa: E402
+from curbside.osmseg.mapio import MapLayers  # noqa: E402
+
+#: One colour per method, in every figure.
+METHOD_COLORS = {"gnss": "#d62728", "inertial": "#2ca02c", "paper": "#ff7f0e", "fused": "#9467bd"}
+#: Light fills of the map classes under the tracks (drawn bottom to top in this order).
+CLASS_COLORS = {"street": "#a9adb8", "crosswalk": "#f2e394", "sidewalk": "#bfe3b4", "building": "#c9a0a0"}
+CLASS_LABELS = {
+    "street": "street (jaywalking)",
+    "crosswalk": "crosswalk",
+    "sidewalk": "sidewalk segment",
+    "building": "building",
+}
+
+
+def attribution(layers: MapLayers | None) -> str:
+    """The map's attribution line (OSM's by default)."""
+    meta = layers.meta if layers is not None else {}
+    return str(meta.get("attribution") or settings.osm_attribution)
+
+
+def _nice_length(max_m: float) -> float:
+    """The largest 1, 2 or 5 x 10^k metres not above ``max_m``."""
+    power = 10.0 ** math.floor(math.log10(max_m))
+    return max(m * power for m in (1, 2, 5) if m * power <= max_m)
+
+
+def draw_map(ax, layers: MapLayers | None, bounds: tuple[float, float, float, float]) -> None:
+    """Map classes inside ``bounds`` (local metres), a scale bar and the attribution on ``ax``."""
+    x0, y0, x1, y1 = bounds
+    if layers is not None:
+        sub = layers.gdf.cx[x0:x1, y0:y1]
+        for cls, color in CLASS_COLORS.items():
+            part = sub[sub["class"] == cls]
+            if len(part):
+                part.plot(ax=ax, color=color, edgecolor="white", linewidth=0.2, zorder=0)
+        ax.text(
+            0.99,
+            0.005,
+            attribution(layers),
+            transform=ax.transAxes,
+            ha="right",
+            va="bottom",
+            fontsize=6,
+            color="0.25",
+            bbox={"facecolor": "white", "alpha": 0.7, "edgecolor": "none", "pad": 1},
+            zorder=11,
+        )
+    length = _nice_length((x1 - x0) / 5)
+    label = f"{length / 1000:g} km" if length >= 1000 else f"{length:g} m"
+    bar = AnchoredSizeBar(
+        ax.transData,
+        length,
+        label,
+        "lower left",
+        pad=0.4,
+        borderpad=0.6,
+        sep=3,
+        frameon=True,
+        size_vertical=(y1 - y0) / 150,
+        fontproperties={"size": 7},
+    )
+    bar.patch.set_alpha(0.75)
+    ax.add_artist(bar)
+    ax.set_xlim(x0, x1)
+    ax.set_ylim(y0, y1)
+    ax.set_aspect("equal")
+    ax.set_xticks([])
+    ax.set_yticks([])
+    ax.set_xlabel("")
+    ax.set_ylabel("")
+
+
+def class_handles(layers: MapLayers | None) -> list[Patch]:
+    """Legend patches of the map classes present in ``layers``."""
+    if layers is None:
+        return []
+    present = set(layers.gdf["class"].unique())
+    return [Patch(facecolor=CLASS_COLORS[c], label=CLASS_LABELS[c]) for c in CLASS_COLORS if c in present]
+
+
+def _method_handles(methods: list[str], marker_size: float = 6.0) -> list:
+    return [
+        plt.Line2D([], [], ls="", marker="o", ms=marker_size, color=METHOD_COLORS[m], label=METHOD_LABELS[m])
+        for m in methods
+    ]
+
+
+def config_label(base: dict[str, Any]) -> str:
+    """``w = 0.4, map 'osm'``: which configuration a figure shows."""
+    return f"w = {base['jaywalk_weight']:g}, map '{base['map']}'"
+
+
+def is_base(result: dict, base: dict[str, Any]) -> bool:
+    """Whether a run is at the base configuration (GNSS: only the map matters)."""
+    spec = result["spec"]
+    if spec["method"] == "gnss":
+        return spec["map_name"] == base["map"]
+    return (
+        spec["map_name"] == base["map"]
+        and spec["jaywalk_weight"] == base["jaywalk_weight"]
+        and spec["particles"] == base["particles"]
+        and spec["gnss_sigma_factor"] == base["gnss_sigma_factor"]
+    )
+
+
+def fig_tracks(
+    results: list[dict],
+    layers: MapLayers | None,
+    base: dict[str, Any],
+    title: str = "Fig. 1  Tracks per path",
+    max_panels: int = 9,
+) -> plt.Figure:
+    """Fig. 1: ground truth and every method's footsteps over the map, one panel per path.
+
+    The first session of each path is drawn (at most ``max_panels`` paths).
+    """
+    first: dict[str, str] = {}
+    for r in results:
+        first.setdefault(r["path"], r["session"])
+    paths = list(first)[:max_panels]
+    cols = min(3, len(paths))
+    rows = math.ceil(len(paths) / cols)
+    fig, axes = plt.subplots(rows, cols, figsize=(5.5 * cols, 5.2 * rows + 0.8), squeeze=False)
+    shown: list[str] = []
+    for ax, path in zip(axes.ravel(), paths, strict=False):
+        runs = [r for r in results if r["session"] == first[path] and is_base(r, base)]
+        tracks = {r["spec"]["method"]: r["track"] for r in runs}
+        gt = next(iter(tracks.values()))
+        # a square around the walk, 40 m beyond it: every panel the same shape
+        cx = (gt["gt_x_m"].min() + gt["gt_x_m"].max()) / 2
+        cy = (gt["gt_y_m"].min() + gt["gt_y_m"].max()) / 2
+        half = max(np.ptp(gt["gt_x_m"]), np.ptp(gt["gt_y_m"])) / 2 + 40
+        bounds = (cx - half, cy - half, cx + half, cy + half)
+        draw_map(ax, layers, bounds)
+        ax.plot(gt["gt_x_m"], gt["gt_y_m"], color="0.3", lw=2, zorder=2)
+        for m in METHODS:
+            if m in tracks:
+                tr = tracks[m]
+                ax.scatter(tr["x_m"], tr["y_m"], s=3, color=METHOD_COLORS[m], zorder=3)
+                shown.append(m)
+        ax.set_title(f"{path} ({first[path]})", fontsize=10)
+    for ax in axes.ravel()[len(paths) :]:
+        ax.axis("off")
+    handles = [plt.Line2D([], [], color="0.3", lw=2, label="ground truth")]
+    handles += _method_handles([m for m in METHODS if m in shown]) + class_handles(layers)
+    ncol = min(len(handles), 3 if cols == 1 else 5)
+    fig.legend(handles=handles, loc="lower center", ncol=ncol, fontsize=8, frameon=False)
+    fig.suptitle(f"{title} ({config_label(base)})")
+    legend_in = 0.22 * math.ceil(len(handles) / ncol) + 0.15
+    fig.tight_layout(rect=(0, legend_in / fig.get_figheight(), 1, 1))
+    return fig
+
+
+def fig_particles(results: list[dict], layers: MapLayers | None, base: dict[str, Any]) -> plt.Figure | None:
+    """Fig. 3: particle clouds of every particle-filter method at the chosen moments of one session."""
+    runs = [r for r in results if r["snapshots"]]
+    if not runs:
+        return None
+    session = runs[0]["session"]
+    runs = [r for r in runs if r["session"] == session]
+    n = len(runs[0]["snapshots"])
+    fig, axes = plt.subplots(1, n, figsize=(5.6 * n, 6.4), squeeze=False)
+    for k, ax in enumerate(axes.ravel()):
+        gt_track = runs[0]["track"]
+        t = runs[0]["snapshots"][k]["t"]
+        i = int(np.argmin(np.abs(gt_track["t"].to_numpy() - t)))
+        cx, cy = gt_track["gt_x_m"].iat[i], gt_track["gt_y_m"].iat[i]
+        draw_map(ax, layers, (cx - 45, cy - 45, cx + 45, cy + 45))
+        for r in runs:
+            snap = r["snapshots"][k]
+            m = r["spec"]["method"]
+            ax.scatter(snap["x"], snap["y"], s=2, alpha=0.5, color=METHOD_COLORS[m], zorder=3)
+        fix = runs[0]["snapshots"][k].get("fix")
+        if fix is not None:
+            ax.add_patch(plt.Circle(fix[:2], fix[2], color="#1f77b4", alpha=0.15, zorder=1))
+            ax.plot(*fix[:2], "o", color="#1f77b4", ms=9, zorder=4)
+            ax.text(
+                fix[0],
+                fix[1] + 2,
+                f"GNSS fix\n±{fix[2]:.0f} m",
+                fontsize=7,
+                ha="center",
+                zorder=4,
+                clip_on=True,
+            )
+        ax.plot(cx, cy, "k*", ms=12, zorder=5)
+        title = f"{session}, t = {t:.0f} s"
+        if fix is not None and max(abs(fix[0] - cx), abs(fix[1] - cy)) > 45:
+            title += f"\nGNSS fix {np.hypot(fix[0] - cx, fix[1] - cy):.0f} m away, off the panel"
+        ax.set_title(title, fontsize=10)
+    handles = _method_handles([r["spec"]["method"] for r in runs])
+    handles += [
+        plt.Line2D(
+            [], [], ls="", marker="o", ms=9, color="#1f77b4", label="GNSS fix (circle: reported accuracy)"
+        ),
+        plt.Line2D([], [], ls="", marker="*", ms=12, color="k", label="ground truth"),
+    ] + class_handles(layers)
+    fig.legend(handles=handles, loc="lower center", ncol=4, fontsize=8, frameon=False)
+    fig.suptitle(f"Fig. 3  Particle clouds ({config_label(base)})")
+    fig.tight_layout(rect=(0, 0.09, 1, 0.95))
+    return fig
+
+
+def _cdf_axes(ax, results: list[dict], base: dict[str, Any], title: str) -> None:
+    for m in METHODS:
+        errs = [r["errors"] for r in results if r["spec"]["method"] == m and is_base(r, base)]
+        if not errs:
+            continue
+        e = pd.concat(errs)
+        e = np.sort(e.loc[~e["missing"], "euclid_m"].to_numpy())
+        ax.plot(e, np.arange(1, len(e) + 1) / len(e), color=METHOD_COLORS[m], label=METHOD_LABELS[m])
+    ax.set_xlabel("Euclidean error (m)")
+    ax.set_ylabel("CDF")
+    ax.set_xlim(0, 60)
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=8)
+    ax.set_title(title, fontsize=10)
+
+
+def fig_cdf(
+    results: list[dict], base: dict[str, Any], groups: dict[str, list[dict]] | None = None
+) -> plt.Figure:
+    """Fig. 4: CDF of the Euclidean error over all footsteps, per method (one panel per group)."""
+    groups = groups or {"all sessions": results}
+    fig, axes = plt.subplots(1, len(groups), figsize=(6.0 * len(groups), 4.6), squeeze=False)
+    for ax, (name, group) in zip(axes.ravel(), groups.items(), strict=True):
+        _cdf_axes(ax, group, base, name)
+    fig.suptitle(f"Fig. 4  Euclidean error CDF ({config_label(base)})")
+    fig.tight_layout()
+    return fig
+
+
+def fig_per_path(
+    pooled_path: pd.DataFrame, base: dict[str, Any], title: str = "Fig. 5  Mean error per path"
+) -> plt.Figure:
+    """Fig. 5: mean Euclidean error per path per method, at the base configuration."""
+    paths = list(pooled_path["path"].unique())
+    methods = [m for m in METHODS if (pooled_path["method"] == m).any()]
+    fig, ax = plt.subplots(figsize=(max(6.5, 1.2 * len(paths) + 2), 4.6))
+    width = 0.8 / max(1, len(methods))
+    for j, m in enumerate(methods):
+        sub = pooled_path[pooled_path["method"] == m].set_index("path")
+        vals = [sub["euclid_mean_m"].get(p, np.nan) for p in paths]
+        offset = (j - (len(methods) - 1) / 2) * width
+        ax.bar(np.arange(len(paths)) + offset, vals, width, color=METHOD_COLORS[m], label=METHOD_LABELS[m])
+    ax.set_xticks(
+        np.arange(len(paths)),
+        paths,
+        rotation=30 if len(paths) > 8 else 0,
+        ha="right" if len(paths) > 8 else "center",
+    )
+    ax.set_ylabel("mean Euclidean error (m)")
+    ax.legend(fontsize=8)
+    ax.set_title(f"{title} ({config_label(base)})")
+    fig.tight_layout()
+    return fig
+
+
+def fig_session_medians(per_session: pd.DataFrame, base: dict[str, Any], ratio_limit: float) -> plt.Figure:
+    """Each session's median error, paper PF and curbside fused against GNSS, coloured by subset.
+
+    ``per_session`` has ``subset, session, gnss, paper, fused`` (median metres). The dashed line is
+    ``ratio_limit`` x the GNSS median (the done-when bound), the dotted one equality.
+    """
+    fig, axes = plt.subplots(1, 2, figsize=(11.5, 5.2), sharex=True, sharey=True)
+    top = (
+        float(np.nanmax(per_session[["gnss", "paper", "fused"]].to_numpy())) * 1.1
+        if len(per_session)
+        else 10.0
+    )
+    markers = dict(zip(sorted(per_session["subset"].unique()), "osD^v", strict=False))
+    for ax, method in zip(axes, ("paper", "fused"), strict=True):
+        for subset, rows in per_session.groupby("subset"):
+            ax.scatter(
+                rows["gnss"],
+                rows[method],
+                s=28,
+                marker=markers[subset],
+                color=METHOD_COLORS[method],
+                edgecolor="k",
+                linewidth=0.4,
+                alpha=0.8,
+                label=subset,
+            )
+        line = np.array([0.0, top])
+        ax.plot(line, line, ":", color="0.4", lw=1, label="equal to GNSS")
+        ax.plot(line, ratio_limit * line, "--", color="0.2", lw=1, label=f"{ratio_limit:g} x GNSS")
+        ax.set_xlim(0, top)
+        ax.set_ylim(0, top)
+        ax.set_aspect("equal")
+        ax.set_xlabel("GNSS median error per session (m)")
+        ax.set_ylabel(f"{METHOD_LABELS[method]} median error (m)")
+        ax.set_title(METHOD_LABELS[method])
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize=7, loc="upper right")  # above the 1.5x line: the empty corner
+    fig.suptitle(f"Per-session median error against GNSS ({config_label(base)})")
+    fig.tight_layout()
+    return fig
+
+
+def save_png(fig: plt.Figure, path: Path, dpi: int = 110) -> bytes:
+    """Save and close a figure; return the PNG bytes."""
+    fig.savefig(path, dpi=dpi)
+    plt.close(fig)
+    return path.read_bytes()

@@ -1,0 +1,386 @@
+"""The benchmark harness behind ``localize benchmark``: subsets x methods x maps, one seeded run.
+
+:func:`run_suite` builds (or takes) the OSM map and, given the DataSF tiles, the DataSF-buildings map;
+simulates (or reuses) every session of the requested subsets and split
+(:mod:`curbside.evaluate.subsets`); tracks each with GNSS, RoNIN+PF, the paper's method and curbside
+fused at the base jaywalk weight (and at every weight of the sweep on ``paper6``, the paper's
+Table 2); scores every run against the OSM map's sidewalk segments; checks the issue's "done when"
+(:mod:`curbside.evaluate.criteria`) and writes ``report.md``, ``report.html``, ``metrics.json`` and
+``run.json`` (every parameter, the timings) under ``OUT/report/``.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import os
+import platform
+import subprocess
+import time
+from dataclasses import asdict, dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pandas as pd
+
+import curbside
+from curbside import settings
+from curbside.errors import CurbsideInputError
+from curbside.evaluate import criteria
+from curbside.evaluate.benchmark import datasf_osm_map, snapshot_times
+from curbside.evaluate.runner import RunSpec, pool, run_all
+from curbside.evaluate.simulate import PROFILES, SimulationConfig
+from curbside.evaluate.subsets import DEFAULT_ROUTES, SPLITS, SUBSETS, benchmark_sessions, load_world
+from curbside.localize.session import read_session
+from curbside.osmseg.mapio import read_map, write_map
+
+log = logging.getLogger(__name__)
+
+#: The methods every benchmark table shows, in order.
+SUITE_METHODS: tuple[str, ...] = ("gnss", "inertial", "paper", "fused")
+OSM_MAP = "osm"
+DATASF_MAP = "datasf"
+
+
+@dataclass(frozen=True)
+class SuiteConfig:
+    """Every parameter of a benchmark run (recorded in ``run.json``).
+
+    Attributes
+    ----------
+    profile
+        Simulation profile: ``phone`` (default) or ``nominal``.
+    split
+        ``test`` (scored) or ``tune`` (for choosing parameters).
+    subsets
+        Among ``paper6``, ``downtown``, ``open``.
+    seeds
+        Sessions per route.
+    downtown_routes, open_routes
+        Routes of the random subsets.
+    jaywalk_weight
+        The base weight w (the criteria are judged here).
+    sweep_weights, sweep_subsets
+        Table 2: every weight on these subsets, for the particle-filter methods.
+    particles, filter_seed, velocity_source
+        Filter settings passed to ``track_session``.
+    datasf_methods
+        Methods also run on the DataSF-buildings map (when its tiles are given).
+    write_imu
+        Sessions also get ``imu.csv`` (slower; the runs still read ``velocity.csv``).
+    """
+
+    profile: str = "phone"
+    split: str = "test"
+    subsets: tuple[str, ...] = SUBSETS
+    seeds: int = 3
+    downtown_routes: int = DEFAULT_ROUTES["downtown"]
+    open_routes: int = DEFAULT_ROUTES["open"]
+    jaywalk_weight: float = settings.default_jaywalk_weight
+    sweep_weights: tuple[float, ...] = (0.0, 0.4, 1.0)
+    sweep_subsets: tuple[str, ...] = ("paper6",)
+    particles: int = settings.default_particles
+    filter_seed: int = 0
+    velocity_source: str = "auto"
+    datasf_methods: tuple[str, ...] = ("paper", "fused")
+    write_imu: bool = False
+
+    def __post_init__(self) -> None:
+        if self.profile not in PROFILES:
+            raise CurbsideInputError(
+                "--profile", f"unknown profile {self.profile!r}; one of {list(PROFILES)}"
+            )
+        if self.split not in SPLITS:
+            raise CurbsideInputError("--split", f"unknown split {self.split!r}; one of {list(SPLITS)}")
+        if not self.subsets:
+            raise CurbsideInputError("--subsets", "need at least one subset")
+        for subset in self.subsets:
+            if subset not in SUBSETS:
+                raise CurbsideInputError("--subsets", f"unknown subset {subset!r}; one of {list(SUBSETS)}")
+
+    def routes_of(self, subset: str) -> int | None:
+        """Route count of a random subset (``None`` for ``paper6``)."""
+        return {"downtown": self.downtown_routes, "open": self.open_routes}.get(subset)
+
+
+def plan_suite(sessions: dict[str, list[Path]], maps: dict[str, str], config: SuiteConfig) -> list[RunSpec]:
+    """The runs of a benchmark (see the module docstring); the first ``paper6`` session keeps
+    particle snapshots (Fig. 3)."""
+    w0 = config.jaywalk_weight
+    metrics_map = maps[OSM_MAP]
+    specs: list[RunSpec] = []
+    snap_done = False
+    for subset, paths in sessions.items():
+        weights = sorted(set(config.sweep_weights) | {w0}) if subset in config.sweep_subsets else [w0]
+        for path in paths:
+            session = str(path)
+            snaps: tuple[float, ...] = ()
+            if not snap_done and subset == config.subsets[0]:
+                snaps, snap_done = snapshot_times(read_session(path)), True
+            specs.append(
+                RunSpec(
+                    session,
+                    "gnss",
+                    None,
+                    OSM_MAP,
+                    metrics_map,
+                    w0,
+                    config.particles,
+                    None,
+                    config.filter_seed,
+                )
+            )
+            for method in SUITE_METHODS[1:]:
+                for w in weights:
+                    specs.append(
+                        RunSpec(
+                            session,
+                            method,
+                            maps[OSM_MAP],
+                            OSM_MAP,
+                            metrics_map,
+                            w,
+                            config.particles,
+                            None,
+                            config.filter_seed,
+                            snaps if w == w0 else (),
+                            config.velocity_source,
+                        )
+                    )
+            if DATASF_MAP in maps:
+                for method in config.datasf_methods:
+                    specs.append(
+                        RunSpec(
+                            session,
+                            method,
+                            maps[DATASF_MAP],
+                            DATASF_MAP,
+                            metrics_map,
+                            w0,
+                            config.particles,
+                            None,
+                            config.filter_seed,
+                            (),
+                            config.velocity_source,
+                        )
+                    )
+    return specs
+
+
+def subset_of(result: dict[str, Any]) -> str:
+    """The subset of a run: its session folder's parent folder name."""
+    return Path(result["spec"]["session"]).parent.name
+
+
+def pooled_by_subset(results: list[dict[str, Any]], extra: tuple[str, ...] = ()) -> pd.DataFrame:
+    """Metrics pooled per subset, map, method and w (and ``extra`` columns, e.g. ``session``)."""
+    frames = []
+    by = ("map", "method", "jaywalk_weight", *extra)
+    for subset in dict.fromkeys(subset_of(r) for r in results):
+        part = pool([r for r in results if subset_of(r) == subset], by)
+        part.insert(0, "subset", subset)
+        frames.append(part)
+    return pd.concat(frames, ignore_index=True)
+
+
+def _git_commit() -> str | None:
+    try:
+        out = subprocess.run(
+            ["git", "rev-parse", "HEAD"],
+            cwd=Path(curbside.__file__).parent,
+            capture_output=True,
+            text=True,
+            timeout=10,
+            check=False,
+        )
+    except OSError:
+        return None
+    return out.stdout.strip() or None
+
+
+def _ipin_summary(h5: str | Path, seed: int) -> tuple[dict[str, dict[str, float]], Any]:
+    from curbside.evaluate.benchmark import ipin_errors, ipin_table
+
+    errors, _, _ = ipin_errors(h5, seed=seed, held_out=True)
+    summary = {
+        m: {"n": len(e), "median_m": float(np.median(e)), "p90_m": float(np.percentile(e, 90))}
+        for m, e in errors.items()
+        if len(e)
+    }
+    table, _ = ipin_table(h5, seed=seed, held_out=True)
+    return summary, table
+
+
+def _maps(
+    out_dir: Path, map_path: str | Path | None, datasf_tiles: list[str | Path] | None
+) -> dict[str, str]:
+    """The OSM map (built into ``out_dir`` unless given or already there) and the DataSF one."""
+    if map_path is None:
+        map_path = out_dir / "map.geojson"
+        if not map_path.is_file():
+            from curbside.osmseg.build import build_map
+
+            log.info("building the OSM map -> %s", map_path)
+            write_map(build_map(), map_path)
+    elif not Path(map_path).is_file():
+        raise CurbsideInputError(map_path, "no such map file")
+    maps = {OSM_MAP: str(map_path)}
+    if datasf_tiles:
+        maps[DATASF_MAP] = str(datasf_osm_map(map_path, list(datasf_tiles), out_dir / "map-datasf.geojson"))
+    return maps
+
+
+def _run_info(
+    config: SuiteConfig, maps: dict[str, str], specs: list[RunSpec], sessions: dict[str, list[Path]]
+) -> dict[str, Any]:
+    """What ``run.json`` records besides the inputs: versions, parameters, machine, every run."""
+    return {
+        "generator": f"curbside {curbside.__version__}",
+        "git_commit": _git_commit(),
+        "suite": asdict(config),
+        "simulation": SimulationConfig(profile=config.profile).as_dict(),
+        "maps": maps,
+        "machine": {
+            "cpus": os.cpu_count(),
+            "platform": platform.platform(),
+            "python": platform.python_version(),
+        },
+        "runs": [asdict(s) for s in specs],
+        "sessions": {k: [p.name for p in v] for k, v in sessions.items()},
+    }
+
+
+def simulate_suite(
+    out_dir: str | Path, config: SuiteConfig, osm_file: str | Path | None = None
+) -> dict[str, list[Path]]:
+    """Simulate (or reuse) every session of a benchmark into ``out_dir/sessions/<profile>/<split>/``.
+
+    Returns
+    -------
+    dict
+        Session folders per subset.
+    """
+    world = load_world(str(osm_file) if osm_file else None)
+    root = Path(out_dir) / "sessions" / config.profile / config.split
+    return {
+        subset: benchmark_sessions(
+            root / subset,
+            subset,
+            config.split,
+            config.profile,
+            config.seeds,
+            config.routes_of(subset),
+            world,
+            config.write_imu,
+        )
+        for subset in config.subsets
+    }
+
+
+def run_suite(
+    out_dir: str | Path,
+    config: SuiteConfig | None = None,
+    map_path: str | Path | None = None,
+    datasf_tiles: list[str | Path] | None = None,
+    workers: int = 2,
+    scheduler: str | None = None,
+    ipin: str | Path | None = None,
+    osm_file: str | Path | None = None,
+) -> dict[str, Path]:
+    """Simulate, track, score and report a benchmark in one seeded run.
+
+    Parameters
+    ----------
+    out_dir
+        Gets ``map.geojson`` (unless ``map_path``), ``map-datasf.geojson`` (with ``datasf_tiles``),
+        ``sessions/<profile>/<split>/<subset>/`` (reused when already simulated alike) and
+        ``report/``.
+    config
+        What to run (:class:`SuiteConfig`).
+    map_path
+        An existing OSM map (default: build one from the bundled extract into ``out_dir``).
+    datasf_tiles
+        DataSF 2013 building tiles: adds the DataSF-buildings map (with OSM's streets and sidewalks).
+    workers, scheduler
+        Parallelism (:func:`curbside.evaluate.runner.run_all`).
+    ipin
+        ``ipin2023-t3.h5``: also score the held-out IPIN trials (real phones, no map).
+    osm_file
+        OSM extract for the simulator (default: the bundled one).
+
+    Returns
+    -------
+    dict
+        ``report`` and the report's files by name.
+    """
+    from curbside.evaluate.suite_report import write_suite_report
+
+    config = config or SuiteConfig()
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    timings: dict[str, float] = {}
+    start = time.perf_counter()
+    maps = _maps(out_dir, map_path, datasf_tiles)
+    timings["maps_s"] = time.perf_counter() - start
+    start = time.perf_counter()
+    sessions = simulate_suite(out_dir, config, osm_file)
+    timings["simulate_s"] = time.perf_counter() - start
+
+    specs = plan_suite(sessions, maps, config)
+    log.info("benchmark: %d runs over %d sessions", len(specs), sum(map(len, sessions.values())))
+    start = time.perf_counter()
+    results = run_all(specs, workers=workers, scheduler=scheduler)
+    timings["track_s"] = time.perf_counter() - start
+
+    ipin_summary, ipin_tab = (None, None)
+    if ipin:
+        start = time.perf_counter()
+        ipin_summary, ipin_tab = _ipin_summary(ipin, config.filter_seed)
+        timings["ipin_s"] = time.perf_counter() - start
+
+    pooled = pooled_by_subset(results)
+    per_session = pooled_by_subset(results, ("session",))
+    datasf = DATASF_MAP if DATASF_MAP in maps else None
+    ipin_fused = ipin_summary["fused"] if ipin_summary else None
+    checks = criteria.done_when(pooled, per_session, config.jaywalk_weight, OSM_MAP, datasf, ipin_fused)
+    run_info = {
+        **_run_info(config, maps, specs, sessions),
+        "datasf_tiles": [str(t) for t in datasf_tiles or []],
+        "ipin": str(ipin) if ipin else None,
+        "workers": workers,
+        "scheduler": scheduler,
+    }
+    start = time.perf_counter()
+    layers = read_map(maps[OSM_MAP])
+    tables_in = (pooled, per_session, checks, layers, run_info, timings, ipin_summary, ipin_tab)
+    paths = write_suite_report(results, out_dir / "report", config, *tables_in)
+    log.info("report written in %.0f s", time.perf_counter() - start)
+    return {"report": out_dir / "report", **paths}
+
+
+def suite_summary(report_dir: str | Path) -> str:
+    """A few lines per subset from a benchmark report's ``metrics.json`` (what a terminal shows)."""
+    doc = json.loads((Path(report_dir) / "metrics.json").read_text(encoding="utf-8"))
+    suite = doc["suite"]
+    lines = [
+        f"benchmark: profile {suite['profile']}, split {suite['split']}, w = {suite['jaywalk_weight']:g}"
+    ]
+    pooled = pd.DataFrame(doc["pooled"])
+    base = pooled[
+        (pooled["map"] == OSM_MAP)
+        & ((pooled["method"] == "gnss") | (pooled["jaywalk_weight"] == suite["jaywalk_weight"]))
+    ]
+    for subset, rows in base.groupby("subset", sort=False):
+        n = doc["sessions_per_subset"].get(subset, "?")
+        lines.append(f"  {subset} ({n} sessions)    CSA  median  p90 (m)")
+        for method in SUITE_METHODS:
+            r = rows[rows["method"] == method]
+            if len(r):
+                r = r.iloc[0]
+                label = doc["labels"][method]
+                lines.append(
+                    f"    {label:<16} {r['csa']:.2f}  {r['euclid_median_m']:5.1f}  {r['euclid_p90_m']:5.1f}"
+                )
+    lines.append(f"done when: {doc['done_when']['overall']}")
+    return "\n".join(lines) + "\n"

@@ -1,0 +1,381 @@
+"""The benchmark report: done-when checks, per-subset and per-session tables, figures.
+
+``report.md`` and a self-contained ``report.html`` (figures embedded), ``metrics.json`` (every pooled
+figure, per session too, the checks) and ``run.json`` (every parameter, every run, the timings).
+"""
+
+from __future__ import annotations
+
+import base64
+import html
+import json
+import math
+from pathlib import Path
+from typing import Any
+
+import pandas as pd
+
+import curbside
+from curbside import settings
+from curbside.evaluate import criteria
+from curbside.evaluate.figures import (
+    fig_cdf,
+    fig_particles,
+    fig_per_path,
+    fig_session_medians,
+    fig_tracks,
+    save_png,
+)
+from curbside.evaluate.report import Table, fmt_value, json_ready, paper_value, records
+from curbside.evaluate.runner import METHOD_LABELS
+from curbside.io import atomic_path
+from curbside.osmseg.mapio import MapLayers
+
+_STYLE = (
+    "body{font-family:sans-serif;max-width:1250px;margin:auto;padding:1em}"
+    "table{border-collapse:collapse;margin:.5em 0}td,th{border:1px solid #bbb;padding:3px 8px;"
+    "text-align:right}th{background:#eee}.note{color:#555;font-size:90%}img{max-width:100%}"
+    "td:first-child{text-align:left}td.pass{background:#d9f2d9}td.fail{background:#f7d4d4}"
+)
+METRICS = ("csa", "euclid_median_m", "euclid_p90_m", "euclid_mean_m", "along_median_m", "across_median_m")
+HEADERS = ("CSA", "median m", "p90 m", "mean m", "along median m", "across median m")
+
+
+def _base(frame: pd.DataFrame, w: float, map_name: str = "osm") -> pd.DataFrame:
+    keep = (frame["map"] == map_name) & ((frame["method"] == "gnss") | (frame["jaywalk_weight"] == w))
+    return frame[keep]
+
+
+def subset_table(pooled: pd.DataFrame, subset: str, w: float, sessions: int) -> Table:
+    """One subset: every method side by side at the base weight on the OSM map."""
+    rows = []
+    base = _base(pooled[pooled["subset"] == subset], w)
+    for method in ("gnss", "inertial", "paper", "fused"):
+        r = base[base["method"] == method]
+        if len(r):
+            r = r.iloc[0]
+            rows.append([METHOD_LABELS[method]] + [fmt_value(r[m], 2 if m == "csa" else 1) for m in METRICS])
+    note = "Pooled over every footstep of the subset."
+    if subset == "paper6":
+        paper = [paper_value(m, "fused", w) for m in METRICS]
+        rows.append(
+            ["(paper's real walks, GNSS+RoNIN+PF)"]
+            + [fmt_value(v, 2 if i == 0 else 1) for i, v in enumerate(paper)]
+        )
+        note += " The last row is the paper's published result on its real walks, for reference."
+    return Table(f"{subset}: {sessions} sessions, w = {w:g}, map 'osm'", ["method", *HEADERS], rows, note)
+
+
+def sweep_table(pooled: pd.DataFrame, subset: str) -> Table | None:
+    """Table 2 of the paper on one subset: CSA per jaywalk weight, the paper's numbers in parentheses."""
+    sub = pooled[(pooled["subset"] == subset) & (pooled["map"] == "osm") & (pooled["method"] != "gnss")]
+    weights = sorted(sub["jaywalk_weight"].unique())
+    if len(weights) < 2:
+        return None
+    methods = [m for m in ("inertial", "paper", "fused") if (sub["method"] == m).any()]
+    rows = []
+    for w in weights:
+        row = [f"w = {w:g}"]
+        for m in methods:
+            r = sub[(sub["method"] == m) & (sub["jaywalk_weight"] == w)]
+            row.append(
+                f"{fmt_value(r['csa'].iat[0] if len(r) else None)} ({fmt_value(paper_value('csa', m, w))})"
+            )
+        rows.append(row)
+    return Table(
+        f"Table 2. Correct Sidewalk Assignment by jaywalk weight, {subset}",
+        ["", *(METHOD_LABELS[m] for m in methods)],
+        rows,
+        "In parentheses: the paper's RoNIN+PF and GNSS+RoNIN+PF on its real walks.",
+    )
+
+
+def map_table(pooled: pd.DataFrame, w: float) -> Table | None:
+    """The DataSF-buildings map against OSM's, per subset and method."""
+    if "datasf" not in set(pooled["map"]):
+        return None
+    rows = []
+    for subset in pooled["subset"].unique():
+        for method in ("paper", "fused"):
+            cells = []
+            for map_name in ("osm", "datasf"):
+                r = _base(pooled[pooled["subset"] == subset], w, map_name)
+                r = r[r["method"] == method]
+                cells += [
+                    fmt_value(r[m].iat[0], 2 if m == "csa" else 1) if len(r) else "-" for m in METRICS[:3]
+                ]
+            rows.append([subset, METHOD_LABELS[method], *cells])
+    return Table(
+        f"Map sources: OSM buildings vs DataSF 2013 buildings (streets and sidewalks from OSM), w = {w:g}",
+        ["subset", "method", "CSA osm", "median osm", "p90 osm", "CSA datasf", "median datasf", "p90 datasf"],
+        rows,
+        "Scored against the OSM map's sidewalk segments in both cases.",
+    )
+
+
+def _events(session_dir: Path) -> dict[str, Any]:
+    meta_path = session_dir / "meta.json"
+    sim = json.loads(meta_path.read_text()).get("simulation", {}) if meta_path.is_file() else {}
+    ev = sim.get("events", {})
+    jumps = ev.get("heading_jumps", [])
+    return {
+        "gnss_error_median_m": sim.get("gnss_error_median_m"),
+        "heading_bias_deg": ev.get("heading_bias_deg"),
+        "heading_drift_deg_per_min": ev.get("heading_drift_deg_per_min"),
+        "jumps": len(jumps),
+        "largest_jump_deg": max((abs(j["deg"]) for j in jumps), default=0.0),
+        "speed_scale": ev.get("speed_scale"),
+        "stops": len(ev.get("stops", [])),
+        "stopped_s": round(sum(s["wait_s"] for s in ev.get("stops", [])), 1),
+    }
+
+
+def session_table(
+    per_session: pd.DataFrame, subset: str, w: float, events: dict[str, dict], limit: float
+) -> Table:
+    """Each session of a subset: every method's CSA and median, fused/GNSS ratio, the error events."""
+    base = _base(per_session[per_session["subset"] == subset], w)
+    rows = []
+    for session in dict.fromkeys(base["session"]):
+        s = base[base["session"] == session].set_index("method")
+
+        def get(method: str, column: str, s: pd.DataFrame = s) -> float:
+            return s[column].get(method, math.nan)
+
+        ratio = get("fused", "euclid_median_m") / get("gnss", "euclid_median_m")
+        ev = events.get(session, {})
+        flag = " **" if ratio > limit else ""
+        rows.append(
+            [session]
+            + [fmt_value(get(m, "csa")) for m in ("gnss", "inertial", "paper", "fused")]
+            + [fmt_value(get(m, "euclid_median_m"), 1) for m in ("gnss", "inertial", "paper", "fused")]
+            + [f"{ratio:.2f}{flag}"]
+            + [
+                fmt_value(ev.get("heading_bias_deg"), 0),
+                fmt_value(ev.get("heading_drift_deg_per_min"), 1),
+                f"{ev.get('jumps', 0)} ({ev.get('largest_jump_deg', 0):.0f})",
+                fmt_value(ev.get("speed_scale"), 2),
+                f"{ev.get('stops', 0)} ({ev.get('stopped_s', 0):.0f} s)",
+            ]
+        )
+    header = [
+        "session",
+        "CSA gnss",
+        "CSA ronin",
+        "CSA paper",
+        "CSA fused",
+        "med gnss",
+        "med ronin",
+        "med paper",
+        "med fused",
+        "fused/gnss",
+        "bias deg",
+        "drift deg/min",
+        "jumps (max deg)",
+        "speed scale",
+        "stops (time)",
+    ]
+    note = (
+        f"Medians in metres. ** marks a fused median above {limit:g} x the GNSS median. The last five "
+        "columns are the session's simulated inertial error events (meta.json)."
+    )
+    return Table(f"Per session, {subset}, w = {w:g}, map 'osm'", header, rows, note)
+
+
+def checks_table(checks: list[criteria.Check]) -> Table:
+    """The done-when checks, one row each."""
+    rows = [[c.criterion, c.scope, c.value, c.verdict] for c in checks]
+    return Table(
+        "Done when (issue 9)",
+        ["criterion", "scope", "figures (fused vs other)", "verdict"],
+        rows,
+        criteria.overall(checks),
+    )
+
+
+def profile_table(simulation: dict[str, Any]) -> Table:
+    """The simulation profile's error magnitudes (sources: docs/evaluate.md)."""
+    v, w = simulation["velocity"], simulation["walker"]
+    rows = [
+        ["heading bias per walk (1-sigma)", f"{v['heading_bias_deg']:g} deg"],
+        [
+            "heading drift (1-sigma) / random walk",
+            f"{v['heading_drift_deg_per_min']:g} deg/min / "
+            f"{v['heading_walk_deg_per_sqrt_min']:g} deg/sqrt(min)",
+        ],
+        ["correlated heading noise", f"{v['heading_noise_deg']:g} deg over {v['heading_noise_tau_s']:g} s"],
+        [
+            "heading jumps",
+            f"{v['heading_jump_rate_per_min']:g}/min, {v['heading_jump_deg'][0]:g}-"
+            f"{v['heading_jump_deg'][1]:g} deg; at {100 * v['stop_jump_prob']:.0f} % of stops",
+        ],
+        [
+            "speed scale per walk (1-sigma) / wander",
+            f"{100 * v['scale_sd']:g} % / {100 * v['scale_wander_sd']:g} %",
+        ],
+        ["step-to-step speed noise", f"{100 * v['speed_noise_cv']:g} % over {v['speed_noise_tau_s']:g} s"],
+        ["velocity noise", f"{v['noise_mps']:g} m/s over {v['noise_tau_s']:g} s"],
+        ["phantom motion while standing", f"{v['phantom_mps']:g} m/s over {v['phantom_tau_s']:g} s"],
+        [
+            "stops before crosswalks / jaywalks",
+            f"{100 * w['crosswalk_stop_prob']:.0f} % for {w['crosswalk_wait_s'][0]:g}-"
+            f"{w['crosswalk_wait_s'][1]:g} s / {100 * w['jaywalk_stop_prob']:.0f} % for "
+            f"{w['jaywalk_wait_s'][0]:g}-{w['jaywalk_wait_s'][1]:g} s",
+        ],
+    ]
+    return Table(
+        f"Simulation profile '{simulation['profile']}'",
+        ["component", "magnitude"],
+        rows,
+        "GNSS: the urban-canyon model of docs/evaluate.md in every profile.",
+    )
+
+
+def _figures(results, layers, config, pooled_path, ratios, figdir) -> list[tuple[str, str, bytes]]:
+    base = {
+        "map": "osm",
+        "jaywalk_weight": config.jaywalk_weight,
+        "particles": config.particles,
+        "gnss_sigma_factor": None,
+    }
+    from curbside.evaluate.suite import subset_of
+
+    by_subset = {s: [r for r in results if subset_of(r) == s] for s in config.subsets}
+    out = []
+    for subset, runs in by_subset.items():
+        name = f"fig1_tracks_{subset}.png"
+        fig = fig_tracks(runs, layers, base, title=f"Fig. 1  Tracks, {subset}", max_panels=6)
+        out.append((name, f"Fig. 1 tracks {subset}", save_png(fig, figdir / name)))
+    fig3 = fig_particles(results, layers, base)
+    if fig3 is not None:
+        out.append(("fig3_particles.png", "Fig. 3 particles", save_png(fig3, figdir / "fig3_particles.png")))
+    out.append(
+        ("fig4_cdf.png", "Fig. 4 CDF", save_png(fig_cdf(results, base, by_subset), figdir / "fig4_cdf.png"))
+    )
+    for subset in config.subsets:
+        part = pooled_path[pooled_path["subset"] == subset]
+        name = f"fig5_per_route_{subset}.png"
+        fig = fig_per_path(part, base, title=f"Fig. 5  Mean error per route, {subset}")
+        out.append((name, f"Fig. 5 per route {subset}", save_png(fig, figdir / name)))
+    fig6 = fig_session_medians(ratios, base, criteria.DoneWhen().session_ratio_max)
+    out.append(("fig6_sessions.png", "Per-session medians", save_png(fig6, figdir / "fig6_sessions.png")))
+    return out
+
+
+def _tables(
+    pooled: pd.DataFrame,
+    per_session: pd.DataFrame,
+    checks: list[criteria.Check],
+    config,
+    counts: dict[str, int],
+    events: dict[str, dict],
+    run_info: dict[str, Any],
+    ipin_table: Table | None,
+) -> list[Table]:
+    """Every table of the report, in order."""
+    w = config.jaywalk_weight
+    limit = criteria.DoneWhen().session_ratio_max
+    tables = [checks_table(checks)]
+    for subset in config.subsets:
+        tables.append(subset_table(pooled, subset, w, counts[subset]))
+        sweep = sweep_table(pooled, subset)
+        if sweep is not None:
+            tables.append(sweep)
+    datasf = map_table(pooled, w)
+    if datasf is not None:
+        tables.append(datasf)
+    if ipin_table is not None:
+        tables.append(ipin_table)
+    tables.append(profile_table(run_info["simulation"]))
+    tables += [session_table(per_session, s, w, events, limit) for s in config.subsets]
+    return tables
+
+
+def _intro(config, counts, gnss_median, n_runs, timings, workers, checks) -> str:
+    """The report's opening paragraph: what ran, on what, how long, and the verdict."""
+    total_s = sum(timings.values())
+    subsets = ", ".join(
+        f"{s} {counts[s]} sessions (GNSS median {gnss_median[s]:.1f} m)" for s in config.subsets
+    )
+    stages = ", ".join(f"{k.removesuffix('_s')} {v:.0f} s" for k, v in timings.items())
+    return (
+        f"Profile '{config.profile}', split '{config.split}', {config.seeds} seed(s) per route: {subsets}. "
+        f"{n_runs} runs, N = {config.particles}, filter seed {config.filter_seed}, every method on the same "
+        f"sessions. Time: {total_s / 60:.1f} min ({stages}) with {workers} worker(s). "
+        f"Done when: {criteria.overall(checks)}."
+    )
+
+
+def write_suite_report(
+    results: list[dict],
+    out_dir: str | Path,
+    config,
+    pooled: pd.DataFrame,
+    per_session: pd.DataFrame,
+    checks: list[criteria.Check],
+    layers: MapLayers | None,
+    run_info: dict[str, Any],
+    timings: dict[str, float],
+    ipin_summary: dict[str, dict[str, float]] | None = None,
+    ipin_table: Table | None = None,
+) -> dict[str, Path]:
+    """Write ``report.md``, ``report.html``, ``metrics.json``, ``run.json`` and ``figures/`` atomically."""
+    from curbside.evaluate.suite import pooled_by_subset
+
+    out_dir = Path(out_dir)
+    w = config.jaywalk_weight
+    counts = {
+        s: int(per_session.loc[per_session["subset"] == s, "session"].nunique()) for s in config.subsets
+    }
+    session_dirs = {Path(r["spec"]["session"]).name: Path(r["spec"]["session"]) for r in results}
+    events = {name: _events(path) for name, path in session_dirs.items()}
+    ratios = criteria.session_ratios(per_session, "osm", w)
+    pooled_path = _base(pooled_by_subset(results, ("path",)), w)
+    gnss_median = {
+        s: _base(pooled[pooled["subset"] == s], w).query("method == 'gnss'")["euclid_median_m"].iat[0]
+        for s in config.subsets
+    }
+    tables = _tables(pooled, per_session, checks, config, counts, events, run_info, ipin_table)
+    intro = _intro(config, counts, gnss_median, len(results), timings, run_info["workers"], checks)
+    doc = {
+        "generator": f"curbside {curbside.__version__}",
+        "suite": run_info["suite"],
+        "labels": METHOD_LABELS,
+        "sessions_per_subset": counts,
+        "done_when": {
+            "overall": criteria.overall(checks),
+            "checks": [c.__dict__ | {"verdict": c.verdict} for c in checks],
+        },
+        "pooled": records(pooled),
+        "per_session": records(per_session),
+        "session_ratios": records(ratios),
+        "session_events": events,
+        "ipin_held_out": ipin_summary,
+        "timings_s": timings,
+    }
+    with atomic_path(out_dir) as tmp:
+        figdir = tmp / "figures"
+        figdir.mkdir(parents=True)
+        figures = _figures(results, layers, config, pooled_path, ratios, figdir)
+        (tmp / "metrics.json").write_text(json.dumps(json_ready(doc), indent=1), encoding="utf-8")
+        (tmp / "run.json").write_text(
+            json.dumps(json_ready({**run_info, "timings_s": timings}), indent=1), encoding="utf-8"
+        )
+        md = ["# curbside benchmark report", "", intro, ""]
+        md += [t.markdown() for t in tables]
+        md += [f"![{alt}](figures/{name})\n" for name, alt, _ in figures]
+        md += [f"Map data {settings.osm_attribution}."]
+        (tmp / "report.md").write_text("\n".join(md), encoding="utf-8")
+        imgs = "".join(
+            f"<figure><img alt='{alt}' src='data:image/png;base64,{base64.b64encode(data).decode()}'/>"
+            "</figure>"
+            for _, alt, data in figures
+        )
+        page = (
+            f"<!doctype html><html><head><meta charset='utf-8'><title>curbside benchmark</title>"
+            f"<style>{_STYLE}</style></head><body><h1>curbside benchmark report</h1>"
+            f"<p>{html.escape(intro)}</p>{''.join(t.html() for t in tables)}{imgs}"
+            f"<p class='note'>Map data {html.escape(settings.osm_attribution)}</p></body></html>"
+        )
+        (tmp / "report.html").write_text(page, encoding="utf-8")
+    return {name: out_dir / name for name in ("metrics.json", "report.md", "report.html", "run.json")}

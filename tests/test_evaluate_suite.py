@@ -1,0 +1,112 @@
+"""The benchmark harness: the plan, a small end-to-end report with its done-when section, bad input."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pandas as pd
+import pytest
+
+from curbside.cli.localize import main
+from curbside.evaluate import criteria, suite
+from curbside.evaluate import simulate as sim
+from curbside.evaluate.runner import run_all
+from curbside.localize.session import write_session
+from curbside.osmseg.mapio import read_map
+
+MAP = Path(__file__).parent / "data" / "evaluate" / "sf-path3.geojson"
+
+
+@pytest.fixture(scope="module")
+def sessions(tmp_path_factory) -> dict[str, list[Path]]:
+    """Path 3 (the fixture map's route) in the phone profile, filed under two subsets."""
+    route_list, frame, osm = sim.sf6_routes()
+    route = next(r for r in route_list if r.spec.name == "path3")
+    root = tmp_path_factory.mktemp("suite")
+    config = sim.SimulationConfig(profile="phone")
+    out = {}
+    for subset, seed in (("paper6", 1), ("open", 2)):
+        session = sim.simulate_session(route, osm, frame, seed, config, name=f"path3-s{seed}")
+        out[subset] = [write_session(session, root / subset / session.name)]
+    return out
+
+
+def test_plan_runs_every_method_sweeps_paper6_and_adds_datasf(sessions):
+    config = suite.SuiteConfig(subsets=("paper6", "open"), sweep_weights=(0.0, 0.4, 1.0), particles=100)
+    specs = suite.plan_suite(sessions, {"osm": str(MAP), "datasf": str(MAP)}, config)
+    paper6 = [s for s in specs if "paper6" in s.session]
+    open_ = [s for s in specs if "/open/" in s.session]
+    # paper6: gnss + 3 filters x 3 weights + DataSF paper and fused; open: gnss + 3 filters + DataSF
+    assert len(paper6) == 1 + 9 + 2 and len(open_) == 1 + 3 + 2
+    assert {(s.method, s.jaywalk_weight) for s in open_ if s.map_name == "osm"} == {
+        ("gnss", 0.4),
+        ("inertial", 0.4),
+        ("paper", 0.4),
+        ("fused", 0.4),
+    }
+    assert all(s.metrics_map == str(MAP) and s.particles == 100 for s in specs)
+    snapshots = [s for s in specs if s.snapshot_times]
+    assert {s.method for s in snapshots} == {"inertial", "paper", "fused"}
+    assert all("paper6" in s.session and s.jaywalk_weight == 0.4 for s in snapshots)
+
+
+@pytest.mark.slow
+def test_report_has_tables_checks_and_figures(sessions, tmp_path):
+    config = suite.SuiteConfig(subsets=("paper6", "open"), sweep_weights=(0.0, 0.4), particles=100)
+    specs = suite.plan_suite(sessions, {"osm": str(MAP)}, config)
+    results = run_all(specs, workers=1, progress=False)
+    pooled = suite.pooled_by_subset(results)
+    per_session = suite.pooled_by_subset(results, ("session",))
+    assert set(pooled["subset"]) == {"paper6", "open"}
+    checks = criteria.done_when(pooled, per_session, 0.4)
+    from curbside.evaluate.suite_report import write_suite_report
+
+    run_info = {"suite": {}, "simulation": sim.SimulationConfig(profile="phone").as_dict(), "workers": 1}
+    paths = write_suite_report(
+        results,
+        tmp_path / "report",
+        config,
+        pooled,
+        per_session,
+        checks,
+        read_map(MAP),
+        run_info,
+        {"track_s": 1.0},
+    )
+    md = paths["report.md"].read_text()
+    assert "Done when (issue 9)" in md and "| fused beats the paper's method on CSA | paper6 |" in md
+    assert "paper PF" in md and "curbside fused" in md and "Per session, open" in md
+    assert "Table 2. Correct Sidewalk Assignment by jaywalk weight, paper6" in md
+    assert "Simulation profile 'phone'" in md and "OpenStreetMap" in md
+    figures = {p.name for p in (tmp_path / "report" / "figures").iterdir()}
+    assert {
+        "fig1_tracks_paper6.png",
+        "fig1_tracks_open.png",
+        "fig3_particles.png",
+        "fig4_cdf.png",
+        "fig5_per_route_open.png",
+        "fig6_sessions.png",
+    } <= figures
+    html = paths["report.html"].read_text()
+    assert html.count("data:image/png;base64,") == len(figures)
+    doc = json.loads(paths["metrics.json"].read_text())
+    assert doc["done_when"]["overall"] == criteria.overall(checks)
+    ratios = pd.DataFrame(doc["session_ratios"])
+    assert set(ratios["session"]) == {"path3-s1", "path3-s2"} and (ratios["ratio"] > 0).all()
+    assert doc["session_events"]["path3-s1"]["jumps"] >= 0
+    doc["suite"] = {"profile": "phone", "split": "test", "jaywalk_weight": 0.4}
+    paths["metrics.json"].write_text(json.dumps(doc))
+    summary = suite.suite_summary(tmp_path / "report")
+    assert "paper6 (1 sessions)" in summary and "curbside fused" in summary and "done when:" in summary
+
+
+def test_benchmark_cli_bad_input(tmp_path, capsys):
+    out = tmp_path / "out"
+    with pytest.raises(SystemExit) as usage:
+        main(["benchmark", "--subsets", "pocket", "-o", str(out)])
+    assert usage.value.code == 2
+    assert main(["benchmark", "--datasf-tiles", str(tmp_path / "missing.topojson"), "-o", str(out)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err[-1] == f"localize: error: {tmp_path / 'missing.topojson'}: no such file"
+    assert not out.exists()
