@@ -25,7 +25,6 @@ import numpy as np
 import pandas as pd
 
 import curbside
-from curbside import settings
 from curbside.errors import CurbsideInputError
 from curbside.evaluate import criteria
 from curbside.evaluate.benchmark import datasf_osm_map, snapshot_times
@@ -77,10 +76,10 @@ class SuiteConfig:
     seeds: int = 3
     downtown_routes: int = DEFAULT_ROUTES["downtown"]
     open_routes: int = DEFAULT_ROUTES["open"]
-    jaywalk_weight: float = settings.default_jaywalk_weight
+    jaywalk_weight: float = 0.4
     sweep_weights: tuple[float, ...] = (0.0, 0.4, 1.0)
     sweep_subsets: tuple[str, ...] = ("paper6",)
-    particles: int = settings.default_particles
+    particles: int = 500
     filter_seed: int = 0
     velocity_source: str = "auto"
     datasf_methods: tuple[str, ...] = ("paper", "fused")
