@@ -288,12 +288,16 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "GNSS, RoNIN+PF, the paper's method and curbside fused, and write OUT/report/ with the tables, "
         "figures and issue 9's done-when checks (PASS/FAIL).",
     )
-    bench.add_argument("--profile", choices=PROFILES, default="phone", help="default: phone")
+    bench.add_argument("--profile", choices=PROFILES, default="phone",
+                       help="inertial error profile of the simulated walks (default: phone)")
     bench.add_argument("--split", choices=SPLITS, default="test", help="test (scored) or tune (default test)")
-    bench.add_argument("--subsets", nargs="+", choices=SUBSETS, default=list(SUBSETS), help="default: all")
+    bench.add_argument("--subsets", nargs="+", choices=SUBSETS, default=list(SUBSETS),
+                       help="which subsets to run (default: all three)")
     bench.add_argument("--seeds", type=positive_int, default=3, help="sessions per route (default 3)")
-    bench.add_argument("--downtown-routes", type=positive_int, default=DEFAULT_ROUTES["downtown"])
-    bench.add_argument("--open-routes", type=positive_int, default=DEFAULT_ROUTES["open"])
+    bench.add_argument("--downtown-routes", type=positive_int, default=DEFAULT_ROUTES["downtown"],
+                       help=f"random downtown routes (default {DEFAULT_ROUTES['downtown']})")
+    bench.add_argument("--open-routes", type=positive_int, default=DEFAULT_ROUTES["open"],
+                       help=f"routes under open sky (default {DEFAULT_ROUTES['open']})")
     bench.add_argument("--map", help="the OSM map to track on (default: build it into OUT/map.geojson)")
     bench.add_argument(
         "--datasf-tiles", nargs="+", help="DataSF 2013 building tiles: add the DataSF-buildings map"
@@ -302,7 +306,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     bench.add_argument("--particles", type=positive_int, default=500,
                        help="particles per filter (default 500)")
     bench.add_argument("--seed", type=int, default=0, help="filter seed (default 0)")
-    bench.add_argument("--workers", type=positive_int, default=2, help="dask worker processes (1: serial)")
+    bench.add_argument("--workers", type=positive_int, default=2,
+                       help="dask worker processes; 1 runs serially (default 2)")
     bench.add_argument("--scheduler", help="address of an existing dask scheduler")
     bench.add_argument("-o", "--output", required=True,
                        help="output folder (its sessions are reused when they match)")
