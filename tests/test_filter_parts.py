@@ -27,7 +27,11 @@ from curbside.localize.filter import (
     Update,
     normalise_and_estimate,
 )
-from curbside.localize.filter.gnss import reference_bias_update, reference_log_likelihood
+from curbside.localize.filter.gnss import (
+    reference_bias_update,
+    reference_log_likelihood,
+    reference_student_log_likelihood,
+)
 from curbside.localize.filter.particles import reference_moments
 from curbside.localize.filter.predict import reference_draws, reference_predict
 from curbside.localize.filter.resample import _systematic_gather, systematic_indices
@@ -309,3 +313,16 @@ def test_config_sections_reject_bad_values():
     ):
         with pytest.raises(ValueError):
             make()
+
+
+def test_student_t_likelihood_is_scipys_density_and_still_pulls_from_far_away():
+    cfg = GnssConfig(student_dof=3.0, sigma_factor=0.66, correlation_time_s=0.0)
+    lik = GnssLikelihood(cfg, 4, np.random.default_rng(0))
+    fix = GnssFix(10.0, -4.0, 6.0)
+    p = ParticleSet(4)
+    p.state[0], p.state[1] = [10.0, 14.0, 60.0, 80.0], [-4.0, -1.0, 20.0, 20.0]
+    p.log_weight[:] = 0.0
+    lik.weigh(p, Update(1.0, 1.0, 0.0, 0.0, fix))
+    expected = reference_student_log_likelihood(p.x, p.y, fix, lik.sigma_m(fix), 3.0, 1.0)
+    np.testing.assert_allclose(p.log_weight, expected, rtol=1e-12)
+    assert p.log_weight[2] - p.log_weight[3] > 0.5  # 50 m vs 70 m away: the nearer one still wins

@@ -149,6 +149,11 @@ class GnssConfig:
     outlier_prob, outlier_radius_m
         Weight of a flat outlier component (uniform over a disc of that radius) mixed with the
         Gaussian; 0: the plain Gaussian.
+    student_dof
+        Degrees of freedom of a bivariate Student-t used instead of the Gaussian-and-outlier mixture
+        (0: not used). Heavy-tailed like the mixture (one fix cannot drag the cloud far), but a fix
+        far from every particle still favours the nearer ones, so a cloud stuck tens of metres off
+        keeps being pulled by good fixes instead of seeing them all as outliers.
     correlation_time_s
         Time constant of the GNSS error; each fix's log-likelihood is tempered by the fraction of an
         independent fix it carries (0: independent fixes).
@@ -165,6 +170,7 @@ class GnssConfig:
     max_accuracy_m: float = 50.0
     outlier_prob: float = 0.05
     outlier_radius_m: float = 50.0
+    student_dof: float = 0.0
     correlation_time_s: float = 3.0
     bias_sigma_factor: float = 0.0
     bias_time_s: float = 30.0
@@ -174,6 +180,7 @@ class GnssConfig:
         _check(self.max_accuracy_m > 0, f"max_accuracy_m must be positive, got {self.max_accuracy_m}")
         _check(0.0 <= self.outlier_prob < 1.0, f"outlier_prob must lie in [0, 1), got {self.outlier_prob}")
         _check(self.outlier_radius_m > 0, f"outlier_radius_m must be positive, got {self.outlier_radius_m}")
+        _check(self.student_dof >= 0, f"student_dof must be non-negative, got {self.student_dof}")
         _check(
             self.correlation_time_s >= 0,
             f"correlation_time_s must be non-negative, got {self.correlation_time_s}",

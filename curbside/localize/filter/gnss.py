@@ -108,6 +108,12 @@ class GnssLikelihood:
             return
         dt_s = update.t - self.last_fix_t
         self.last_fix_t = update.t
+        if self.config.student_dof > 0:
+            nu, variance = self.config.student_dof, self.sigma_m(fix) ** 2
+            log_norm = math.lgamma(nu / 2 + 1) - math.lgamma(nu / 2) - math.log(nu * math.pi * variance)
+            _add_student_log_likelihood(particles.state, particles.log_weight, fix.x, fix.y,
+                                        1 / (nu * variance), -(nu + 2) / 2, log_norm, self.exponent(dt_s))
+            return
         if self.config.bias_sigma_factor <= 0:
             a, b, c = self.coefficients(fix)
             _add_gnss_log_likelihood(particles.state, particles.log_weight, fix.x, fix.y, a, b, c,
@@ -129,6 +135,15 @@ def _add_gnss_log_likelihood(state, log_weight, fix_x, fix_y, a, b, c, exponent)
         ex = state[X, i] - fix_x
         ey = state[Y, i] - fix_y
         log_weight[i] += exponent * logaddexp((ex * ex + ey * ey) * a + b, c)
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def _add_student_log_likelihood(state, log_weight, fix_x, fix_y, inv_scale, power, log_norm, exponent):  # noqa: E501 # pragma: no cover
+    # bivariate Student-t: log p = log_norm + power * log1p(d^2 * inv_scale)
+    for i in range(state.shape[1]):
+        ex = state[X, i] - fix_x
+        ey = state[Y, i] - fix_y
+        log_weight[i] += exponent * (log_norm + power * math.log1p((ex * ex + ey * ey) * inv_scale))
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")
@@ -156,6 +171,16 @@ def reference_log_likelihood(
     """The numpy oracle of the compiled likelihood without a bias state (tests only)."""
     a, b, c = coefficients
     return exponent * np.logaddexp(a * ((x - fix.x) ** 2 + (y - fix.y) ** 2) + b, c)
+
+
+def reference_student_log_likelihood(
+    x: np.ndarray, y: np.ndarray, fix: GnssFix, sigma_m: float, dof: float, exponent: float
+) -> np.ndarray:
+    """The numpy oracle of the Student-t likelihood (tests only): scipy's bivariate t log-density."""
+    from scipy.stats import multivariate_t
+
+    points = np.column_stack([x, y])
+    return exponent * multivariate_t(loc=[fix.x, fix.y], shape=sigma_m**2 * np.eye(2), df=dof).logpdf(points)
 
 
 def reference_bias_update(
