@@ -28,6 +28,7 @@ from curbside.localize.filter import (
     normalise_and_estimate,
 )
 from curbside.localize.filter.gnss import (
+    reference_anisotropic_log_likelihood,
     reference_bias_update,
     reference_log_likelihood,
     reference_student_log_likelihood,
@@ -93,11 +94,21 @@ def test_compiled_predictor_matches_its_oracle_fed_the_same_draws(scale_noise):
     pred = InertialPredictor(cfg, 500, np.random.default_rng(2))
     before, replay = p.state.copy(), pred.stream.copy()
     pred.predict(p, 0.6, 0.3)
-    noise, jump_idx, jump_rad = reference_draws(replay, 500, cfg.heading_jump_prob, pred.jump_sigma,
-                                                scale_noise > 0)
+    noise, jump_idx, jump_rad = reference_draws(
+        replay, 500, cfg.heading_jump_prob, pred.jump_sigma, scale_noise > 0
+    )
     assert 5 < len(jump_idx) < 50  # 5 % of 500
-    expected = reference_predict(before, noise, 0.6, 0.3, pred.position_sigma(0.6, 0.3), pred.theta_sigma,
-                                 pred.scale_sigma, jump_idx, jump_rad)
+    expected = reference_predict(
+        before,
+        noise,
+        0.6,
+        0.3,
+        pred.position_sigma(0.6, 0.3),
+        pred.theta_sigma,
+        pred.scale_sigma,
+        jump_idx,
+        jump_rad,
+    )
     np.testing.assert_allclose(p.state, expected, rtol=1e-15, atol=1e-12)  # sin/cos within an ulp
     np.testing.assert_array_equal(pred.stream.state, replay.state)  # the kernel drew exactly these
 
@@ -326,3 +337,28 @@ def test_student_t_likelihood_is_scipys_density_and_still_pulls_from_far_away():
     expected = reference_student_log_likelihood(p.x, p.y, fix, lik.sigma_m(fix), 3.0, 1.0)
     np.testing.assert_allclose(p.log_weight, expected, rtol=1e-12)
     assert p.log_weight[2] - p.log_weight[3] > 0.5  # 50 m vs 70 m away: the nearer one still wins
+
+
+def test_anisotropic_likelihood_follows_the_street_and_matches_its_oracle():
+    raster = rasterize_map(two_sidewalk_map(), 0.5)  # streets along x: axis (1, 0)
+    cfg = GnssConfig(across_factor=2.0, sigma_factor=0.66, correlation_time_s=0.0, outlier_prob=0.05)
+    lik = GnssLikelihood(cfg, 4, np.random.default_rng(0), raster)
+    fix = GnssFix(X0, Y0 + 8.0, 6.0)
+    p = ParticleSet(4)
+    # 10 m along the street, 10 m across it (on the opposite sidewalk), and near the fix
+    p.state[0], p.state[1] = X0 + np.array([10.0, 0.0, 1.0, -10.0]), Y0 + np.array([8.0, -2.0, 8.0, 8.0])
+    p.log_weight[:] = 0.0
+    lik.weigh(p, Update(1.0, 1.0, 0.0, 0.0, fix))
+    expected = reference_anisotropic_log_likelihood(
+        p.x, p.y, fix, lik.sigma_m(fix), 2.0, (1.0, 0.0), lik.log_outlier_density, lik.log_inlier_prob, 1.0
+    )
+    np.testing.assert_allclose(p.log_weight, expected, rtol=1e-10)
+    assert p.log_weight[1] > p.log_weight[0]  # across the street is cheaper than the same distance along it
+    iso = GnssLikelihood(
+        GnssConfig(sigma_factor=0.66, correlation_time_s=0.0), 4, np.random.default_rng(0), raster
+    )
+    q = ParticleSet(4)
+    q.state[:2] = p.state[:2]
+    q.log_weight[:] = 0.0
+    iso.weigh(q, Update(1.0, 1.0, 0.0, 0.0, fix))
+    assert q.log_weight[1] == pytest.approx(q.log_weight[0])  # isotropic: the same

@@ -29,6 +29,7 @@ import shapely
 
 from curbside import settings
 from curbside.errors import CurbsideInputError
+from curbside.localize.raster import long_axes
 from curbside.osmseg.mapio import MapLayers
 
 #: SPEC metric names, in report order.
@@ -94,35 +95,6 @@ class SidewalkIndex:
         out_idx[src] = idx
         out_dist[src] = dist
         return out_idx, out_dist
-
-
-def long_axes(polygons: np.ndarray) -> np.ndarray:
-    """Unit vector along the long side of each polygon's minimum rotated rectangle.
-
-    Parameters
-    ----------
-    polygons
-        Shapely polygons.
-
-    Returns
-    -------
-    numpy.ndarray
-        ``(n, 2)``; ``(1, 0)`` for a degenerate polygon.
-    """
-    env = shapely.oriented_envelope(polygons)
-    coords, owner = shapely.get_coordinates(env, return_index=True)
-    first = np.searchsorted(owner, np.arange(len(polygons)))
-    has3 = np.bincount(owner, minlength=len(polygons)) >= 3
-    first = np.where(has3, first, 0)
-    last = len(coords) - 1
-    p0, p1, p2 = coords[first], coords[np.minimum(first + 1, last)], coords[np.minimum(first + 2, last)]
-    e1, e2 = p1 - p0, p2 - p1
-    longer = np.where((np.hypot(*e1.T) >= np.hypot(*e2.T))[:, None], e1, e2)
-    norm = np.hypot(*longer.T)
-    good = has3 & (norm > 0)
-    axis = np.tile([1.0, 0.0], (len(polygons), 1))
-    axis[good] = longer[good] / norm[good, None]
-    return axis
 
 
 def step_errors(est_xy: np.ndarray, gt_xy: np.ndarray, index: SidewalkIndex | None) -> pd.DataFrame:

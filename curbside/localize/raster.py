@@ -57,7 +57,7 @@ CLASS_CODES: dict[str, int] = {
 }
 
 #: Bumped whenever the rasteriser's output changes, so stale cache files are not reused.
-RASTER_FORMAT_VERSION = 4
+RASTER_FORMAT_VERSION = 5
 
 
 @dataclass(frozen=True)
@@ -84,6 +84,8 @@ class MapRaster:
         sidewalk segments.
     segment_ids
         ``segment_id`` string of each indexed segment (``None`` with :attr:`segment_index`).
+    segment_axes
+        ``(S, 2)`` unit vector along each segment (its street's direction; :func:`long_axes`).
     """
 
     codes: np.ndarray
@@ -93,6 +95,7 @@ class MapRaster:
     crs: str
     segment_index: np.ndarray | None = None
     segment_ids: np.ndarray | None = None
+    segment_axes: np.ndarray | None = None
 
     @property
     def shape(self) -> tuple[int, int]:
@@ -288,9 +291,42 @@ def rasterize_mask(
     return burnt[::-1].astype(bool)
 
 
+def long_axes(polygons: np.ndarray) -> np.ndarray:
+    """Unit vector along the long side of each polygon's minimum rotated rectangle.
+
+    A sidewalk segment is one side of one street along one block, so its long axis is the street's
+    direction: the along/across axes of the metrics (:mod:`curbside.evaluate.metrics`) and of the
+    anisotropic GNSS likelihood.
+
+    Parameters
+    ----------
+    polygons
+        Shapely polygons.
+
+    Returns
+    -------
+    numpy.ndarray
+        ``(n, 2)``; ``(1, 0)`` for a degenerate polygon.
+    """
+    env = shapely.oriented_envelope(polygons)
+    coords, owner = shapely.get_coordinates(env, return_index=True)
+    first = np.searchsorted(owner, np.arange(len(polygons)))
+    has3 = np.bincount(owner, minlength=len(polygons)) >= 3
+    first = np.where(has3, first, 0)
+    last = len(coords) - 1
+    p0, p1, p2 = coords[first], coords[np.minimum(first + 1, last)], coords[np.minimum(first + 2, last)]
+    e1, e2 = p1 - p0, p2 - p1
+    longer = np.where((np.hypot(*e1.T) >= np.hypot(*e2.T))[:, None], e1, e2)
+    norm = np.hypot(*longer.T)
+    good = has3 & (norm > 0)
+    axis = np.tile([1.0, 0.0], (len(polygons), 1))
+    axis[good] = longer[good] / norm[good, None]
+    return axis
+
+
 def rasterize_segments(
     layers: MapLayers, x0: float, y0: float, res: float, shape: tuple[int, int], max_distance_m: float,
-) -> tuple[np.ndarray, np.ndarray] | None:
+) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
     """Grid of the nearest sidewalk segment's index of every cell, and the ``segment_id`` lookup array.
 
     Cells whose centre lies in (or on) a sidewalk polygon take its index (the first polygon where
@@ -310,7 +346,7 @@ def rasterize_segments(
     Returns
     -------
     tuple of numpy.ndarray or None
-        ``(segment_index, segment_ids)``: ``int16`` (``int32`` beyond 32,766 segments) grid of
+        ``(segment_index, segment_ids, segment_axes)``: ``int16`` (``int32`` beyond 32,766 segments) grid of
         ``shape`` and the ``str`` ids; ``None``
         when the map has no sidewalk segment.
     """
@@ -343,7 +379,7 @@ def rasterize_segments(
     segment_index[distance > reach] = -1
     # The grid is as large as the class raster: int16 quarters it for maps with < 32,767 segments.
     dtype = np.int16 if len(ids) < np.iinfo(np.int16).max else np.int32
-    return segment_index.astype(dtype), ids
+    return segment_index.astype(dtype), ids, long_axes(geoms)
 
 
 def rasterize_map(
@@ -383,9 +419,10 @@ def rasterize_map(
         logger.debug("rasterised %d %s polygons: %d cells", len(geoms), cls, int(mask.sum()))
     _encode_building_depth(codes)
     segments = rasterize_segments(layers, float(x0), float(y0), res, (rows, cols), segment_reach_m)
-    segment_index, segment_ids = segments if segments is not None else (None, None)
+    segment_index, segment_ids, segment_axes = segments if segments is not None else (None, None, None)
     return MapRaster(
-        codes, float(x0), float(y0), res, pyproj.CRS(layers.crs).to_wkt(), segment_index, segment_ids
+        codes, float(x0), float(y0), res, pyproj.CRS(layers.crs).to_wkt(), segment_index, segment_ids,
+        segment_axes,
     )
 
 
@@ -411,7 +448,8 @@ def _arrays(raster: MapRaster) -> dict[str, np.ndarray]:
     arrays = {"codes": raster.codes, "x0": np.float64(raster.x0), "y0": np.float64(raster.y0),
               "resolution_m": np.float64(raster.resolution_m), "crs": np.array(raster.crs)}
     if raster.segment_index is not None:
-        arrays |= {"segment_index": raster.segment_index, "segment_ids": raster.segment_ids}
+        arrays |= {"segment_index": raster.segment_index, "segment_ids": raster.segment_ids,
+                   "segment_axes": raster.segment_axes}
     return arrays
 
 
@@ -442,4 +480,5 @@ def load_or_build_raster(
         required=("codes", "x0", "y0", "resolution_m", "crs"),
     )
     return MapRaster(arrays["codes"], float(arrays["x0"]), float(arrays["y0"]), float(arrays["resolution_m"]),
-                     str(arrays["crs"]), arrays.get("segment_index"), arrays.get("segment_ids"))
+                     str(arrays["crs"]), arrays.get("segment_index"), arrays.get("segment_ids"),
+                     arrays.get("segment_axes"))

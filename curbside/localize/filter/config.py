@@ -149,6 +149,10 @@ class GnssConfig:
     outlier_prob, outlier_radius_m
         Weight of a flat outlier component (uniform over a disc of that radius) mixed with the
         Gaussian; 0: the plain Gaussian.
+    across_factor
+        Anisotropy: the error across the street (the nearest sidewalk segment's normal) has this many
+        times the sigma of the error along it (1: isotropic). In urban canyons GNSS is worse across the
+        street than along it, and wrong-side fixes are mirrored across it (Wang et al. 2015).
     student_dof
         Degrees of freedom of a bivariate Student-t used instead of the Gaussian-and-outlier mixture
         (0: not used). Heavy-tailed like the mixture (one fix cannot drag the cloud far), but a fix
@@ -170,6 +174,7 @@ class GnssConfig:
     max_accuracy_m: float = 50.0
     outlier_prob: float = 0.05
     outlier_radius_m: float = 50.0
+    across_factor: float = 1.0
     student_dof: float = 0.0
     correlation_time_s: float = 3.0
     bias_sigma_factor: float = 0.0
@@ -181,6 +186,7 @@ class GnssConfig:
         _check(0.0 <= self.outlier_prob < 1.0, f"outlier_prob must lie in [0, 1), got {self.outlier_prob}")
         _check(self.outlier_radius_m > 0, f"outlier_radius_m must be positive, got {self.outlier_radius_m}")
         _check(self.student_dof >= 0, f"student_dof must be non-negative, got {self.student_dof}")
+        _check(self.across_factor >= 1, f"across_factor must be at least 1, got {self.across_factor}")
         _check(
             self.correlation_time_s >= 0,
             f"correlation_time_s must be non-negative, got {self.correlation_time_s}",

@@ -37,6 +37,7 @@ from curbside.localize.filter.config import GnssConfig
 from curbside.localize.filter.kernelmath import exp, logaddexp
 from curbside.localize.filter.particles import BIAS_X, BIAS_Y, ParticleSet, X, Y
 from curbside.localize.filter.parts import GnssFix, Update
+from curbside.localize.raster import MapRaster, RasterLookup
 
 
 class GnssLikelihood:
@@ -50,11 +51,21 @@ class GnssLikelihood:
         Number of particles.
     rng
         The filter's seeded generator (drawn from only with a bias state).
+    raster
+        The map raster: its nearest-segment grid and segment axes give each particle's street
+        direction for ``config.across_factor``.
     """
 
-    def __init__(self, config: GnssConfig, n: int, rng: np.random.Generator) -> None:
+    def __init__(
+        self, config: GnssConfig, n: int, rng: np.random.Generator, raster: MapRaster | None = None
+    ) -> None:
         self.config = config
         self.rng = rng
+        self._streets = None  # the nearest-segment grid and segment axes, for the anisotropic model
+        if config.across_factor != 1.0 and raster is not None and raster.segment_axes is not None:
+            lk = RasterLookup(raster)
+            self._streets = (lk.padded_segments, lk.inv_res, lk.x_offset, lk.y_offset, lk.col_max, lk.row_max,
+                             lk.stride, np.ascontiguousarray(raster.segment_axes, dtype=np.float64))
         self.log_inlier_prob = math.log1p(-config.outlier_prob)
         self.log_outlier_density = -math.inf  # no outlier component: the plain Gaussian
         if config.outlier_prob > 0:
@@ -114,6 +125,13 @@ class GnssLikelihood:
             _add_student_log_likelihood(particles.state, particles.log_weight, fix.x, fix.y,
                                         1 / (nu * variance), -(nu + 2) / 2, log_norm, self.exponent(dt_s))
             return
+        if self._streets is not None:
+            a, b, c = self.coefficients(fix)
+            f = self.config.across_factor
+            _add_anisotropic_log_likelihood(particles.state, particles.log_weight, fix.x, fix.y, a,
+                                            a / (f * f), b, b - math.log(f), c, self.exponent(dt_s),
+                                            *self._streets)
+            return
         if self.config.bias_sigma_factor <= 0:
             a, b, c = self.coefficients(fix)
             _add_gnss_log_likelihood(particles.state, particles.log_weight, fix.x, fix.y, a, b, c,
@@ -135,6 +153,27 @@ def _add_gnss_log_likelihood(state, log_weight, fix_x, fix_y, a, b, c, exponent)
         ex = state[X, i] - fix_x
         ey = state[Y, i] - fix_y
         log_weight[i] += exponent * logaddexp((ex * ex + ey * ey) * a + b, c)
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def _add_anisotropic_log_likelihood(
+    state, log_weight, fix_x, fix_y, a, a_across, b, b_aniso, c, exponent, padded_segments, inv_res, x_offset,
+    y_offset, col_max, row_max, stride, axes,
+):  # pragma: no cover - compiled
+    # Along/across the particle's nearest sidewalk segment; isotropic where no segment is near.
+    for i in range(state.shape[1]):
+        ex = state[X, i] - fix_x
+        ey = state[Y, i] - fix_y
+        fx = min(max(state[X, i] * inv_res - x_offset, 0.0), col_max)
+        fy = min(max(state[Y, i] * inv_res - y_offset, 0.0), row_max)
+        k = padded_segments[int(fy) * stride + int(fx)]
+        if k < 0:
+            inlier = (ex * ex + ey * ey) * a + b
+        else:
+            along = ex * axes[k, 0] + ey * axes[k, 1]
+            across = ey * axes[k, 0] - ex * axes[k, 1]
+            inlier = along * along * a + across * across * a_across + b_aniso
+        log_weight[i] += exponent * logaddexp(inlier, c)
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")
@@ -171,6 +210,20 @@ def reference_log_likelihood(
     """The numpy oracle of the compiled likelihood without a bias state (tests only)."""
     a, b, c = coefficients
     return exponent * np.logaddexp(a * ((x - fix.x) ** 2 + (y - fix.y) ** 2) + b, c)
+
+
+def reference_anisotropic_log_likelihood(
+    x: np.ndarray, y: np.ndarray, fix: GnssFix, sigma_m: float, across_factor: float, axis: np.ndarray,
+    log_outlier: float, log_inlier_prob: float, exponent: float,
+) -> np.ndarray:
+    """The numpy oracle of the anisotropic likelihood, points on a street of axis ``axis`` (tests only)."""
+    from scipy.stats import multivariate_normal
+
+    u = np.asarray(axis, float)
+    rot = np.column_stack([u, [-u[1], u[0]]])  # columns: along, across
+    cov = rot @ np.diag([sigma_m**2, (across_factor * sigma_m) ** 2]) @ rot.T
+    gauss = multivariate_normal([fix.x, fix.y], cov).logpdf(np.column_stack([x, y])) + log_inlier_prob
+    return exponent * np.logaddexp(gauss, log_outlier)
 
 
 def reference_student_log_likelihood(

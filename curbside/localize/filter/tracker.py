@@ -147,7 +147,7 @@ class Tracker:
         map_lik = None if raster is None else MapLikelihood(raster, config.map)
         if frame is None and raster is not None:
             frame = LocalFrame(pyproj.CRS.from_wkt(raster.crs))
-        gnss = GnssLikelihood(config.gnss, n, rng) if use_gnss else None
+        gnss = GnssLikelihood(config.gnss, n, rng, raster) if use_gnss else None
         likelihoods: list[Likelihood] = [lik for lik in (map_lik, gnss) if lik is not None]
         divergence = None
         if gnss is not None and config.recovery.max_fraction > 0:
