@@ -50,22 +50,8 @@ pdr_weinberg_k: float = 0.447
 #: Longest step interval (s) used for the heading average; a longer gap between steps is a stop.
 pdr_max_step_interval_s: float = 1.5
 
-# --- RoNIN inertial odometry and IMU preprocessing (curbside.localize.imu, curbside.localize.ronin) ---
-
-#: Lowest IMU rate (Hz) accepted for learned odometry; slower logs cannot resolve footsteps.
-imu_min_rate_hz: float = 20.0
-
-#: Longest IMU gap (s) bridged by linear interpolation; longer gaps split the recording.
-imu_max_interp_gap_s: float = 0.5
-
-#: A flat-topped channel counts as saturated only above these magnitudes (2 g; 4 rad/s).
-imu_saturation_floor_accel_ms2: float = 19.6
-imu_saturation_floor_gyro_rads: float = 4.0
-
-#: RoNIN input rate (Hz), window length and stride (samples), as published.
-ronin_rate_hz: float = 200.0
-ronin_window: int = 200
-ronin_stride: int = 10
+# --- RoNIN inertial odometry (curbside.localize.ronin). Its algorithm parameters are in
+# curbside.localize.ronin.stream.RoninStreamConfig and curbside.localize.imu.ImuConfig. -----------------
 
 #: Weights loaded by ``ronin_velocity`` when no model is given (state_dict + JSON config beside it).
 ronin_default_weights: Path = Path(__file__).parent / "localize" / "ronin" / "weights" / "ronin_compact.pt"

@@ -1,4 +1,4 @@
-"""IMU preprocessing: world frame, resampling, quaternion order, gyroscope integration, bad input."""
+"""IMU preprocessing: world frame, start-up decision, gaps, saturation, gyroscope integration, bad input."""
 
 from __future__ import annotations
 
@@ -10,11 +10,11 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from curbside.errors import CurbsideInputError
-from curbside.localize import imu as imu_mod
+from curbside.localize.gyro import SCAN_BLOCK, GyroscopeIntegrator, block_prefix_products, integrate_gyroscope
 from curbside.localize.imu import (
+    ImuConfig,
+    WorldFrameStream,
     detect_quaternion_order,
-    integrate_gyroscope,
-    preprocess,
     saturation_mask,
     world_frame_segments,
 )
@@ -48,28 +48,31 @@ def synthetic_imu(duration_s: float = 20.0, rate_hz: float = 50.0, seed: int = 0
     return table, rot
 
 
-def test_resamples_irregular_rate_onto_uniform_grid_in_world_frame():
-    table, _ = synthetic_imu(rate_hz=47.3, jitter=0.3)
-    (seg,) = preprocess(table, rate_hz=200.0)
-    assert np.allclose(np.diff(seg.t), 1 / 200.0)
-    assert seg.t[0] == pytest.approx(table["t"].iat[0])
-    # gravity ends up on +z and the horizontal walking oscillation stays small
-    assert np.median(seg.acc[:, 2]) == pytest.approx(G, abs=0.2)
-    assert np.abs(seg.acc[:, :2]).max() < 0.6
-    assert seg.features.shape == (len(seg.t), 6) and seg.features.dtype == np.float32
+def world_values(table: pd.DataFrame, **kwargs) -> np.ndarray:
+    (seg,) = world_frame_segments(table, **kwargs)
+    return seg[["wgx", "wgy", "wgz", "wax", "way", "waz"]].to_numpy()
+
+
+def test_quaternion_puts_gravity_on_z_at_the_input_times():
+    table, rot = synthetic_imu(rate_hz=47.3, jitter=0.3)
+    (seg,) = world_frame_segments(table)
+    assert np.array_equal(seg["t"], table["t"])
+    assert np.median(seg["waz"]) == pytest.approx(G, abs=0.2)
+    assert np.abs(seg[["wax", "way"]].to_numpy()).max() < 0.6
+    assert np.allclose(seg[["wgx", "wgy", "wgz"]], rot.apply(np.array(table[["gx", "gy", "gz"]])))
 
 
 def test_w_first_quaternion_is_detected_and_reordered(caplog):
     table, _ = synthetic_imu()
-    reference = world_frame_segments(table)[0]
+    reference = world_values(table)
     w_first = table.copy()
     q = table[["qx", "qy", "qz", "qw"]].to_numpy()
     w_first[["qx", "qy", "qz", "qw"]] = q[:, [3, 0, 1, 2]]  # columns hold w,x,y,z
     assert detect_quaternion_order(table[["ax", "ay", "az"]].to_numpy(), q) == "xyzw"
     with caplog.at_level(logging.WARNING):
-        fixed = world_frame_segments(w_first)[0]
+        fixed = world_values(w_first)
     assert "wxyz" in caplog.text
-    assert np.allclose(fixed[["wax", "way", "waz"]], reference[["wax", "way", "waz"]], atol=1e-9)
+    assert np.allclose(fixed, reference, atol=1e-9)
 
 
 def test_world_to_device_quaternion_is_inverted():
@@ -78,77 +81,128 @@ def test_world_to_device_quaternion_is_inverted():
     inv[["qx", "qy", "qz", "qw"]] = rot.inv().as_quat()
     acc = inv[["ax", "ay", "az"]].to_numpy()
     assert detect_quaternion_order(acc, inv[["qx", "qy", "qz", "qw"]].to_numpy()) == "xyzw-inverse"
+    assert np.allclose(world_values(inv), world_values(table), atol=1e-9)
+
+
+def test_convention_is_decided_on_the_first_seconds_and_then_held():
+    table, _ = synthetic_imu(duration_s=10.0)
+    late = table["t"] > table["t"].iat[0] + 5.0
+    q = table[["qx", "qy", "qz", "qw"]].to_numpy()
+    table.loc[late, ["qx", "qy", "qz", "qw"]] = q[late.to_numpy()][:, [3, 0, 1, 2]]  # later rows w first
+    stream = WorldFrameStream(ImuConfig(decision_s=2.0))
+    stream.push(table[table["t"] < table["t"].iat[0] + 1.9])
+    assert stream.quaternion_order is None and len(stream.take().t) == 0  # nothing before the decision
+    stream.push(table[table["t"] >= table["t"].iat[0] + 1.9])
+    assert stream.quaternion_order == "xyzw"
+    out = stream.take()
+    assert len(out.t) == len(table)
+    assert np.abs(out.values[late.to_numpy(), 5] - G).max() > 3.0  # the late rows are misread, as decided
 
 
 def test_non_unit_quaternion_is_an_error():
     table, _ = synthetic_imu()
     table[["qx", "qy", "qz", "qw"]] *= 3.0
     with pytest.raises(CurbsideInputError, match="unit quaternions"):
-        preprocess(table)
+        world_frame_segments(table)
 
 
 def test_missing_gyroscope_is_an_error():
     table, _ = synthetic_imu()
     with pytest.raises(CurbsideInputError, match="no gyroscope"):
-        preprocess(table.drop(columns=["gx", "gy", "gz"]))
+        world_frame_segments(table.drop(columns=["gx", "gy", "gz"]))
+
+
+def test_partial_quaternion_and_non_numeric_values_are_errors():
+    table, _ = synthetic_imu()
+    with pytest.raises(CurbsideInputError, match="partial quaternion"):
+        world_frame_segments(table.drop(columns=["qw"]))
+    table["ax"] = table["ax"].astype(object)
+    table.loc[5, "ax"] = "n/a"
+    with pytest.raises(CurbsideInputError, match="non-numeric"):
+        world_frame_segments(table)
 
 
 def test_all_zero_gyroscope_is_an_error():
     table, _ = synthetic_imu()
     table[["gx", "gy", "gz"]] = 0.0
     with pytest.raises(CurbsideInputError, match="all zero"):
-        preprocess(table)
+        world_frame_segments(table)
 
 
 def test_rate_too_low_is_an_error():
     table, _ = synthetic_imu(rate_hz=10.0)
     with pytest.raises(CurbsideInputError, match="below"):
-        preprocess(table)
+        world_frame_segments(table)
 
 
 def test_non_increasing_timestamps_are_an_error():
     table, _ = synthetic_imu()
     table.loc[10, "t"] = table.loc[9, "t"]
     with pytest.raises(CurbsideInputError, match="row 11"):
-        preprocess(table)
+        world_frame_segments(table)
 
 
-def test_short_gap_is_interpolated_and_long_gap_splits(caplog):
+def test_rejected_chunks_leave_the_stream_as_it_was():
+    table, _ = synthetic_imu(duration_s=6.0)
+    reference = WorldFrameStream()
+    reference.push(table)
+    reference.finish()
+    stream = WorldFrameStream()
+    stream.push(table.iloc[:100])
+    with pytest.raises(CurbsideInputError, match="row 101"):
+        stream.push(table.iloc[99:150])  # overlaps the previous chunk
+    with pytest.raises(CurbsideInputError, match="columns changed"):
+        stream.push(table.iloc[100:150].drop(columns=["qx", "qy", "qz", "qw"]))
+    stream.push(table.iloc[100:])
+    stream.finish()
+    ours, theirs = stream.take(), reference.take()
+    assert np.array_equal(ours.t, theirs.t) and np.array_equal(ours.values, theirs.values)
+    with pytest.raises(RuntimeError):
+        stream.push(table.iloc[:1])
+
+
+def test_short_gap_is_bridged_and_long_gap_splits(caplog):
     table, _ = synthetic_imu(duration_s=30.0)
     short = table[(table["t"] < 10.0) | (table["t"] > 10.3)]
-    assert len(preprocess(short)) == 1
+    assert len(world_frame_segments(short)) == 1
     long = table[(table["t"] < 10.0) | (table["t"] > 11.5)]
     with caplog.at_level(logging.WARNING):
-        segments = preprocess(long)
+        segments = world_frame_segments(long)
     assert len(segments) == 2
-    assert segments[0].t[-1] < 10.0 < 11.5 < segments[1].t[0]
-    assert "split" in caplog.text
+    assert segments[0]["t"].iat[-1] < 10.0 < 11.5 < segments[1]["t"].iat[0]
+    assert "splits" in caplog.text
 
 
 def test_nan_rows_are_dropped_and_handled_as_gaps(caplog):
     table, _ = synthetic_imu()
     table.loc[100:102, "ax"] = np.nan
     with caplog.at_level(logging.WARNING):
-        (seg,) = preprocess(table)
+        (seg,) = world_frame_segments(table)
     assert "3 row(s) with NaN" in caplog.text
-    assert np.isfinite(seg.acc).all()
+    assert len(seg) == len(table) - 3 and np.isfinite(seg.to_numpy()).all()
 
 
-def test_saturated_samples_are_flagged_with_a_warning(caplog):
+def test_saturated_samples_are_counted_with_a_warning(caplog):
     table, _ = synthetic_imu()
     table.loc[200:205, "az"] = 39.2  # a +-4 g accelerometer pinned at its limit
+    stream = WorldFrameStream()
     with caplog.at_level(logging.WARNING):
-        (seg,) = preprocess(table)
+        for lo in range(0, len(table), 7):
+            stream.push(table.iloc[lo : lo + 7])
+        stream.finish()
     assert "saturation" in caplog.text
-    hit = (seg.t > table["t"].iat[199]) & (seg.t < table["t"].iat[206])
-    assert seg.saturated[hit].all() and not seg.saturated[~hit].any()
+    assert stream.saturated_samples == 6
 
 
 def test_saturation_needs_a_flat_top_above_the_floor():
     values = np.zeros((100, 2))
-    values[:, 0] = np.linspace(-1, 1, 100)  # unique extreme: not clipped
-    values[:3, 1] = 0.5  # repeated extreme but below the floor
-    assert not saturation_mask(values, np.array([0.1, 1.0])).any()
+    values[:, 0] = np.linspace(-25, 25, 100)  # above the floor but never flat
+    values[10:13, 1] = 0.5  # flat but below the floor
+    floors = np.array([19.6, 1.0])
+    assert not saturation_mask(values, floors).any()
+    values[50:53, 1] = -4.0  # flat at -4 for 3 samples: clipped
+    values[70:72, 1] = 4.0  # only 2 samples: not
+    assert np.flatnonzero(saturation_mask(values, floors)).tolist() == [50, 51, 52]
 
 
 def test_gyroscope_integration_matches_truth_up_to_a_constant_yaw():
@@ -163,29 +217,36 @@ def test_gyroscope_integration_matches_truth_up_to_a_constant_yaw():
     assert np.ptp(yaw) < np.radians(2.0)
 
 
-def test_prefix_product_equals_sequential_integration():
+def test_gyroscope_integration_is_chunk_invariant():
+    table, _ = synthetic_imu(duration_s=8.0, rate_hz=100.0, quaternion=False)
+    cols = [table["t"].to_numpy(), table[["gx", "gy", "gz"]].to_numpy(), table[["ax", "ay", "az"]].to_numpy()]
+    whole = integrate_gyroscope(*cols).as_quat()
+    integrator = GyroscopeIntegrator()
+    cuts = [0, 1, 2, SCAN_BLOCK - 1, SCAN_BLOCK + 5, 3 * SCAN_BLOCK, 3 * SCAN_BLOCK + 1, 500, len(table)]
+    parts = [integrator.update(*(c[a:b] for c in cols)).as_quat()
+             for a, b in zip(cuts[:-1], cuts[1:], strict=True)]
+    assert np.array_equal(np.vstack(parts), whole)
+
+
+def test_block_prefix_product_equals_sequential_integration():
     rng = np.random.default_rng(3)
-    n = 257
-    t = np.cumsum(rng.uniform(0.009, 0.011, n))
-    gyro = rng.normal(0, 1.0, (n, 3))
-    dt = np.diff(t, prepend=t[0])
-    omega = np.vstack([gyro[:1], 0.5 * (gyro[1:] + gyro[:-1])])
-    sequential = [Rotation.identity()]
-    for k in range(1, n):
-        sequential.append(sequential[-1] * Rotation.from_rotvec(omega[k] * dt[k]))
-    prefix = Rotation.from_rotvec(omega * dt[:, None]).as_quat()
-    d = 1
-    while d < n:
-        prefix[d:] = imu_mod._quat_mul(prefix[:-d], prefix[d:])
-        d *= 2
-    ref = Rotation.concatenate(sequential)
-    dots = np.einsum("ij,ij->i", Rotation.from_quat(prefix).as_quat(), ref.as_quat())
+    n = 2 * SCAN_BLOCK
+    increments = Rotation.from_rotvec(rng.normal(0, 0.05, (n, 3))).as_quat()
+    sequential = [Rotation.from_quat(increments[0])]
+    for k in range(1, SCAN_BLOCK):
+        sequential.append(sequential[-1] * Rotation.from_quat(increments[k]))
+    prefix = block_prefix_products(increments.reshape(2, SCAN_BLOCK, 4))
+    dots = np.einsum("ij,ij->i", prefix[0], Rotation.concatenate(sequential).as_quat())
     assert np.allclose(np.abs(dots), 1.0)
+    # a row depends on the rows before it only: a padded partial block gives the same rows
+    padded = np.tile([0.0, 0.0, 0.0, 1.0], (SCAN_BLOCK, 1))
+    padded[:10] = increments[:10]
+    assert np.array_equal(block_prefix_products(padded[None])[0, :10], prefix[0, :10])
 
 
 def test_without_quaternion_the_gyroscope_is_integrated():
     table, _ = synthetic_imu(quaternion=False)
-    (seg,) = preprocess(table)
-    assert np.median(seg.acc[:, 2]) == pytest.approx(G, abs=0.2)
+    values = world_values(table)
+    assert np.median(values[:, 5]) == pytest.approx(G, abs=0.2)
     # the yaw rate shows up on the world z gyroscope channel
-    assert np.median(seg.gyro[:, 2]) == pytest.approx(0.2, abs=0.02)
+    assert np.median(values[:, 2]) == pytest.approx(0.2, abs=0.02)

@@ -9,23 +9,16 @@ from test_imu import synthetic_imu
 
 from curbside.cli.localize import main as localize_main
 from curbside.errors import CurbsideInputError
-from curbside.localize.ronin.infer import load_model, make_windows, ronin_velocity, window_starts
+from curbside.localize.ronin.infer import load_model, ronin_velocity
+from curbside.localize.ronin.stream import RoninStreamConfig
 
 
-def test_windows_are_strided_views():
-    feats = np.arange(30, dtype=np.float32).reshape(15, 2)
-    starts = window_starts(15, window=4, stride=5)
-    assert starts.tolist() == [0, 5, 10]
-    w = make_windows(feats, starts, 4)
-    assert w.shape == (3, 2, 4)
-    assert np.array_equal(w[1, 0], feats[5:9, 0])
-
-
-def test_velocity_rows_are_window_centres_every_stride():
+@pytest.mark.parametrize("stride", [10, 20, 40])
+def test_velocity_rows_are_window_centres_every_stride(stride):
     table, _ = synthetic_imu(duration_s=12.0)
-    vel = ronin_velocity(table)
+    vel = ronin_velocity(table, config=RoninStreamConfig(stride=stride))
     assert list(vel.columns) == ["t", "ve", "vn"]
-    assert np.allclose(np.diff(vel["t"]), 10 / 200.0)
+    assert np.allclose(np.diff(vel["t"]), stride / 200.0)
     assert vel["t"].iat[0] == pytest.approx(table["t"].iat[0] + 199 / 400.0)
     assert np.isfinite(vel[["ve", "vn"]].to_numpy()).all()
 
@@ -52,9 +45,11 @@ def test_ronin_command_writes_velocity_csv(tmp_path, capsys):
     table.to_csv(session / "imu.csv", index=False)
     assert localize_main(["ronin", str(session)]) == 0
     vel = pd.read_csv(session / "velocity.csv")
-    assert list(vel.columns) == ["t", "ve", "vn"] and len(vel) > 100
+    assert list(vel.columns) == ["t", "ve", "vn"] and len(vel) == 90  # 9 s of centres every 100 ms
     assert localize_main(["ronin", str(session), "-o", str(tmp_path / "v.csv")]) == 0
     assert pd.read_csv(tmp_path / "v.csv").equals(vel)
+    assert localize_main(["ronin", str(session), "--stride", "40", "-o", str(tmp_path / "v40.csv")]) == 0
+    assert np.allclose(np.diff(pd.read_csv(tmp_path / "v40.csv")["t"]), 0.2, atol=2e-6)
 
 
 def test_ronin_command_bad_input_exits_2_and_writes_nothing(tmp_path, capsys):
@@ -66,6 +61,8 @@ def test_ronin_command_bad_input_exits_2_and_writes_nothing(tmp_path, capsys):
     assert "imu.csv" in capsys.readouterr().err
     table.to_csv(session / "imu.csv", index=False)
     assert localize_main(["ronin", str(session), "--weights", str(tmp_path / "none.pt")]) == 2
+    assert localize_main(["ronin", str(session), "--stride", "500"]) == 2
+    assert "--stride" in capsys.readouterr().err
     assert not (session / "velocity.csv").exists()
     assert [p.name for p in session.iterdir() if p.name.startswith(".")] == []
 

@@ -8,11 +8,19 @@ import logging
 import sys
 from pathlib import Path
 
-from curbside import settings
 from curbside.errors import CurbsideInputError
 from curbside.io import atomic_path, check_output_file, note_written
 
 logger = logging.getLogger(__name__)
+
+
+def _stream_config(args: argparse.Namespace):
+    from curbside.localize.ronin.stream import RoninStreamConfig
+
+    try:
+        return RoninStreamConfig(stride=args.stride)
+    except ValueError as exc:
+        raise CurbsideInputError("--stride", str(exc)) from None
 
 
 def _ronin(args: argparse.Namespace) -> int:
@@ -25,7 +33,8 @@ def _ronin(args: argparse.Namespace) -> int:
     if session.imu is None:
         raise CurbsideInputError(Path(args.session) / "imu.csv", "no such file: RoNIN needs imu.csv")
     imu_path = Path(args.session) / "imu.csv"
-    velocity = ronin_velocity(session.imu, load_model(args.weights), source=str(imu_path))
+    velocity = ronin_velocity(session.imu, load_model(args.weights), _stream_config(args),
+                              source=str(imu_path))
     with atomic_path(out) as tmp:
         velocity.to_csv(tmp, index=False, float_format="%.6f")
     note_written(out)
@@ -48,6 +57,7 @@ def _train(args: argparse.Namespace) -> int:
     from curbside.localize.ronin.data import WindowSet
     from curbside.localize.ronin.evaluate import calibrate_output_scale
     from curbside.localize.ronin.infer import load_model
+    from curbside.localize.ronin.model import RoninConfig
     from curbside.localize.ronin.train import TrainOptions, save_weights, train
 
     if args.device.startswith("cuda") and not torch.cuda.is_available():
@@ -56,9 +66,10 @@ def _train(args: argparse.Namespace) -> int:
     options = TrainOptions(arch=args.arch, epochs=args.epochs, windows_per_epoch=args.windows_per_epoch,
                            batch_size=args.batch_size, lr=args.lr, seed=args.seed, device=args.device,
                            num_threads=args.threads)
+    shape = RoninConfig()  # RoNIN's one-second windows at 200 Hz, a training window every 10 samples
     sets = {
-        split: WindowSet.build([r for r in recordings if r.split == split], settings.ronin_window,
-                               settings.ronin_stride, settings.ronin_rate_hz)
+        split: WindowSet.build([r for r in recordings if r.split == split], shape.window, shape.stride,
+                               shape.rate_hz)
         for split in ("train", "val")
     }
     if len(sets["train"]) == 0:
@@ -86,7 +97,8 @@ def _evaluate(args: argparse.Namespace) -> int:
     recordings = [r for r in _recordings(args, keep) if r.split == args.split]
     if not recordings:
         raise CurbsideInputError("--split", f"no {args.split!r} recordings in the data given")
-    report = evaluate_recordings(recordings, load_model(args.weights), with_pdr=not args.no_pdr)
+    report = evaluate_recordings(recordings, load_model(args.weights), with_pdr=not args.no_pdr,
+                                 config=_stream_config(args))
     if args.output:
         with atomic_path(args.output) as tmp:
             tmp.write_text(json.dumps(report, indent=1), encoding="utf-8")
@@ -102,12 +114,22 @@ def _add_data_args(p: argparse.ArgumentParser) -> None:
                    help="cache of the prepared recordings: read when it exists, else written after reading")
 
 
+def _add_stride_arg(p: argparse.ArgumentParser) -> None:
+    from curbside.localize.ronin.stream import RoninStreamConfig
+
+    default = RoninStreamConfig().stride
+    p.add_argument("--stride", type=int, default=default, metavar="N",
+                   help=f"200 Hz samples between window starts (default {default}: a velocity every "
+                        f"{1000 * default / 200:g} ms)")
+
+
 def register(subparsers: argparse._SubParsersAction) -> None:
     """Add ``ronin``, ``train-ronin`` and ``ronin-eval``."""
     p = subparsers.add_parser("ronin", help="write velocity.csv from a session's imu.csv (RoNIN)")
     p.add_argument("session", metavar="SESSION", help="session folder holding imu.csv")
     p.add_argument("-o", "--output", metavar="CSV", help="output file (default SESSION/velocity.csv)")
     p.add_argument("--weights", metavar="PT", help="weights .pt with its .json (default: the bundled model)")
+    _add_stride_arg(p)
     p.set_defaults(func=_ronin)
 
     p = subparsers.add_parser("train-ronin", help="train a RoNIN model from HDF5 datasets")
@@ -129,5 +151,6 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--weights", metavar="PT", help="weights .pt (default: the bundled model)")
     p.add_argument("--split", default="test", choices=["test", "val", "train"])
     p.add_argument("--no-pdr", action="store_true", help="skip the PDR baseline")
+    _add_stride_arg(p)
     p.add_argument("-o", "--output", metavar="JSON", help="write the full report here")
     p.set_defaults(func=_evaluate)

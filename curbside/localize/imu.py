@@ -2,28 +2,29 @@
 
 The RoNIN input is the gyroscope and the accelerometer (gravity kept) expressed in a world frame whose
 z axis is up and whose yaw is whatever the orientation source says (the game rotation vector's
-arbitrary yaw, or magnetic north for Android's rotation vector). This module turns an ``imu.csv``
-table into such streams, on a uniform clock:
+arbitrary yaw, or magnetic north for Android's rotation vector). :class:`WorldFrameStream` turns
+``imu.csv`` rows, pushed in chunks of any size, into such samples at the input sample times. Every
+decision depends only on data within a bounded horizon, so the output is **bit-identical whatever
+the chunking** (a live session streamed in small batches gives what the whole file gives):
 
-1. **Validation.** The accelerometer and gyroscope columns are required (no gyroscope is an error,
-   and so is a gyroscope that reads exactly zero throughout: some loggers fill the column when the
-   sensor is absent). Rows holding NaN are dropped and their hole treated like any other gap.
-   Timestamps must increase strictly. Rates below ``settings.imu_min_rate_hz`` are refused.
-2. **Saturation.** A channel whose extreme value is hit repeatedly (a flat top) and lies above a
-   plausible floor (``settings.imu_saturation_floor_accel_ms2`` / ``..._gyro_rads``) is saturated:
-   the samples are flagged (:attr:`WorldImu.saturated`) and a warning is logged; the values are kept
-   as they are (clipped by the sensor), since there is nothing better to put there.
-3. **Gaps.** Gaps up to ``settings.imu_max_interp_gap_s`` (0.5 s) are linearly interpolated; longer
-   gaps split the recording into segments processed separately (orientation from gyroscope
-   integration restarts after such a gap). Segments shorter than ``min_duration_s`` are dropped with
-   a warning.
-4. **Orientation.** With ``qx,qy,qz,qw`` columns the quaternion is used, after checking its
-   convention: the four readings (scalar last or first, device-to-world or its inverse) are tried on
-   the accelerometer, and the one that rotates the mean specific force closest to +z (up) wins; a
-   reading other than the documented one is logged as a warning. Without a quaternion the gyroscope
-   is integrated (see :func:`integrate_gyroscope`).
-5. **Resampling.** The world-frame vectors are linearly interpolated onto a uniform grid at
-   ``rate_hz`` (200 Hz for RoNIN). Lower-rate phones (50 Hz) are thus upsampled.
+1. **Validation** (per chunk, before anything changes). The accelerometer and gyroscope columns are
+   required, and a chunk must have the columns of the first one. Rows holding NaN/inf (or an
+   all-zero quaternion) are dropped and their hole treated like any other gap. Timestamps must
+   increase strictly, across chunks too.
+2. **Start-up decision** on the first :attr:`ImuConfig.decision_s` seconds of data (gaps not
+   counted), then held for the whole stream: the rate must reach :attr:`ImuConfig.min_rate_hz`, the
+   gyroscope must not read exactly zero throughout (loggers fill the column when the sensor is
+   absent), and the quaternion convention is chosen (:func:`detect_quaternion_order`). Nothing is
+   emitted before the decision.
+3. **Gaps.** A gap longer than :attr:`ImuConfig.max_gap_s` starts a new segment (its number is
+   emitted with every sample); shorter gaps are bridged by the resampling downstream.
+4. **Orientation.** With ``qx,qy,qz,qw`` the quaternion, read in the chosen convention. Without it
+   the gyroscope is integrated causally per segment (:class:`GyroscopeIntegrator`).
+5. **Saturation.** A sample where a channel sits in a flat top above a plausible floor (three equal
+   values in a row above 2 g or 4 rad/s) counts as saturated (:func:`saturation_mask`); the count is
+   kept and logged, values are left as clipped by the sensor.
+
+Resampling onto the model's clock and cutting windows is :mod:`curbside.localize.ronin.stream`.
 """
 
 from __future__ import annotations
@@ -35,14 +36,15 @@ import numpy as np
 import pandas as pd
 from scipy.spatial.transform import Rotation
 
-from curbside import settings
 from curbside.errors import CurbsideInputError
+from curbside.localize.gyro import GyroscopeIntegrator, norm_rows, rotate_vectors
 
 logger = logging.getLogger(__name__)
 
 ACC_COLUMNS = ("ax", "ay", "az")
 GYRO_COLUMNS = ("gx", "gy", "gz")
 QUAT_COLUMNS = ("qx", "qy", "qz", "qw")
+WORLD_COLUMNS = ("wgx", "wgy", "wgz", "wax", "way", "waz")
 
 #: The four readings of a logged quaternion tried by :func:`detect_quaternion_order`: column
 #: permutation into scipy's scalar-last order, and whether the rotation is world-to-device.
@@ -53,76 +55,77 @@ QUATERNION_READINGS: dict[str, tuple[tuple[int, int, int, int], bool]] = {
     "wxyz-inverse": ((1, 2, 3, 0), True),
 }
 
+@dataclass(frozen=True)
+class ImuConfig:
+    """Parameters of the IMU preprocessing (recorded in a run's ``run.json``).
 
-@dataclass
-class WorldImu:
-    """One contiguous stretch of IMU data in the gravity-aligned world frame, on a uniform clock.
+    Attributes
+    ----------
+    max_gap_s
+        Longest gap bridged by interpolation; a longer one splits the stream into segments. 0.5 s:
+        a phone's sensor hub drops batches of a few hundred milliseconds, a walker moves < 1 m.
+    min_rate_hz
+        Lowest accepted IMU rate; slower logs cannot resolve footsteps (a step lasts ~0.5 s).
+    decision_s
+        Seconds of data (gaps not counted) on which the rate, the gyroscope and the quaternion
+        convention are judged before anything is emitted. 2 s spans about four footsteps, over
+        which the walking accelerations average out against gravity; it is also the start-up
+        latency of a stream.
+    saturation_floor_accel_ms2, saturation_floor_gyro_rads
+        A flat top counts as clipping only above these magnitudes (2 g; 4 rad/s, the lowest full
+        scales of phone IMUs are 2 g and 250 deg/s); flat tops below are quantisation.
+    saturation_min_repeats
+        Equal consecutive values that make a flat top.
+    tilt_window_s
+        Trailing window of the gravity estimate that holds the gyroscope-integrated tilt.
+    """
+
+    max_gap_s: float = 0.5
+    min_rate_hz: float = 20.0
+    decision_s: float = 2.0
+    saturation_floor_accel_ms2: float = 19.6
+    saturation_floor_gyro_rads: float = 4.0
+    saturation_min_repeats: int = 3
+    tilt_window_s: float = 2.0
+
+
+@dataclass(frozen=True)
+class WorldSamples:
+    """World-frame IMU samples at their input times, as emitted by :class:`WorldFrameStream`.
 
     Attributes
     ----------
     t
-        ``(N,)`` sample times in seconds, uniform at ``rate_hz``.
-    gyro
-        ``(N, 3)`` angular rate in rad/s, world frame (x, y horizontal, z up).
-    acc
-        ``(N, 3)`` specific force in m/s^2 including gravity, world frame.
-    saturated
-        ``(N,)`` True where any input channel was at its saturation value.
-    rate_hz
-        Sampling rate of the grid.
+        ``(N,)`` sample times (s), increasing.
+    values
+        ``(N, 6)`` world-frame gyroscope (rad/s) then specific force (m/s^2, gravity on +z).
+    segment
+        ``(N,)`` segment number; it increases by one after every gap longer than ``max_gap_s``.
     """
 
     t: np.ndarray
-    gyro: np.ndarray
-    acc: np.ndarray
-    saturated: np.ndarray
-    rate_hz: float
+    values: np.ndarray
+    segment: np.ndarray
 
-    @property
-    def features(self) -> np.ndarray:
-        """``(N, 6)`` float32 network input: world-frame gyroscope then accelerometer."""
-        return np.concatenate([self.gyro, self.acc], axis=1).astype(np.float32)
+    @classmethod
+    def empty(cls) -> WorldSamples:
+        """No samples."""
+        return cls(np.zeros(0), np.zeros((0, 6)), np.zeros(0, np.int64))
 
-
-def _check_columns(imu: pd.DataFrame, source: str) -> bool:
-    missing_gyro = [c for c in GYRO_COLUMNS if c not in imu.columns]
-    if missing_gyro:
-        raise CurbsideInputError(source, f"no gyroscope: missing column(s) {missing_gyro}")
-    missing = [c for c in ("t", *ACC_COLUMNS) if c not in imu.columns]
-    if missing:
-        raise CurbsideInputError(source, f"missing column(s) {missing}")
-    has_q = [c in imu.columns for c in QUAT_COLUMNS]
-    if any(has_q) and not all(has_q):
-        raise CurbsideInputError(source, "partial quaternion columns: need all of qx,qy,qz,qw or none")
-    return all(has_q)
-
-
-def _drop_nan_rows(imu: pd.DataFrame, columns: list[str], source: str) -> pd.DataFrame:
-    try:
-        values = imu[columns].apply(pd.to_numeric, errors="raise").astype(float)
-    except (ValueError, TypeError) as exc:
-        raise CurbsideInputError(source, f"non-numeric value ({exc})") from None
-    finite = np.isfinite(values.to_numpy()).all(axis=1)
-    if not finite.all():
-        logger.warning(
-            "%s: %d row(s) with NaN/inf dropped; their holes are handled as gaps", source,
-            int((~finite).sum()),
-        )
-        values = values[finite]
-    if len(values) < 2:
-        raise CurbsideInputError(source, "fewer than two usable IMU rows")
-    t = values["t"].to_numpy(copy=True)
-    dt = np.diff(t)
-    if (dt <= 0).any():
-        i = int(np.argmax(dt <= 0))
-        raise CurbsideInputError(
-            source, f"timestamps not strictly increasing at data row {i + 2} (t={t[i + 1]!r})"
-        )
-    return values.reset_index(drop=True)
+    @classmethod
+    def concatenate(cls, parts: list[WorldSamples]) -> WorldSamples:
+        """The parts one after the other."""
+        if not parts:
+            return cls.empty()
+        return cls(np.concatenate([p.t for p in parts]), np.concatenate([p.values for p in parts]),
+                   np.concatenate([p.segment for p in parts]))
 
 
 def saturation_mask(values: np.ndarray, floors: np.ndarray, min_repeats: int = 3) -> np.ndarray:
-    """Flag samples where a channel sits at a repeated extreme above a plausibility floor.
+    """Flag samples in a flat top: ``min_repeats`` equal consecutive values above a floor.
+
+    A clipped channel repeats its full-scale value exactly; a real signal above 2 g changes from one
+    sample to the next. The rule looks ``min_repeats - 1`` samples either side, no further.
 
     Parameters
     ----------
@@ -132,18 +135,22 @@ def saturation_mask(values: np.ndarray, floors: np.ndarray, min_repeats: int = 3
         ``(C,)`` smallest absolute value that may be a saturation level (e.g. 2 g for an
         accelerometer): flat tops below it are quantisation, not clipping.
     min_repeats
-        How many samples must share the extreme value.
+        How many equal consecutive samples make a flat top.
 
     Returns
     -------
     numpy.ndarray
-        ``(N,)`` bool, True where any channel is saturated.
+        ``(N,)`` bool, True where any channel is in a flat top.
     """
-    mag = np.abs(values)
-    peak = mag.max(axis=0)
-    at_peak = mag >= peak * (1.0 - 1e-6)
-    channel_saturated = (at_peak.sum(axis=0) >= min_repeats) & (peak >= floors)
-    return (at_peak & channel_saturated).any(axis=1)
+    n = len(values)
+    flagged = np.zeros(n, dtype=bool)
+    if n < min_repeats:
+        return flagged
+    same = (values[1:] == values[:-1]) & (np.abs(values[1:]) >= floors)  # (N-1, C)
+    runs = np.lib.stride_tricks.sliding_window_view(same, min_repeats - 1, axis=0).all(axis=-1).any(axis=1)
+    for k in range(min_repeats):  # a run starting at i covers samples i .. i + min_repeats - 1
+        flagged[k : k + len(runs)] |= runs
+    return flagged
 
 
 def detect_quaternion_order(acc: np.ndarray, quat: np.ndarray, source: str = "imu") -> str:
@@ -170,20 +177,19 @@ def detect_quaternion_order(acc: np.ndarray, quat: np.ndarray, source: str = "im
     Raises
     ------
     CurbsideInputError
-        No reading brings gravity within 30 degrees of up (not an orientation of this IMU).
+        Not unit quaternions, or no reading brings gravity within 30 degrees of up.
     """
     acc, quat = np.array(acc, dtype=float), np.array(quat, dtype=float)  # writable copies for scipy
-    norms = np.linalg.norm(quat, axis=1)
+    norms = norm_rows(quat)
     if not (np.abs(norms - 1.0) < 0.05).mean() > 0.95:
         raise CurbsideInputError(
             source, f"quaternion columns are not unit quaternions (median norm {np.median(norms):.3f})"
         )
-    step = max(1, len(acc) // 2000)
     cosines = {}
     for name, (perm, inverse) in QUATERNION_READINGS.items():
-        rot = Rotation.from_quat(quat[::step, list(perm)])
+        rot = Rotation.from_quat(quat[:, list(perm)])
         rot = rot.inv() if inverse else rot
-        mean_up = rot.apply(acc[::step]).mean(axis=0)
+        mean_up = rot.apply(acc).mean(axis=0)
         cosines[name] = mean_up[2] / max(np.linalg.norm(mean_up), 1e-9)
     best = max(cosines, key=lambda k: cosines[k])
     if cosines[best] < np.cos(np.radians(30.0)):
@@ -201,88 +207,225 @@ def detect_quaternion_order(acc: np.ndarray, quat: np.ndarray, source: str = "im
     return best
 
 
-def _quat_mul(p: np.ndarray, q: np.ndarray) -> np.ndarray:
-    """Hamilton product of scalar-last quaternion arrays, ``p * q`` row by row."""
-    px, py, pz, pw = p.T
-    qx, qy, qz, qw = q.T
-    return np.stack(
-        [
-            pw * qx + px * qw + py * qz - pz * qy,
-            pw * qy - px * qz + py * qw + pz * qx,
-            pw * qz + px * qy - py * qx + pz * qw,
-            pw * qw - px * qx - py * qy - pz * qz,
-        ],
-        axis=1,
-    )
+def _check_columns(columns: set, source: str) -> bool:
+    missing_gyro = [c for c in GYRO_COLUMNS if c not in columns]
+    if missing_gyro:
+        raise CurbsideInputError(source, f"no gyroscope: missing column(s) {missing_gyro}")
+    missing = [c for c in ("t", *ACC_COLUMNS) if c not in columns]
+    if missing:
+        raise CurbsideInputError(source, f"missing column(s) {missing}")
+    has_q = [c in columns for c in QUAT_COLUMNS]
+    if any(has_q) and not all(has_q):
+        raise CurbsideInputError(source, "partial quaternion columns: need all of qx,qy,qz,qw or none")
+    return all(has_q)
 
 
-def _moving_mean(x: np.ndarray, width: int) -> np.ndarray:
-    """Centred moving mean along axis 0 with shrinking windows at the ends."""
-    n = len(x)
-    c = np.concatenate([np.zeros((1, x.shape[1])), np.cumsum(x, axis=0)])
-    half = width // 2
-    lo = np.clip(np.arange(n) - half, 0, n)
-    hi = np.clip(np.arange(n) + half + 1, 0, n)
-    return (c[hi] - c[lo]) / (hi - lo)[:, None]
-
-
-def integrate_gyroscope(t: np.ndarray, gyro: np.ndarray, acc: np.ndarray,
-                        tilt_window_s: float = 2.0) -> Rotation:
-    """Device-to-world orientation from the gyroscope, tilt held to gravity: a game rotation vector.
-
-    The body-frame increments ``exp(omega dt)`` are chained by a parallel prefix product (log2 N
-    vectorised steps instead of a Python loop over samples), starting from the tilt given by the
-    first half second of the accelerometer and zero yaw. Gyroscope bias makes the tilt drift, which
-    would leak gravity into the horizontal channels, so each sample's tilt is then corrected by the
-    smallest rotation taking the low-passed world-frame specific force to +z. That correction has
-    no yaw component: yaw drifts as it does in Android's game rotation vector.
+class WorldFrameStream:
+    """Phone IMU rows in, world-frame samples out, chunk by chunk (see the module docstring).
 
     Parameters
     ----------
-    t
-        ``(N,)`` sample times (s), increasing.
-    gyro
-        ``(N, 3)`` rad/s, device frame.
-    acc
-        ``(N, 3)`` m/s^2 with gravity, device frame.
-    tilt_window_s
-        Width of the low-pass used for the tilt correction.
+    config
+        Preprocessing parameters (defaults: :class:`ImuConfig`).
+    source
+        Name used in messages (the file or the session).
 
-    Returns
-    -------
-    scipy.spatial.transform.Rotation
-        ``N`` device-to-world rotations.
+    Examples
+    --------
+    >>> stream = WorldFrameStream(source="walk/imu.csv")  # doctest: +SKIP
+    >>> for chunk in chunks:
+    ...     stream.push(chunk)
+    ...     samples = stream.take()
+    >>> stream.finish(); tail = stream.take()
     """
-    t, gyro, acc = (np.array(a, dtype=float) for a in (t, gyro, acc))  # writable copies for scipy
-    n = len(t)
-    dt = np.diff(t, prepend=t[0])
-    omega = np.vstack([gyro[:1], 0.5 * (gyro[1:] + gyro[:-1])])
-    prefix = Rotation.from_rotvec(omega * dt[:, None]).as_quat()
-    d = 1
-    while d < n:
-        prefix[d:] = _quat_mul(prefix[:-d], prefix[d:])
-        prefix /= np.linalg.norm(prefix, axis=1, keepdims=True)
-        d *= 2
-    rate = 1.0 / max(float(np.median(np.diff(t))) if n > 1 else 1.0, 1e-6)
-    head = acc[: max(1, int(0.5 * rate))].mean(axis=0)
-    start, _ = Rotation.align_vectors([[0.0, 0.0, 1.0]], [head])
-    rot = start * Rotation.from_quat(prefix)
-    up = _moving_mean(rot.apply(acc), max(1, int(tilt_window_s * rate)))
-    up /= np.linalg.norm(up, axis=1, keepdims=True)
-    axis = np.cross(up, [0.0, 0.0, 1.0])
-    sin = np.linalg.norm(axis, axis=1, keepdims=True)
-    angle = np.arctan2(sin[:, 0], up[:, 2])
-    axis = np.divide(axis, sin, out=np.zeros_like(axis), where=sin > 1e-12)
-    return Rotation.from_rotvec(axis * angle[:, None]) * rot
+
+    def __init__(self, config: ImuConfig | None = None, source: str = "imu.csv") -> None:
+        self.config = config or ImuConfig()
+        self.source = source
+        #: Quaternion reading chosen at start-up (a key of :data:`QUATERNION_READINGS`), None without one.
+        self.quaternion_order: str | None = None
+        #: Samples found in a flat top so far (final up to ``saturation_min_repeats - 1`` samples back).
+        self.saturated_samples = 0
+        self.finished = False
+        self._columns: list[str] | None = None
+        self._rows_seen = 0
+        self._decided = False
+        self._pending = np.zeros((0, 0))  # rows held until the start-up decision
+        self._last_t = -np.inf  # last row accepted
+        self._emitted_t = -np.inf  # last row emitted
+        self._segment = -1
+        self._integrator: GyroscopeIntegrator | None = None
+        self._sat_buffer = np.zeros((0, 6))
+        self._sat_final = 0
+        self._out: list[WorldSamples] = []
+
+    @property
+    def has_quaternion(self) -> bool:
+        """Whether the rows carry ``qx,qy,qz,qw`` (known after the first push)."""
+        return self._columns is not None and len(self._columns) == 11
+
+    @property
+    def next_time(self) -> float:
+        """Time of the first row not yet emitted (``inf`` when none is held back)."""
+        return float(self._pending[0, 0]) if len(self._pending) else np.inf
+
+    @property
+    def last_time(self) -> float:
+        """Time of the last row accepted (``-inf`` before any)."""
+        return float(self._last_t)
+
+    def push(self, imu: pd.DataFrame) -> None:
+        """Append rows ``t,ax,ay,az,gx,gy,gz[,qx,qy,qz,qw]`` (SPEC ``imu.csv``), any number.
+
+        Raises
+        ------
+        CurbsideInputError
+            Missing or changed columns, non-numeric values, timestamps not increasing (the stream
+            is left as it was); after the start-up decision: rate below ``min_rate_hz``, all-zero
+            gyroscope, unusable quaternion (the stream is then unusable).
+        """
+        if self.finished:
+            raise RuntimeError("push() after finish()")
+        rows = self._validate(imu)
+        self._count_saturation(rows[:, 1:7], final=False)
+        self._pending = rows if not len(self._pending) else np.vstack([self._pending, rows])
+        self._advance(final=False)
+
+    def finish(self) -> None:
+        """Declare the end of the stream: decide on what there is and emit everything held back."""
+        if self.finished:
+            return
+        self.finished = True
+        self._count_saturation(np.zeros((0, 6)), final=True)
+        self._advance(final=True)
+        if self.saturated_samples:
+            logger.warning("%s: %d sample(s) at a sensor's saturation value; velocities there are "
+                           "unreliable", self.source, self.saturated_samples)
+
+    def take(self) -> WorldSamples:
+        """World-frame samples emitted since the last call, removed from the stream."""
+        out = WorldSamples.concatenate(self._out)
+        self._out = []
+        return out
+
+    def _validate(self, imu: pd.DataFrame) -> np.ndarray:
+        has_quat = _check_columns(set(imu.columns), self.source)
+        columns = ["t", *ACC_COLUMNS, *GYRO_COLUMNS] + (list(QUAT_COLUMNS) if has_quat else [])
+        if self._columns is not None and columns != self._columns:
+            raise CurbsideInputError(self.source, "the columns changed from one chunk to the next")
+        names = list(imu.columns)
+        try:
+            try:  # the fast path: a numeric table (selecting columns in pandas costs ~10x more)
+                values = imu.to_numpy(dtype=float)[:, [names.index(c) for c in columns]]
+            except (ValueError, TypeError):
+                values = imu[columns].apply(pd.to_numeric, errors="raise").to_numpy(dtype=float)
+        except (ValueError, TypeError) as exc:
+            raise CurbsideInputError(self.source, f"non-numeric value ({exc})") from None
+        usable = np.isfinite(values).all(axis=1)
+        if has_quat:
+            usable &= norm_rows(values[:, 7:]) > 0.0
+        if not usable.all():
+            logger.warning("%s: %d row(s) with NaN/inf or a zero quaternion dropped; their holes are "
+                           "handled as gaps", self.source, int((~usable).sum()))
+        row_number = self._rows_seen + 1 + np.flatnonzero(usable)
+        values = values[usable]
+        t = np.concatenate([[self._last_t], values[:, 0]])
+        bad = np.flatnonzero(np.diff(t) <= 0)
+        if len(bad):
+            raise CurbsideInputError(self.source, f"timestamps not strictly increasing at data row "
+                                                  f"{row_number[bad[0]]} (t={float(t[bad[0] + 1])!r})")
+        self._columns = columns
+        self._rows_seen += len(imu)
+        if len(values):
+            self._last_t = values[-1, 0]
+        return values
+
+    def _count_saturation(self, raw: np.ndarray, final: bool) -> None:
+        repeats = self.config.saturation_min_repeats
+        buffer = np.vstack([self._sat_buffer, raw])
+        floors = np.array([self.config.saturation_floor_accel_ms2] * 3
+                          + [self.config.saturation_floor_gyro_rads] * 3)
+        final_end = len(buffer) if final else max(len(buffer) - (repeats - 1), 0)
+        found = int(saturation_mask(buffer, floors, repeats)[self._sat_final : final_end].sum())
+        if found and not self.saturated_samples:
+            logger.warning("%s: a sensor sits at its saturation value near t=%.2f s", self.source,
+                           self._last_t)
+        self.saturated_samples += found
+        drop = max(len(buffer) - 2 * (repeats - 1), 0)
+        self._sat_buffer = buffer[drop:]
+        self._sat_final = max(final_end - drop, 0)
+
+    def _decision_rows(self, final: bool) -> int | None:
+        """Rows of the start-up decision window, or None while more data is needed."""
+        t = self._pending[:, 0]
+        dt = np.diff(t)
+        covered = np.concatenate([[0.0], np.cumsum(np.where(dt <= self.config.max_gap_s, dt, 0.0))])
+        enough = np.flatnonzero(covered >= self.config.decision_s)
+        if len(enough):
+            return int(enough[0]) + 1
+        return len(t) if final and len(t) else None
+
+    def _decide(self, rows: np.ndarray) -> None:
+        dt = np.diff(rows[:, 0])
+        dt = dt[dt <= self.config.max_gap_s]
+        if len(dt):
+            rate = 1.0 / float(np.median(dt))
+            if rate < self.config.min_rate_hz:
+                raise CurbsideInputError(self.source, f"IMU rate {rate:.1f} Hz is below the "
+                                                      f"{self.config.min_rate_hz:g} Hz minimum for RoNIN")
+        if not np.any(rows[:, 4:7]):
+            raise CurbsideInputError(self.source, "gyroscope columns are all zero: no gyroscope data")
+        if self.has_quaternion:
+            self.quaternion_order = detect_quaternion_order(rows[:, 1:4], rows[:, 7:11], self.source)
+        self._decided = True
+
+    def _advance(self, final: bool) -> None:
+        if not len(self._pending):
+            return
+        if not self._decided:
+            n = self._decision_rows(final)
+            if n is None:
+                return
+            self._decide(self._pending[:n])
+        rows, self._pending = self._pending, self._pending[:0]
+        t = rows[:, 0]
+        new_segment = np.diff(t, prepend=self._emitted_t) > self.config.max_gap_s
+        for start, stop in _runs(new_segment):
+            if new_segment[start]:
+                self._start_segment(t[start], t[start - 1] if start else self._emitted_t)
+            self._out.append(self._to_world(rows[start:stop]))
+        self._emitted_t = t[-1]
+
+    def _start_segment(self, t0: float, previous: float) -> None:
+        if self._segment >= 0:
+            logger.warning("%s: %.2f s gap at t=%.2f s splits the recording", self.source, t0 - previous,
+                           previous)
+        self._segment += 1
+        self._integrator = GyroscopeIntegrator(self.config.tilt_window_s)
+
+    def _to_world(self, rows: np.ndarray) -> WorldSamples:
+        acc, gyro = rows[:, 1:4], rows[:, 4:7]
+        if self.has_quaternion:
+            perm, inverse = QUATERNION_READINGS[self.quaternion_order]
+            quat = rows[:, 7:11][:, list(perm)]
+            quat = quat / norm_rows(quat)[:, None]
+            if inverse:
+                quat[:, :3] = -quat[:, :3]
+        else:
+            quat = self._integrator.update(rows[:, 0], gyro, acc).as_quat()
+        values = np.hstack([rotate_vectors(quat, gyro), rotate_vectors(quat, acc)])
+        return WorldSamples(rows[:, 0].copy(), values, np.full(len(rows), self._segment))
 
 
-def world_frame_segments(
-    imu: pd.DataFrame,
-    source: str = "imu.csv",
-    max_gap_s: float | None = None,
-    min_duration_s: float = 1.0,
-) -> list[pd.DataFrame]:
-    """Rotate an ``imu.csv`` table into the world frame at its own sample times, split at long gaps.
+def _runs(new_segment: np.ndarray) -> list[tuple[int, int]]:
+    """``(start, stop)`` of the stretches of rows between segment starts."""
+    cuts = np.concatenate([[0], np.flatnonzero(new_segment[1:]) + 1, [len(new_segment)]])
+    return [(int(a), int(b)) for a, b in zip(cuts[:-1], cuts[1:], strict=True) if b > a]
+
+
+def world_frame_segments(imu: pd.DataFrame, source: str = "imu.csv", config: ImuConfig | None = None,
+                         min_duration_s: float = 1.0) -> list[pd.DataFrame]:
+    """A whole ``imu.csv`` table through :class:`WorldFrameStream`, split into segments.
 
     Parameters
     ----------
@@ -290,120 +433,35 @@ def world_frame_segments(
         ``t,ax,ay,az,gx,gy,gz[,qx,qy,qz,qw]`` (SPEC ``imu.csv``).
     source
         File name used in messages.
-    max_gap_s
-        Longest gap bridged by interpolation (default ``settings.imu_max_interp_gap_s``).
+    config
+        Preprocessing parameters.
     min_duration_s
         Segments shorter than this are dropped (with a warning).
 
     Returns
     -------
     list of pandas.DataFrame
-        Per segment: ``t, wgx, wgy, wgz, wax, way, waz, saturated`` at the input sample times.
+        Per segment: ``t, wgx, wgy, wgz, wax, way, waz`` at the input sample times.
 
     Raises
     ------
     CurbsideInputError
-        Missing gyroscope or accelerometer, all-zero gyroscope, non-numeric values, timestamps not
-        increasing, rate below ``settings.imu_min_rate_hz``, unusable quaternion, no segment long enough.
+        Bad input (see :meth:`WorldFrameStream.push`), or no segment lasts ``min_duration_s``.
     """
-    max_gap_s = settings.imu_max_interp_gap_s if max_gap_s is None else max_gap_s
-    has_quat = _check_columns(imu, source)
-    columns = ["t", *ACC_COLUMNS, *GYRO_COLUMNS] + (list(QUAT_COLUMNS) if has_quat else [])
-    values = _drop_nan_rows(imu, columns, source)
-    t = values["t"].to_numpy(copy=True)
-    acc = values[list(ACC_COLUMNS)].to_numpy(copy=True)
-    gyro = values[list(GYRO_COLUMNS)].to_numpy(copy=True)
-    if not np.any(gyro):
-        raise CurbsideInputError(source, "gyroscope columns are all zero: no gyroscope data")
-    rate = 1.0 / float(np.median(np.diff(t)))
-    if rate < settings.imu_min_rate_hz:
-        raise CurbsideInputError(
-            source, f"IMU rate {rate:.1f} Hz is below the {settings.imu_min_rate_hz:g} Hz minimum for RoNIN"
-        )
-    floors = np.array(
-        [settings.imu_saturation_floor_accel_ms2] * 3 + [settings.imu_saturation_floor_gyro_rads] * 3
-    )
-    saturated = saturation_mask(np.hstack([acc, gyro]), floors)
-    if saturated.any():
-        logger.warning(
-            "%s: %d sample(s) (%.1f %%) at a sensor's saturation value; velocities there are unreliable",
-            source, int(saturated.sum()), 100.0 * saturated.mean(),
-        )
-    if has_quat:
-        quat = values[list(QUAT_COLUMNS)].to_numpy(copy=True)
-        perm, inverse = QUATERNION_READINGS[detect_quaternion_order(acc, quat, source)]
-        rot_all = Rotation.from_quat(quat[:, list(perm)])
-        rot_all = rot_all.inv() if inverse else rot_all
-
-    breaks = np.flatnonzero(np.diff(t) > max_gap_s) + 1
-    if len(breaks):
-        logger.warning("%s: %d gap(s) longer than %.2f s split the recording", source, len(breaks), max_gap_s)
+    stream = WorldFrameStream(config, source)
+    stream.push(imu)
+    stream.finish()
+    samples = stream.take()
     segments = []
-    for lo, hi in zip(np.r_[0, breaks], np.r_[breaks, len(t)], strict=True):
-        if t[hi - 1] - t[lo] < min_duration_s:
-            logger.warning(
-                "%s: dropped a %.2f s segment at t=%.2f (too short)", source, t[hi - 1] - t[lo], t[lo]
-            )
+    for seg in np.unique(samples.segment):
+        inside = samples.segment == seg
+        t = samples.t[inside]
+        if t[-1] - t[0] < min_duration_s:
+            logger.warning("%s: dropped a %.2f s segment at t=%.2f (too short)", source, t[-1] - t[0], t[0])
             continue
-        sl = slice(lo, hi)
-        rot = rot_all[sl] if has_quat else integrate_gyroscope(t[sl], gyro[sl], acc[sl])
-        seg = pd.DataFrame(
-            np.hstack([t[sl, None], rot.apply(gyro[sl]), rot.apply(acc[sl])]),
-            columns=["t", "wgx", "wgy", "wgz", "wax", "way", "waz"],
-        )
-        seg["saturated"] = saturated[sl]
-        segments.append(seg)
+        frame = pd.DataFrame(samples.values[inside], columns=list(WORLD_COLUMNS))
+        frame.insert(0, "t", t)
+        segments.append(frame)
     if not segments:
         raise CurbsideInputError(source, f"no stretch of IMU data without gaps lasts {min_duration_s:g} s")
     return segments
-
-
-def resample_world(segment: pd.DataFrame, rate_hz: float) -> WorldImu:
-    """Linearly interpolate one world-frame segment onto a uniform clock.
-
-    Parameters
-    ----------
-    segment
-        One element of :func:`world_frame_segments`.
-    rate_hz
-        Output rate (200 Hz for RoNIN).
-
-    Returns
-    -------
-    WorldImu
-    """
-    t_in = segment["t"].to_numpy()
-    t = t_in[0] + np.arange(int(np.floor((t_in[-1] - t_in[0]) * rate_hz)) + 1) / rate_hz
-    cols = segment[["wgx", "wgy", "wgz", "wax", "way", "waz"]].to_numpy()
-    out = np.column_stack([np.interp(t, t_in, cols[:, k]) for k in range(6)])
-    # a grid sample is saturated when either input sample it is interpolated from is
-    flags = segment["saturated"].to_numpy()
-    right = np.clip(np.searchsorted(t_in, t, side="right"), 0, len(t_in) - 1)
-    left = np.clip(right - 1, 0, len(t_in) - 1)
-    return WorldImu(
-        t=t, gyro=out[:, :3], acc=out[:, 3:], saturated=flags[left] | flags[right], rate_hz=rate_hz,
-    )
-
-
-def preprocess(imu: pd.DataFrame, rate_hz: float = 200.0, source: str = "imu.csv",
-               min_duration_s: float = 1.0) -> list[WorldImu]:
-    """``imu.csv`` table to world-frame, uniformly sampled segments (see the module docstring).
-
-    Parameters
-    ----------
-    imu
-        ``t,ax,ay,az,gx,gy,gz[,qx,qy,qz,qw]``.
-    rate_hz
-        Output rate.
-    source
-        File name used in messages.
-    min_duration_s
-        Shortest segment kept.
-
-    Returns
-    -------
-    list of WorldImu
-        One per stretch without a gap longer than ``settings.imu_max_interp_gap_s``.
-    """
-    segments = world_frame_segments(imu, source, min_duration_s=min_duration_s)
-    return [resample_world(seg, rate_hz) for seg in segments]

@@ -1,7 +1,8 @@
 """Figures for inertial odometry on held-out recordings: RoNIN against the PDR baseline.
 
-Each method is turned into a trajectory sampled at the RoNIN window centres (every 50 ms) over the
-ground-truth span, started at the ground-truth position of the first centre:
+Each method is turned into a trajectory sampled at the RoNIN window centres (every ``stride`` grid
+samples: 100 ms by default) over the ground-truth span, started at the ground-truth position of the
+first centre:
 
 - RoNIN: its window velocities integrated with the trapezoidal rule;
 - PDR (:func:`curbside.localize.pdr.pdr_velocity`): step displacements accumulated at the step
@@ -31,12 +32,15 @@ Metrics per recording
 from __future__ import annotations
 
 import logging
+from dataclasses import asdict
 
 import numpy as np
 
+from curbside.localize.imu import WorldSamples
 from curbside.localize.ronin.data import Recording
-from curbside.localize.ronin.infer import make_windows, predict_windows, window_starts
+from curbside.localize.ronin.infer import check_compatible, infer_windows
 from curbside.localize.ronin.model import RoninResNet
+from curbside.localize.ronin.stream import RoninStreamConfig, WindowCutter
 
 logger = logging.getLogger(__name__)
 
@@ -54,6 +58,13 @@ def best_rotation(estimate: np.ndarray, truth: np.ndarray) -> float:
 def _rotate(xy: np.ndarray, angle: float) -> np.ndarray:
     c, s = np.cos(angle), np.sin(angle)
     return xy @ np.array([[c, s], [-s, c]])
+
+
+def _one_second_velocity(t: np.ndarray, xy: np.ndarray) -> np.ndarray:
+    """Mean velocity over the second centred on each time of ``t`` (those a second from either end)."""
+    centre = t[(t - 0.5 >= t[0]) & (t + 0.5 <= t[-1])]
+    return np.column_stack([np.interp(centre + 0.5, t, xy[:, k]) - np.interp(centre - 0.5, t, xy[:, k])
+                            for k in (0, 1)])
 
 
 def trajectory_metrics(t: np.ndarray, estimate: np.ndarray, truth: np.ndarray,
@@ -77,9 +88,7 @@ def trajectory_metrics(t: np.ndarray, estimate: np.ndarray, truth: np.ndarray,
     angle = best_rotation(rel_est, rel_true)
     aligned = _rotate(rel_est, angle)
     dt = float(np.median(np.diff(t)))
-    half = max(1, int(round(0.5 / dt)))
-    v_est = (aligned[2 * half :] - aligned[: -2 * half]) / (2 * half * dt)
-    v_true = (rel_true[2 * half :] - rel_true[: -2 * half]) / (2 * half * dt)
+    v_est, v_true = (_one_second_velocity(t, xy) for xy in (aligned, rel_true))
     true_len = float(np.sum(np.linalg.norm(np.diff(truth, axis=0), axis=1)))
     est_len = float(np.sum(np.linalg.norm(np.diff(estimate, axis=0), axis=1)))
     duration = t[-1] - t[0]
@@ -109,17 +118,28 @@ def trajectory_metrics(t: np.ndarray, estimate: np.ndarray, truth: np.ndarray,
     return out
 
 
-def ronin_trajectory(model: RoninResNet, recording: Recording) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Window-centre times, RoNIN trajectory and ground-truth positions over the ground-truth span."""
-    cfg = model.config
-    t, feats, xy = recording.on_grid(cfg.rate_hz)
-    starts = window_starts(len(t), cfg.window, cfg.stride)
-    if len(starts) < 2:
+def ronin_trajectory(model: RoninResNet, recording: Recording, config: RoninStreamConfig | None = None,
+                     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Window-centre times, RoNIN trajectory and ground-truth positions over the ground-truth span.
+
+    The recording's world-frame samples go through the streaming path's
+    :class:`~curbside.localize.ronin.stream.WindowCutter` (grid anchored at the recording's first
+    sample, a window every ``config.stride`` samples) and :func:`infer_windows`; windows lying
+    wholly inside the ground-truth span are kept.
+    """
+    config = config or RoninStreamConfig()
+    check_compatible(model, config)
+    cutter = WindowCutter(config, recording.name)
+    cutter.add(WorldSamples(recording.t, recording.features.astype(float), np.zeros(len(recording.t), int)))
+    cutter.finish()
+    t_c, windows = cutter.take()
+    gt_t = recording.positions[:, 0]
+    inside = (t_c - config.half_window_s >= gt_t[0]) & (t_c + config.half_window_s <= gt_t[-1])
+    t_c, windows = t_c[inside], windows[inside]
+    if len(t_c) < 2:
         return np.zeros(0), np.zeros((0, 2)), np.zeros((0, 2))
-    vel = predict_windows(model, make_windows(feats, starts, cfg.window)).astype(float)
-    centre = starts + (cfg.window - 1) / 2.0
-    t_c = t[0] + centre / cfg.rate_hz
-    truth = np.column_stack([np.interp(t_c, t, xy[:, 0]), np.interp(t_c, t, xy[:, 1])])
+    vel = infer_windows(model, windows, config.batch_size)
+    truth = np.column_stack([np.interp(t_c, gt_t, recording.positions[:, k]) for k in (1, 2)])
     steps = 0.5 * (vel[1:] + vel[:-1]) * np.diff(t_c)[:, None]
     estimate = truth[0] + np.vstack([np.zeros((1, 2)), np.cumsum(steps, axis=0)])
     return t_c, estimate, truth
@@ -141,7 +161,8 @@ def pdr_trajectory(recording: Recording, t_c: np.ndarray, start: np.ndarray) -> 
     return est - est[0] + start
 
 
-def evaluate_recordings(recordings: list[Recording], model: RoninResNet, with_pdr: bool = True) -> dict:
+def evaluate_recordings(recordings: list[Recording], model: RoninResNet, with_pdr: bool = True,
+                        config: RoninStreamConfig | None = None) -> dict:
     """Per-recording and summary figures for RoNIN (and PDR) on ``recordings``.
 
     Parameters
@@ -152,6 +173,8 @@ def evaluate_recordings(recordings: list[Recording], model: RoninResNet, with_pd
         The RoNIN model.
     with_pdr
         Also evaluate the PDR baseline.
+    config
+        Stream parameters (stride, batch size); default :class:`RoninStreamConfig`.
 
     Returns
     -------
@@ -160,7 +183,7 @@ def evaluate_recordings(recordings: list[Recording], model: RoninResNet, with_pd
     """
     per: dict[str, dict] = {}
     for rec in recordings:
-        t_c, est, truth = ronin_trajectory(model, rec)
+        t_c, est, truth = ronin_trajectory(model, rec, config)
         if len(t_c) < 2:
             logger.info("%s: shorter than a window over its ground-truth span, skipped", rec.name)
             continue
@@ -171,7 +194,7 @@ def evaluate_recordings(recordings: list[Recording], model: RoninResNet, with_pd
             if pdr is not None:
                 per[rec.name]["pdr"] = trajectory_metrics(t_c, pdr, truth, wp)
     return {"model": {"arch": model.config.arch, "extra_best_epoch": model.config.extra.get("best_epoch")},
-            "recordings": per, "summary": summarise(per)}
+            "stream": asdict(config or RoninStreamConfig()), "recordings": per, "summary": summarise(per)}
 
 
 def summarise(per: dict[str, dict]) -> dict:

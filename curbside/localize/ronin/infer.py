@@ -1,5 +1,9 @@
 """Inference: world-frame velocity from a phone's IMU with a trained RoNIN model.
 
+:func:`infer_windows` runs windows of any number of sessions (from
+:class:`~curbside.localize.ronin.stream.RoninStream`) through the model in fixed-shape batches;
+:func:`ronin_velocity` is the batch entry point, one whole table through the same stream.
+
 The shipped model lives in ``weights/ronin_compact.pt`` (a plain ``state_dict``, loaded with
 ``torch.load(..., weights_only=True)``) with its :class:`~curbside.localize.ronin.model.RoninConfig`
 in ``ronin_compact.json`` beside it.
@@ -17,8 +21,8 @@ import torch
 
 from curbside import settings
 from curbside.errors import CurbsideInputError
-from curbside.localize.imu import WorldImu, preprocess
 from curbside.localize.ronin.model import RoninConfig, RoninResNet
+from curbside.localize.ronin.stream import RoninStream, RoninStreamConfig
 
 logger = logging.getLogger(__name__)
 
@@ -65,49 +69,57 @@ def load_model(weights: str | Path | None = None) -> RoninResNet:
     return model.eval()
 
 
-def window_starts(n_samples: int, window: int, stride: int) -> np.ndarray:
-    """First-sample indices of every full window of ``window`` samples every ``stride`` samples."""
-    if n_samples < window:
-        return np.zeros(0, dtype=np.int64)
-    return np.arange(0, n_samples - window + 1, stride, dtype=np.int64)
+def infer_windows(model: RoninResNet, windows: np.ndarray, batch_size: int | None = None) -> np.ndarray:
+    """Velocities of windows from any number of sessions, each independent of the others.
 
+    The windows go through the model in batches of one fixed shape, the last one zero-padded. On
+    CPU, torch picks its convolution kernels by batch size (batches of 1 to 3 windows give results
+    that differ from larger ones at the 1e-7 level), but for a fixed shape a window's velocity is
+    bit-identical whatever else is in the batch and wherever it sits (tested in
+    ``tests/test_ronin_stream.py``). So a live service may batch windows of many sessions together
+    and still reproduce the batch command exactly.
 
-def make_windows(features: np.ndarray, starts: np.ndarray, window: int) -> np.ndarray:
-    """``(len(starts), C, window)`` views of ``(N, C)`` features (no copy until batched)."""
-    view = np.lib.stride_tricks.sliding_window_view(features, window, axis=0)  # (N-window+1, C, window)
-    return view[starts]
+    Parameters
+    ----------
+    model
+        A loaded model (:func:`load_model`), in evaluation mode.
+    windows
+        ``(K, 6, window)`` float32, e.g. from :meth:`RoninStream.take_windows`.
+    batch_size
+        The fixed batch shape (default :attr:`RoninStreamConfig.batch_size`).
 
-
-def predict_windows(model: RoninResNet, windows: np.ndarray, batch_size: int = 4096) -> np.ndarray:
-    """Velocities ``(B, 2)`` for windows ``(B, 6, window)``, batched under ``torch.inference_mode``."""
+    Returns
+    -------
+    numpy.ndarray
+        ``(K, 2)`` float64 velocity (m/s, world-frame east and north).
+    """
+    batch_size = batch_size or RoninStreamConfig().batch_size
+    cfg = model.config
+    if windows.ndim != 3 or windows.shape[1:] != (cfg.in_channels, cfg.window):
+        raise ValueError(f"windows must be (K, {cfg.in_channels}, {cfg.window}), not {windows.shape}")
     device = next(model.parameters()).device
-    out = np.empty((len(windows), model.config.out_dim), dtype=np.float32)
+    out = np.empty((len(windows), cfg.out_dim), dtype=np.float32)
+    batch = np.zeros((batch_size, cfg.in_channels, cfg.window), dtype=np.float32)
     with torch.inference_mode():
         for lo in range(0, len(windows), batch_size):
-            batch = torch.from_numpy(np.ascontiguousarray(windows[lo : lo + batch_size], dtype=np.float32))
-            out[lo : lo + batch_size] = model(batch.to(device)).cpu().numpy()
-    return out
-
-
-def segment_velocity(model: RoninResNet, segment: WorldImu) -> pd.DataFrame:
-    """``t,ve,vn`` for one uniform world-frame segment; ``t`` is each window's centre."""
-    cfg = model.config
-    starts = window_starts(len(segment.t), cfg.window, cfg.stride)
-    if len(starts) == 0:
-        return pd.DataFrame({"t": [], "ve": [], "vn": []})
-    vel = predict_windows(model, make_windows(segment.features, starts, cfg.window))
-    t_mid = 0.5 * (segment.t[starts] + segment.t[starts + cfg.window - 1])
-    return pd.DataFrame({"t": t_mid, "ve": vel[:, 0].astype(float), "vn": vel[:, 1].astype(float)})
+            n = min(batch_size, len(windows) - lo)
+            batch[:n] = windows[lo : lo + n]
+            batch[n:] = 0.0
+            out[lo : lo + n] = model(torch.from_numpy(batch).to(device)).cpu().numpy()[:n]
+    return out.astype(np.float64)
 
 
 def ronin_velocity(imu_df: pd.DataFrame, model: RoninResNet | str | Path | None = None,
-                   source: str = "imu.csv") -> pd.DataFrame:
+                   config: RoninStreamConfig | None = None, source: str = "imu.csv") -> pd.DataFrame:
     """World-frame horizontal walking velocity from an ``imu.csv`` table.
 
-    The IMU is rotated into the gravity-aligned world frame of its quaternion (or of the integrated
+    The batch entry point of the streaming path: the whole table is pushed through one
+    :class:`~curbside.localize.ronin.stream.RoninStream` and its windows through
+    :func:`infer_windows`, so a session streamed in any chunks gives exactly these rows. The IMU is
+    rotated into the gravity-aligned world frame of its quaternion (or of the integrated
     gyroscope), resampled to the model's rate (200 Hz) and cut into windows of one second every
-    ``stride`` samples (50 ms); each window gives the mean velocity over that second, stamped at the
-    window's centre. Gaps longer than ``settings.imu_max_interp_gap_s`` produce no rows.
+    ``config.stride`` samples; each window gives the mean velocity over that second, stamped at the
+    window's centre. Gaps longer than ``config.imu.max_gap_s`` produce no rows.
 
     Parameters
     ----------
@@ -115,6 +127,9 @@ def ronin_velocity(imu_df: pd.DataFrame, model: RoninResNet | str | Path | None 
         ``t,ax,ay,az,gx,gy,gz[,qx,qy,qz,qw]`` (SPEC ``imu.csv``).
     model
         A loaded model, a weights path, or ``None`` for the bundled compact model.
+    config
+        Stream parameters (default :class:`RoninStreamConfig`, whose window and rate must be the
+        model's).
     source
         File name used in messages.
 
@@ -127,17 +142,28 @@ def ronin_velocity(imu_df: pd.DataFrame, model: RoninResNet | str | Path | None 
     Raises
     ------
     CurbsideInputError
-        Bad IMU input (see :mod:`curbside.localize.imu`) or no stretch as long as one window.
+        Bad IMU input (see :mod:`curbside.localize.imu`), a model trained for another window or
+        rate, or no stretch as long as one window.
     """
     if not isinstance(model, RoninResNet):
         model = load_model(model)
-    cfg = model.config
-    segments = preprocess(imu_df, rate_hz=cfg.rate_hz, source=source, min_duration_s=cfg.window / cfg.rate_hz)
-    parts = [segment_velocity(model, seg) for seg in segments]
-    out = pd.concat([p for p in parts if len(p)], ignore_index=True) if any(len(p) for p in parts) else None
-    if out is None:
-        raise CurbsideInputError(source, f"IMU shorter than one {cfg.window / cfg.rate_hz:g} s window")
-    saturated = sum(int(seg.saturated.sum()) for seg in segments)
-    if saturated:
-        logger.warning("%s: velocities near %d saturated sample(s) are unreliable", source, saturated)
-    return out
+    config = config or RoninStreamConfig()
+    check_compatible(model, config)
+    stream = RoninStream(config, source)
+    stream.push(imu_df)
+    stream.finish()
+    t_mid, windows = stream.take_windows()
+    if not len(t_mid):
+        raise CurbsideInputError(source, f"no stretch of IMU data without gaps lasts one "
+                                         f"{config.window / config.rate_hz:g} s window")
+    velocity = infer_windows(model, windows, config.batch_size)
+    return pd.DataFrame({"t": t_mid, "ve": velocity[:, 0], "vn": velocity[:, 1]})
+
+
+def check_compatible(model: RoninResNet, config: RoninStreamConfig) -> None:
+    """Raise :class:`CurbsideInputError` unless the stream feeds the model its window and rate."""
+    if (model.config.window, model.config.rate_hz) != (config.window, config.rate_hz):
+        raise CurbsideInputError(
+            "RoNIN model", f"trained on {model.config.window}-sample windows at {model.config.rate_hz:g} Hz, "
+                           f"the stream cuts {config.window} at {config.rate_hz:g} Hz"
+        )
