@@ -26,30 +26,6 @@ max_bbox_area_km2: float = 25.0
 #: Attribution that must accompany any map or data derived from OpenStreetMap.
 osm_attribution: str = "© OpenStreetMap contributors (ODbL 1.0)"
 
-# --- Footstep detection and pedestrian dead reckoning (curbside.localize.steps, .pdr) ---------------
-
-#: Low-pass cut-off (Hz) applied to the accelerometer magnitude before peak picking; walking is 1.5-2.5 Hz.
-step_lowpass_hz: float = 3.0
-
-#: Shortest time (s) between two footsteps (a fast walk is ~0.4 s per step).
-step_min_interval_s: float = 0.3
-
-#: A peak counts as a footstep when it rises this many times the local standard deviation above the mean.
-step_threshold_sigma: float = 0.5
-
-#: Below this local standard deviation (m/s^2) of the filtered magnitude the walker stands still.
-step_still_std_ms2: float = 0.4
-
-#: Window (s) of the local mean and standard deviation used by the adaptive threshold.
-step_window_s: float = 2.0
-
-#: Weinberg step-length constant K (m per (m/s^2)^(1/4)): step = K * (a_max - a_min)^(1/4), where a is
-#: the low-passed accelerometer magnitude over the step. Calibrated on 38 IPIN 2023 trials (docs/sessions.md).
-pdr_weinberg_k: float = 0.447
-
-#: Longest step interval (s) used for the heading average; a longer gap between steps is a stop.
-pdr_max_step_interval_s: float = 1.5
-
 # --- RoNIN inertial odometry (curbside.localize.ronin). Its algorithm parameters are in
 # curbside.localize.ronin.stream.RoninStreamConfig and curbside.localize.imu.ImuConfig. -----------------
 

@@ -9,11 +9,18 @@ import pandas as pd
 import pytest
 from scipy.spatial.transform import Rotation
 
-from curbside import settings
 from curbside.errors import CurbsideInputError
-from curbside.localize.pdr import heading_deg, integrate_velocity, pdr_velocity, waypoint_errors
+from curbside.localize.pdr import (
+    PdrConfig,
+    heading_deg,
+    integrate_velocity,
+    pdr_velocity,
+    step_lengths,
+    step_velocity,
+    waypoint_errors,
+)
 from curbside.localize.readers.ipin import read_trial
-from curbside.localize.steps import detect_steps
+from curbside.localize.steps import detect_steps, lowpass_taps
 from curbside.projection import LocalFrame
 
 H5 = Path(__file__).parent / "data" / "sessions" / "ipin2023-cut.h5"
@@ -53,16 +60,18 @@ def test_velocity_follows_weinberg_and_heading():
     assert len(velocity) == len(steps)
     assert velocity[["ve", "vn"]].iloc[0].tolist() == [0.0, 0.0]
     inner = velocity.iloc[3:-3]
-    # 4th-order Butterworth at 3 Hz, applied forwards and backwards, passes 2 Hz with gain 1/(1+(2/3)^8).
-    swing = 2 * amplitude / (1 + (cadence / settings.step_lowpass_hz) ** 8)
-    expected_speed = settings.pdr_weinberg_k * swing**0.25 * cadence
+    config = PdrConfig()
+    # The FIR low-pass passes the 2 Hz gait with the gain of its frequency response there.
+    taps = lowpass_taps(config.steps)
+    gain = abs(np.sum(taps * np.exp(-2j * np.pi * cadence / config.steps.rate_hz * np.arange(len(taps)))))
+    expected_speed = config.weinberg_k * (2 * amplitude * gain) ** 0.25 * cadence
     np.testing.assert_allclose(np.hypot(inner["ve"], inner["vn"]), expected_speed, rtol=0.02)
     np.testing.assert_allclose(np.degrees(np.arctan2(inner["ve"], inner["vn"])) % 360, 120.0, atol=1e-6)
 
 
 def test_integrated_velocity_is_the_sum_of_step_lengths():
     imu = _walk(heading=0.0, amplitude=1.5)
-    velocity = pdr_velocity(imu, weinberg_k=0.5)
+    velocity = pdr_velocity(imu, config=PdrConfig(weinberg_k=0.5))
     t = velocity["t"].to_numpy()
     lengths = np.hypot(velocity["ve"], velocity["vn"]).to_numpy()[1:] * np.diff(t)
     displacement = integrate_velocity(velocity, t[0], np.array([t[-1], t[0] + 0.5 * (t[1] - t[0])]))
@@ -75,6 +84,35 @@ def test_no_steps_no_velocity_and_quaternion_required():
     assert pdr_velocity(imu).empty
     with pytest.raises(CurbsideInputError, match="quaternion"):
         pdr_velocity(imu.drop(columns=["qx", "qy", "qz", "qw"]))
+
+
+def test_step_by_step_with_a_rolling_buffer_gives_the_batch_rows_exactly():
+    """The engine's way: each new footstep with only the rows around it, as in a live service."""
+    imu = read_trial(H5, "TrainingTrial01_repetition01").imu
+    steps = detect_steps(imu)
+    batch = pdr_velocity(imu, steps)
+    margin = PdrConfig().margin_s + 0.05
+    rows, previous = [], None
+    for step in steps:
+        start = step - PdrConfig().max_step_interval_s if previous is None else previous
+        buffer = imu[(imu["t"] >= start - margin) & (imu["t"] <= step + margin)]
+        rows.append(step_velocity(buffer, np.array([step]), previous))
+        previous = step
+    pd.testing.assert_frame_equal(pd.concat(rows, ignore_index=True), batch, check_exact=True)
+
+
+def test_a_step_after_a_stop_uses_the_last_interval_only():
+    imu = _walk(heading=0.0, amplitude=2.0)
+    config = PdrConfig()
+    steps = detect_steps(imu)
+    late = np.append(steps[steps < 8.0], 18.0)  # ten seconds and more without a footstep
+    lengths = step_lengths(imu, late)
+    start = 18.0 - config.max_step_interval_s - config.margin_s - 0.05
+    recent = imu[(imu["t"] >= start) & (imu["t"] <= 18.0 + config.margin_s + 0.05)]
+    assert lengths[-1] == step_lengths(recent, late[-2:])[0]
+    velocity = pdr_velocity(imu, late)
+    gap = late[-1] - late[-2]
+    assert np.hypot(velocity["ve"].iat[-1], velocity["vn"].iat[-1]) * gap == pytest.approx(lengths[-1])
 
 
 def test_real_walk_matches_surveyed_waypoints():

@@ -1,11 +1,12 @@
-"""Pedestrian dead reckoning (PDR): the classical inertial-velocity baseline.
+"""Pedestrian dead reckoning (PDR): the classical inertial-velocity baseline, one footstep at a time.
 
 Velocity comes from three classical pieces:
 
-- **footsteps** (:func:`curbside.localize.steps.detect_steps`, or given);
+- **footsteps** (:func:`curbside.localize.steps.detect_steps`, :class:`~curbside.localize.steps.StepDetector`
+  in a live service, or given);
 - **step length** by Weinberg's model, ``L = K * (a_max - a_min) ** 0.25``, with ``a`` the low-passed
-  accelerometer magnitude over the step and ``K = settings.pdr_weinberg_k`` (calibrated on the IPIN
-  2023 trials, see ``docs/sessions.md``);
+  accelerometer magnitude over the step and ``K = PdrConfig.weinberg_k`` (calibrated on the IPIN 2023
+  trials, see ``docs/steps.md``);
 - **heading** from the orientation quaternion (device-to-ENU, ``qx,qy,qz,qw``, scipy's order). The
   walking direction of a phone held in front of the walker is its "forward" axis: the top edge
   (device +y) when the phone is flat, the back of the phone (device -z) when it is upright. Their
@@ -17,28 +18,61 @@ The result has one row per footstep: the row at step time ``t_k`` holds the mean
 ``(t_{k-1}, t_k]``, i.e. ``L_k / (t_k - t_{k-1})`` along the step's heading, so integrating the
 velocity piecewise-constant backwards from each row gives exactly the step's displacement. The first
 step gets a row of zero velocity (nothing is known before it). After a stop (a gap longer than
-``settings.pdr_max_step_interval_s``) the step still moves ``L_k``, and its heading is averaged over
-the last ``pdr_max_step_interval_s`` only.
+``PdrConfig.max_step_interval_s``) the step still moves ``L_k``, and its length and heading come from
+the last ``max_step_interval_s`` only.
+
+**Streaming.** A step's row depends only on the IMU rows within ``PdrConfig.margin_s`` of its own
+interval (the low-pass is a centred FIR on a grid anchored at the interval's start), so a live
+service can call :func:`step_velocity` for each new footstep with a rolling buffer of rows and get
+exactly what :func:`pdr_velocity` gives for the whole recording.
 """
 
 from __future__ import annotations
 
 import argparse
 import sys
+from dataclasses import dataclass
 
 import numpy as np
 import pandas as pd
 from scipy.spatial.transform import Rotation
 from tqdm import tqdm
 
-from curbside import settings
 from curbside.errors import CurbsideInputError
 from curbside.localize.readers import ipin
-from curbside.localize.steps import detect_steps, lowpass, uniform_magnitude
+from curbside.localize.steps import StepConfig, detect_steps, fir_centered, lowpass_taps
 from curbside.projection import LocalFrame
 
 #: Device-frame axis whose horizontal projection is the walking direction (see the module docstring).
 FORWARD_AXIS = np.array([0.0, 1.0, -1.0])
+
+
+@dataclass(frozen=True)
+class PdrConfig:
+    """Parameters of the PDR velocity.
+
+    Attributes
+    ----------
+    weinberg_k
+        Weinberg step-length constant K (m per (m/s^2)^(1/4)): step = K * (a_max - a_min)^(1/4). Chosen
+        so that the PDR path length matches the surveyed one (median ratio 1.00) over the 38
+        single-floor IPIN 2023 trials with the default footstep detector (``docs/steps.md``).
+    max_step_interval_s
+        A longer interval between footsteps is a stop: the step's length and heading come from its last
+        ``max_step_interval_s`` only.
+    steps
+        Grid rate and FIR low-pass of the magnitude (the footstep detector's, so that ``a_max`` and
+        ``a_min`` are the humps the detector saw).
+    """
+
+    weinberg_k: float = 0.447
+    max_step_interval_s: float = 1.5
+    steps: StepConfig = StepConfig()
+
+    @property
+    def margin_s(self) -> float:
+        """IMU rows needed on each side of a step interval (half the FIR plus one grid step)."""
+        return (self.steps.lowpass_taps // 2 + 1) / self.steps.rate_hz
 
 
 def forward_heading_vectors(imu: pd.DataFrame) -> np.ndarray:
@@ -66,7 +100,72 @@ def heading_deg(imu: pd.DataFrame) -> np.ndarray:
     return np.degrees(np.arctan2(v[:, 0], v[:, 1])) % 360.0
 
 
-def step_lengths(imu: pd.DataFrame, steps: np.ndarray, weinberg_k: float | None = None) -> np.ndarray:
+def _magnitude_swing(t: np.ndarray, mag: np.ndarray, start: float, end: float, config: PdrConfig) -> float:
+    """``a_max - a_min`` of the low-passed magnitude on the grid ``start + j / rate``, ``[start, end]``."""
+    rate = config.steps.rate_hz
+    half = config.steps.lowpass_taps // 2
+    n = int((end - start) * rate)
+    while start + n / rate > end:  # guard the truncation against rounding
+        n -= 1
+    grid = start + np.arange(-half, n + half + 1, dtype=float) / rate
+    smooth = fir_centered(np.interp(grid, t, mag), lowpass_taps(config.steps))
+    return float(smooth.max() - smooth.min())
+
+
+def step_velocity(
+    imu: pd.DataFrame, steps: np.ndarray, previous: float | None = None, config: PdrConfig | None = None
+) -> pd.DataFrame:
+    """Velocity rows of footsteps from the IMU rows around each step only (the streaming entry point).
+
+    Parameters
+    ----------
+    imu
+        ``t,ax,ay,az`` and ``qx,qy,qz,qw``. It must hold every row of the recording within
+        ``config.margin_s`` of each step interval ``(t_{k-1}, t_k]`` (a rolling buffer is enough).
+    steps
+        Increasing footstep times (s) that follow ``previous``.
+    previous
+        The footstep before ``steps[0]``; ``None`` when ``steps[0]`` is the recording's first footstep
+        (its row is then zero).
+    config
+        Parameters (:class:`PdrConfig` defaults when ``None``).
+
+    Returns
+    -------
+    pandas.DataFrame
+        ``t,ve,vn`` (s, m/s east, m/s north), one row per footstep: the mean velocity since the footstep
+        before. Calling this step by step gives exactly the rows of one call over all steps.
+
+    Raises
+    ------
+    CurbsideInputError
+        ``imu`` has no quaternion columns.
+    """
+    if not {"qx", "qy", "qz", "qw"} <= set(imu.columns):
+        raise CurbsideInputError("imu.csv", "PDR needs the orientation quaternion columns qx,qy,qz,qw")
+    config = config or PdrConfig()
+    steps = np.asarray(steps, float)
+    t = imu["t"].to_numpy(float)
+    acc = imu[["ax", "ay", "az"]].to_numpy(float)
+    mag = np.sqrt(acc[:, 0] * acc[:, 0] + acc[:, 1] * acc[:, 1] + acc[:, 2] * acc[:, 2])
+    forward = forward_heading_vectors(imu)
+    velocity = np.zeros((len(steps), 2))
+    starts = np.concatenate([[np.nan if previous is None else previous], steps[:-1]])[: len(steps)]
+    for k, (start, end) in enumerate(zip(starts, steps, strict=True)):
+        if not np.isfinite(start) or end <= start or len(t) == 0:
+            continue
+        window_start = max(start, end - config.max_step_interval_s)
+        length = config.weinberg_k * _magnitude_swing(t, mag, window_start, end, config) ** 0.25
+        lo, hi = np.searchsorted(t, [window_start, end], side="right")
+        lo = min(lo, max(hi - 1, 0))
+        direction = forward[lo:hi].sum(axis=0)
+        norm = float(np.hypot(*direction))
+        if norm > 1e-9:
+            velocity[k] = direction / norm * length / (end - start)
+    return pd.DataFrame({"t": steps, "ve": velocity[:, 0], "vn": velocity[:, 1]})
+
+
+def step_lengths(imu: pd.DataFrame, steps: np.ndarray, config: PdrConfig | None = None) -> np.ndarray:
     """Weinberg step length (m) of each step interval ``(steps[k-1], steps[k]]``.
 
     Parameters
@@ -75,44 +174,40 @@ def step_lengths(imu: pd.DataFrame, steps: np.ndarray, weinberg_k: float | None 
         ``t,ax,ay,az`` (m/s^2).
     steps
         Increasing footstep times (s), at least two.
-    weinberg_k
-        Override ``settings.pdr_weinberg_k``.
+    config
+        Parameters (:class:`PdrConfig` defaults when ``None``).
 
     Returns
     -------
     numpy.ndarray
         ``len(steps) - 1`` lengths.
     """
-    k = settings.pdr_weinberg_k if weinberg_k is None else weinberg_k
-    t, mag = uniform_magnitude(imu)
-    smooth = lowpass(mag, 1.0 / (t[1] - t[0]), settings.step_lowpass_hz)
-    # Sample index ranges [edges[k-1], edges[k]) are the step intervals; reduceat takes max/min over
-    # consecutive ranges in one pass.
-    edges = np.searchsorted(t, steps, side="right").clip(max=len(t) - 1)
-    a_max = np.maximum.reduceat(smooth, edges)[:-1]
-    a_min = np.minimum.reduceat(smooth, edges)[:-1]
-    return k * np.maximum(a_max - a_min, 0.0) ** 0.25
+    config = config or PdrConfig()
+    t = imu["t"].to_numpy(float)
+    acc = imu[["ax", "ay", "az"]].to_numpy(float)
+    mag = np.sqrt(acc[:, 0] * acc[:, 0] + acc[:, 1] * acc[:, 1] + acc[:, 2] * acc[:, 2])
+    steps = np.asarray(steps, float)
+    limit = config.max_step_interval_s
+    return np.array([
+        config.weinberg_k * _magnitude_swing(t, mag, max(a, b - limit), b, config) ** 0.25
+        for a, b in zip(steps[:-1], steps[1:], strict=True)
+    ])
 
 
 def pdr_velocity(
-    imu: pd.DataFrame,
-    steps: np.ndarray | None = None,
-    *,
-    weinberg_k: float | None = None,
-    max_step_interval_s: float | None = None,
+    imu: pd.DataFrame, steps: np.ndarray | None = None, config: PdrConfig | None = None
 ) -> pd.DataFrame:
-    """World-frame walking velocity from footsteps, Weinberg step lengths and the rotation vector.
+    """World-frame walking velocity of a whole recording (the batch entry point).
 
     Parameters
     ----------
     imu
         ``imu.csv`` table with ``t,ax,ay,az`` and the quaternion ``qx,qy,qz,qw``.
     steps
-        Footstep times (s); detected with :func:`~curbside.localize.steps.detect_steps` when ``None``.
-    weinberg_k
-        Override ``settings.pdr_weinberg_k``.
-    max_step_interval_s
-        Override ``settings.pdr_max_step_interval_s``.
+        Footstep times (s); detected with :func:`~curbside.localize.steps.detect_steps` (the detector of
+        ``config.steps``) when ``None``.
+    config
+        Parameters (:class:`PdrConfig` defaults when ``None``).
 
     Returns
     -------
@@ -127,29 +222,9 @@ def pdr_velocity(
     """
     if not {"qx", "qy", "qz", "qw"} <= set(imu.columns):
         raise CurbsideInputError("imu.csv", "PDR needs the orientation quaternion columns qx,qy,qz,qw")
-    max_gap = settings.pdr_max_step_interval_s if max_step_interval_s is None else max_step_interval_s
-    steps = detect_steps(imu) if steps is None else np.asarray(steps, float)
-    if len(steps) == 0:
-        return pd.DataFrame({"t": [], "ve": [], "vn": []})
-    t_imu = imu["t"].to_numpy(float)
-    lengths = step_lengths(imu, steps, weinberg_k) if len(steps) > 1 else np.empty(0)
-    dt = np.diff(steps)
-
-    # Mean forward vector over the last <= max_gap seconds of each step, from cumulative sums.
-    forward = forward_heading_vectors(imu)
-    csum = np.vstack([np.zeros((1, 2)), np.cumsum(forward, axis=0)])
-    lo = np.searchsorted(t_imu, np.maximum(steps[:-1], steps[1:] - max_gap), side="right")
-    hi = np.searchsorted(t_imu, steps[1:], side="right")
-    hi = np.maximum(hi, lo + 1).clip(max=len(t_imu))
-    lo = np.minimum(lo, hi - 1)
-    mean_forward = csum[hi] - csum[lo]
-    norm = np.linalg.norm(mean_forward, axis=1, keepdims=True)
-    direction = np.divide(mean_forward, norm, out=np.zeros_like(mean_forward), where=norm > 1e-9)
-
-    speed = lengths / dt
-    ve = np.concatenate([[0.0], speed * direction[:, 0]])
-    vn = np.concatenate([[0.0], speed * direction[:, 1]])
-    return pd.DataFrame({"t": steps, "ve": ve, "vn": vn})
+    config = config or PdrConfig()
+    steps = detect_steps(imu, config.steps) if steps is None else np.asarray(steps, float)
+    return step_velocity(imu, steps, None, config)
 
 
 def integrate_velocity(velocity: pd.DataFrame, t_start: float, t: np.ndarray) -> np.ndarray:
@@ -219,7 +294,9 @@ def waypoint_errors(
     return np.linalg.norm(track[1:] - truth[1:], axis=1)
 
 
-def evaluate_ipin(path: str, trials: list[str] | None = None) -> tuple[pd.DataFrame, pd.DataFrame]:
+def evaluate_ipin(
+    path: str, trials: list[str] | None = None, config: PdrConfig | None = None
+) -> tuple[pd.DataFrame, pd.DataFrame]:
     """PDR on IPIN trials, scored against the surveyed waypoints.
 
     Footsteps are counted and dead reckoning is scored between the first and last waypoint, starting
@@ -231,6 +308,8 @@ def evaluate_ipin(path: str, trials: list[str] | None = None) -> tuple[pd.DataFr
         The IPIN ``.h5``.
     trials
         Trial names (default: all).
+    config
+        PDR and footstep parameters (:class:`PdrConfig` defaults when ``None``).
 
     Returns
     -------
@@ -241,14 +320,15 @@ def evaluate_ipin(path: str, trials: list[str] | None = None) -> tuple[pd.DataFr
     waypoints : pandas.DataFrame
         One row per scored waypoint: ``trial, waypoint`` (index, from 1), ``err_m, aligned_err_m``.
     """
+    config = config or PdrConfig()
     rows, scored = [], []
     names = trials or ipin.list_trials(path)
     for name in tqdm(names, desc="PDR", unit="trial", disable=not sys.stderr.isatty()):
         session = ipin.read_trial(path, name)
         wp = session.waypoints
         t0, t1 = float(wp["t"].iat[0]), float(wp["t"].iat[-1])
-        steps = detect_steps(session.imu)
-        velocity = pdr_velocity(session.imu, steps)
+        steps = detect_steps(session.imu, config.steps)
+        velocity = pdr_velocity(session.imu, steps, config)
         walk = (steps > t0) & (steps <= t1)
         frame = LocalFrame.around(float(wp["lon"].iat[0]), float(wp["lat"].iat[0]))
         x, y = frame.to_xy(wp["lon"].to_numpy(), wp["lat"].to_numpy())
@@ -277,8 +357,10 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m curbside.localize.pdr", description=main.__doc__)
     parser.add_argument("h5", help="IPIN 2023 .h5 (../shared/data/ipin2023/ipin2023-t3.h5)")
     parser.add_argument("--csv", help="also write the per-trial table here")
+    parser.add_argument("--weinberg-k", type=float, default=PdrConfig.weinberg_k,
+                        help="Weinberg step-length constant (default %(default)s)")
     args = parser.parse_args(argv)
-    table, scored = evaluate_ipin(args.h5)
+    table, scored = evaluate_ipin(args.h5, config=PdrConfig(weinberg_k=args.weinberg_k))
     if args.csv:
         table.to_csv(args.csv, index=False, float_format="%.3f")
     with pd.option_context("display.width", 200, "display.max_rows", 100, "display.precision", 2):
