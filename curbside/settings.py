@@ -8,8 +8,14 @@ from __future__ import annotations
 import os
 from pathlib import Path
 
+import platformdirs
+
 #: Root of the on-disk caches (Overpass responses, map rasters).
 cache_dir: Path = Path(os.environ.get("CURBSIDE_CACHE_DIR", "cache"))
+
+#: Where ``localize serve`` keeps the tracks of ended sessions (under ``tracks/``): the user's data folder
+#: (``~/.local/share/curbside`` on Linux) unless ``CURBSIDE_DATA_DIR`` says otherwise.
+data_dir: Path = Path(os.environ.get("CURBSIDE_DATA_DIR") or platformdirs.user_data_dir("curbside"))
 
 #: The bundled OpenStreetMap extract (downtown San Francisco, 2026). © OpenStreetMap contributors, ODbL.
 default_osm_file: Path = Path(__file__).parent / "data" / "sf-downtown-2026.osm.bz2"
