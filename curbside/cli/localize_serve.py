@@ -120,18 +120,27 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "--token-file",
         help=f"file holding the bearer token every request must carry (default: ${TOKEN_ENV}, else none)",
     )
-    parser.add_argument("--mode", choices=MODES, default="fused", help="every session's method (default fused)")
     parser.add_argument(
-        "--set", action="append", default=[], metavar="KEY=VALUE",
+        "--mode", choices=MODES, default="fused", help="every session's method (default fused)"
+    )
+    parser.add_argument(
+        "--set",
+        action="append",
+        default=[],
+        metavar="KEY=VALUE",
         help="a run.json config parameter for every session, e.g. filter.n_particles=300 (repeatable)",
     )
     parser.add_argument(
-        "--idle-timeout", type=positive_float, default=300.0,
+        "--idle-timeout",
+        type=positive_float,
+        default=300.0,
         help="seconds without a request after which a session ends and its track is saved (default 300)",
     )
     parser.add_argument("--max-sessions", type=positive_int, default=1000, help="open sessions at most")
     parser.add_argument(
-        "--threads", type=positive_int, default=1,
+        "--threads",
+        type=positive_int,
+        default=1,
         help="torch threads for RoNIN (default 1: the event loop keeps the other core)",
     )
     parser.set_defaults(func=_serve)

@@ -138,7 +138,9 @@ def check_imu(values: np.ndarray, last_t: float, limits: LiveLimits, source: str
     low, high = limits.gravity_range_ms2
     median_g = float(np.median(np.linalg.norm(values[:, 1:4], axis=1)))
     if not low <= median_g <= high:
-        hint = "in g, not m/s²?" if median_g < 2.0 else "gravity removed?" if median_g < low else "units?"
+        hint = (
+            "in g, not m/s²?" if 0.7 < median_g < 1.5 else "gravity removed?" if median_g < low else "units?"
+        )
         raise CurbsideInputError(
             f"{source}.ax,ay,az",
             f"median |a| is {median_g:.2f} m/s²; expected m/s² with gravity (~9.8) ({hint})",
@@ -180,8 +182,10 @@ def check_gnss(values: np.ndarray, last_t: float, limits: LiveLimits, source: st
         row, col = np.argwhere(~finite)[0]
         raise CurbsideInputError(f"{source}[{row}].{GNSS_COLUMNS[col]}", "not a finite number")
     if np.isinf(values[:, 3]).any():
-        raise CurbsideInputError(f"{source}[{int(np.argmax(np.isinf(values[:, 3])))}].accuracy_m",
-                                 "infinite (use null for an unknown accuracy)")
+        raise CurbsideInputError(
+            f"{source}[{int(np.argmax(np.isinf(values[:, 3])))}].accuracy_m",
+            "infinite (use null for an unknown accuracy)",
+        )
     _check_times(values[:, 0], last_t, limits.max_time_jump_s, source)
     bad = (np.abs(values[:, 1]) > 90) | (np.abs(values[:, 2]) > 180)
     if bad.any():
@@ -291,7 +295,10 @@ class LiveSession:
     # -- input --------------------------------------------------------------------------------------
 
     def push(
-        self, imu: np.ndarray | None = None, gnss: np.ndarray | None = None, imu_columns: tuple[str, ...] = IMU_COLUMNS
+        self,
+        imu: np.ndarray | None = None,
+        gnss: np.ndarray | None = None,
+        imu_columns: tuple[str, ...] = IMU_COLUMNS,
     ) -> list[str]:
         """Validate a batch, then feed it in; nothing changes when it is rejected.
 
@@ -324,7 +331,8 @@ class LiveSession:
         if imu is not None:
             if self.imu_columns is not None and tuple(imu_columns) != self.imu_columns:
                 raise CurbsideInputError(
-                    "imu", "the columns changed from one batch to the next (the quaternion in some, not others)"
+                    "imu",
+                    "the columns changed from one batch to the next (the quaternion in some, not others)",
                 )
             check_imu(imu, self.last_imu_t, self.limits)
         warnings: list[str] = []
@@ -370,7 +378,9 @@ class LiveSession:
         else:
             xmin = xmax = float(np.atleast_1d(x)[0])
             ymin = ymax = float(np.atleast_1d(y)[0])
-        dist = np.hypot(np.maximum(0, np.maximum(xmin - x, x - xmax)), np.maximum(0, np.maximum(ymin - y, y - ymax)))
+        dist = np.hypot(
+            np.maximum(0, np.maximum(xmin - x, x - xmax)), np.maximum(0, np.maximum(ymin - y, y - ymax))
+        )
         far = np.atleast_1d(~(dist <= self.limits.max_fix_distance_m))
         if far.any():
             row = int(np.argmax(far))
@@ -483,7 +493,9 @@ class LiveSession:
         segments = tracker is not None and tracker.segments is not None
         track = track_table(self.rows, self.frame, self.map_layers, segments=segments)
         injections = 0 if tracker is None or tracker.divergence is None else tracker.divergence.injections
-        return TrackResult(track, self.config, self.velocity_source, self.step_source, self.recoveries, injections)
+        return TrackResult(
+            track, self.config, self.velocity_source, self.step_source, self.recoveries, injections
+        )
 
 
 class InferenceQueue:
@@ -591,7 +603,9 @@ def stream_session(
         fm = config.filter.map
         raster = load_or_build_raster(map_layers, fm.raster_resolution_m, fm.segment_reach_m)
     start = session.start_pose
-    pose = None if start is None else StartPose(start["lat"], start["lon"], start["heading_deg"], start.get("t"))
+    pose = (
+        None if start is None else StartPose(start["lat"], start["lon"], start["heading_deg"], start.get("t"))
+    )
     live = LiveSession(config, map_layers, raster, start=pose, limits=limits, name=session.name)
     queue = InferenceQueue(model if model is not None else load_model())
     columns = IMU_QUAT_COLUMNS if "qw" in session.imu.columns else IMU_COLUMNS
@@ -613,5 +627,7 @@ def stream_session(
     live.advance()
     result = live.result()
     if result is None:
-        raise CurbsideInputError(session.name, "no estimate: no start pose and no usable GNSS fix to start from")
+        raise CurbsideInputError(
+            session.name, "no estimate: no start pose and no usable GNSS fix to start from"
+        )
     return result

@@ -42,10 +42,7 @@ logger = logging.getLogger(__name__)
 #: Largest request body (and WebSocket message) accepted, bytes: ~30,000 IMU rows of JSON.
 MAX_BODY_BYTES = 4 * 2**20
 
-_ERRORS = {
-    status: {"model": ErrorMessage}
-    for status in (400, 401, 404, 409, 410, 413, 422, 503)
-}
+_ERRORS = {status: {"model": ErrorMessage} for status in (400, 401, 404, 409, 410, 413, 422, 503)}
 
 
 class BodyLimit:
@@ -70,16 +67,16 @@ class BodyLimit:
             message = await receive()
             seen += len(message.get("body", b""))
             if seen > self.max_bytes:
-                raise _BodyTooLarge
+                raise _BodyTooLargeError
             return message
 
         try:
             await self.app(scope, counted, send)
-        except _BodyTooLarge:
+        except _BodyTooLargeError:
             await _too_large(self.max_bytes)(scope, receive, send)
 
 
-class _BodyTooLarge(Exception):
+class _BodyTooLargeError(Exception):
     pass
 
 
@@ -165,7 +162,9 @@ def create_app(config: ServiceConfig, service: TrackingService | None = None) ->
             "sidewalk_segments": len(service.places),
         }
 
-    @app.post("/sessions", status_code=201, response_model=SessionCreated, dependencies=auth, tags=["sessions"])
+    @app.post(
+        "/sessions", status_code=201, response_model=SessionCreated, dependencies=auth, tags=["sessions"]
+    )
     async def create_session(body: NewSession) -> dict[str, Any]:
         """Open a session. Keep the returned ``id`` secret: it is the only key to the session."""
         start = None if body.start is None else body.start.model_dump()

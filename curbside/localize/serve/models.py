@@ -90,7 +90,9 @@ class StartPose(BaseModel):
     lat: float = Field(ge=-90, le=90)
     lon: float = Field(ge=-180, le=180)
     heading_deg: float = Field(description="walking direction, degrees clockwise from north")
-    t: float | None = Field(None, description="when the walk starts (s, session clock); default: the data's start")
+    t: float | None = Field(
+        None, description="when the walk starts (s, session clock); default: the data's start"
+    )
 
 
 class NewSession(BaseModel):
@@ -110,7 +112,9 @@ class SessionCreated(BaseModel):
 
     id: str
     config: dict[str, Any] = Field(description="the session's whole run configuration (run.json's config)")
-    fix_delay_s: float = Field(description="a fix may arrive at most this long after the IMU rows of its time")
+    fix_delay_s: float = Field(
+        description="a fix may arrive at most this long after the IMU rows of its time"
+    )
     idle_timeout_s: float = Field(description="the session ends after this long without a request")
 
 

@@ -22,6 +22,7 @@ request, or when the service stops; its track is then written under ``DATA_DIR/t
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import logging
 import math
 import secrets
@@ -117,6 +118,28 @@ class _Op:
     error: Exception | None = None
 
 
+#: Every field of an estimate (``models.Estimate``); those without a value are null.
+_ESTIMATE_FIELDS = (
+    "status",
+    "t",
+    "lat",
+    "lon",
+    "segment_id",
+    "segment_prob",
+    "street",
+    "side",
+    "place",
+    "n_eff",
+    "recoveries",
+    "update",
+    "gnss_used",
+    "updates",
+    "data_until",
+    "lag_s",
+    "warnings",
+)
+
+
 def _now_iso() -> str:
     return datetime.now(timezone.utc).isoformat(timespec="seconds")
 
@@ -200,7 +223,11 @@ class TrackingService:
         if len(self.sessions) >= self.config.max_sessions:
             raise ServiceError(503, f"the service holds its maximum of {self.config.max_sessions} sessions")
         config = self._session_config(overrides)
-        pose = None if start is None else StartPose(start["lat"], start["lon"], start["heading_deg"], start.get("t"))
+        pose = (
+            None
+            if start is None
+            else StartPose(start["lat"], start["lon"], start["heading_deg"], start.get("t"))
+        )
         session_id = secrets.token_urlsafe(24)
         loop = asyncio.get_running_loop()
         try:
@@ -225,8 +252,9 @@ class TrackingService:
             raise ServiceError(422, "config: the map raster's resolution and segment reach are the service's")
         if config.filter.n_particles > self.config.max_particles:
             raise ServiceError(
-                422, f"config: filter.n_particles {config.filter.n_particles} exceeds the service's "
-                f"maximum of {self.config.max_particles}"
+                422,
+                f"config: filter.n_particles {config.filter.n_particles} exceeds the service's "
+                f"maximum of {self.config.max_particles}",
             )
         return config
 
@@ -302,10 +330,8 @@ class TrackingService:
                 timeout = None
                 if self.queue.pending and self._pending_since is not None:
                     timeout = max(0.0, self._pending_since + self.config.inference_wait_s - time.monotonic())
-                try:
+                with contextlib.suppress(asyncio.TimeoutError):  # a partial RoNIN batch waited long enough
                     await asyncio.wait_for(self._wake.wait(), timeout)
-                except asyncio.TimeoutError:
-                    pass
             self._wake.clear()
             ops, self._ops = self._ops, []
             t0 = time.perf_counter()
@@ -403,13 +429,16 @@ class TrackingService:
         warnings = list(warnings or [])
         if live.failed:
             warnings.append(f"the session cannot go on: {live.failed}")
-        out: dict[str, Any] = {
-            "status": "failed" if live.failed else "tracking" if rows else "starting",
-            "recoveries": live.recoveries,
-            "updates": len(rows),
-            "data_until": _finite(live.received_until),
-            "warnings": warnings,
-        }
+        out: dict[str, Any] = dict.fromkeys(_ESTIMATE_FIELDS)
+        out.update(
+            {
+                "status": "failed" if live.failed else "tracking" if rows else "starting",
+                "recoveries": live.recoveries,
+                "updates": len(rows),
+                "data_until": _finite(live.received_until),
+                "warnings": warnings,
+            }
+        )
         if not rows:
             return out
         row = rows[-1]
