@@ -94,6 +94,7 @@ def _serve(args: argparse.Namespace) -> int:
         log_level="info" if args.verbose else "warning",
         ws_max_size=MAX_BODY_BYTES,
         timeout_graceful_shutdown=10,
+        access_log=False,  # access lines would carry session ids
     )
     return 0
 
