@@ -248,6 +248,7 @@ class LiveSession:
         self.step_source = "cadence" if e.step_source == "cadence" else "detected"
         self.ronin = RoninStream(source=f"{name} imu") if self.velocity_source else None
         self.steps = StepDetector() if self.step_source == "detected" else None
+        self._extent = None if map_layers is None else tuple(map_layers.gdf.total_bounds)
         self.frame = self._initial_frame()
         self.engine: SessionEngine | None = None
         self.imu_columns: tuple[str, ...] | None = None
@@ -272,7 +273,7 @@ class LiveSession:
             frame = LocalFrame(pyproj.CRS(self.map_layers.crs))
             if self.start is not None and self.config.use_start_pose:
                 x, y = frame.to_xy(self.start.lon, self.start.lat)
-                xmin, ymin, xmax, ymax = self.map_layers.gdf.total_bounds
+                xmin, ymin, xmax, ymax = self._extent
                 if not (xmin <= x <= xmax and ymin <= y <= ymax):
                     raise CurbsideInputError(
                         "start", f"({self.start.lat:.6f}, {self.start.lon:.6f}) lies outside the map's extent"
@@ -371,7 +372,7 @@ class LiveSession:
         frame = self.frame or LocalFrame.around(float(gnss[0, 2]), float(gnss[0, 1]))
         x, y = frame.to_xy(gnss[:, 2], gnss[:, 1])
         if self.map_layers is not None:
-            xmin, ymin, xmax, ymax = self.map_layers.gdf.total_bounds
+            xmin, ymin, xmax, ymax = self._extent
         elif self.start is not None:
             xmin, ymin = frame.to_xy(self.start.lon, self.start.lat)
             xmax, ymax = xmin, ymin
@@ -530,14 +531,12 @@ class InferenceQueue:
             self._queue.append((session, t, windows))
             self.pending += len(t)
 
-    def run(self, whole_batches_only: bool = False) -> set[LiveSession]:
-        """Infer the queued windows (only whole batches, the rest kept, with ``whole_batches_only``);
-        return the sessions that got velocities."""
-        from curbside.localize.ronin.infer import infer_windows
-
+    def take(self, whole_batches_only: bool = False, max_batches: int | None = None) -> list[tuple]:
+        """Dequeue windows for one inference: all of them, or only whole batches (the rest stays), at
+        most ``max_batches`` batches; ``[(session, t, windows), ...]`` in queue order."""
         n = self.pending - self.pending % self.batch_size if whole_batches_only else self.pending
-        if n == 0:
-            return set()
+        if max_batches is not None:
+            n = min(n, max_batches * self.batch_size)
         taken, left = [], n
         while left:
             session, t, windows = self._queue[0]
@@ -548,13 +547,33 @@ class InferenceQueue:
             else:
                 self._queue[0] = (session, t[k:], windows[k:])
             left -= k
-        velocity = infer_windows(self.model, np.concatenate([w for _, _, w in taken]), self.batch_size)
+        self.pending -= n
+        return taken
+
+    def infer(self, taken: list[tuple]) -> np.ndarray:
+        """Velocities ``(K, 2)`` of the windows :meth:`take` returned (touches no session: it may run on
+        another thread than the one that feeds the sessions)."""
+        from curbside.localize.ronin.infer import infer_windows
+
+        return infer_windows(self.model, np.concatenate([w for _, _, w in taken]), self.batch_size)
+
+    @staticmethod
+    def deliver(taken: list[tuple], velocity: np.ndarray) -> set[LiveSession]:
+        """Hand each session its velocities; return the sessions that got some."""
         i = 0
         for session, t, _ in taken:
             session.push_velocity(t, velocity[i : i + len(t)])
             i += len(t)
-        self.pending -= n
         return {session for session, _, _ in taken}
+
+    def run(self, whole_batches_only: bool = False) -> set[LiveSession]:
+        """:meth:`take`, :meth:`infer` and :meth:`deliver` in one go; return the sessions served."""
+        taken = self.take(whole_batches_only)
+        return self.deliver(taken, self.infer(taken)) if taken else set()
+
+    def holds(self, session: LiveSession) -> bool:
+        """Whether windows of ``session`` are queued."""
+        return any(entry[0] is session for entry in self._queue)
 
     def drop(self, session: LiveSession) -> None:
         """Forget the queued windows of ``session``."""

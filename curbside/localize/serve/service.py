@@ -187,7 +187,12 @@ class TrackingService:
         self.ticks = 0
         self.tick_seconds = 0.0
         self._ops: list[_Op] = []
+        self._ending: list[_Op] = []  # waiting for their last RoNIN windows
         self._executor = ThreadPoolExecutor(1, thread_name_prefix="curbside-tracker")
+        self._inference_executor = ThreadPoolExecutor(1, thread_name_prefix="curbside-ronin")
+        self._inference: asyncio.Future | None = None
+        self._in_flight: list[tuple] = []
+        self._inferred: tuple | None = None
         self._wake: asyncio.Event | None = None
         self._tasks: list[asyncio.Task] = []
         self._pending_since: float | None = None
@@ -234,6 +239,7 @@ class TrackingService:
             task.cancel()
         await asyncio.gather(*self._tasks, return_exceptions=True)
         self._executor.shutdown(wait=True)
+        self._inference_executor.shutdown(wait=True)
 
     # -- requests -----------------------------------------------------------------------------------
 
@@ -351,24 +357,29 @@ class TrackingService:
     async def _worker(self) -> None:
         loop = asyncio.get_running_loop()
         while True:
-            if not self._ops:
+            if not self._ops and not self._inferred:
                 timeout = None
-                if self.queue.pending and self._pending_since is not None:
+                if self._inference is None and self.queue.pending and self._pending_since is not None:
                     timeout = max(0.0, self._pending_since + self.config.inference_wait_s - time.monotonic())
                 with contextlib.suppress(asyncio.TimeoutError):  # a partial RoNIN batch waited long enough
                     await asyncio.wait_for(self._wake.wait(), timeout)
             self._wake.clear()
             ops, self._ops = self._ops, []
+            inferred, self._inferred = self._inferred, None
             t0 = time.perf_counter()
             try:
-                await loop.run_in_executor(self._executor, self._tick, ops)
+                answered = await loop.run_in_executor(self._executor, self._tick, ops, inferred)
             except Exception as exc:  # a bug: answer every request rather than hang them
                 logger.exception("tick failed")
-                for op in ops:
+                answered = ops + self._ending
+                self._ending = []
+                for op in answered:
                     op.error = op.error or exc
+            if inferred is not None:
+                self._in_flight = []
             self.ticks += 1
             self.tick_seconds += time.perf_counter() - t0
-            for op in ops:
+            for op in answered:
                 if op.kind == "end":
                     self.sessions.pop(op.entry.id, None)
                 if op.future.done():
@@ -377,12 +388,42 @@ class TrackingService:
                     op.future.set_exception(_as_service_error(op.error))
                 else:
                     op.future.set_result(op.result)
+            self._start_inference(loop)
 
-    def _tick(self, ops: list[_Op]) -> None:
-        """One round of work on the worker thread (see the module docstring)."""
+    def _start_inference(self, loop: asyncio.AbstractEventLoop) -> None:
+        """Send queued RoNIN windows to the inference thread (one batch set at a time): whole batches,
+        or everything once a partial batch has waited ``inference_wait_s`` or a session is ending."""
+        if self._inference is not None or not self.queue.pending:
+            return
         now = time.monotonic()
+        if self._pending_since is None:
+            self._pending_since = now
+        stale = now - self._pending_since >= self.config.inference_wait_s
+        taken = self.queue.take(whole_batches_only=not (stale or self._ending), max_batches=8)
+        if not taken:
+            return
+        self._pending_since = None if not self.queue.pending else now
+        future = loop.run_in_executor(self._inference_executor, self.queue.infer, taken)
+
+        def done(f: asyncio.Future) -> None:
+            self._inference = None
+            self._inferred = (taken, f)
+            self._wake.set()
+
+        self._inference, self._in_flight = future, taken
+        future.add_done_callback(done)
+
+    def _tick(self, ops: list[_Op], inferred: tuple | None) -> list[_Op]:
+        """One round of work on the worker thread (see the module docstring); returns the answered ops."""
         touched: set[LiveSession] = set()
-        ending = []
+        if inferred is not None:
+            taken, future = inferred
+            if future.exception() is None:
+                touched |= self.queue.deliver(taken, future.result())
+            else:  # a bug: those sessions cannot go on
+                logger.error("RoNIN inference failed: %s", future.exception())
+                for live, _, _ in taken:
+                    live.failed = "internal error (RoNIN inference)"
         for op in ops:
             live = op.entry.live
             try:
@@ -390,7 +431,7 @@ class TrackingService:
                     op.result = live.push(op.imu, op.gnss, op.columns)
                 else:
                     live.finish_streams()
-                    ending.append(op)
+                    self._ending.append(op)
             except CurbsideInputError as exc:
                 op.error = exc
             except Exception as exc:  # a bug: this request fails, the others go on
@@ -398,29 +439,30 @@ class TrackingService:
                 op.error = exc
             self.queue.collect(live)
             touched.add(live)
-        stale = self._pending_since is not None and now - self._pending_since >= self.config.inference_wait_s
-        touched |= self.queue.run(whole_batches_only=not (stale or ending))
-        if self.queue.pending == 0:
-            self._pending_since = None
-        elif self._pending_since is None:
-            self._pending_since = now
         for live in touched:
             try:
                 live.advance()
             except Exception as exc:  # a bug: the session stops, the others go on
                 logger.exception("session %s: filter update failed", live.name)
                 live.failed = live.failed or f"internal error ({type(exc).__name__})"
-        for op in ops:
-            if op.error is not None:
-                continue
+        answered = [op for op in ops if op.kind == "push"]
+        for op in answered:
+            if op.error is None:
+                op.result = self._estimate(op.entry, op.result)
+        # windows at the inference thread (or back but not delivered): only one batch set at a time
+        in_flight = set() if inferred is not None else {live for live, _, _ in self._in_flight}
+        for op in list(self._ending):
+            live = op.entry.live
+            if self.queue.holds(live) or live in in_flight:
+                continue  # its last windows are not back yet
+            self._ending.remove(op)
+            answered.append(op)
             try:
-                if op.kind == "end":
-                    op.result = self._save(op.entry, op.reason)
-                else:
-                    op.result = self._estimate(op.entry, op.result)
+                op.result = self._save(op.entry, op.reason)
             except Exception as exc:
-                logger.exception("session %s: %s failed", op.entry.live.name, op.kind)
+                logger.exception("session %s: saving its track failed", live.name)
                 op.error = exc
+        return answered
 
     def _save(self, entry: _Entry, reason: str) -> dict[str, Any]:
         live = entry.live
