@@ -57,6 +57,8 @@ IMU_COLUMNS = ("t", "ax", "ay", "az", "gx", "gy", "gz")
 IMU_QUAT_COLUMNS = (*IMU_COLUMNS, "qx", "qy", "qz", "qw")
 #: Columns of a GNSS batch (SPEC ``gnss.csv``); ``accuracy_m`` NaN or <= 0 marks an invalid fix.
 GNSS_COLUMNS = ("t", "lat", "lon", "accuracy_m")
+#: Column indexes made once: building one per batch costs more than the batch's numbers.
+_INDEXES = {columns: pd.Index(columns) for columns in (IMU_COLUMNS, IMU_QUAT_COLUMNS, GNSS_COLUMNS)}
 
 
 @dataclass(frozen=True)
@@ -395,7 +397,7 @@ class LiveSession:
     def _push_imu(self, imu: np.ndarray, columns: tuple[str, ...]) -> None:
         if self.ronin is not None:
             try:
-                self.ronin.push(pd.DataFrame(imu, columns=list(columns)))
+                self.ronin.push(pd.DataFrame(imu, columns=_INDEXES[columns], copy=False))
             except CurbsideInputError as exc:  # the start-up decision: rate, gyroscope, quaternion
                 self.failed = exc.problem
                 raise
@@ -444,7 +446,7 @@ class LiveSession:
         if self._gnss:
             rows = np.concatenate(self._gnss)
             self._gnss = []
-            engine.push_gnss(pd.DataFrame(rows, columns=list(GNSS_COLUMNS)))
+            engine.push_gnss(pd.DataFrame(rows, columns=_INDEXES[GNSS_COLUMNS], copy=False))
         if self._velocity:
             rows = np.concatenate(self._velocity)
             n = int(np.searchsorted(rows[:, 0], until, side="right"))
