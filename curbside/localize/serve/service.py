@@ -1,22 +1,26 @@
-"""The tracking service's core: live sessions, one worker thread, batched RoNIN, expiry, saved tracks.
+"""The tracking service's core: live sessions, a worker thread, RoNIN on its own thread, expiry, saved tracks.
 
 :class:`TrackingService` knows nothing of HTTP (:mod:`curbside.localize.serve.app` puts it on the web).
-It holds one :class:`~curbside.localize.live.LiveSession` per walker and does all their CPU work on a
-single worker thread, in *ticks*: a tick takes every request queued since the previous one, pushes
-their rows into their sessions, runs the RoNIN windows of all sessions through the model in
-fixed-shape batches, advances the filters, and answers each request with its session's latest
-estimate. The event loop only parses and validates JSON, so it keeps accepting requests while a tick
-runs, and under load the ticks grow and batch more windows per inference.
+It holds one :class:`~curbside.localize.live.LiveSession` per walker. Three threads share the work:
 
-RoNIN runs whole batches (``RoninStreamConfig.batch_size`` windows, 64) as soon as they fill; a partial
-batch (zero-padded to the fixed shape) waits at most ``inference_wait_s`` for more windows, so a
-lone walker costs one padded batch every quarter second instead of one per request. The padding makes
-every window's velocity independent of the others in its batch: a session's track is the one
-``localize run`` computes for its recording.
+- the event loop (uvicorn) parses and validates JSON and queues each batch;
+- the *tracker* thread runs *ticks*: a tick takes every batch queued since the previous tick, pushes
+  their rows into their sessions (footsteps, RoNIN windows), hands over the velocities the RoNIN
+  thread has finished, advances the filters, and answers each request with its session's latest
+  estimate. Under load ticks grow, and their cost per request falls;
+- the *RoNIN* thread runs the queued windows of all sessions through the model in fixed-shape batches
+  (torch releases the GIL, so it runs beside the other two). Whole batches (64 windows) go as soon as
+  they fill; a partial batch (zero-padded to the fixed shape) waits at most ``inference_wait_s`` for
+  more windows, so a lone walker costs one padded batch every quarter second, not one per request.
+  A reply never waits for inference: the velocities reach the filter at the next tick, which adds a
+  few milliseconds to the estimate's lag of seconds.
+
+The padding makes every window's velocity independent of the others in its batch, and every stage is
+chunk-invariant: a session's track is the one ``localize run`` computes for its recording.
 
 A session ends with :meth:`TrackingService.end` (``DELETE``), after ``idle_timeout_s`` without a
-request, or when the service stops; its track is then written under ``DATA_DIR/tracks``
-(:class:`~curbside.localize.serve.store.TrackStore`).
+request, or when the service stops; once its last windows are back, its track is written under
+``DATA_DIR/tracks`` (:class:`~curbside.localize.serve.store.TrackStore`).
 """
 
 from __future__ import annotations
@@ -422,8 +426,8 @@ class TrackingService:
                 touched |= self.queue.deliver(taken, future.result())
             else:  # a bug: those sessions cannot go on
                 logger.error("RoNIN inference failed: %s", future.exception())
-                for live, _, _ in taken:
-                    live.failed = "internal error (RoNIN inference)"
+                for live, t, _ in taken:
+                    live.lose_velocity(t, "internal error (RoNIN inference)")
         for op in ops:
             live = op.entry.live
             try:
@@ -449,12 +453,10 @@ class TrackingService:
         for op in answered:
             if op.error is None:
                 op.result = self._estimate(op.entry, op.result)
-        # windows at the inference thread (or back but not delivered): only one batch set at a time
-        in_flight = set() if inferred is not None else {live for live, _, _ in self._in_flight}
         for op in list(self._ending):
             live = op.entry.live
-            if self.queue.holds(live) or live in in_flight:
-                continue  # its last windows are not back yet
+            if not live.drained:
+                continue  # its last windows are at the inference thread
             self._ending.remove(op)
             answered.append(op)
             try:
