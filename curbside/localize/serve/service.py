@@ -1,19 +1,23 @@
 """The tracking service's core: live sessions, a worker thread, RoNIN on its own thread, expiry, saved tracks.
 
 :class:`TrackingService` knows nothing of HTTP (:mod:`curbside.localize.serve.app` puts it on the web).
-It holds one :class:`~curbside.localize.live.LiveSession` per walker. Three threads share the work:
+It holds one :class:`~curbside.localize.live.LiveSession` per walker. Two threads share the work:
 
-- the event loop (uvicorn) parses and validates JSON and queues each batch;
-- the *tracker* thread runs *ticks*: a tick takes every batch queued since the previous tick, pushes
-  their rows into their sessions (footsteps, RoNIN windows), hands over the velocities the RoNIN
-  thread has finished, advances the filters, and answers each request with its session's latest
-  estimate. Under load ticks grow, and their cost per request falls;
+- the event loop (uvicorn) parses and validates JSON, queues each batch, and runs *ticks*: a tick
+  takes the batches queued since the previous one (at most ``TICK_BUDGET_S`` of work, 20 ms, so that
+  the loop keeps reading requests), pushes their rows into their sessions (footsteps, RoNIN windows),
+  hands over the velocities the RoNIN thread has finished, advances the filters, and answers each
+  request with its session's latest estimate. Under load ticks grow, and their cost per request falls;
 - the *RoNIN* thread runs the queued windows of all sessions through the model in fixed-shape batches
-  (torch releases the GIL, so it runs beside the other two). Whole batches (64 windows) go as soon as
-  they fill; a partial batch (zero-padded to the fixed shape) waits at most ``inference_wait_s`` for
-  more windows, so a lone walker costs one padded batch every quarter second, not one per request.
-  A reply never waits for inference: the velocities reach the filter at the next tick, which adds a
-  few milliseconds to the estimate's lag of seconds.
+  (torch releases the GIL, so it runs beside the loop on the other core). Whole batches (64 windows)
+  go as soon as they fill; a partial batch (zero-padded to the fixed shape) waits at most
+  ``inference_wait_s`` for more windows, so a lone walker costs one padded batch every quarter second,
+  not one per request. A reply never waits for inference: the velocities reach the filter at the next
+  tick, which adds milliseconds to the estimate's lag of seconds.
+
+The ticks run on the loop itself, not on a worker thread: the filter work holds the GIL, and handing
+every tick to a thread and back made replies under load ten times slower (p50 105 ms against 9 ms
+with 100 walkers, ``benchmarks/bench_serve.py``).
 
 The padding makes every window's velocity independent of the others in its batch, and every stage is
 chunk-invariant: a session's track is the one ``localize run`` computes for its recording.
@@ -31,6 +35,7 @@ import logging
 import math
 import secrets
 import time
+from collections import deque
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from datetime import datetime, timezone
@@ -145,6 +150,10 @@ _ESTIMATE_FIELDS = (
 )
 
 
+#: Longest a tick spends on requests before it answers them and lets the event loop read more (s).
+TICK_BUDGET_S = 0.02
+
+
 def _now_iso() -> str:
     return datetime.now(timezone.utc).isoformat(timespec="seconds")
 
@@ -190,12 +199,10 @@ class TrackingService:
         #: Ticks run and their total seconds (for the load test).
         self.ticks = 0
         self.tick_seconds = 0.0
-        self._ops: list[_Op] = []
+        self._ops: deque[_Op] = deque()
         self._ending: list[_Op] = []  # waiting for their last RoNIN windows
-        self._executor = ThreadPoolExecutor(1, thread_name_prefix="curbside-tracker")
         self._inference_executor = ThreadPoolExecutor(1, thread_name_prefix="curbside-ronin")
         self._inference: asyncio.Future | None = None
-        self._in_flight: list[tuple] = []
         self._inferred: tuple | None = None
         self._wake: asyncio.Event | None = None
         self._tasks: list[asyncio.Task] = []
@@ -242,7 +249,6 @@ class TrackingService:
         for task in self._tasks:
             task.cancel()
         await asyncio.gather(*self._tasks, return_exceptions=True)
-        self._executor.shutdown(wait=True)
         self._inference_executor.shutdown(wait=True)
 
     # -- requests -----------------------------------------------------------------------------------
@@ -264,9 +270,8 @@ class TrackingService:
             else StartPose(start["lat"], start["lon"], start["heading_deg"], start.get("t"))
         )
         session_id = secrets.token_urlsafe(24)
-        loop = asyncio.get_running_loop()
         try:
-            live = await loop.run_in_executor(self._executor, self._new_live, config, pose, session_id)
+            live = self._new_live(config, pose, session_id)
         except CurbsideInputError as exc:
             raise ServiceError(422, str(exc)) from None
         entry = _Entry(session_id, live, _now_iso(), time.monotonic())
@@ -368,19 +373,17 @@ class TrackingService:
                 with contextlib.suppress(asyncio.TimeoutError):  # a partial RoNIN batch waited long enough
                     await asyncio.wait_for(self._wake.wait(), timeout)
             self._wake.clear()
-            ops, self._ops = self._ops, []
             inferred, self._inferred = self._inferred, None
+            ops: list[_Op] = []
             t0 = time.perf_counter()
             try:
-                answered = await loop.run_in_executor(self._executor, self._tick, ops, inferred)
+                answered = self._tick(ops, inferred)
             except Exception as exc:  # a bug: answer every request rather than hang them
                 logger.exception("tick failed")
                 answered = ops + self._ending
                 self._ending = []
                 for op in answered:
                     op.error = op.error or exc
-            if inferred is not None:
-                self._in_flight = []
             self.ticks += 1
             self.tick_seconds += time.perf_counter() - t0
             for op in answered:
@@ -393,6 +396,7 @@ class TrackingService:
                 else:
                     op.future.set_result(op.result)
             self._start_inference(loop)
+            await asyncio.sleep(0)  # read the requests that came in meanwhile before the next tick
 
     def _start_inference(self, loop: asyncio.AbstractEventLoop) -> None:
         """Send queued RoNIN windows to the inference thread (one batch set at a time): whole batches,
@@ -414,11 +418,12 @@ class TrackingService:
             self._inferred = (taken, f)
             self._wake.set()
 
-        self._inference, self._in_flight = future, taken
+        self._inference = future
         future.add_done_callback(done)
 
     def _tick(self, ops: list[_Op], inferred: tuple | None) -> list[_Op]:
-        """One round of work on the worker thread (see the module docstring); returns the answered ops."""
+        """One round of work (see the module docstring): the requests queued, up to :data:`TICK_BUDGET_S`
+        of them (appended to ``ops``; the rest wait for the next tick); returns the answered ops."""
         touched: set[LiveSession] = set()
         if inferred is not None:
             taken, future = inferred
@@ -428,7 +433,10 @@ class TrackingService:
                 logger.error("RoNIN inference failed: %s", future.exception())
                 for live, t, _ in taken:
                     live.lose_velocity(t, "internal error (RoNIN inference)")
-        for op in ops:
+        budget_end = time.perf_counter() + TICK_BUDGET_S
+        while self._ops and time.perf_counter() < budget_end:
+            op = self._ops.popleft()
+            ops.append(op)
             live = op.entry.live
             try:
                 if op.kind == "push":
