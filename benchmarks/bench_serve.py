@@ -97,12 +97,12 @@ def compute_baseline(map_file: Path, walk: Path, walkers: int = 8, seconds: floa
     """CPU seconds per walker-second of data, in process (see the module docstring)."""
     import torch
 
+    from curbside.localize.engine import StartPose
     from curbside.localize.live import IMU_QUAT_COLUMNS, InferenceQueue, LiveSession
     from curbside.localize.raster import load_or_build_raster
     from curbside.localize.ronin.infer import load_model
     from curbside.localize.runconfig import RunConfig
     from curbside.localize.session import read_session
-    from curbside.localize.engine import StartPose
     from curbside.osmseg.mapio import read_map
 
     torch.set_num_threads(1)
@@ -150,7 +150,9 @@ async def _walker(index: int, url: str, start: dict, msgs: list[bytes], batch_s:
     import websockets
 
     loop = asyncio.get_running_loop()
-    await asyncio.sleep((index * 0.618) % 1.0 * batch_s)  # staggered starts
+    # Each walker's clock has its own phase (golden-ratio spread over a batch period), kept from the
+    # first batch on whatever its connection took: phones do not send in step.
+    phase = (index * 0.618034) % 1.0 * batch_s
     async with httpx.AsyncClient(base_url=url, timeout=30.0) as http:
         while not stop.is_set():
             reply = await http.post("/sessions", json={"start": start})
@@ -162,7 +164,8 @@ async def _walker(index: int, url: str, start: dict, msgs: list[bytes], batch_s:
             async with websockets.connect(
                 f"{url.replace('http', 'ws')}/sessions/{sid}/stream", max_size=2**24
             ) as ws:
-                t0 = loop.time()
+                now = loop.time()
+                t0 = now - (now % batch_s) + phase  # the walk starts at the walker's next phase
                 for k, msg in enumerate(msgs):
                     due = t0 + (k + 1) * batch_s
                     if due > loop.time():
@@ -278,7 +281,8 @@ def _table(rows: list[dict], baseline: float) -> str:
         lines.append(
             f"{r['walkers']} | {e['p50_ms']:.1f} / {e['p99_ms']:.1f} / {e['max_ms']:.0f} | "
             f"{h['p50_ms']:.1f} / {h['p99_ms']:.1f} | {r['late_p99_s']:.2f} | {r['errors']} | "
-            f"{r['server_cores']:.2f} | {r['server_rss_mb']:.0f} | {per * 1000:.1f} ms ({per / baseline:.1f}x) | "
+            f"{r['server_cores']:.2f} | {r['server_rss_mb']:.0f} | "
+            f"{per * 1000:.1f} ms ({per / baseline:.1f}x) | "
             f"{r['load_avg']:.1f} | {'yes' if r['holds'] else 'no'}"
         )
     return "\n".join(lines)
@@ -290,7 +294,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--walkers", default="10,25,50,100,150,200,300")
     parser.add_argument("--step-s", type=float, default=30.0)
     parser.add_argument("--warmup-s", type=float, default=8.0)
-    parser.add_argument("--batch-s", type=float, default=0.5)
+    parser.add_argument("--batch-s", type=float, default=1.0)
     parser.add_argument("--max-minutes", type=float, default=15.0)
     parser.add_argument("--out", help="also write the results as JSON here")
     parser.add_argument("--client", action="store_true", help=argparse.SUPPRESS)

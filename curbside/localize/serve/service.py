@@ -31,6 +31,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import gc
 import logging
 import math
 import secrets
@@ -238,6 +239,11 @@ class TrackingService:
 
     async def start(self) -> None:
         """Start the worker and the expiry check (call from the event loop)."""
+        # The map, the model and the libraries make ~335,000 objects that live as long as the service:
+        # a full garbage collection scans them all, 200 ms with every request waiting. Frozen, they are
+        # never scanned again.
+        gc.collect()
+        gc.freeze()
         self._wake = asyncio.Event()
         self._tasks = [asyncio.create_task(self._worker()), asyncio.create_task(self._expire())]
 
