@@ -457,7 +457,7 @@ def test_the_python_client_of_the_docs_runs(docs_server):
     server, folder = docs_server
     (folder / "client.py").write_text(_doc_example("client.py"))
     done = subprocess.run(
-        [sys.executable, str(folder / "client.py"), server.url, str(folder / "walk"), "1000"],
+        [sys.executable, str(folder / "client.py"), server.url, str(folder / "walk"), "10"],
         capture_output=True,
         text=True,
         timeout=300,
@@ -483,6 +483,7 @@ def test_the_javascript_client_of_the_docs_runs(docs_server, walk_on_map):
             str(folder / "client.mjs"),
             server.url,
             str(folder / "walk.json"),
+            "10",
         ],
         capture_output=True,
         text=True,
