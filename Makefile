@@ -50,6 +50,7 @@ bench: $(STAMP)
 	$(BIN)/python benchmarks/bench_osmseg.py
 	$(BIN)/python benchmarks/bench_filter.py
 	$(BIN)/python benchmarks/bench_ronin.py
+	$(BIN)/python benchmarks/bench_serve.py
 
 clean:
 	rm -rf out .pytest_cache .ruff_cache

@@ -30,6 +30,10 @@ overpass_connect_timeout_s: float = 5.0
 #: Seconds an Overpass query may run (osmnx's ``requests_timeout``) once the server is reachable.
 overpass_timeout_s: float = 180.0
 
+#: Where ``localize serve`` keeps the tracks of ended sessions (under ``tracks/``): the user's data folder
+#: (``~/.local/share/curbside`` on Linux) unless ``CURBSIDE_DATA_DIR`` says otherwise.
+data_dir: Path = Path(os.environ.get("CURBSIDE_DATA_DIR") or platformdirs.user_data_dir("curbside"))
+
 #: The bundled OpenStreetMap extract (downtown San Francisco, 2026). © OpenStreetMap contributors, ODbL.
 default_osm_file: Path = Path(__file__).parent / "data" / "sf-downtown-2026.osm.bz2"
 

@@ -7,7 +7,14 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 
-from curbside.cli import localize_convert, localize_evaluate, localize_ronin, localize_run, localize_view
+from curbside.cli import (
+    localize_convert,
+    localize_evaluate,
+    localize_ronin,
+    localize_run,
+    localize_serve,
+    localize_view,
+)
 from curbside.cli.common import make_parser, run_cli
 
 
@@ -18,7 +25,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         "Track a pedestrian from phone IMU and GNSS with a map-aware particle filter.",
     )
     sub = parser.add_subparsers(title="commands", metavar="COMMAND")
-    for module in (localize_run, localize_view, localize_convert, localize_ronin, localize_evaluate):
+    for module in (localize_run, localize_view, localize_convert, localize_ronin, localize_evaluate,
+                   localize_serve):
         module.register(sub)
     return run_cli("localize", parser, argv)
 

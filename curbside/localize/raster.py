@@ -33,6 +33,7 @@ from __future__ import annotations
 import hashlib
 import logging
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 import pyproj
@@ -101,6 +102,26 @@ class MapRaster:
     def shape(self) -> tuple[int, int]:
         """``(rows, cols)``."""
         return self.codes.shape
+
+    @cached_property
+    def padded_codes(self) -> np.ndarray:
+        """:attr:`codes` in a ring of :data:`FREE` cells, flattened (read-only).
+
+        Made once per raster and shared by every :class:`RasterLookup`: the filters of many sessions
+        on one map (the live service) hold one copy, not one each.
+        """
+        padded = np.pad(self.codes, 1, constant_values=FREE).ravel()
+        padded.flags.writeable = False
+        return padded
+
+    @cached_property
+    def padded_segments(self) -> np.ndarray | None:
+        """:attr:`segment_index` in a ring of -1, flattened (read-only, shared); ``None`` without it."""
+        if self.segment_index is None:
+            return None
+        padded = np.pad(self.segment_index, 1, constant_values=-1).ravel()
+        padded.flags.writeable = False
+        return padded
 
     @property
     def bounds(self) -> tuple[float, float, float, float]:
@@ -179,12 +200,9 @@ class RasterLookup:
     def __init__(self, raster: MapRaster) -> None:
         rows, cols = raster.codes.shape
         self.raster = raster
-        self.padded = np.pad(raster.codes, 1, constant_values=FREE).ravel()
+        self.padded = raster.padded_codes
         #: Padded nearest-segment grid (-1 in the ring); ``None`` without sidewalk segments.
-        self.padded_segments = (
-            None if raster.segment_index is None
-            else np.pad(raster.segment_index, 1, constant_values=-1).ravel()
-        )
+        self.padded_segments = raster.padded_segments
         self.inv_res = 1.0 / raster.resolution_m
         # Index in the padded grid = (x - (x0 - res)) / res, i.e. x * inv_res - offset.
         self.x_offset = (raster.x0 - raster.resolution_m) * self.inv_res

@@ -1,0 +1,1 @@
+"""``localize serve``: live tracking over HTTP and WebSocket (see ``docs/service.md``)."""
