@@ -137,7 +137,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         default=300.0,
         help="seconds without a request after which a session ends and its track is saved (default 300)",
     )
-    parser.add_argument("--max-sessions", type=positive_int, default=1000, help="open sessions at most")
+    parser.add_argument("--max-sessions", type=positive_int, default=1000,
+                        help="open sessions at most (default 1000)")
     parser.add_argument(
         "--threads",
         type=positive_int,
