@@ -70,7 +70,7 @@ def test_demo_end_to_end_on_the_bundled_default_area(tmp_path, capsys):
     assert "Correct Sidewalk Assignment" in html or "CSA" in html
     # a short summary, not the report; each file listed once; the replay of one walk with its clouds
     assert "# curbside evaluation report" not in out and "Table 2" not in out
-    assert re.search(r"^  GNSS\+RoNIN\+PF +CSA \d\.\d\d +error median", out, re.M)
+    assert re.search(r"^  curbside fused +CSA \d\.\d\d +error median", out, re.M)
     assert len(set(written.values())) == len(written)
     page = written["replay_viewer"].read_text(encoding="utf-8")
     assert page.count('"cloud":{') == 2  # inertial and fused keep their particle clouds
@@ -107,4 +107,4 @@ def test_the_headline_is_a_few_lines_from_the_reports_metrics(tmp_path):
     lines = demo.benchmark_headline(tmp_path).splitlines()
     assert len(lines) == 4
     assert lines[1] == "  GNSS           CSA 0.50   error median 9.0 m, p90 20.0 m"
-    assert lines[2] == "  GNSS+RoNIN+PF  CSA 0.81   error median 3.2 m, p90 7.0 m"
+    assert lines[2] == "  curbside fused CSA 0.81   error median 3.2 m, p90 7.0 m"

@@ -1,0 +1,113 @@
+"""Compare filter variants on the benchmark's *tuning* split (never on the scored test split).
+
+Issue 9 asks that the fused filter's parameters be chosen on seeds and routes the benchmark does not
+score. :func:`curbside.evaluate.subsets.benchmark_sessions` makes a disjoint ``tune`` split of every
+subset (other route seeds, session seeds 101..); this script simulates it once (phone profile) and
+runs each named variant -- a method plus ``--set``-style overrides of the run configuration -- over it
+with several filter seeds, then prints per subset the pooled CSA, Euclidean median and p90 and the
+across-street median, and per variant how many session-seed runs have a median above 1.5x their
+GNSS median.
+
+Usage::
+
+    python benchmarks/tune_fusion.py OUT --variants variants.json [--seeds 0 1] [--workers 2]
+        [--subsets paper6 downtown open] [--map MAP]
+
+``variants.json`` maps names to ``[method, {"filter.motion.heading_noise_deg": 1.5, ...}]``; ``gnss``
+is always added. ``docs/filter.md`` ("Choosing the fused filter's parameters") lists the rounds that
+chose the defaults.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import time
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from curbside.evaluate import metrics
+from curbside.evaluate.runner import RunSpec, run_all
+from curbside.evaluate.subsets import SUBSETS, benchmark_sessions, load_world
+
+
+def sessions(out: Path, subsets: tuple[str, ...], seeds: int) -> dict[str, list[Path]]:
+    """The tune split's session folders per subset (simulated on first use, then reused)."""
+    world = load_world()
+    return {sub: benchmark_sessions(out / "tune" / sub, sub, split="tune", profile="phone", seeds=seeds,
+                                    world=world) for sub in subsets}
+
+
+def run(folders: dict[str, list[Path]], map_path: str, variants: dict, seeds: tuple[int, ...],
+        workers: int) -> tuple[pd.DataFrame, pd.DataFrame]:
+    """Pooled metrics per (variant, subset) and each run's median error (for the GNSS ratios)."""
+    specs, keys = [], []
+    for name, (method, overrides) in variants.items():
+        for seed in seeds if method != "gnss" else seeds[:1]:
+            for sub, paths in folders.items():
+                for path in paths:
+                    specs.append(RunSpec(str(path), method, map_path, "osm", map_path, 0.4, 500, None, seed,
+                                         overrides=tuple(sorted(overrides.items()))))
+                    keys.append((name, seed, sub, path.name))
+    results = run_all(specs, workers=workers)
+    rows = []
+    for name in variants:
+        for sub in folders:
+            errors = [r["errors"] for r, k in zip(results, keys, strict=True) if k[0] == name and k[2] == sub]
+            m = metrics.summarize(pd.concat(errors, ignore_index=True))
+            rows.append({"variant": name, "subset": sub, "csa": m["csa"], "median_m": m["euclid_median_m"],
+                         "p90_m": m["euclid_p90_m"], "across_m": m["across_median_m"]})
+    runs = pd.DataFrame([(*k, r["metrics"]["euclid_median_m"]) for r, k in zip(results, keys, strict=True)],
+                        columns=["variant", "seed", "subset", "session", "median_m"])
+    return pd.DataFrame(rows), runs
+
+
+def gnss_ratios(runs: pd.DataFrame) -> pd.DataFrame:
+    """Per variant: the worst median / GNSS median over its runs and how many exceed 1.5."""
+    gnss = runs[runs["variant"] == "gnss"].set_index(["subset", "session"])["median_m"]
+    out = []
+    for name, part in runs.groupby("variant", sort=False):
+        ratio = part.set_index(["subset", "session"])["median_m"] / gnss.reindex(
+            part.set_index(["subset", "session"]).index).to_numpy()
+        out.append({"variant": name, "worst_ratio": float(np.nanmax(ratio)),
+                    "over_1.5": int((ratio > 1.5).sum()), "runs": len(ratio)})
+    return pd.DataFrame(out)
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("out", help="working folder (tune sessions, map)")
+    parser.add_argument("--variants", required=True, help="JSON file: name -> [method, overrides]")
+    parser.add_argument("--seeds", type=int, nargs="+", default=[0, 1], help="filter seeds (default 0 1)")
+    parser.add_argument("--session-seeds", type=int, default=3, help="sessions per route (default 3)")
+    parser.add_argument("--subsets", nargs="+", choices=SUBSETS, default=list(SUBSETS))
+    parser.add_argument("--map", help="map GeoJSON (default: built from the bundled extract into OUT)")
+    parser.add_argument("--workers", type=int, default=2)
+    args = parser.parse_args(argv)
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    map_path = args.map
+    if map_path is None:
+        from curbside.osmseg.build import build_map
+        from curbside.osmseg.mapio import write_map
+
+        map_path = str(out / "map.geojson")
+        if not Path(map_path).is_file():
+            write_map(build_map(), map_path)
+    variants = {"gnss": ["gnss", {}], **json.loads(Path(args.variants).read_text(encoding="utf-8"))}
+    t0 = time.perf_counter()
+    pooled, runs = run(sessions(out, tuple(args.subsets), args.session_seeds), map_path, variants,
+                       tuple(args.seeds), args.workers)
+    pd.set_option("display.width", 200)
+    wide = pooled.pivot(index="variant", columns="subset").loc[list(variants)]
+    print(wide.round(3).to_string())
+    print(gnss_ratios(runs).round(2).to_string(index=False))
+    print(f"({len(runs)} runs in {time.perf_counter() - t0:.0f} s; tune split, phone profile, filter seeds "
+          f"{args.seeds})")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
