@@ -158,8 +158,9 @@ def test_particles_never_stay_in_buildings(walk_results):
         origin = snaps["origin"]
         x = snaps["x"].astype(float) + origin[0]
         y = snaps["y"].astype(float) + origin[1]
-        in_building = raster.codes_at(x, y) >= BUILDING
-        assert in_building.mean(axis=1).max() == 0.0
+        alive = snaps["weight"] > 0 if "weight" in snaps else np.ones(x.shape, bool)
+        in_building = (raster.codes_at(x, y) >= BUILDING) & alive
+        assert in_building.mean(axis=1).max() == 0.0 and alive.mean(axis=1).min() > 0.3
         assert snaps["x"].shape == (len(walk_results[0][mode].track), 500)
 
 
@@ -170,14 +171,13 @@ def test_drift_state_learns_the_inertial_heading_error(walk_results):
     assert abs(np.median(theta[-50:]) + 6.0) < 5.0
 
 
-def test_speed_scale_is_off_by_default_and_learned_when_on(walk_results, tmp_path):
-    np.testing.assert_allclose(walk_results[0]["fused"].track["speed_scale"], 1.0, rtol=0, atol=1e-12)
+def test_speed_scale_is_off_in_the_papers_filter_and_learned_in_curbsides(walk_results, tmp_path):
+    assert RunConfig.for_mode("paper").filter.motion.scale_init_sigma == 0.0
+    assert RunConfig.for_mode("fused").filter.motion.scale_init_sigma > 0.0
     # The velocity is 5 % fast; along a straight street only GNSS can tell.
     session = read_session(write_walk(tmp_path / "walk", seed=1))
-    config = RunConfig.for_mode("fused").with_overrides(
-        {"filter.motion.scale_init_sigma": 0.08, "filter.motion.scale_noise_per_step": 0.002})
-    scale = track_session(session, block_layers(), config=config, seed=1).track["speed_scale"]
-    assert abs(scale.iat[0] - 1.0) < 0.02
+    scale = track_session(session, block_layers(), "fused", seed=1).track["speed_scale"]
+    assert abs(scale.iat[0] - 1.0) < 0.03
     assert abs(np.median(scale.iloc[-50:]) - 1 / 1.05) < 0.03
 
 
@@ -212,7 +212,9 @@ def test_cli_writes_track_files_and_same_seed_same_track(tmp_path, map_file, cap
     with np.load(tmp_path / "a" / "particles.npz") as npz:
         clouds = unpack_particles(npz)
     assert clouds.x.shape == (len(track), 500)
-    assert np.abs(clouds.y.mean(axis=1) - track["y_m"]).max() < 0.06  # decimetre storage
+    weight = np.ones(clouds.y.shape) if clouds.weight is None else clouds.weight
+    mean_y = (weight * clouds.y).sum(axis=1) / weight.sum(axis=1)
+    assert np.abs(mean_y - track["y_m"]).max() < 0.06  # decimetre positions, weights in 1/255
     info = json.loads((tmp_path / "a" / "run.json").read_text())
     assert info["velocity_source"] == "file" and info["step_source"] == "file" and info["config"]["seed"] == 3
     assert info["config"]["filter"]["n_particles"] == 500

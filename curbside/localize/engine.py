@@ -103,7 +103,7 @@ class SessionEngine:
     cadence
         Footsteps come from a fixed cadence (no step file and no IMU).
     save_particles
-        Keep a copy of the particles' ``x, y, theta, scale`` at each update (:attr:`snapshots`).
+        Keep a copy of the particles' ``x, y, theta, scale`` and weights at each update (:attr:`snapshots`).
     step_means_velocity
         The velocity rows are per-step means (PDR), not samples (see
         :class:`~curbside.localize.streams.DisplacementIntegrator`).
@@ -336,8 +336,8 @@ class SessionEngine:
             )
         )
         if self.snapshots is not None:
-            st = self.tracker.particles.state
-            self.snapshots.append(st[[X, Y, THETA, SCALE]])
+            particles = self.tracker.particles
+            self.snapshots.append(np.vstack([particles.state[[X, Y, THETA, SCALE]], particles.weights]))
 
     def _record(self, row: Row) -> None:
         self.rows.append(row)

@@ -79,7 +79,9 @@ class TrackResult:
         Collapses re-seeded; particles injected by the divergence recovery.
     snapshots
         With ``save_particles``: ``t`` ``(K,)``, ``x``, ``y`` ``(K, N)`` float32 metres relative to
-        ``origin``, ``theta`` and ``scale`` ``(K, N)`` float32, ``origin`` ``(2,)``, ``crs`` (WKT).
+        ``origin``, ``theta`` and ``scale`` ``(K, N)`` float32, ``origin`` ``(2,)``, ``crs`` (WKT), and
+        ``weight`` ``(K, N)`` when the weights are not all uniform (particles killed by the map keep
+        their place, with no weight, until the next resampling).
     """
 
     track: pd.DataFrame
@@ -410,8 +412,8 @@ def sidewalk_segments_at(map_layers: MapLayers, x: np.ndarray, y: np.ndarray) ->
 def _stack_snapshots(engine: SessionEngine, track: pd.DataFrame, frame: LocalFrame) -> dict[str, np.ndarray]:
     """Snapshots as ``(K, N)`` float32 arrays, positions relative to the first estimate."""
     origin = np.array([track["x_m"].iat[0], track["y_m"].iat[0]])
-    snaps = np.stack(engine.snapshots)  # (K, 4, N): x, y, theta, scale
-    return {
+    snaps = np.stack(engine.snapshots)  # (K, 5, N): x, y, theta, scale, weight
+    out = {
         "t": track["t"].to_numpy(),
         "x": (snaps[:, 0] - origin[0]).astype(np.float32),
         "y": (snaps[:, 1] - origin[1]).astype(np.float32),
@@ -420,6 +422,11 @@ def _stack_snapshots(engine: SessionEngine, track: pd.DataFrame, frame: LocalFra
         "origin": origin,
         "crs": np.array(frame.crs.to_wkt()),
     }
+    weight = snaps[:, 4]
+    if not np.allclose(weight, weight[:, :1], rtol=0, atol=1e-12):
+        # Without resampling at every update, particles killed by the map stay, with no weight.
+        out["weight"] = weight
+    return out
 
 
 def run_session(

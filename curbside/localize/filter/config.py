@@ -40,13 +40,13 @@ class MotionConfig:
         three-state filter).
     """
 
-    step_noise_fraction: float = 0.15
+    step_noise_fraction: float = 0.25
     step_noise_floor_m: float = 0.05
-    heading_noise_deg: float = 0.5
+    heading_noise_deg: float = 1.5
     heading_jump_prob: float = 0.0
     heading_jump_sigma_deg: float = 30.0
-    scale_init_sigma: float = 0.0
-    scale_noise_per_step: float = 0.0
+    scale_init_sigma: float = 0.12
+    scale_noise_per_step: float = 0.002
 
     def __post_init__(self) -> None:
         _check(
@@ -200,9 +200,10 @@ class GnssConfig:
 
 @dataclass(frozen=True)
 class ResampleConfig:
-    """When to resample: ``"always"`` (every update, the paper) or ``"ess"`` (below ``ess_fraction * N``)."""
+    """When to resample: ``"ess"`` (when the effective sample size falls below ``ess_fraction * N``,
+    the default) or ``"always"`` (every update, the paper)."""
 
-    policy: str = "always"
+    policy: str = "ess"
     ess_fraction: float = 0.5
 
     def __post_init__(self) -> None:
@@ -291,7 +292,15 @@ class FilterConfig:
             return cls()
         if name == "paper":
             return cls(
+                motion=MotionConfig(
+                    step_noise_fraction=0.15,
+                    step_noise_floor_m=0.05,
+                    heading_noise_deg=0.5,
+                    scale_init_sigma=0.0,
+                    scale_noise_per_step=0.0,
+                ),
                 gnss=GnssConfig(sigma_factor=1.0, outlier_prob=0.0, correlation_time_s=0.0),
+                resample=ResampleConfig(policy="always"),
                 recovery=RecoveryConfig(max_fraction=0.0),
                 start=StartConfig(fix_sigma_factor=1.0),
             )
