@@ -202,6 +202,12 @@ def _benchmark(args: argparse.Namespace) -> int:
 
 def register(subparsers: argparse._SubParsersAction) -> None:
     """Add ``simulate``, ``evaluate`` and ``benchmark`` to ``subparsers``."""
+    _register_simulate(subparsers)
+    _register_evaluate(subparsers)
+    _register_benchmark(subparsers)
+
+
+def _register_simulate(subparsers: argparse._SubParsersAction) -> None:
     sim = subparsers.add_parser(
         "simulate",
         help="simulate walks on real SF sidewalks (sessions)",
@@ -238,6 +244,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     sim.add_argument("--overwrite", action="store_true", help=_OVERWRITE_HELP)
     sim.set_defaults(func=_simulate)
 
+
+def _register_evaluate(subparsers: argparse._SubParsersAction) -> None:
     ev = subparsers.add_parser(
         "evaluate",
         help="the paper's metrics, tables and figures over sessions",
@@ -253,8 +261,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     ev.add_argument("--map-names", nargs="+", help="labels of the maps (default: file stems)")
     ev.add_argument("--metrics-map", help="map whose sidewalk segments score every run (default: the first)")
     ev.add_argument("--methods", nargs="+", default=list(METHODS), choices=METHODS,
-                    help="methods to run: gnss (GNSS only), inertial (RoNIN+PF), fused (GNSS+RoNIN+PF) "
-                    "(default: all three)")
+                    help="methods to run: gnss (GNSS only), inertial (RoNIN+PF), paper (the paper's plain "
+                    "GNSS+RoNIN+PF), fused (curbside's filter) (default: all)")
     ev.add_argument("--jaywalk-weights", nargs="+", type=unit_interval, default=[0.0, 0.4, 1.0], metavar="W",
                     help="particle weight on the street surface, in [0, 1]; the paper's sweep "
                     "(default: 0 0.4 1)")
@@ -281,6 +289,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     ev.add_argument("--overwrite", action="store_true", help=_OVERWRITE_HELP)
     ev.set_defaults(func=_evaluate)
 
+
+def _register_benchmark(subparsers: argparse._SubParsersAction) -> None:
     bench = subparsers.add_parser(
         "benchmark",
         help="the benchmark: simulated subsets x every method, done-when checks, report",

@@ -32,7 +32,7 @@ import shapely
 
 from curbside.errors import CurbsideInputError
 from curbside.localize.engine import Row, SessionEngine, StartPose, require_rows
-from curbside.localize.raster import load_or_build_raster
+from curbside.localize.raster import MapRaster, load_or_build_raster
 from curbside.localize.runconfig import MODES, VELOCITY_SOURCES, RunConfig
 from curbside.localize.session import Session
 from curbside.osmseg.mapio import MapLayers
@@ -316,15 +316,10 @@ def track_session(
             raise CurbsideInputError(
                 session.name, f"the {velocity_source} velocity has fewer than two samples"
             )
-    raster = None
-    if map_layers is not None and config.mode != "gnss":
-        raster = load_or_build_raster(
-            map_layers, config.filter.map.raster_resolution_m, config.filter.map.segment_reach_m
-        )
     engine = SessionEngine(
         config,
         frame,
-        raster,
+        _raster_for(map_layers, config),
         start=start,
         t_begin=t_begin,
         cadence=steps is None,
@@ -340,9 +335,30 @@ def track_session(
     require_rows(engine.rows, session.name)
     if config.mode == "gnss":
         _report_gnss_holds(session, config)
+    return _result(session.name, engine, frame, map_layers, (velocity_source, step_source), save_particles)
+
+
+def _raster_for(map_layers: MapLayers | None, config: RunConfig) -> MapRaster | None:
+    """The map raster the filter weighs particles on (``None`` without a map or in ``gnss`` mode)."""
+    if map_layers is None or config.mode == "gnss":
+        return None
+    return load_or_build_raster(
+        map_layers, config.filter.map.raster_resolution_m, config.filter.map.segment_reach_m
+    )
+
+
+def _result(
+    name: str,
+    engine: SessionEngine,
+    frame: LocalFrame,
+    map_layers: MapLayers | None,
+    sources: tuple[str | None, str],
+    save_particles: bool,
+) -> TrackResult:
+    """The finished engine's track table, counts and particle snapshots."""
     tracker = engine.tracker
     if tracker is not None and tracker.recoveries:
-        logger.info("%s: the particle cloud collapsed %d time(s)", session.name, tracker.recoveries)
+        logger.info("%s: the particle cloud collapsed %d time(s)", name, tracker.recoveries)
     track = track_table(
         engine.rows, frame, map_layers, segments=tracker is not None and tracker.segments is not None
     )
@@ -350,9 +366,8 @@ def track_session(
     injections = 0 if tracker is None or tracker.divergence is None else tracker.divergence.injections
     return TrackResult(
         track,
-        config,
-        velocity_source,
-        step_source,
+        engine.config,
+        *sources,
         0 if tracker is None else tracker.recoveries,
         injections,
         snapshots,

@@ -206,28 +206,11 @@ def train(train_set: WindowSet, val_set: WindowSet, options: TrainOptions, out: 
     n_draw = min(options.windows_per_epoch, len(train_b))
     for epoch in range(start_epoch, options.epochs):
         tic = time.perf_counter()
-        gen = torch.Generator().manual_seed(options.seed * 100_003 + epoch)
-        torch.manual_seed(options.seed * 100_003 + epoch)
-        order = torch.randperm(len(train_b), generator=gen)[:n_draw].to(device)
-        angles = (torch.rand(n_draw, generator=gen) * 2 * math.pi).to(device)
-        model.train()
-        total, seen = 0.0, 0
-        bar = tqdm(range(0, n_draw, options.batch_size), desc=f"epoch {epoch + 1}/{options.epochs}",
-                   disable=not progress, leave=False)
-        for lo in bar:
-            idx = order[lo : lo + options.batch_size]
-            x, y = rotate_yaw(*train_b.batch(idx), angles[lo : lo + options.batch_size])
-            loss = nn.functional.mse_loss(model(x), y)
-            optimiser.zero_grad(set_to_none=True)
-            loss.backward()
-            optimiser.step()
-            total += loss.item() * len(idx)
-            seen += len(idx)
-            bar.set_postfix(loss=f"{total / seen:.4f}")
+        train_loss = _train_epoch(model, optimiser, train_b, n_draw, options, epoch, progress)
         lr = optimiser.param_groups[0]["lr"]
         schedule.step()
-        val_loss = evaluate_loss(model, val_b, options.val_every) if len(val_b) else total / seen
-        record = {"epoch": epoch + 1, "train_loss": total / seen, "val_loss": val_loss, "lr": lr,
+        val_loss = evaluate_loss(model, val_b, options.val_every) if len(val_b) else train_loss
+        record = {"epoch": epoch + 1, "train_loss": train_loss, "val_loss": val_loss, "lr": lr,
                   "seconds": time.perf_counter() - tic}
         history.append(record)
         logger.info("epoch %d: train %.4f val %.4f (%.0f s)", epoch + 1, record["train_loss"], val_loss,
@@ -244,3 +227,28 @@ def train(train_set: WindowSet, val_set: WindowSet, options: TrainOptions, out: 
                             "schedule": schedule.state_dict(), "history": json.dumps(history),
                             "options": json.dumps(options.schedule_key())}, tmp)
     return history
+
+
+def _train_epoch(model: nn.Module, optimiser: torch.optim.Optimizer, train_b: WindowBatcher, n_draw: int,
+                 options: TrainOptions, epoch: int, progress: bool) -> float:
+    """One epoch over ``n_draw`` windows drawn (seeded by epoch) and randomly yawed; the mean loss."""
+    gen = torch.Generator().manual_seed(options.seed * 100_003 + epoch)
+    torch.manual_seed(options.seed * 100_003 + epoch)
+    device = train_b.features.device
+    order = torch.randperm(len(train_b), generator=gen)[:n_draw].to(device)
+    angles = (torch.rand(n_draw, generator=gen) * 2 * math.pi).to(device)
+    model.train()
+    total, seen = 0.0, 0
+    bar = tqdm(range(0, n_draw, options.batch_size), desc=f"epoch {epoch + 1}/{options.epochs}",
+               disable=not progress, leave=False)
+    for lo in bar:
+        idx = order[lo : lo + options.batch_size]
+        x, y = rotate_yaw(*train_b.batch(idx), angles[lo : lo + options.batch_size])
+        loss = nn.functional.mse_loss(model(x), y)
+        optimiser.zero_grad(set_to_none=True)
+        loss.backward()
+        optimiser.step()
+        total += loss.item() * len(idx)
+        seen += len(idx)
+        bar.set_postfix(loss=f"{total / seen:.4f}")
+    return total / seen

@@ -162,6 +162,14 @@ def create_app(config: ServiceConfig, service: TrackingService | None = None) ->
             "sidewalk_segments": len(service.places),
         }
 
+    _add_session_routes(app, service, config, auth)
+    _add_track_routes(app, service, auth)
+    return app
+
+
+def _add_session_routes(app: FastAPI, service: TrackingService, config: ServiceConfig, auth: list) -> None:
+    """``/sessions``: open, feed (HTTP or WebSocket), read and end a walker's session."""
+
     @app.post(
         "/sessions", status_code=201, response_model=SessionCreated, dependencies=auth, tags=["sessions"]
     )
@@ -192,6 +200,16 @@ def create_app(config: ServiceConfig, service: TrackingService | None = None) ->
         """End the session: the filter finishes and the whole track is saved (``GET /tracks/{id}``)."""
         return await service.end(session_id, "deleted")
 
+    @app.websocket("/sessions/{session_id}/stream")
+    async def stream(websocket: WebSocket, session_id: str) -> None:
+        """Messages are ``POST .../samples`` bodies (``"end": true`` ends the session); each gets the
+        estimate, the error ``{"detail", "status"}``, or, after ``end``, the track summary."""
+        await _serve_stream(websocket, session_id, service)
+
+
+def _add_track_routes(app: FastAPI, service: TrackingService, auth: list) -> None:
+    """``/tracks``: the saved tracks of ended sessions."""
+
     @app.get("/tracks", response_model=list[TrackInfo], dependencies=auth, tags=["tracks"])
     async def list_tracks() -> list[dict[str, Any]]:
         """Every saved track, by key (a hash of its session id: reading one needs the id)."""
@@ -212,14 +230,6 @@ def create_app(config: ServiceConfig, service: TrackingService | None = None) ->
         if name not in TRACK_FILES:
             raise ServiceError(404, f"no such file; one of {', '.join(TRACK_FILES)}")
         return FileResponse(service.track_folder(session_id) / name)
-
-    @app.websocket("/sessions/{session_id}/stream")
-    async def stream(websocket: WebSocket, session_id: str) -> None:
-        """Messages are ``POST .../samples`` bodies (``"end": true`` ends the session); each gets the
-        estimate, the error ``{"detail", "status"}``, or, after ``end``, the track summary."""
-        await _serve_stream(websocket, session_id, service)
-
-    return app
 
 
 async def _push(service: TrackingService, session_id: str, body: Samples) -> dict[str, Any]:
