@@ -1,8 +1,9 @@
 """Stage 5: sidewalk segments, one polygon per side of a street per block.
 
-Streets that carry sidewalks (``settings.sidewalk_highways``) are split into blocks at junctions with
-other roads. Each block side gets the band from its centreline out to the curb plus
-``settings.sidewalk_depth_m``, built with a single-sided
+Streets that carry sidewalks (``sidewalk_highways`` of
+:class:`~curbside.osmseg.config.SegmentationConfig`) are split into blocks at junctions with other
+roads. Each block side gets the band from its centreline out to the curb plus ``sidewalk_depth_m``,
+built with a single-sided
 buffer (positive = left of the OSM way direction). Where bands of different streets meet at corners,
 the space goes to the nearest centreline (Voronoi cells of points sampled along the blocks). The
 carriageway, buildings and crosswalks are then cut out, which leaves the strip between the curb and
@@ -18,7 +19,7 @@ import numpy as np
 import pandas as pd
 import shapely
 
-from curbside import settings
+from curbside.osmseg.config import SegmentationConfig
 from curbside.osmseg.overlay import subtract
 from curbside.osmseg.streets import MINOR_SERVICES, node_keys, sidewalk_sides
 from curbside.osmseg.tags import column, is_in
@@ -168,7 +169,10 @@ def extend_shared_ends(
 
 
 def sidewalk_segments(
-    roads: gpd.GeoDataFrame, obstacles: np.ndarray, min_area_m2: float = 2.0
+    roads: gpd.GeoDataFrame,
+    obstacles: np.ndarray,
+    min_area_m2: float = 2.0,
+    config: SegmentationConfig | None = None,
 ) -> gpd.GeoDataFrame:
     """Sidewalk segments along the roads that carry sidewalks.
 
@@ -180,6 +184,9 @@ def sidewalk_segments(
         Small polygons a sidewalk may not overlap: carriageway tiles, buildings, crosswalks.
     min_area_m2
         Smaller leftovers (corner slivers) are dropped.
+    config
+        Which streets carry sidewalks and how deep they are (default
+        :class:`~curbside.osmseg.config.SegmentationConfig`).
 
     Returns
     -------
@@ -187,9 +194,10 @@ def sidewalk_segments(
         ``segment_id`` (``w<way id>-<k>-<L|R>``, ``k`` counting the segments of that side along
         the way), ``street``, ``side`` (``left``/``right``), ``osm_id`` and geometry.
     """
+    config = config or SegmentationConfig()
     service = column(roads, "service")
     block_end_mask = ~is_in(service, MINOR_SERVICES)
-    carrying_mask = is_in(column(roads, "highway"), settings.sidewalk_highways)
+    carrying_mask = is_in(column(roads, "highway"), config.sidewalk_highways)
     carrying = roads[carrying_mask].reset_index(drop=True)
     empty = gpd.GeoDataFrame(
         {"segment_id": [], "street": [], "side": [], "osm_id": []}, geometry=[], crs=roads.crs
@@ -200,7 +208,7 @@ def sidewalk_segments(
     lines = pieces.geometry.values
     road = pieces["road"].to_numpy()
     has_left, has_right = sidewalk_sides(carrying)
-    depth = settings.sidewalk_depth_m
+    depth = config.sidewalk_depth_m
     reach_left = carrying["half_left_m"].to_numpy()[road] + depth
     reach_right = carrying["half_right_m"].to_numpy()[road] + depth
     own = territories(lines)
