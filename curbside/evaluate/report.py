@@ -27,7 +27,7 @@ from curbside.evaluate.figures import (
     fig_tracks,
     save_png,
 )
-from curbside.evaluate.metrics import METRIC_NAMES
+from curbside.evaluate.metrics import METRIC_NAMES, MetricsConfig
 from curbside.evaluate.runner import METHOD_LABELS, METHODS, MODE_SUFFIX, pool
 from curbside.io import atomic_path
 from curbside.osmseg.mapio import MapLayers
@@ -336,6 +336,7 @@ def write_report(
     tables += sweep_tables(pooled, base)
     tables += extra_tables or []
 
+    scoring = MetricsConfig()  # run_one scores with the defaults
     doc = {
         "generator": f"curbside {curbside.__version__}",
         "metric_names": list(METRIC_NAMES),
@@ -348,12 +349,12 @@ def write_report(
         "per_session": records(per_session),
         "definitions": {
             "csa_on_crossing": (
-                f"ground truth > {settings.evaluate_on_sidewalk_m} m from every sidewalk: correct when the "
-                f"estimate's segment is within {settings.evaluate_crossing_slack_m} m of the nearest "
+                f"ground truth > {scoring.on_sidewalk_m} m from every sidewalk: correct when the "
+                f"estimate's segment is within {scoring.crossing_slack_m} m of the nearest "
                 "one's distance"
             ),
             "street_direction": "long axis of the sidewalk segment nearest to the ground truth",
-            "rte_window_s": settings.evaluate_rte_window_s,
+            "rte_window_s": scoring.rte_window_s,
         },
     }
     doc.update(extra_json or {})
