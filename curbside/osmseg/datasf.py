@@ -72,6 +72,24 @@ def _drop_cross_tile_duplicates(geoms: np.ndarray, tile: np.ndarray, min_iou: fl
     return keep
 
 
+def _read_tiles(
+    paths: list[Path], bbox: tuple[float, float, float, float] | None
+) -> tuple[np.ndarray, np.ndarray]:
+    """The WGS84 footprints of all tiles (those that intersect ``bbox``) and the tile index of each."""
+    if not paths:
+        raise CurbsideInputError("TILE", "no DataSF tile given")
+    tiles = [_read_tile(p, bbox) for p in paths]
+    geoms = np.concatenate([t.to_numpy() for t in tiles])
+    tile = np.repeat(np.arange(len(tiles)), [len(t) for t in tiles])
+    if bbox is not None:
+        inside = shapely.intersects(geoms, shapely.box(*bbox))
+        geoms, tile = geoms[inside], tile[inside]
+    if len(geoms) == 0:
+        where = f" in bbox {list(bbox)}" if bbox is not None else ""
+        raise CurbsideInputError(", ".join(p.name for p in paths), f"no building footprint{where}")
+    return geoms, tile
+
+
 def read_datasf(
     paths: str | os.PathLike[str] | Iterable[str | os.PathLike[str]],
     bbox: tuple[float, float, float, float] | None = None,
@@ -118,19 +136,7 @@ def read_datasf(
     if isinstance(paths, (str, os.PathLike)):
         paths = [paths]
     paths = [Path(p) for p in paths]
-    if not paths:
-        raise CurbsideInputError("TILE", "no DataSF tile given")
-    tiles = [_read_tile(p, bbox) for p in paths]
-    geoms = np.concatenate([t.to_numpy() for t in tiles])
-    tile = np.repeat(np.arange(len(tiles)), [len(t) for t in tiles])
-    if bbox is not None:
-        inside = shapely.intersects(geoms, shapely.box(*bbox))
-        geoms, tile = geoms[inside], tile[inside]
-    names = ", ".join(p.name for p in paths)
-    if len(geoms) == 0:
-        where = f" in bbox {list(bbox)}" if bbox is not None else ""
-        raise CurbsideInputError(names, f"no building footprint{where}")
-
+    geoms, tile = _read_tiles(paths, bbox)
     west, south, east, north = shapely.total_bounds(geoms)
     crs = utm_crs_for((west + east) / 2, (south + north) / 2)
     metric = gpd.GeoSeries(geoms, crs=WGS84).to_crs(crs).to_numpy()

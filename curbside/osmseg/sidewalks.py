@@ -3,11 +3,10 @@
 Streets that carry sidewalks (``sidewalk_highways`` of
 :class:`~curbside.osmseg.config.SegmentationConfig`) are split into blocks at junctions with other
 roads. Each block side gets the band from its centreline out to the curb plus ``sidewalk_depth_m``,
-built with a single-sided
-buffer (positive = left of the OSM way direction). Where bands of different streets meet at corners,
-the space goes to the nearest centreline (Voronoi cells of points sampled along the blocks). The
-carriageway, buildings and crosswalks are then cut out, which leaves the strip between the curb and
-the building line, split wherever a crosswalk crosses it.
+built with a single-sided buffer (positive = left of the OSM way direction). Where bands of different
+streets meet at corners, the space goes to the nearest centreline (Voronoi cells of points sampled
+along the blocks). The carriageway, buildings and crosswalks are then cut out, which leaves the strip
+between the curb and the building line, split wherever a crosswalk crosses it.
 """
 
 from __future__ import annotations
@@ -185,8 +184,7 @@ def sidewalk_segments(
     min_area_m2
         Smaller leftovers (corner slivers) are dropped.
     config
-        Which streets carry sidewalks and how deep they are (default
-        :class:`~curbside.osmseg.config.SegmentationConfig`).
+        Which streets carry sidewalks, how deep (default :class:`~curbside.osmseg.config.SegmentationConfig`).
 
     Returns
     -------
@@ -233,24 +231,31 @@ def sidewalk_segments(
     parts, part_of = parts[polygonal], part_of[polygonal]
     piece = piece_of[part_of]
     way_row = road[piece]
-    # Number the parts of one way side in order along the way (a way the reader cut where its file
-    # lacks nodes has several rows: they are numbered on, in order).
     osm_id = carrying["osm_id"].to_numpy()[way_row]
     along = shapely.line_locate_point(carrying.geometry.values[way_row], shapely.centroid(parts))
-    table = pd.DataFrame(
-        {"osm_id": osm_id, "row": way_row, "side": side[part_of], "k": pieces["k"].to_numpy()[piece],
-         "along": along}
-    )  # fmt: skip
-    table = table.sort_values(["osm_id", "side", "row", "k", "along"], kind="stable")
-    table["n"] = table.groupby(["osm_id", "side"]).cumcount()
-    table = table.sort_index()
-    segment_id = (
-        "w" + pd.Series(osm_id).astype(str) + "-" + table["n"].astype(str).to_numpy()
-        + "-" + table["side"].map({"left": "L", "right": "R"}).to_numpy()
-    ).to_numpy()
+    k = pieces["k"].to_numpy()[piece]
+    segment_id = _segment_ids(
+        pd.DataFrame({"osm_id": osm_id, "row": way_row, "side": side[part_of], "k": k, "along": along})
+    )
     names = column(carrying, "name").to_numpy()[way_row]
     return gpd.GeoDataFrame(
-        {"segment_id": segment_id, "street": names, "side": table["side"].to_numpy(), "osm_id": osm_id},
+        {"segment_id": segment_id, "street": names, "side": side[part_of], "osm_id": osm_id},
         geometry=shapely.make_valid(parts),
         crs=roads.crs,
     )
+
+
+def _segment_ids(parts: pd.DataFrame) -> np.ndarray:
+    """``w<way id>-<n>-<L|R>`` per part, ``n`` numbering the parts of one way side in order along it.
+
+    ``parts`` has ``osm_id``, ``row`` (the way's row), ``side``, ``k`` (its block along the row) and
+    ``along`` (the part's position along the row). A way the reader cut where its file lacks nodes has
+    several rows: they are numbered on, in order.
+    """
+    table = parts.sort_values(["osm_id", "side", "row", "k", "along"], kind="stable")
+    table["n"] = table.groupby(["osm_id", "side"]).cumcount()
+    table = table.sort_index()
+    return (
+        "w" + table["osm_id"].astype(str) + "-" + table["n"].astype(str)
+        + "-" + table["side"].map({"left": "L", "right": "R"})
+    ).to_numpy()  # fmt: skip
