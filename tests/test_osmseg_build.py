@@ -15,7 +15,7 @@ import shapely
 
 from curbside import settings
 from curbside.cli.osmseg import main as osmseg_main
-from curbside.configio import to_dict
+from curbside.configio import from_dict, to_dict
 from curbside.osmseg.build import build_map
 from curbside.osmseg.config import SegmentationConfig
 from curbside.osmseg.mapio import CLASSES, MapLayers, read_map
@@ -285,6 +285,12 @@ def test_cli_set_changes_build_parameters(tmp_path):
     assert params["crosswalk_width_m"] == 4.5
     assert params["default_carriageway_width_m"]["residential"] == 9
     assert params["default_carriageway_width_m"]["primary"] == 13.0
+    # The map's params rebuild the config that made it.
+    widths = {**SegmentationConfig().default_carriageway_width_m, "residential": 9.0}
+    expected = SegmentationConfig(
+        unmarked_crossing_as="street", crosswalk_width_m=4.5, default_carriageway_width_m=widths
+    )
+    assert from_dict(SegmentationConfig, params) == expected
 
 
 @pytest.mark.parametrize(
