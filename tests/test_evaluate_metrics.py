@@ -115,6 +115,19 @@ def test_crossing_counts_the_segments_it_joins():
     assert metrics.summarize(errs)["n_crossing_steps"] == 3
 
 
+def test_crossing_rule_distances_come_from_the_config():
+    index = metrics.SidewalkIndex.from_layers(_straight_street())
+    gt = np.array([[50.0, 2.0]] * 2)  # on the crosswalk, 3 m from the north kerb and 7 m from the south one
+    est = np.array([[50.0, -6.5], [50.0, 6.5]])
+    assert metrics.step_errors(est, gt, index)["correct"].tolist() == [True, True]
+    tight = metrics.step_errors(est, gt, index, metrics.MetricsConfig(crossing_slack_m=2.0))
+    assert tight["correct"].tolist() == [False, True]  # the south kerb is 4 m farther than the north one
+    near = metrics.step_errors(est, gt, index, metrics.MetricsConfig(on_sidewalk_m=3.5))
+    assert not near["on_crossing"].any() and near["correct"].tolist() == [False, True]
+    with pytest.raises(ValueError, match="rte_window_s"):
+        metrics.MetricsConfig(rte_window_s=0.0)
+
+
 def test_missing_estimates_count_as_wrong_and_are_left_out_of_distances():
     index = metrics.SidewalkIndex.from_layers(_straight_street())
     gt = np.array([[50.0, 6.5], [60.0, 6.5]])

@@ -15,7 +15,9 @@ import shapely
 
 from curbside import settings
 from curbside.cli.osmseg import main as osmseg_main
+from curbside.configio import from_dict, to_dict
 from curbside.osmseg.build import build_map
+from curbside.osmseg.config import SegmentationConfig
 from curbside.osmseg.mapio import CLASSES, MapLayers, read_map
 from curbside.osmseg.reader import read_osm_file
 from curbside.osmseg.streets import mapped_sidewalks
@@ -114,18 +116,33 @@ def test_crossroads_blocks_and_crosswalks(scenes, name):
     # Each crosswalk spans the 8 m carriageway and reaches just past both curbs.
     bounds = shapely.bounds(walks.geometry.values)
     spans = np.maximum(bounds[:, 2] - bounds[:, 0], bounds[:, 3] - bounds[:, 1])
-    assert ((spans >= 8.0) & (spans <= 8.0 + 2 * settings.crosswalk_overlap_m + 0.2)).all()
+    assert ((spans >= 8.0) & (spans <= 8.0 + 2 * SegmentationConfig().crosswalk_overlap_m + 0.2)).all()
 
 
 def test_unmarked_crossings_can_stay_street():
     path = OSM_DATA / "crossroads-crossing-nodes.osm"
-    as_crosswalk = build_map(osm_file=path, unmarked_as="crosswalk")
-    as_street = build_map(osm_file=path, unmarked_as="street")
+    as_crosswalk = build_map(osm_file=path, config=SegmentationConfig(unmarked_crossing_as="crosswalk"))
+    as_street = build_map(osm_file=path, config=SegmentationConfig(unmarked_crossing_as="street"))
     # The two crossings tagged crossing=unmarked go; the two signalised ones stay.
     assert len(as_crosswalk.layer("crosswalk")) == 4
     assert len(as_street.layer("crosswalk")) == 2
     street_gain = as_street.union("street").area - as_crosswalk.union("street").area
     assert street_gain == pytest.approx(as_crosswalk.union("crosswalk").area / 2, rel=0.2)
+
+
+def test_segmentation_config_changes_the_map_and_is_recorded_in_its_metadata():
+    path = OSM_DATA / "crossroads-crossing-nodes.osm"
+    default = build_map(osm_file=path)
+    wide = build_map(osm_file=path, config=SegmentationConfig(crosswalk_width_m=4.5))
+    assert default.meta["params"] == to_dict(SegmentationConfig())
+    assert default.meta["params"]["crosswalk_width_m"] == 3.0
+    assert wide.meta["params"]["crosswalk_width_m"] == 4.5
+    # The crossing nodes carry no width: each strip is 1.5 times as wide, as long as before.
+    ratio = wide.union("crosswalk").area / default.union("crosswalk").area
+    assert ratio == pytest.approx(1.5, rel=0.1)
+    assert len(wide.layer("crosswalk")) == len(default.layer("crosswalk"))
+    # The sidewalks give way to the wider crosswalks.
+    assert wide.union("sidewalk").area < default.union("sidewalk").area
 
 
 def test_mapped_sidewalks_are_not_inside_street(scenes):
@@ -249,13 +266,44 @@ def test_cli_builds_writes_and_summarises(tmp_path, capsys):
     doc = json.loads(out.read_text())
     assert doc["curbside"]["source"] == "crossroads-crossing-nodes.osm"
     assert doc["curbside"]["osm_timestamp"] == "2026-01-02T03:04:05Z"
-    assert doc["curbside"]["params"]["unmarked_as"] == "crosswalk"
+    assert doc["curbside"]["params"]["unmarked_crossing_as"] == "crosswalk"
     stdout = capsys.readouterr().out
     for cls in CLASSES:
         assert cls in stdout
     back = read_map(out)
     assert len(back.layer("sidewalk")) == 8
     assert class_overlaps_m2(back)[("street", "sidewalk")] < 0.05
+
+
+def test_cli_set_changes_build_parameters(tmp_path):
+    out = tmp_path / "map.geojson"
+    sets = ["--set", "crosswalk_width_m=4.5", "--set", "default_carriageway_width_m.residential=9"]
+    argv = ["--osm", str(OSM_DATA / "crossroads-crossing-nodes.osm"), "--unmarked-as", "street", *sets]
+    assert osmseg_main(["build", *argv, "-o", str(out)]) == 0
+    params = json.loads(out.read_text())["curbside"]["params"]
+    assert params["unmarked_crossing_as"] == "street"
+    assert params["crosswalk_width_m"] == 4.5
+    assert params["default_carriageway_width_m"]["residential"] == 9
+    assert params["default_carriageway_width_m"]["primary"] == 13.0
+    # The map's params rebuild the config that made it.
+    widths = {**SegmentationConfig().default_carriageway_width_m, "residential": 9.0}
+    expected = SegmentationConfig(
+        unmarked_crossing_as="street", crosswalk_width_m=4.5, default_carriageway_width_m=widths
+    )
+    assert from_dict(SegmentationConfig, params) == expected
+
+
+@pytest.mark.parametrize(
+    ("pair", "message"),
+    [
+        ("crosswalk_width=4", "no parameter"),
+        ("crosswalk_width_m=-1", "positive"),
+        ("crosswalk_width_m", "KEY=VALUE"),
+    ],
+)
+def test_bad_set(capsys, tmp_path, pair, message):
+    err = _bad(capsys, tmp_path, ["--osm", str(OSM_DATA / "wide-road.osm"), "--set", pair])
+    assert message in err
 
 
 def test_cli_default_output_in_cwd(tmp_path, monkeypatch):

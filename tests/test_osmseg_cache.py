@@ -134,6 +134,16 @@ def test_osmsource_uses_the_osmseg_reader_and_caches_geoparquet():
     assert again.buildings.crs == source.buildings.crs
 
 
+def test_osmsource_cache_key_includes_its_config():
+    path = OSM_DATA / "crossroads-mapped-sidewalks.osm"
+    default = osmsource.load_osm(path)
+    primary_only = osmsource.load_osm(path, osmsource.OsmSourceConfig(road_classes=("primary",)))
+    assert len(list((settings.cache_dir / "osmsource").iterdir())) == 2
+    assert len(primary_only.roads) < len(default.roads)
+    with pytest.raises(ValueError, match="heights"):
+        osmsource.OsmSourceConfig(level_height_m=0.0)
+
+
 def test_osmsource_heights_use_the_shared_unit_parser():
     source = osmsource.load_osm(OSM_DATA / "feet-widths.osm")
     assert sorted(source.buildings["height_m"].round(4)) == [1.9812, 91.44]

@@ -10,7 +10,6 @@ import numpy as np
 import pytest
 import shapely
 
-from curbside import settings
 from curbside.cli.osmseg import main
 from curbside.errors import CurbsideInputError
 from curbside.osmseg.compare import compare_maps
@@ -72,11 +71,11 @@ def test_shifted_square_iou_and_boundary_distance(dx, dy):
     moved = shapely.affinity.translate(square, dx, dy)
     extent = shapely.box(-10, -10, 30, 30)
     a, b = _layers([("building", square)], extent), _layers([("building", moved)], extent)
-    table = compare_maps(a, b).table
-    row = table.loc["building"]
+    result = compare_maps(a, b)
+    row = result.table.loc["building"]
     assert row["iou"] == pytest.approx(square.intersection(moved).area / square.union(moved).area, rel=1e-6)
     assert row["area_a_m2"] == pytest.approx(400, rel=1e-6)
-    a_to_b, b_to_a = _brute_boundary_distances(square, moved, settings.compare_boundary_step_m)
+    a_to_b, b_to_a = _brute_boundary_distances(square, moved, result.boundary_step_m)
     both = np.concatenate([a_to_b, b_to_a])
     assert row["boundary_mean_m"] == pytest.approx(both.mean(), abs=0.05)
     assert row["boundary_median_m"] == pytest.approx(np.median(both), abs=0.1)
@@ -194,7 +193,7 @@ def test_datasf_reader_repairs_dedupes_and_keeps_area(tiles):
     iou = shapely.area(shapely.intersection(geoms[left[pair]], geoms[right[pair]])) / shapely.area(
         shapely.union(geoms[left[pair]], geoms[right[pair]])
     )
-    assert (iou < settings.datasf_duplicate_iou).all()
+    assert (iou < layers.meta["params"]["duplicate_iou"]).all()
     raw = _raw(tiles)
     assert len(geoms) < sum(len(shapely.get_parts(g)) for g in raw)  # the cross-tile copy went
     assert shapely.union_all(geoms).area == pytest.approx(shapely.union_all(raw).area, rel=0.01)

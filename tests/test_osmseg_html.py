@@ -14,11 +14,10 @@ import numpy as np
 import pytest
 import shapely
 
-from curbside import settings
 from curbside.osmseg import plot
 from curbside.osmseg.mapio import CLASSES, MapLayers, read_map
 from curbside.osmseg.plot import html_page, save_html
-from curbside.osmseg.webmap import WEB_ASSETS
+from curbside.osmseg.webmap import COORDINATE_DECIMALS, WEB_ASSETS
 
 REPO = Path(__file__).resolve().parents[1]
 REMOTE = re.compile(r"^\s*(https?:)?//", re.IGNORECASE)
@@ -119,7 +118,7 @@ def test_coordinates_are_rounded_for_display(crossroads):
         [shapely.get_coordinates(shapely.from_geojson(json.dumps(f["geometry"])))
          for o in overlays for f in o["features"]]
     )
-    scale = 10.0**settings.html_coordinate_decimals
+    scale = 10.0**COORDINATE_DECIMALS
     np.testing.assert_allclose(coords * scale, np.round(coords * scale), atol=1e-6)
     assert (np.abs(coords - np.round(coords, 5)) > 1e-9).any()  # ... but not coarser than asked
 

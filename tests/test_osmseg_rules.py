@@ -8,8 +8,8 @@ import pandas as pd
 import pytest
 import shapely
 
-from curbside import settings
 from curbside.osmseg.buildings import footprint_mask
+from curbside.osmseg.config import SegmentationConfig
 from curbside.osmseg.reader import TAG_KEYS
 from curbside.osmseg.sidewalks import extend_shared_ends, split_at_junctions
 from curbside.osmseg.streets import carriageway_width, ground_level, sidewalk_sides
@@ -44,18 +44,40 @@ def test_carriageway_width_precedence():
         {"highway": "service"},
         {"highway": "footway"},
     )
-    width, tagged = carriageway_width(ways)
-    lane, park = settings.lane_width_m, settings.parking_width_m["parallel"]
-    cycle = settings.cycle_lane_width_m
+    config = SegmentationConfig()
+    width, tagged = carriageway_width(ways, config)
+    lane, park = config.lane_width_m, config.parking_width_m["parallel"]
+    cycle = config.cycle_lane_width_m
     assert width[0] == 11.0 and tagged[0]
     assert width[1] == pytest.approx(2 * lane + 2 * park)
     assert width[2] == pytest.approx(2 * lane + cycle)
-    assert width[3] == pytest.approx(3 * lane + settings.parking_width_m["lane"])
+    assert width[3] == pytest.approx(3 * lane + config.parking_width_m["lane"])
     # No parking tag on a street with sidewalks: curbside parking is assumed on both sides.
-    assert width[4] == pytest.approx(2 * lane + 2 * settings.assumed_parking_width_m)
-    assert width[5] == settings.default_carriageway_width_m["service"]
+    assert width[4] == pytest.approx(2 * lane + 2 * config.assumed_parking_width_m)
+    assert width[5] == config.default_carriageway_width_m["service"]
     assert np.isnan(width[6])
     assert not tagged[1:].any()
+    wider = SegmentationConfig(lane_width_m=3.5, default_carriageway_width_m={"service": 6.0})
+    width, _ = carriageway_width(ways, wider)
+    assert width[4] == pytest.approx(2 * 3.5 + 2 * wider.assumed_parking_width_m)
+    assert width[5] == 6.0
+    assert np.isnan(width[6])
+
+
+@pytest.mark.parametrize(
+    "bad",
+    [
+        {"lane_width_m": 0.0},
+        {"crosswalk_overlap_m": -1.0},
+        {"parking_width_m": {"parallel": 2.2}},
+        {"default_carriageway_width_m": {"residential": "8"}},
+        {"sidewalk_highways": "residential"},
+        {"unmarked_crossing_as": "footway"},
+    ],
+)
+def test_segmentation_config_rejects_bad_values(bad):
+    with pytest.raises(ValueError):
+        SegmentationConfig(**bad)
 
 
 def test_ground_level():

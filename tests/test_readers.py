@@ -148,6 +148,8 @@ def test_gpx_fixes_accuracy_from_hdop_and_timed_waypoints():
     np.testing.assert_array_equal(session.waypoints["t"], [0, 50])
     assert session.imu is None
     assert session.meta["t0_utc"].startswith("2026-03-01T18:00:00")
+    doubled = read_gpx(SESSIONS / "walk.gpx", uere_m=10.0).gnss["accuracy_m"]
+    np.testing.assert_allclose(doubled.iloc[[0, 5]], [12.0, 9.0])
 
 
 def test_gpx_routes_and_zones_are_read(tmp_path):

@@ -56,6 +56,24 @@ def unit_interval(text: str) -> float:
     return value
 
 
+def set_overrides(pairs: list[str]) -> dict[str, str]:
+    """``--set KEY=VALUE`` arguments as ``{KEY: VALUE}`` (values still text; see
+    :func:`curbside.configio.with_overrides`).
+
+    Raises
+    ------
+    CurbsideInputError
+        A pair without ``=`` or without a key.
+    """
+    out = {}
+    for pair in pairs:
+        key, sep, value = pair.partition("=")
+        if not sep or not key:
+            raise CurbsideInputError("--set", f"expected KEY=VALUE, got {pair!r}")
+        out[key.strip()] = value.strip()
+    return out
+
+
 def make_parser(prog: str, description: str) -> argparse.ArgumentParser:
     """A parser with ``-v/--verbose`` and one-line usage errors."""
     parser = _ArgumentParser(prog=prog, description=description)

@@ -20,7 +20,7 @@ import json
 import logging
 from pathlib import Path
 
-from curbside.cli.common import positive_int, unit_interval
+from curbside.cli.common import positive_int, set_overrides, unit_interval
 from curbside.errors import CurbsideInputError
 from curbside.evaluate.metrics import format_waypoint_summary, waypoint_errors, waypoint_summary
 from curbside.io import check_output_folder
@@ -46,16 +46,6 @@ def _replayed(path: str) -> tuple[dict, RunConfig]:
     return info, RunConfig.from_dict(info["config"], f"{path}: config")
 
 
-def _overrides(pairs: list[str]) -> dict[str, str]:
-    out = {}
-    for pair in pairs:
-        key, sep, value = pair.partition("=")
-        if not sep or not key:
-            raise CurbsideInputError("--set", f"expected KEY=VALUE, got {pair!r}")
-        out[key.strip()] = value.strip()
-    return out
-
-
 def _run(args: argparse.Namespace) -> int:
     check_output_folder(args.output, args.overwrite)
     info, config = _replayed(args.config) if args.config else ({}, None)
@@ -77,7 +67,7 @@ def _run(args: argparse.Namespace) -> int:
         velocity_source=args.velocity_source,
         use_start_pose=False if args.no_start_pose else None,
     )
-    config = config.with_overrides(_overrides(args.set))
+    config = config.with_overrides(set_overrides(args.set))
     result = track_session(session, layers, config=config, save_particles=args.save_particles)
     run_info = {"session": _absolute(session_path), "map": _absolute(map_path) if map_path else None}
     summary = None

@@ -20,8 +20,7 @@ import sys
 from pathlib import Path
 
 from curbside import settings
-from curbside.cli.common import positive_float, positive_int
-from curbside.cli.localize_run import _overrides
+from curbside.cli.common import positive_float, positive_int, set_overrides
 from curbside.errors import CurbsideInputError
 from curbside.localize.runconfig import MODES
 
@@ -75,7 +74,7 @@ def _serve(args: argparse.Namespace) -> int:
         data_dir=_data_dir(args.data_dir),
         token=_token(args.token_file),
         mode=args.mode,
-        overrides=_overrides(args.set),
+        overrides=set_overrides(args.set),
         idle_timeout_s=args.idle_timeout,
         max_sessions=args.max_sessions,
     )

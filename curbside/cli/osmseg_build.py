@@ -7,9 +7,11 @@ import sys
 from pathlib import Path
 
 from curbside import settings
+from curbside.cli.common import set_overrides
+from curbside.configio import with_overrides
 from curbside.io import check_output_file
 from curbside.osmseg.build import build_map
-from curbside.osmseg.crosswalks import UNMARKED_CHOICES
+from curbside.osmseg.config import UNMARKED_CHOICES, SegmentationConfig
 from curbside.osmseg.mapio import CLASSES, MapLayers, write_map
 
 
@@ -38,8 +40,16 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument(
         "--unmarked-as",
         choices=UNMARKED_CHOICES,
-        default=settings.unmarked_crossing_as,
+        default=SegmentationConfig.unmarked_crossing_as,
         help="what unmarked crossings become (default: %(default)s)",
+    )
+    p.add_argument(
+        "--set",
+        action="append",
+        default=[],
+        metavar="KEY=VALUE",
+        help="set any parameter of the build (SegmentationConfig; recorded in the map's params), e.g. "
+        "crosswalk_width_m=4 or default_carriageway_width_m.residential=9 (repeatable)",
     )
     p.set_defaults(func=run)
 
@@ -57,7 +67,10 @@ def summary_lines(layers: MapLayers) -> list[str]:
 def run(args: argparse.Namespace) -> int:
     """Build the map and write it."""
     check_output_file(args.output)
-    layers = build_map(tuple(args.bbox) if args.bbox else None, args.osm, unmarked_as=args.unmarked_as)
+    config = with_overrides(
+        SegmentationConfig(unmarked_crossing_as=args.unmarked_as), set_overrides(args.set)
+    )
+    layers = build_map(tuple(args.bbox) if args.bbox else None, args.osm, config=config)
     path = write_map(layers, args.output)
     out = sys.stdout
     out.write(f"wrote {path} ({layers.meta['source']}; {settings.osm_attribution})\n")

@@ -5,9 +5,9 @@ Definitions (the paper's, made precise where it is silent):
 - **Correct Sidewalk Assignment** (``csa``). The estimate and the ground truth at each footstep are each
   assigned to their nearest ``sidewalk`` polygon (STRtree nearest). A step is correct when both give
   the same ``segment_id``. *On a crossing* -- the ground truth is more than
-  ``settings.evaluate_on_sidewalk_m`` (1.5 m) from every sidewalk polygon (a crosswalk, a jaywalk,
+  ``on_sidewalk_m`` (1.5 m; :class:`MetricsConfig`) from every sidewalk polygon (a crosswalk, a jaywalk,
   the carriageway) -- the step counts as correct when the estimate's segment is one of the segments
-  the crossing joins, taken as every segment within ``settings.evaluate_crossing_slack_m`` (6 m) of
+  the crossing joins, taken as every segment within ``crossing_slack_m`` (6 m) of
   the nearest one's distance (both kerbs of the street being crossed). These steps are counted
   (``n_crossing_steps``) so the rule's weight is visible.
 - **Euclidean error**: distance between estimate and ground truth; mean, median, 90th percentile.
@@ -16,7 +16,7 @@ Definitions (the paper's, made precise where it is silent):
   axis (minimum rotated rectangle) of the sidewalk segment nearest to the ground truth; a sidewalk
   segment is one side of one street along one block, so its long axis follows that street.
 - **ATE / RTE** (RoNIN, Herath et al. 2020): RMSE of positions over the whole walk, and RMSE of the
-  displacement error over windows of ``settings.evaluate_rte_window_s`` (60 s).
+  displacement error over windows of ``rte_window_s`` (60 s).
 """
 
 from __future__ import annotations
@@ -27,7 +27,6 @@ import numpy as np
 import pandas as pd
 import shapely
 
-from curbside import settings
 from curbside.errors import CurbsideInputError
 from curbside.localize.raster import long_axes
 from curbside.osmseg.mapio import MapLayers
@@ -43,6 +42,32 @@ METRIC_NAMES: tuple[str, ...] = (
     "along_p90_m",
     "across_p90_m",
 )
+
+
+@dataclass(frozen=True)
+class MetricsConfig:
+    """The scoring parameters of the metrics (see the module docstring).
+
+    Attributes
+    ----------
+    on_sidewalk_m
+        A ground truth farther than this from every sidewalk polygon is "on a crossing" (metres).
+    crossing_slack_m
+        On a crossing, sidewalk segments within this much of the nearest one count as joined (metres).
+    rte_window_s
+        RoNIN's relative-trajectory-error window (seconds).
+    """
+
+    on_sidewalk_m: float = 1.5
+    crossing_slack_m: float = 6.0
+    rte_window_s: float = 60.0
+
+    def __post_init__(self) -> None:
+        if not (self.on_sidewalk_m >= 0 and self.crossing_slack_m >= 0 and self.rte_window_s > 0):
+            raise ValueError(
+                "on_sidewalk_m and crossing_slack_m must be non-negative and rte_window_s positive, got "
+                f"{self.on_sidewalk_m}, {self.crossing_slack_m}, {self.rte_window_s}"
+            )
 
 
 @dataclass
@@ -97,7 +122,9 @@ class SidewalkIndex:
         return out_idx, out_dist
 
 
-def step_errors(est_xy: np.ndarray, gt_xy: np.ndarray, index: SidewalkIndex | None) -> pd.DataFrame:
+def step_errors(
+    est_xy: np.ndarray, gt_xy: np.ndarray, index: SidewalkIndex | None, config: MetricsConfig | None = None
+) -> pd.DataFrame:
     """Per-footstep errors of an estimated track against ground truth.
 
     Parameters
@@ -108,6 +135,8 @@ def step_errors(est_xy: np.ndarray, gt_xy: np.ndarray, index: SidewalkIndex | No
         left out of the distance statistics.
     index
         The sidewalk segments; ``None`` gives Euclidean errors only (maps without sidewalks, IPIN).
+    config
+        The crossing rule's distances (default :class:`MetricsConfig`).
 
     Returns
     -------
@@ -131,12 +160,13 @@ def step_errors(est_xy: np.ndarray, gt_xy: np.ndarray, index: SidewalkIndex | No
         est_seg[~missing] = index.segment_ids[est_idx]
     gt_seg = index.segment_ids[gt_idx]
     correct = est_seg == gt_seg
-    on_crossing = gt_dist > settings.evaluate_on_sidewalk_m
+    config = config or MetricsConfig()
+    on_crossing = gt_dist > config.on_sidewalk_m
     rows = np.flatnonzero(on_crossing & ~missing)
     if len(rows):
         points = shapely.points(gt_xy[rows])
         src, tgt = index.tree.query(
-            points, predicate="dwithin", distance=gt_dist[rows] + settings.evaluate_crossing_slack_m
+            points, predicate="dwithin", distance=gt_dist[rows] + config.crossing_slack_m
         )
         joined = index.segment_ids[tgt] == est_seg[rows][src]
         hit = np.zeros(len(rows), bool)
@@ -198,14 +228,15 @@ def ate_m(est_xy: np.ndarray, gt_xy: np.ndarray) -> float:
     return float(np.sqrt(sq.mean())) if len(sq) else float("nan")
 
 
-def rte_m(t: np.ndarray, est_xy: np.ndarray, gt_xy: np.ndarray, window_s: float | None = None) -> float:
+def rte_m(
+    t: np.ndarray, est_xy: np.ndarray, gt_xy: np.ndarray, window_s: float = MetricsConfig.rte_window_s
+) -> float:
     """Relative trajectory error: RMSE of the displacement error over windows of ``window_s``.
 
     For each step ``i`` the window ends at the first step ``j`` with ``t[j] >= t[i] + window_s``. A
     walk shorter than the window gives the displacement error over the whole walk scaled to the
     window length, as RoNIN does.
     """
-    window_s = settings.evaluate_rte_window_s if window_s is None else window_s
     t = np.asarray(t, float)
     est_xy = np.asarray(est_xy, float)
     gt_xy = np.asarray(gt_xy, float)

@@ -27,7 +27,7 @@ from curbside.evaluate.figures import (
     fig_tracks,
     save_png,
 )
-from curbside.evaluate.metrics import METRIC_NAMES
+from curbside.evaluate.metrics import METRIC_NAMES, MetricsConfig
 from curbside.evaluate.runner import METHOD_LABELS, METHODS, MODE_SUFFIX, pool
 from curbside.io import atomic_path
 from curbside.osmseg.mapio import MapLayers
@@ -277,6 +277,18 @@ def sweep_tables(pooled: pd.DataFrame, base: dict[str, Any]) -> list[Table]:
 # -- the report ---------------------------------------------------------------------------------------------
 
 
+def _definitions(scoring: MetricsConfig) -> dict[str, Any]:
+    """How the metrics were scored, in words and numbers (``metrics.json``'s ``definitions``)."""
+    return {
+        "csa_on_crossing": (
+            f"ground truth > {scoring.on_sidewalk_m} m from every sidewalk: correct when the "
+            f"estimate's segment is within {scoring.crossing_slack_m} m of the nearest one's distance"
+        ),
+        "street_direction": "long axis of the sidewalk segment nearest to the ground truth",
+        "rte_window_s": scoring.rte_window_s,
+    }
+
+
 def write_report(
     results: list[dict],
     out_dir: str | Path,
@@ -346,15 +358,7 @@ def write_report(
         "pooled": records(pooled),
         "per_path": records(per_path),
         "per_session": records(per_session),
-        "definitions": {
-            "csa_on_crossing": (
-                f"ground truth > {settings.evaluate_on_sidewalk_m} m from every sidewalk: correct when the "
-                f"estimate's segment is within {settings.evaluate_crossing_slack_m} m of the nearest "
-                "one's distance"
-            ),
-            "street_direction": "long axis of the sidewalk segment nearest to the ground truth",
-            "rte_window_s": settings.evaluate_rte_window_s,
-        },
+        "definitions": _definitions(MetricsConfig()),  # run_one scores with the defaults
     }
     doc.update(extra_json or {})
     with atomic_path(out_dir) as tmp:

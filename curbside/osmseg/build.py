@@ -14,7 +14,6 @@ import logging
 import math
 import sys
 from pathlib import Path
-from typing import Any
 
 import geopandas as gpd
 import numpy as np
@@ -24,9 +23,10 @@ from tqdm import tqdm
 
 import curbside
 from curbside import settings
+from curbside.configio import to_dict
 from curbside.errors import CurbsideInputError
 from curbside.osmseg.buildings import buildings as derive_buildings
-from curbside.osmseg.crosswalks import UNMARKED_CHOICES
+from curbside.osmseg.config import SegmentationConfig
 from curbside.osmseg.crosswalks import crosswalks as derive_crosswalks
 from curbside.osmseg.mapio import MapLayers
 from curbside.osmseg.overlay import polygons_only, subtract
@@ -111,69 +111,48 @@ def load_osm(bbox: BBox | None, osm_file: str | Path | None) -> tuple[OsmData, B
     return fetch_overpass(bbox), bbox
 
 
-def _layer(cls: str, geoms, crs) -> gpd.GeoDataFrame:
-    """Single polygons of one class (multi-part results exploded, slivers dropped)."""
-    parts = polygons_only(shapely.make_valid(np.asarray(geoms, dtype=object)), settings.min_polygon_area_m2)
+def _layer(cls: str, geoms, crs, min_area_m2: float) -> gpd.GeoDataFrame:
+    """Single polygons of one class (multi-part results exploded, slivers under ``min_area_m2`` dropped)."""
+    parts = polygons_only(shapely.make_valid(np.asarray(geoms, dtype=object)), min_area_m2)
     return gpd.GeoDataFrame({"class": [cls] * len(parts)}, geometry=parts, crs=crs)
 
 
-def build_params(unmarked_as: str) -> dict[str, Any]:
-    """The widths and rules a build used (the ``params`` metadata member)."""
-    return {
-        "unmarked_as": unmarked_as,
-        "default_carriageway_width_m": dict(settings.default_carriageway_width_m),
-        "lane_width_m": settings.lane_width_m,
-        "parking_width_m": dict(settings.parking_width_m),
-        "cycle_lane_width_m": settings.cycle_lane_width_m,
-        "sidewalk_depth_m": settings.sidewalk_depth_m,
-        "mapped_sidewalk_width_m": settings.mapped_sidewalk_width_m,
-        "crosswalk_width_m": settings.crosswalk_width_m,
-        "crosswalk_overlap_m": settings.crosswalk_overlap_m,
-        "assumed_parking_width_m": settings.assumed_parking_width_m,
-        "min_carriageway_half_width_m": settings.min_carriageway_half_width_m,
-        "min_sidewalk_width_m": settings.min_sidewalk_width_m,
-        "mapped_sidewalk_search_m": settings.mapped_sidewalk_search_m,
-        "passage_width_m": settings.passage_width_m,
-        "passage_island_area_m2": settings.passage_island_area_m2,
-        "passage_island_thickness_m": settings.passage_island_thickness_m,
-        "sidewalk_highways": sorted(settings.sidewalk_highways),
-    }
-
-
-def derive_layers(osm: OsmData, unmarked_as: str = settings.unmarked_crossing_as) -> gpd.GeoDataFrame:
+def derive_layers(osm: OsmData, config: SegmentationConfig | None = None) -> gpd.GeoDataFrame:
     """Run the derivation stages on OSM elements.
 
     Parameters
     ----------
     osm
         Elements in a metric CRS.
-    unmarked_as
-        ``"crosswalk"`` or ``"street"``.
+    config
+        Widths and rules (default :class:`~curbside.osmseg.config.SegmentationConfig`).
 
     Returns
     -------
     geopandas.GeoDataFrame
         Columns ``class``, ``segment_id``, ``street``, ``side``, ``geometry`` (CRS of ``osm``).
     """
+    config = config or SegmentationConfig()
+    min_area = config.min_polygon_area_m2
     stages = tqdm(total=4, desc="osmseg build", unit="stage", disable=not sys.stderr.isatty(), leave=False)
     with stages:
-        blds = derive_buildings(osm.areas, osm.ways).geometry.values
+        blds = derive_buildings(osm.areas, osm.ways, config).geometry.values
         stages.update()
-        cways = carriageways(osm.ways, blds)
+        cways = carriageways(osm.ways, blds, config)
         stages.update()
-        walks = derive_crosswalks(osm.ways, osm.nodes, cways, unmarked_as)
-        walks = polygons_only(subtract(walks, blds), settings.min_polygon_area_m2)
+        walks = derive_crosswalks(osm.ways, osm.nodes, cways, config)
+        walks = polygons_only(subtract(walks, blds), min_area)
         through = cways.surface[~cways.minor]
-        segments = sidewalk_segments(cways.roads, np.concatenate([through, blds, walks]))
+        segments = sidewalk_segments(cways.roads, np.concatenate([through, blds, walks]), config=config)
         stages.update()
         # Sidewalks run on across driveways and parking-aisle mouths.
         minor = subtract(cways.surface[cways.minor], segments.geometry.values)
         street = subtract(np.concatenate([through, minor]), np.concatenate([blds, walks]))
         stages.update()
     frames = [
-        _layer("building", blds, osm.crs),
-        _layer("street", street, osm.crs),
-        _layer("crosswalk", walks, osm.crs),
+        _layer("building", blds, osm.crs, min_area),
+        _layer("street", street, osm.crs, min_area),
+        _layer("crosswalk", walks, osm.crs, min_area),
         segments.drop(columns="osm_id").assign(**{"class": "sidewalk"}),
     ]
     gdf = gpd.GeoDataFrame(pd.concat(frames, ignore_index=True), geometry="geometry", crs=osm.crs)
@@ -188,7 +167,7 @@ def build_map(
     bbox: BBox | None = None,
     osm_file: str | Path | None = None,
     *,
-    unmarked_as: str = settings.unmarked_crossing_as,
+    config: SegmentationConfig | None = None,
 ) -> MapLayers:
     """Derive map layers (building, street, crosswalk, sidewalk) from OpenStreetMap.
 
@@ -201,22 +180,21 @@ def build_map(
         ``.osm``, ``.osm.bz2``, ``.osm.gz`` or ``.osm.pbf``. ``None``: the bundled extract when the
         bbox lies inside ``settings.default_extract_bbox``, else Overpass through osmnx. With no
         ``bbox`` the map is clipped to the bounds the file declares, if it declares any.
-    unmarked_as
-        ``"crosswalk"`` (default) or ``"street"``: what unmarked crossings become.
+    config
+        Widths and rules (default :class:`~curbside.osmseg.config.SegmentationConfig`).
 
     Returns
     -------
     MapLayers
         Polygons in local UTM; ``meta`` holds ``source``, ``bbox``, ``osm_timestamp``,
-        ``generator``, ``attribution`` and ``params``.
+        ``generator``, ``attribution`` and ``params`` (``config`` as a dict).
 
     Raises
     ------
     CurbsideInputError
         Bad bbox, missing / unreadable / unsupported file, or an area without OSM data.
     """
-    if unmarked_as not in UNMARKED_CHOICES:
-        raise CurbsideInputError("--unmarked-as", f"must be one of {', '.join(UNMARKED_CHOICES)}")
+    config = config or SegmentationConfig()
     osm, clip_bbox = load_osm(bbox, osm_file)
     source = str(osm_file) if osm_file is not None else osm.source
     from_declared_bounds = bbox is None and osm_file is not None and clip_bbox is not None
@@ -225,13 +203,13 @@ def build_map(
         where = f"inside the bounds the file declares {list(clip_bbox)}"
     if len(osm.ways) == 0 and len(osm.areas) == 0:
         raise CurbsideInputError(source, f"no highways or buildings {where}")
-    gdf = derive_layers(osm, unmarked_as)
+    gdf = derive_layers(osm, config)
     if clip_bbox is not None:
         window = bbox_polygon(clip_bbox, osm.crs)
         gdf = gdf.set_geometry(shapely.intersection(gdf.geometry.values, window))
         gdf = gdf.explode(index_parts=False)
         gdf = gdf[gdf.geom_type == "Polygon"]
-        gdf = gdf[gdf.area >= settings.min_polygon_area_m2]
+        gdf = gdf[gdf.area >= config.min_polygon_area_m2]
         # A sidewalk cut in two by the bbox edge keeps one id per part.
         dup = gdf["segment_id"].notna() & gdf["segment_id"].duplicated(keep=False)
         gdf.loc[dup, "segment_id"] = (
@@ -251,7 +229,7 @@ def build_map(
         "osm_timestamp": osm.timestamp,
         "generator": f"curbside {curbside.__version__}",
         "attribution": settings.osm_attribution,
-        "params": build_params(unmarked_as),
+        "params": to_dict(config),
     }
     counts = gdf["class"].value_counts().to_dict()
     log.info("built %s", ", ".join(f"{k}: {v}" for k, v in counts.items()))

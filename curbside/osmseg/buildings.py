@@ -15,7 +15,7 @@ import geopandas as gpd
 import numpy as np
 import shapely
 
-from curbside import settings
+from curbside.osmseg.config import SegmentationConfig
 from curbside.osmseg.overlay import subtract_each
 from curbside.osmseg.streets import carriageway_width, ground_level
 from curbside.osmseg.tags import column, first_number, is_in, metres
@@ -59,17 +59,17 @@ def footprint_mask(areas: gpd.GeoDataFrame) -> np.ndarray:
     )
 
 
-def passage_ways(ways: gpd.GeoDataFrame) -> gpd.GeoDataFrame:
+def passage_ways(ways: gpd.GeoDataFrame, config: SegmentationConfig) -> gpd.GeoDataFrame:
     """Street-level highway ways that may pass through buildings, with their width ``width_m``.
 
     Roads use their carriageway width; other ways their ``width`` tag, else
-    ``settings.passage_width_m``.
+    ``config.passage_width_m``.
     """
     mask = ground_level(ways) & ~is_in(column(ways, "highway"), NON_PASSAGE_HIGHWAYS)
-    return _with_width(ways[mask])
+    return _with_width(ways[mask], config)
 
 
-def station_passage_ways(ways: gpd.GeoDataFrame) -> gpd.GeoDataFrame:
+def station_passage_ways(ways: gpd.GeoDataFrame, config: SegmentationConfig) -> gpd.GeoDataFrame:
     """Ways through a station's concourses and bus decks, on any level, with ``width_m``.
 
     Platforms and busways, and footways mapped as ``tunnel=building_passage``, except bridges.
@@ -80,24 +80,29 @@ def station_passage_ways(ways: gpd.GeoDataFrame) -> gpd.GeoDataFrame:
         & (is_in(highway, ["platform"]) | is_in(column(ways, "tunnel"), ["building_passage"]))
         & ~(column(ways, "bridge").notna() & (column(ways, "bridge") != "no")).to_numpy()
     )
-    return _with_width(ways[mask])
+    return _with_width(ways[mask], config)
 
 
-def _with_width(candidates: gpd.GeoDataFrame) -> gpd.GeoDataFrame:
-    road_width, _ = carriageway_width(candidates)
+def _with_width(candidates: gpd.GeoDataFrame, config: SegmentationConfig) -> gpd.GeoDataFrame:
+    road_width, _ = carriageway_width(candidates, config)
     tagged = metres(column(candidates, "width"))
-    other_width = np.where(np.isnan(tagged), settings.passage_width_m, tagged)
+    other_width = np.where(np.isnan(tagged), config.passage_width_m, tagged)
     width = np.where(np.isnan(road_width), other_width, road_width)
     return candidates.assign(width_m=width)
 
 
-def buildings(areas: gpd.GeoDataFrame, ways: gpd.GeoDataFrame) -> gpd.GeoDataFrame:
+def buildings(
+    areas: gpd.GeoDataFrame, ways: gpd.GeoDataFrame, config: SegmentationConfig | None = None
+) -> gpd.GeoDataFrame:
     """Impenetrable building footprints with passages carved out.
 
     Parameters
     ----------
     areas, ways
         Tables of an :class:`~curbside.osmseg.reader.OsmData`.
+    config
+        Passage widths, island and sliver sizes (default
+        :class:`~curbside.osmseg.config.SegmentationConfig`).
 
     Returns
     -------
@@ -105,11 +110,15 @@ def buildings(areas: gpd.GeoDataFrame, ways: gpd.GeoDataFrame) -> gpd.GeoDataFra
         One row per remaining polygon: ``osm_id``, ``carved_m2`` (the area its building's passages
         removed, islands included) and a valid Polygon ``geometry``; no two polygons overlap.
     """
+    config = config or SegmentationConfig()
     footprints = areas[footprint_mask(areas)].reset_index(drop=True)
     geoms = shapely.make_valid(footprints.geometry.values)
     station = is_in(column(footprints, "building"), STATION_BUILDINGS)
     carved = np.zeros(len(geoms))
-    carvings = ((passage_ways(ways), np.ones(len(geoms), bool)), (station_passage_ways(ways), station))
+    carvings = (
+        (passage_ways(ways, config), np.ones(len(geoms), bool)),
+        (station_passage_ways(ways, config), station),
+    )
     for passages, which in carvings:
         targets = np.flatnonzero(which)
         if len(passages) == 0 or len(targets) == 0:
@@ -131,10 +140,10 @@ def buildings(areas: gpd.GeoDataFrame, ways: gpd.GeoDataFrame) -> gpd.GeoDataFra
     # busways) are open floor, not walls.
     thickness = 2 * area / np.maximum(shapely.length(parts), 1e-9)
     island = (carved[owner] > 0) & (
-        (area < settings.passage_island_area_m2) | (thickness < settings.passage_island_thickness_m)
+        (area < config.passage_island_area_m2) | (thickness < config.passage_island_thickness_m)
     )
-    keep = (shapely.get_type_id(parts) == 3) & (area >= settings.min_polygon_area_m2) & ~island
-    parts, owner = _clean_coverage(parts[keep], owner[keep])
+    keep = (shapely.get_type_id(parts) == 3) & (area >= config.min_polygon_area_m2) & ~island
+    parts, owner = _clean_coverage(parts[keep], owner[keep], config.min_polygon_area_m2)
     return gpd.GeoDataFrame(
         {"osm_id": footprints["osm_id"].to_numpy()[owner], "carved_m2": carved[owner]},
         geometry=parts,
@@ -142,8 +151,12 @@ def buildings(areas: gpd.GeoDataFrame, ways: gpd.GeoDataFrame) -> gpd.GeoDataFra
     )
 
 
-def _clean_coverage(polygons: np.ndarray, owner: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def _clean_coverage(
+    polygons: np.ndarray, owner: np.ndarray, min_area_m2: float
+) -> tuple[np.ndarray, np.ndarray]:
     """Polygons made a clean coverage (no two overlap), with the owner index of each part.
+
+    Parts smaller than ``min_area_m2`` are dropped.
 
     Mapped buildings overlap (a tower drawn inside its podium, neighbours whose walls cross). Each
     overlap goes to the smaller building (ties: the earlier one): every polygon loses what it shares
@@ -166,5 +179,5 @@ def _clean_coverage(polygons: np.ndarray, owner: np.ndarray) -> tuple[np.ndarray
         cut = np.unique(big)
         cleaned[cut] = subtract_each(polygons[cut], cut, big, polygons[small])
     parts, row = shapely.get_parts(shapely.make_valid(cleaned), return_index=True)
-    keep = (shapely.get_type_id(parts) == 3) & (shapely.area(parts) >= settings.min_polygon_area_m2)
+    keep = (shapely.get_type_id(parts) == 3) & (shapely.area(parts) >= min_area_m2)
     return parts[keep], owner[row[keep]]

@@ -10,11 +10,11 @@ For each class present in either map:
 - ``area_a_m2``, ``area_b_m2``: area of the union of the class's polygons inside the extent;
 - ``iou``: intersection over union of those two areas;
 - ``boundary_mean_m`` / ``boundary_median_m``: the symmetric boundary distance. Points are sampled
-  every ``settings.compare_boundary_step_m`` along A's class outline and their distance to B's
+  every ``boundary_step_m`` (1 m) along A's class outline and their distance to B's
   outline is measured, and vice versa; the mean (median) is over both sets of points together, so it
   is a length-weighted average. Outlines are those of the whole polygons, so the extent's edge is
   never taken for an outline, and targets are looked for a little beyond it
-  (``settings.compare_edge_margin_m``) so that points near the edge find their true nearest outline.
+  (``edge_margin_m``, 25 m) so that points near the edge find their true nearest outline.
 - ``boundary_a_to_b_m`` / ``boundary_b_to_a_m``: the two directed means (A's outline to B's, and back);
   a large ``b_to_a`` with a small ``a_to_b`` means B has outlines A lacks (e.g. missing buildings).
 - ``count_a``, ``count_b``: polygons of the class that intersect the extent.
@@ -35,7 +35,6 @@ import numpy as np
 import pandas as pd
 import shapely
 
-from curbside import settings
 from curbside.errors import CurbsideInputError
 from curbside.io import atomic_path
 from curbside.osmseg.mapio import CLASSES, MapLayers
@@ -60,11 +59,14 @@ class MapComparison:
         The common extent compared, ``(west, south, east, north)`` in degrees.
     extent_area_m2
         Its area.
+    boundary_step_m
+        Spacing of the points sampled along the outlines for the boundary distance.
     """
 
     table: pd.DataFrame
     extent_wgs84: tuple[float, float, float, float]
     extent_area_m2: float
+    boundary_step_m: float
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready form: ``extent`` and ``classes`` (NaN written as null)."""
@@ -77,7 +79,7 @@ class MapComparison:
         }
         return {
             "extent": {"bbox_wgs84": list(self.extent_wgs84), "area_m2": self.extent_area_m2},
-            "boundary_step_m": settings.compare_boundary_step_m,
+            "boundary_step_m": self.boundary_step_m,
             "classes": classes,
         }
 
@@ -144,10 +146,13 @@ def _distances(points: np.ndarray, target_lines: np.ndarray) -> np.ndarray:
 
 
 def _class_figures(
-    parts_a: np.ndarray | None, parts_b: np.ndarray | None, extent: shapely.Geometry
+    parts_a: np.ndarray | None,
+    parts_b: np.ndarray | None,
+    extent: shapely.Geometry,
+    step: float,
+    margin: float,
 ) -> dict[str, float]:
-    step = settings.compare_boundary_step_m
-    search = shapely.buffer(extent, settings.compare_edge_margin_m, join_style="mitre")
+    search = shapely.buffer(extent, margin, join_style="mitre")
     figures: dict[str, float] = dict.fromkeys(COLUMNS[2:], math.nan)
     clipped = {}
     for key, parts in (("a", parts_a), ("b", parts_b)):
@@ -177,7 +182,14 @@ def _class_figures(
     return figures
 
 
-def compare_maps(a: MapLayers, b: MapLayers, name_b: str = "map B") -> MapComparison:
+def compare_maps(
+    a: MapLayers,
+    b: MapLayers,
+    name_b: str = "map B",
+    *,
+    boundary_step_m: float = 1.0,
+    edge_margin_m: float = 25.0,
+) -> MapComparison:
     """Compare map ``b`` with map ``a`` class by class over their common extent.
 
     Parameters
@@ -186,6 +198,10 @@ def compare_maps(a: MapLayers, b: MapLayers, name_b: str = "map B") -> MapCompar
         The two maps; ``b`` is projected into ``a``'s CRS.
     name_b
         How to name ``b`` in an error (e.g. its path).
+    boundary_step_m
+        Spacing (m) of the points sampled along class outlines for the boundary distance.
+    edge_margin_m
+        How far (m) outside the common extent the nearest outline is looked for.
 
     Returns
     -------
@@ -196,7 +212,13 @@ def compare_maps(a: MapLayers, b: MapLayers, name_b: str = "map B") -> MapCompar
     ------
     CurbsideInputError
         When the two maps' extents do not overlap.
+    ValueError
+        A step that is not positive or a negative margin.
     """
+    if not (boundary_step_m > 0 and edge_margin_m >= 0):
+        raise ValueError(
+            f"need boundary_step_m > 0 and edge_margin_m >= 0, got {boundary_step_m}, {edge_margin_m}"
+        )
     ext_a, ext_b = map_extent(a), map_extent(b)
     west, south = max(ext_a[0], ext_b[0]), max(ext_a[1], ext_b[1])
     east, north = min(ext_a[2], ext_b[2]), min(ext_a[3], ext_b[3])
@@ -217,11 +239,11 @@ def compare_maps(a: MapLayers, b: MapLayers, name_b: str = "map B") -> MapCompar
             for key, g in geoms.items()
         }
         parts = {key: None if g is None else dissolve(g) for key, g in geoms.items()}
-        row.update(_class_figures(parts["a"], parts["b"], extent))
+        row.update(_class_figures(parts["a"], parts["b"], extent, boundary_step_m, edge_margin_m))
         rows[cls] = row
     table = pd.DataFrame.from_dict(rows, orient="index", columns=list(COLUMNS))
     table.index.name = "class"
-    return MapComparison(table, (west, south, east, north), float(shapely.area(extent)))
+    return MapComparison(table, (west, south, east, north), float(shapely.area(extent)), boundary_step_m)
 
 
 def format_comparison(result: MapComparison, name_a: str = "A", name_b: str = "B") -> str:

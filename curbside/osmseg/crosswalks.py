@@ -1,11 +1,12 @@
 """Stage 4: crosswalk polygons from crossing ways and crossing nodes.
 
-``footway=crossing`` ways are buffered by their ``width`` (else ``settings.crosswalk_width_m``) with
+``footway=crossing`` ways are buffered by their ``width`` (else ``crosswalk_width_m``) with
 square ends; ``highway=crossing`` nodes on a road that no crossing way passes through become a strip
 across the carriageway, perpendicular to the road at the node. Both are clipped to the carriageway
-grown by ``settings.crosswalk_overlap_m``, so every crosswalk reaches just past both curbs and joins
+grown by ``crosswalk_overlap_m``, so every crosswalk reaches just past both curbs and joins
 the sidewalks there. Unmarked crossings (``crossing=unmarked`` or ``crossing:markings=no``) are
-crosswalks or plain street as the caller chooses.
+crosswalks or plain street as the caller chooses. The widths and the choice are fields of
+:class:`~curbside.osmseg.config.SegmentationConfig`.
 """
 
 from __future__ import annotations
@@ -14,35 +15,32 @@ import geopandas as gpd
 import numpy as np
 import shapely
 
-from curbside import settings
-from curbside.errors import CurbsideInputError
+from curbside.osmseg.config import SegmentationConfig
 from curbside.osmseg.overlay import polygons_only
 from curbside.osmseg.streets import Carriageways, ground_level
 from curbside.osmseg.tags import column, is_in, metres
-
-UNMARKED_CHOICES = ("crosswalk", "street")
 
 
 def _unmarked(table) -> np.ndarray:
     return is_in(column(table, "crossing"), ["unmarked"]) | is_in(column(table, "crossing:markings"), ["no"])
 
 
-def crossing_ways(ways: gpd.GeoDataFrame, unmarked_as: str) -> gpd.GeoDataFrame:
+def crossing_ways(ways: gpd.GeoDataFrame, config: SegmentationConfig) -> gpd.GeoDataFrame:
     """Street-level ``footway=crossing`` ways that become crosswalks, with ``width_m``."""
     mask = is_in(column(ways, "footway"), ["crossing"]) & ground_level(ways)
     mask &= ~is_in(column(ways, "crossing"), ["no"])
-    if unmarked_as == "street":
+    if config.unmarked_crossing_as == "street":
         mask &= ~_unmarked(ways)
     out = ways[mask]
     width = metres(column(out, "width"))
-    return out.assign(width_m=np.where(np.isnan(width), settings.crosswalk_width_m, width))
+    return out.assign(width_m=np.where(np.isnan(width), config.crosswalk_width_m, width))
 
 
 def crossing_node_strips(
     nodes: gpd.GeoDataFrame,
     cways: Carriageways,
     crossings: gpd.GeoDataFrame,
-    unmarked_as: str,
+    config: SegmentationConfig,
     snap_m: float = 1.0,
 ) -> np.ndarray:
     """Strips across the carriageway at ``highway=crossing`` nodes that no crossing way covers.
@@ -55,8 +53,8 @@ def crossing_node_strips(
         The carriageways (road ways with per-side half-widths).
     crossings
         The crossing ways already turned into crosswalks.
-    unmarked_as
-        ``"crosswalk"`` or ``"street"``.
+    config
+        Crosswalk width and overlap, and what unmarked crossings become.
     snap_m
         A node counts as on a road (or on a crossing way) within this distance.
 
@@ -66,7 +64,7 @@ def crossing_node_strips(
         Polygons, one per qualifying node.
     """
     mask = is_in(column(nodes, "highway"), ["crossing"]) & ~is_in(column(nodes, "crossing"), ["no"])
-    if unmarked_as == "street":
+    if config.unmarked_crossing_as == "street":
         mask &= ~_unmarked(nodes)
     points = nodes.geometry.values[mask]
     roads = cways.roads
@@ -87,7 +85,7 @@ def crossing_node_strips(
     tangent = (b - a) / np.maximum(np.linalg.norm(b - a, axis=1, keepdims=True), 1e-9)
     left = np.column_stack([-tangent[:, 1], tangent[:, 0]])
     p = shapely.get_coordinates(points[point_i])
-    reach = settings.crosswalk_overlap_m + settings.crosswalk_width_m
+    reach = config.crosswalk_overlap_m + config.crosswalk_width_m
     ends = np.stack(
         [
             p - left * (roads["half_right_m"].to_numpy()[road_i, None] + reach),
@@ -96,14 +94,14 @@ def crossing_node_strips(
         axis=1,
     )
     strips = shapely.linestrings(ends.reshape(-1, 2), indices=np.repeat(np.arange(len(p)), 2))
-    return shapely.buffer(strips, settings.crosswalk_width_m / 2, cap_style="flat")
+    return shapely.buffer(strips, config.crosswalk_width_m / 2, cap_style="flat")
 
 
 def crosswalks(
     ways: gpd.GeoDataFrame,
     nodes: gpd.GeoDataFrame,
     cways: Carriageways,
-    unmarked_as: str = settings.unmarked_crossing_as,
+    config: SegmentationConfig | None = None,
 ) -> np.ndarray:
     """Disjoint crosswalk polygons.
 
@@ -113,8 +111,9 @@ def crosswalks(
         Tables of an :class:`~curbside.osmseg.reader.OsmData`.
     cways
         The carriageways from :func:`curbside.osmseg.streets.carriageways`.
-    unmarked_as
-        ``"crosswalk"`` (default) or ``"street"``: what unmarked crossings become.
+    config
+        Crosswalk width and overlap, what unmarked crossings become, the sliver size (default
+        :class:`~curbside.osmseg.config.SegmentationConfig`).
 
     Returns
     -------
@@ -122,19 +121,18 @@ def crosswalks(
         Valid, pairwise disjoint polygons inside the carriageway grown by the curb overlap (buildings
         not yet cut out).
     """
-    if unmarked_as not in UNMARKED_CHOICES:
-        raise CurbsideInputError("--unmarked-as", f"must be one of {', '.join(UNMARKED_CHOICES)}")
-    crossings = crossing_ways(ways, unmarked_as)
+    config = config or SegmentationConfig()
+    crossings = crossing_ways(ways, config)
     from_ways = shapely.buffer(
         crossings.geometry.values, crossings["width_m"].to_numpy() / 2, cap_style="square"
     )
-    from_nodes = crossing_node_strips(nodes, cways, crossings, unmarked_as)
+    from_nodes = crossing_node_strips(nodes, cways, crossings, config)
     raw = np.concatenate([from_ways, from_nodes])
     if len(raw) == 0:
         return raw
     # Clip to the carriageway of the roads each crosswalk crosses, grown past the curbs.
     roads = cways.roads
-    grow = settings.crosswalk_overlap_m
+    grow = config.crosswalk_overlap_m
     lines = roads.geometry.values
     reach = np.concatenate(
         [
@@ -144,4 +142,4 @@ def crosswalks(
     )
     raw_i, reach_i = shapely.STRtree(reach).query(raw, predicate="intersects")
     clipped = shapely.intersection(raw[raw_i], reach[reach_i])
-    return polygons_only(shapely.union_all(clipped), settings.min_polygon_area_m2)
+    return polygons_only(shapely.union_all(clipped), config.min_polygon_area_m2)

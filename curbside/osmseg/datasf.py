@@ -11,10 +11,10 @@ TopoJSON driver through geopandas. Three properties of the data shape the reader
   does not map light wells.
 - **About a quarter of the rings are invalid** (self-intersections left by the tiles' coordinate
   quantisation). They are repaired with GEOS's ``make_valid(method="structure")``, which keeps the
-  areal meaning of outer rings and holes; repair slivers under ``settings.datasf_min_area_m2`` go.
+  areal meaning of outer rings and holes; repair slivers under ``min_area_m2`` (1 m^2) go.
 - **Neighbouring tiles overlap:** a footprint that straddles a tile edge is stored in both tiles,
   quantised differently. Polygons from different tiles whose IoU reaches
-  ``settings.datasf_duplicate_iou`` are one building; the copy from the later tile is dropped.
+  ``duplicate_iou`` (0.9) are one building; the copy from the later tile is dropped.
 """
 
 from __future__ import annotations
@@ -28,7 +28,7 @@ import geopandas as gpd
 import numpy as np
 import shapely
 
-from curbside import __version__, settings
+from curbside import __version__
 from curbside.errors import CurbsideInputError
 from curbside.osmseg.mapio import MapLayers
 from curbside.projection import WGS84, utm_crs_for
@@ -72,11 +72,31 @@ def _drop_cross_tile_duplicates(geoms: np.ndarray, tile: np.ndarray, min_iou: fl
     return keep
 
 
+def _read_tiles(
+    paths: list[Path], bbox: tuple[float, float, float, float] | None
+) -> tuple[np.ndarray, np.ndarray]:
+    """The WGS84 footprints of all tiles (those that intersect ``bbox``) and the tile index of each."""
+    if not paths:
+        raise CurbsideInputError("TILE", "no DataSF tile given")
+    tiles = [_read_tile(p, bbox) for p in paths]
+    geoms = np.concatenate([t.to_numpy() for t in tiles])
+    tile = np.repeat(np.arange(len(tiles)), [len(t) for t in tiles])
+    if bbox is not None:
+        inside = shapely.intersects(geoms, shapely.box(*bbox))
+        geoms, tile = geoms[inside], tile[inside]
+    if len(geoms) == 0:
+        where = f" in bbox {list(bbox)}" if bbox is not None else ""
+        raise CurbsideInputError(", ".join(p.name for p in paths), f"no building footprint{where}")
+    return geoms, tile
+
+
 def read_datasf(
     paths: str | os.PathLike[str] | Iterable[str | os.PathLike[str]],
     bbox: tuple[float, float, float, float] | None = None,
     *,
     fill_holes: bool = False,
+    duplicate_iou: float = 0.9,
+    min_area_m2: float = 1.0,
 ) -> MapLayers:
     """Read DataSF building-footprint tiles into a building-only map.
 
@@ -89,6 +109,10 @@ def read_datasf(
         not clipped; :func:`curbside.osmseg.compare.compare_maps` clips to the common extent).
     fill_holes
         Drop inner rings (light wells, courtyards) and keep outer outlines only.
+    duplicate_iou
+        Footprints from different tiles overlapping with at least this IoU are one building twice.
+    min_area_m2
+        Polygon parts below this area, left by repairing self-intersecting rings, are dropped.
 
     Returns
     -------
@@ -102,23 +126,17 @@ def read_datasf(
     CurbsideInputError
         A missing or unreadable tile, coordinates that are not lon/lat degrees, or no footprint (in
         the bbox).
+    ValueError
+        ``duplicate_iou`` outside (0, 1] or a negative ``min_area_m2``.
     """
+    if not (0 < duplicate_iou <= 1 and min_area_m2 >= 0):
+        raise ValueError(
+            f"need 0 < duplicate_iou <= 1 and min_area_m2 >= 0, got {duplicate_iou}, {min_area_m2}"
+        )
     if isinstance(paths, (str, os.PathLike)):
         paths = [paths]
     paths = [Path(p) for p in paths]
-    if not paths:
-        raise CurbsideInputError("TILE", "no DataSF tile given")
-    tiles = [_read_tile(p, bbox) for p in paths]
-    geoms = np.concatenate([t.to_numpy() for t in tiles])
-    tile = np.repeat(np.arange(len(tiles)), [len(t) for t in tiles])
-    if bbox is not None:
-        inside = shapely.intersects(geoms, shapely.box(*bbox))
-        geoms, tile = geoms[inside], tile[inside]
-    names = ", ".join(p.name for p in paths)
-    if len(geoms) == 0:
-        where = f" in bbox {list(bbox)}" if bbox is not None else ""
-        raise CurbsideInputError(names, f"no building footprint{where}")
-
+    geoms, tile = _read_tiles(paths, bbox)
     west, south, east, north = shapely.total_bounds(geoms)
     crs = utm_crs_for((west + east) / 2, (south + north) / 2)
     metric = gpd.GeoSeries(geoms, crs=WGS84).to_crs(crs).to_numpy()
@@ -127,9 +145,9 @@ def read_datasf(
     parts, owner = shapely.get_parts(metric, return_index=True)
     if fill_holes:
         parts = shapely.polygons(shapely.get_exterior_ring(parts))
-    big = shapely.area(parts) >= settings.datasf_min_area_m2
+    big = shapely.area(parts) >= min_area_m2
     parts, part_tile = parts[big], tile[owner[big]]
-    keep = _drop_cross_tile_duplicates(parts, part_tile, settings.datasf_duplicate_iou)
+    keep = _drop_cross_tile_duplicates(parts, part_tile, duplicate_iou)
     log.info(
         "DataSF: %d features -> %d polygons (%d repaired, %d slivers dropped, %d cross-tile duplicates)",
         len(geoms), int(keep.sum()), n_invalid, int((~big).sum()), int((~keep).sum()),
@@ -147,8 +165,8 @@ def read_datasf(
         "generator": f"curbside {__version__} (osmseg import-datasf)",
         "params": {
             "inner_rings": "outer outlines only" if fill_holes else "holes",
-            "duplicate_iou": settings.datasf_duplicate_iou,
-            "min_area_m2": settings.datasf_min_area_m2,
+            "duplicate_iou": duplicate_iou,
+            "min_area_m2": min_area_m2,
         },
     }
     return MapLayers(gdf.reset_index(drop=True), meta)

@@ -183,8 +183,8 @@ def html_page(layers: MapLayers) -> str:
     polygons are inlined, so it opens offline. Each class present is one toggleable overlay in an
     expanded layer control; sidewalk segments show ``segment_id``, ``street`` and ``side`` in a tooltip
     and thicken their outline under the pointer. Coordinates are rounded to
-    ``settings.html_coordinate_decimals`` for display. The attribution goes to Leaflet's attribution
-    control.
+    :data:`curbside.osmseg.webmap.COORDINATE_DECIMALS` for display. The attribution goes to Leaflet's
+    attribution control.
 
     Parameters
     ----------

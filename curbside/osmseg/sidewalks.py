@@ -1,12 +1,12 @@
 """Stage 5: sidewalk segments, one polygon per side of a street per block.
 
-Streets that carry sidewalks (``settings.sidewalk_highways``) are split into blocks at junctions with
-other roads. Each block side gets the band from its centreline out to the curb plus
-``settings.sidewalk_depth_m``, built with a single-sided
-buffer (positive = left of the OSM way direction). Where bands of different streets meet at corners,
-the space goes to the nearest centreline (Voronoi cells of points sampled along the blocks). The
-carriageway, buildings and crosswalks are then cut out, which leaves the strip between the curb and
-the building line, split wherever a crosswalk crosses it.
+Streets that carry sidewalks (``sidewalk_highways`` of
+:class:`~curbside.osmseg.config.SegmentationConfig`) are split into blocks at junctions with other
+roads. Each block side gets the band from its centreline out to the curb plus ``sidewalk_depth_m``,
+built with a single-sided buffer (positive = left of the OSM way direction). Where bands of different
+streets meet at corners, the space goes to the nearest centreline (Voronoi cells of points sampled
+along the blocks). The carriageway, buildings and crosswalks are then cut out, which leaves the strip
+between the curb and the building line, split wherever a crosswalk crosses it.
 """
 
 from __future__ import annotations
@@ -18,7 +18,7 @@ import numpy as np
 import pandas as pd
 import shapely
 
-from curbside import settings
+from curbside.osmseg.config import SegmentationConfig
 from curbside.osmseg.overlay import subtract
 from curbside.osmseg.streets import MINOR_SERVICES, node_keys, sidewalk_sides
 from curbside.osmseg.tags import column, is_in
@@ -168,7 +168,10 @@ def extend_shared_ends(
 
 
 def sidewalk_segments(
-    roads: gpd.GeoDataFrame, obstacles: np.ndarray, min_area_m2: float = 2.0
+    roads: gpd.GeoDataFrame,
+    obstacles: np.ndarray,
+    min_area_m2: float = 2.0,
+    config: SegmentationConfig | None = None,
 ) -> gpd.GeoDataFrame:
     """Sidewalk segments along the roads that carry sidewalks.
 
@@ -180,6 +183,8 @@ def sidewalk_segments(
         Small polygons a sidewalk may not overlap: carriageway tiles, buildings, crosswalks.
     min_area_m2
         Smaller leftovers (corner slivers) are dropped.
+    config
+        Which streets carry sidewalks, how deep (default :class:`~curbside.osmseg.config.SegmentationConfig`).
 
     Returns
     -------
@@ -187,9 +192,10 @@ def sidewalk_segments(
         ``segment_id`` (``w<way id>-<k>-<L|R>``, ``k`` counting the segments of that side along
         the way), ``street``, ``side`` (``left``/``right``), ``osm_id`` and geometry.
     """
+    config = config or SegmentationConfig()
     service = column(roads, "service")
     block_end_mask = ~is_in(service, MINOR_SERVICES)
-    carrying_mask = is_in(column(roads, "highway"), settings.sidewalk_highways)
+    carrying_mask = is_in(column(roads, "highway"), config.sidewalk_highways)
     carrying = roads[carrying_mask].reset_index(drop=True)
     empty = gpd.GeoDataFrame(
         {"segment_id": [], "street": [], "side": [], "osm_id": []}, geometry=[], crs=roads.crs
@@ -200,7 +206,7 @@ def sidewalk_segments(
     lines = pieces.geometry.values
     road = pieces["road"].to_numpy()
     has_left, has_right = sidewalk_sides(carrying)
-    depth = settings.sidewalk_depth_m
+    depth = config.sidewalk_depth_m
     reach_left = carrying["half_left_m"].to_numpy()[road] + depth
     reach_right = carrying["half_right_m"].to_numpy()[road] + depth
     own = territories(lines)
@@ -225,24 +231,31 @@ def sidewalk_segments(
     parts, part_of = parts[polygonal], part_of[polygonal]
     piece = piece_of[part_of]
     way_row = road[piece]
-    # Number the parts of one way side in order along the way (a way the reader cut where its file
-    # lacks nodes has several rows: they are numbered on, in order).
     osm_id = carrying["osm_id"].to_numpy()[way_row]
     along = shapely.line_locate_point(carrying.geometry.values[way_row], shapely.centroid(parts))
-    table = pd.DataFrame(
-        {"osm_id": osm_id, "row": way_row, "side": side[part_of], "k": pieces["k"].to_numpy()[piece],
-         "along": along}
-    )  # fmt: skip
-    table = table.sort_values(["osm_id", "side", "row", "k", "along"], kind="stable")
-    table["n"] = table.groupby(["osm_id", "side"]).cumcount()
-    table = table.sort_index()
-    segment_id = (
-        "w" + pd.Series(osm_id).astype(str) + "-" + table["n"].astype(str).to_numpy()
-        + "-" + table["side"].map({"left": "L", "right": "R"}).to_numpy()
-    ).to_numpy()
+    k = pieces["k"].to_numpy()[piece]
+    segment_id = _segment_ids(
+        pd.DataFrame({"osm_id": osm_id, "row": way_row, "side": side[part_of], "k": k, "along": along})
+    )
     names = column(carrying, "name").to_numpy()[way_row]
     return gpd.GeoDataFrame(
-        {"segment_id": segment_id, "street": names, "side": table["side"].to_numpy(), "osm_id": osm_id},
+        {"segment_id": segment_id, "street": names, "side": side[part_of], "osm_id": osm_id},
         geometry=shapely.make_valid(parts),
         crs=roads.crs,
     )
+
+
+def _segment_ids(parts: pd.DataFrame) -> np.ndarray:
+    """``w<way id>-<n>-<L|R>`` per part, ``n`` numbering the parts of one way side in order along it.
+
+    ``parts`` has ``osm_id``, ``row`` (the way's row), ``side``, ``k`` (its block along the row) and
+    ``along`` (the part's position along the row). A way the reader cut where its file lacks nodes has
+    several rows: they are numbered on, in order.
+    """
+    table = parts.sort_values(["osm_id", "side", "row", "k", "along"], kind="stable")
+    table["n"] = table.groupby(["osm_id", "side"]).cumcount()
+    table = table.sort_index()
+    return (
+        "w" + table["osm_id"].astype(str) + "-" + table["n"].astype(str)
+        + "-" + table["side"].map({"left": "L", "right": "R"})
+    ).to_numpy()  # fmt: skip

@@ -3,9 +3,10 @@
 Each ground-level motor road is buffered to each side by its half-width (flat ends, one single-sided
 buffer per side), junction nodes get a disk of the narrowest meeting half-width so that bends and
 crossings close, and everything is unioned. Widths come from ``width``, else ``lanes`` plus parking
-and cycle lanes, else :data:`curbside.settings.default_carriageway_width_m`. Where a sidewalk is mapped
-separately (``footway=sidewalk``) the curb on that side is put half a sidewalk width short of it, so
-the carriageway never swallows a mapped sidewalk.
+and cycle lanes, else the ``highway`` class's default width (all widths: fields of
+:class:`~curbside.osmseg.config.SegmentationConfig`). Where a sidewalk is mapped separately
+(``footway=sidewalk``) the curb on that side is put half a sidewalk width short of it, so the
+carriageway never swallows a mapped sidewalk.
 """
 
 from __future__ import annotations
@@ -17,7 +18,7 @@ import numpy as np
 import pandas as pd
 import shapely
 
-from curbside import settings
+from curbside.osmseg.config import SegmentationConfig
 from curbside.osmseg.overlay import polygons_only, quadtree_split, subtract
 from curbside.osmseg.tags import column, first_number, is_in, metres
 
@@ -61,10 +62,10 @@ def ground_level(ways: pd.DataFrame) -> np.ndarray:
     )
 
 
-def road_mask(ways: pd.DataFrame) -> np.ndarray:
+def road_mask(ways: pd.DataFrame, config: SegmentationConfig) -> np.ndarray:
     """Mask of ways that make carriageway: motor-road classes at street level, not areas."""
     return (
-        is_in(column(ways, "highway"), settings.default_carriageway_width_m)
+        is_in(column(ways, "highway"), config.default_carriageway_width_m)
         & ~is_in(column(ways, "area"), ["yes"])
         & ground_level(ways)
     )
@@ -81,12 +82,12 @@ def _lanes(ways: pd.DataFrame) -> np.ndarray:
     return lanes
 
 
-def _parking_width(ways: pd.DataFrame) -> np.ndarray:
+def _parking_width(ways: pd.DataFrame, config: SegmentationConfig) -> np.ndarray:
     def side(lane_key: str, new_key: str) -> np.ndarray:
         old = column(ways, lane_key).map(_PARKING_LANE_VALUES)
         new = column(ways, new_key).map(_PARKING_VALUES)
         kind = old.where(old.notna(), new)
-        widths = {**settings.parking_width_m, "half": settings.parking_width_m["lane"] / 2}
+        widths = {**config.parking_width_m, "half": config.parking_width_m["lane"] / 2}
         return kind.map(widths).fillna(0.0).to_numpy(dtype=float)
 
     both = side("parking:lane:both", "parking:both")
@@ -95,8 +96,8 @@ def _parking_width(ways: pd.DataFrame) -> np.ndarray:
     tagged = np.zeros(len(ways), dtype=bool)
     for key in _PARKING_KEYS:
         tagged |= column(ways, key).notna().to_numpy()
-    urban = is_in(column(ways, "highway"), settings.sidewalk_highways)
-    assumed = np.where(urban & ~tagged, 2 * settings.assumed_parking_width_m, 0.0)
+    urban = is_in(column(ways, "highway"), config.sidewalk_highways)
+    assumed = np.where(urban & ~tagged, 2 * config.assumed_parking_width_m, 0.0)
     return np.where(both > 0, 2 * both, left + right) + assumed
 
 
@@ -110,13 +111,17 @@ def _cycle_lanes(ways: pd.DataFrame) -> np.ndarray:
     return np.where(sided > 0, sided, plain).astype(float)
 
 
-def carriageway_width(ways: pd.DataFrame) -> tuple[np.ndarray, np.ndarray]:
+def carriageway_width(
+    ways: pd.DataFrame, config: SegmentationConfig | None = None
+) -> tuple[np.ndarray, np.ndarray]:
     """Curb-to-curb width of each road way, and whether it came from a tag (``width`` / ``lanes``).
 
     Parameters
     ----------
     ways
         A table with tag columns (:class:`~curbside.osmseg.reader.OsmData` ``ways``).
+    config
+        Lane, parking and default widths (default :class:`~curbside.osmseg.config.SegmentationConfig`).
 
     Returns
     -------
@@ -125,32 +130,38 @@ def carriageway_width(ways: pd.DataFrame) -> tuple[np.ndarray, np.ndarray]:
     tagged : numpy.ndarray
         True where the width came from ``width`` or ``est_width`` (then the building line does not cap it).
     """
+    config = config or SegmentationConfig()
     tagged_width = metres(column(ways, "width"))
     est = metres(column(ways, "est_width"))
     tagged_width = np.where(np.isnan(tagged_width), est, tagged_width)
     from_lanes = (
-        _lanes(ways) * settings.lane_width_m
-        + _parking_width(ways)
-        + _cycle_lanes(ways) * settings.cycle_lane_width_m
+        _lanes(ways) * config.lane_width_m
+        + _parking_width(ways, config)
+        + _cycle_lanes(ways) * config.cycle_lane_width_m
     )
-    default = column(ways, "highway").map(settings.default_carriageway_width_m).to_numpy(dtype=float)
+    default = column(ways, "highway").map(config.default_carriageway_width_m).to_numpy(dtype=float)
     estimated = np.where(np.isnan(from_lanes), default, from_lanes)
     width = np.where(np.isnan(tagged_width), estimated, tagged_width)
     return width, ~np.isnan(tagged_width)
 
 
-def mapped_sidewalks(ways: gpd.GeoDataFrame) -> gpd.GeoDataFrame:
-    """Separately mapped sidewalks (``footway=sidewalk``) at street level, with ``width_m``."""
+def mapped_sidewalks(ways: gpd.GeoDataFrame, config: SegmentationConfig | None = None) -> gpd.GeoDataFrame:
+    """Separately mapped sidewalks (``footway=sidewalk``) at street level, with ``width_m``.
+
+    A sidewalk without a ``width`` tag is ``config.mapped_sidewalk_width_m`` wide.
+    """
+    config = config or SegmentationConfig()
     mask = is_in(column(ways, "footway"), SIDEWALK_FOOTWAYS) & ground_level(ways)
     out = ways[mask]
     width = metres(column(out, "width"))
-    return out.assign(width_m=np.where(np.isnan(width), settings.mapped_sidewalk_width_m, width))
+    return out.assign(width_m=np.where(np.isnan(width), config.mapped_sidewalk_width_m, width))
 
 
 def side_distances(
     lines: np.ndarray,
     targets: np.ndarray,
     setback_m: np.ndarray,
+    search_m: float,
     *,
     parallel_only: bool = False,
     step_m: float = 8.0,
@@ -158,9 +169,9 @@ def side_distances(
     """Median clearance (m) from each line to the targets on its left and right, NaN if none.
 
     Casts rays perpendicular to the line every ``step_m`` (at least one, at mid-length), takes the
-    nearest target each ray meets within ``settings.mapped_sidewalk_search_m`` and subtracts that
-    target's ``setback_m``; the median over a line's rays ignores cross streets' sidewalks or a
-    protruding building met near its ends.
+    nearest target each ray meets within ``search_m`` and subtracts that target's ``setback_m``; the
+    median over a line's rays ignores cross streets' sidewalks or a protruding building met near its
+    ends.
 
     Parameters
     ----------
@@ -171,6 +182,8 @@ def side_distances(
     setback_m
         Per target: how far short of it the curb lies (half the sidewalk width, the least sidewalk
         in front of a building).
+    search_m
+        Length of the rays.
     parallel_only
         Count only line targets within about 25 degrees of parallel to the road where hit.
     step_m
@@ -196,12 +209,11 @@ def side_distances(
     tangent = b - a
     tangent /= np.maximum(np.linalg.norm(tangent, axis=1, keepdims=True), 1e-9)
     left_normal = np.column_stack([-tangent[:, 1], tangent[:, 0]])
-    search = settings.mapped_sidewalk_search_m
     tree = shapely.STRtree(targets)
     for side, sign in enumerate((1.0, -1.0)):
         start = p + sign * left_normal * 0.5
         rays = shapely.linestrings(
-            np.stack([start, p + sign * left_normal * search], axis=1).reshape(-1, 2),
+            np.stack([start, p + sign * left_normal * search_m], axis=1).reshape(-1, 2),
             indices=np.repeat(np.arange(len(p)), 2),
         )
         ray_i, target_i = tree.query(rays, predicate="intersects")
@@ -249,7 +261,9 @@ class Carriageways:
     sidewalks: gpd.GeoDataFrame
 
 
-def carriageways(ways: gpd.GeoDataFrame, buildings: np.ndarray | None = None) -> Carriageways:
+def carriageways(
+    ways: gpd.GeoDataFrame, buildings: np.ndarray | None = None, config: SegmentationConfig | None = None
+) -> Carriageways:
     """Carriageway polygons of every street-level motor road.
 
     Parameters
@@ -258,32 +272,38 @@ def carriageways(ways: gpd.GeoDataFrame, buildings: np.ndarray | None = None) ->
         Highway ways of an :class:`~curbside.osmseg.reader.OsmData`.
     buildings
         Building footprints. On a side of a street with sidewalks whose width is not tagged, the
-        curb stays ``settings.min_sidewalk_width_m`` clear of the building line.
+        curb stays ``config.min_sidewalk_width_m`` clear of the building line.
+    config
+        Widths and rules (default :class:`~curbside.osmseg.config.SegmentationConfig`).
 
     Returns
     -------
     Carriageways
     """
-    roads = ways[road_mask(ways)].reset_index(drop=True)
-    sidewalks = mapped_sidewalks(ways)
-    width, tagged = carriageway_width(roads)
+    config = config or SegmentationConfig()
+    search = config.mapped_sidewalk_search_m
+    roads = ways[road_mask(ways, config)].reset_index(drop=True)
+    sidewalks = mapped_sidewalks(ways, config)
+    width, tagged = carriageway_width(roads, config)
     half = np.repeat((width / 2)[:, None], 2, axis=1)
     lines = roads.geometry.values
     to_sidewalk = side_distances(
-        lines, sidewalks.geometry.values, sidewalks["width_m"].to_numpy() / 2, parallel_only=True
+        lines, sidewalks.geometry.values, sidewalks["width_m"].to_numpy() / 2, search, parallel_only=True
     )
     # Mapped sidewalks are often drawn near the building line, not at the curb: they only cap the
     # estimated width, so the carriageway never swallows them.
     mapped = to_sidewalk < half
     half = np.fmin(half, to_sidewalk)
     if buildings is not None and len(buildings):
-        to_building = side_distances(lines, buildings, np.full(len(buildings), settings.min_sidewalk_width_m))
+        to_building = side_distances(
+            lines, buildings, np.full(len(buildings), config.min_sidewalk_width_m), search
+        )
         # A measured (tagged) width is not second-guessed from the building line.
         walked = np.column_stack(sidewalk_sides(roads)) & (
-            is_in(column(roads, "highway"), settings.sidewalk_highways) & ~tagged
+            is_in(column(roads, "highway"), config.sidewalk_highways) & ~tagged
         )[:, None]
         half = np.where(walked, np.fmin(half, to_building), half)
-    half = np.maximum(half, settings.min_carriageway_half_width_m)
+    half = np.maximum(half, config.min_carriageway_half_width_m)
     roads = roads.assign(
         half_left_m=half[:, 0], half_right_m=half[:, 1], mapped_left=mapped[:, 0], mapped_right=mapped[:, 1]
     )

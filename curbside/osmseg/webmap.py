@@ -17,6 +17,10 @@ from curbside import settings
 from curbside.osmseg.mapio import MapLayers, to_geojson
 from curbside.osmseg.style import BACKGROUND, CLASS_STYLE, stroke_colour
 
+#: Decimals of the lon/lat coordinates written into pages (6 decimals ~ 0.1 m: display only; the
+#: GeoJSON map files keep 7).
+COORDINATE_DECIMALS = 6
+
 #: The vendored web libraries (scripts, stylesheets, licences); see ``curbside/data/web/README.md``.
 WEB_ASSETS = Path(__file__).resolve().parents[1] / "data" / "web"
 # The source maps are not vendored; without the comment no devtools asks for them.
@@ -40,7 +44,7 @@ def attribution(layers: MapLayers | None) -> str:
 
 
 def class_features(layers: MapLayers, keep_properties: bool = False) -> dict[str, list[dict]]:
-    """The map's GeoJSON features by class, coordinates rounded to ``settings.html_coordinate_decimals``.
+    """The map's GeoJSON features by class, coordinates rounded to :data:`COORDINATE_DECIMALS`.
 
     Parameters
     ----------
@@ -55,7 +59,7 @@ def class_features(layers: MapLayers, keep_properties: bool = False) -> dict[str
         ``{class: [feature, ...]}`` for every class of :data:`~curbside.osmseg.style.CLASS_STYLE`, in
         drawing order.
     """
-    doc = to_geojson(layers, precision=settings.html_coordinate_decimals)
+    doc = to_geojson(layers, precision=COORDINATE_DECIMALS)
     by_class: dict[str, list[dict]] = {cls: [] for cls in CLASS_STYLE}
     for feature in doc["features"]:
         props = feature["properties"]

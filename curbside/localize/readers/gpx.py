@@ -3,7 +3,7 @@
 Parsing is gpxpy's (GPX 1.0 and 1.1, namespaces, extensions). Every track point of every track and
 segment (and route point) with a time becomes a fix; ``t`` is seconds since the first fix (its UTC
 time goes to ``meta["t0_utc"]``; times without a zone are taken as UTC, as GPX requires). GPX has no
-accuracy radius, only dilution of precision: ``accuracy_m = hdop * settings.gpx_uere_m`` (5 m, a
+accuracy radius, only dilution of precision: ``accuracy_m = hdop * uere_m`` (default 5 m, a
 typical user-equivalent range error of a phone receiver) when a point has ``<hdop>``; otherwise the
 accuracy is NaN, which the session model treats as an invalid fix (no GNSS update). ``<wpt>``
 elements with a ``<time>`` become ``waypoints.csv``.
@@ -18,7 +18,6 @@ import gpxpy
 import gpxpy.gpx
 import pandas as pd
 
-from curbside import settings
 from curbside.errors import CurbsideInputError
 from curbside.localize.readers._tidy import tidy_table
 from curbside.localize.session import Session
@@ -45,13 +44,15 @@ def _parse(path: Path) -> gpxpy.gpx.GPX:
         raise CurbsideInputError(path, f"cannot read ({exc.strerror})") from None
 
 
-def read_gpx(path: str | Path) -> Session:
+def read_gpx(path: str | Path, *, uere_m: float = 5.0) -> Session:
     """Read a GPX file as a GNSS-only session.
 
     Parameters
     ----------
     path
         The ``.gpx`` file.
+    uere_m
+        User-equivalent range error (m): a point's accuracy radius is its ``<hdop>`` times this.
 
     Returns
     -------
@@ -62,7 +63,11 @@ def read_gpx(path: str | Path) -> Session:
     ------
     CurbsideInputError
         Missing or unreadable file, malformed GPX, no track or route point with a time.
+    ValueError
+        ``uere_m`` not positive.
     """
+    if not uere_m > 0:
+        raise ValueError(f"uere_m must be positive, got {uere_m}")
     path = Path(path)
     if not path.is_file():
         raise CurbsideInputError(path, "no such file")
@@ -80,7 +85,7 @@ def read_gpx(path: str | Path) -> Session:
         raise CurbsideInputError(path, "no <trkpt> with a <time>")
     t0 = track["stamp"].min()
     track["t"] = (track["stamp"] - t0).dt.total_seconds()
-    track["accuracy_m"] = track["hdop"] * settings.gpx_uere_m
+    track["accuracy_m"] = track["hdop"] * uere_m
     if track["hdop"].isna().all():
         logger.warning("%s: no <hdop>; every fix has unknown accuracy and counts as invalid", path)
     gnss = tidy_table(track, path, ["t", "lat", "lon", "accuracy_m"], nullable=("accuracy_m",))

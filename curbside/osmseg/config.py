@@ -1,0 +1,141 @@
+"""Every parameter of ``osmseg build``: the widths and rules that turn OSM tags into polygons.
+
+:class:`SegmentationConfig` is passed down the build (:func:`curbside.osmseg.build.build_map`) to each
+stage and written whole into the map's metadata (``params``), so a map says which parameters made it.
+``docs/osmseg.md`` gives the source of each value.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+#: What an unmarked crossing (``crossing=unmarked``, ``crossing:markings=no``) may become.
+UNMARKED_CHOICES = ("crosswalk", "street")
+
+
+def _check(condition: bool, message: str) -> None:
+    if not condition:
+        raise ValueError(message)
+
+
+def _positive_number(value: object) -> bool:
+    return isinstance(value, int | float) and not isinstance(value, bool) and value > 0
+
+
+def _default_carriageway_widths() -> dict[str, float]:
+    return {
+        "motorway": 11.0, "motorway_link": 5.0, "trunk": 11.0, "trunk_link": 5.0,
+        "primary": 13.0, "primary_link": 5.0, "secondary": 12.0, "secondary_link": 5.0,
+        "tertiary": 10.0, "tertiary_link": 5.0, "residential": 8.0, "unclassified": 7.0,
+        "living_street": 6.0, "service": 5.0, "busway": 7.0,
+    }  # fmt: skip
+
+
+def _default_parking_widths() -> dict[str, float]:
+    return {"parallel": 2.2, "lane": 2.2, "diagonal": 4.5, "perpendicular": 5.0}
+
+
+@dataclass(frozen=True)
+class SegmentationConfig:
+    """The derivation rules and widths of ``osmseg build`` (metres, square metres for areas).
+
+    Attributes
+    ----------
+    default_carriageway_width_m
+        Carriageway width (curb to curb) per ``highway`` class when a way has neither ``width`` nor
+        ``lanes``. Its keys are also the classes that make carriageway.
+    lane_width_m
+        Width of one traffic lane when the width comes from ``lanes`` (osm2streets uses 3.0 m too).
+    parking_width_m
+        Width of one side's on-street parking by ``parking:*`` orientation or ``parking:lane:*`` value
+        (keys ``parallel``, ``lane``, ``diagonal``, ``perpendicular``; ``half_on_kerb`` takes half of
+        ``lane``).
+    assumed_parking_width_m
+        Parking assumed on each side of a street with sidewalks whose width comes from ``lanes`` and
+        that has no ``parking*`` tag (downtown streets mostly have curbside parking or loading lanes).
+    min_carriageway_half_width_m
+        Narrowest half carriageway after mapped sidewalks and building lines have capped it.
+    cycle_lane_width_m
+        Width of one painted cycle lane (``cycleway*=lane``).
+    sidewalk_highways
+        ``highway`` classes whose sidewalks become ``sidewalk`` segments (motorways, service roads and
+        busways have none).
+    sidewalk_depth_m
+        Depth of a derived sidewalk, curb to building line, where no building is closer.
+    min_sidewalk_width_m
+        Least sidewalk kept between a derived curb and the building line where no sidewalk is mapped.
+    mapped_sidewalk_width_m
+        Width of a separately mapped sidewalk (``footway=sidewalk``) without a ``width`` tag.
+    mapped_sidewalk_search_m
+        How far from a road's centreline a mapped sidewalk (or a building) may lie and still set that
+        side's curb.
+    crosswalk_width_m
+        Width of a crosswalk without a ``width`` tag (US crosswalks: 3 m / 10 ft).
+    crosswalk_overlap_m
+        How far crosswalks reach past the curb so that they join the sidewalk on both ends.
+    passage_width_m
+        Width of a walkable passage carved through a building by a footway, corridor or platform
+        without a ``width`` tag (roads use their carriageway width).
+    passage_island_area_m2, passage_island_thickness_m
+        Pieces of a carved building smaller than this area, or thinner than this (2 x area /
+        perimeter), are open floor between passages.
+    unmarked_crossing_as
+        What ``crossing=unmarked`` becomes: ``"crosswalk"`` or ``"street"``.
+    min_polygon_area_m2
+        Polygons smaller than this are dropped as slivers.
+    """
+
+    default_carriageway_width_m: dict[str, float] = field(default_factory=_default_carriageway_widths)
+    lane_width_m: float = 3.0
+    parking_width_m: dict[str, float] = field(default_factory=_default_parking_widths)
+    assumed_parking_width_m: float = 2.2
+    min_carriageway_half_width_m: float = 1.5
+    cycle_lane_width_m: float = 1.5
+    sidewalk_highways: tuple[str, ...] = (
+        "trunk", "trunk_link", "primary", "primary_link", "secondary", "secondary_link",
+        "tertiary", "tertiary_link", "residential", "unclassified", "living_street",
+    )  # fmt: skip
+    sidewalk_depth_m: float = 5.0
+    min_sidewalk_width_m: float = 2.5
+    mapped_sidewalk_width_m: float = 2.0
+    mapped_sidewalk_search_m: float = 25.0
+    crosswalk_width_m: float = 3.0
+    crosswalk_overlap_m: float = 0.5
+    passage_width_m: float = 3.0
+    passage_island_area_m2: float = 200.0
+    passage_island_thickness_m: float = 5.0
+    unmarked_crossing_as: str = "crosswalk"
+    min_polygon_area_m2: float = 0.5
+
+    def __post_init__(self) -> None:
+        for name in ("default_carriageway_width_m", "parking_width_m"):
+            widths = getattr(self, name)
+            _check(
+                isinstance(widths, dict) and all(_positive_number(v) for v in widths.values()),
+                f"{name} must map names to positive widths, got {widths!r}",
+            )
+        _check("lane" in self.parking_width_m, "parking_width_m needs a 'lane' width")
+        positive = (
+            self.lane_width_m, self.cycle_lane_width_m, self.sidewalk_depth_m, self.mapped_sidewalk_width_m,
+            self.mapped_sidewalk_search_m, self.crosswalk_width_m, self.passage_width_m,
+            self.min_carriageway_half_width_m,
+        )  # fmt: skip
+        _check(min(positive) > 0, "widths, depths and search distances must be positive")
+        non_negative = (
+            self.assumed_parking_width_m, self.min_sidewalk_width_m, self.crosswalk_overlap_m,
+            self.passage_island_area_m2, self.passage_island_thickness_m, self.min_polygon_area_m2,
+        )  # fmt: skip
+        _check(
+            min(non_negative) >= 0,
+            "parking, least sidewalk, crosswalk overlap, island and sliver sizes must be non-negative",
+        )
+        highways = self.sidewalk_highways
+        _check(
+            not isinstance(highways, str) and all(isinstance(h, str) for h in highways),
+            f"sidewalk_highways must be highway class names, got {highways!r}",
+        )
+        _check(
+            self.unmarked_crossing_as in UNMARKED_CHOICES,
+            f"unmarked_crossing_as must be one of {', '.join(UNMARKED_CHOICES)}, "
+            f"got {self.unmarked_crossing_as!r}",
+        )
