@@ -331,14 +331,7 @@ def write_report(
     pooled = pool(results, by_run)
     per_path = pool(results, (*by_run, "path"))
     per_session = pool(results, (*by_run, "session"))
-    base_path = per_path
-    for col in ("jaywalk_weight", "particles", "gnss_sigma_factor"):
-        val = base[col]
-        keep = (base_path["method"] == "gnss") | (
-            base_path[col].isna() if val is None else base_path[col] == val
-        )
-        base_path = base_path[keep]
-    base_path = base_path[base_path["map"] == base["map"]]
+    base_path = _at_base(per_path, base)
 
     tables = list(lead_tables or [])
     for map_name in pooled["map"].unique():
@@ -362,63 +355,69 @@ def write_report(
     }
     doc.update(extra_json or {})
     with atomic_path(out_dir) as tmp:
-        figdir = tmp / "figures"
-        figdir.mkdir(parents=True)
-        figures: list[tuple[str, str, bytes]] = []
-        figures.append(
-            (
-                "fig1_tracks.png",
-                "Fig. 1 tracks",
-                save_png(fig_tracks(results, layers, base), figdir / "fig1_tracks.png"),
-            )
-        )
-        fig3 = fig_particles(results, layers, base)
-        if fig3 is not None:
-            figures.append(
-                ("fig3_particles.png", "Fig. 3 particles", save_png(fig3, figdir / "fig3_particles.png"))
-            )
-        fig4 = save_png(fig_cdf(results, base), figdir / "fig4_cdf.png")
-        figures.append(("fig4_cdf.png", "Fig. 4 CDF", fig4))
-        figures.append(
-            (
-                "fig5_per_path.png",
-                "Fig. 5 per path",
-                save_png(fig_per_path(base_path, base), figdir / "fig5_per_path.png"),
-            )
-        )
+        figures = _write_figures(results, layers, base, base_path, tmp / "figures")
         (tmp / "metrics.json").write_text(json.dumps(json_ready(doc), indent=1), encoding="utf-8")
-        # -- the replay viewer: one page per session (curbside.localize.view) --------------------------
         from curbside.localize.view import write_session_views
 
         views = {name: f"view/{name}.html" for name in write_session_views(results, base, tmp / "view")}
-        views_md = "## Replay each session\n\n" + "".join(
-            f"- [{name}]({href})\n" for name, href in sorted(views.items())
-        )
-        views_html = "<h2>Replay each session</h2><ul>" + "".join(
-            f"<li><a href='{html.escape(href)}'>{html.escape(name)}</a></li>"
-            for name, href in sorted(views.items())
-        ) + "</ul>"
-        # -- end of the replay viewer's links ------------------------------------------------------------
         md = ["# curbside evaluation report", "", intro, ""]
         md += [t.markdown() for t in tables]
         md += [f"![{alt}](figures/{name})\n" for name, alt, _ in figures]
-        md += [views_md]
+        md += ["## Replay each session\n\n" + "".join(f"- [{n}]({h})\n" for n, h in sorted(views.items()))]
         (tmp / "report.md").write_text("\n".join(md), encoding="utf-8")
-        imgs = "".join(
-            f"<figure><img alt='{alt}' "
-            f"src='data:image/png;base64,{base64.b64encode(data).decode()}'/></figure>"
-            for _, alt, data in figures
-        )
-        style = (
-            "body{font-family:sans-serif;max-width:1200px;margin:auto;padding:1em}"
-            "table{border-collapse:collapse;margin:.5em 0}td,th{border:1px solid #bbb;padding:3px 8px;"
-            "text-align:right}th{background:#eee}.note{color:#555;font-size:90%}img{max-width:100%}"
-        )
-        page = (
-            f"<!doctype html><html><head><meta charset='utf-8'><title>curbside report</title>"
-            f"<style>{style}</style></head><body><h1>curbside evaluation report</h1>"
-            f"<p>{html.escape(intro)}</p>{''.join(t.html() for t in tables)}{imgs}{views_html}"
-            f"<p class='note'>{html.escape(settings.osm_attribution)}</p></body></html>"
-        )
-        (tmp / "report.html").write_text(page, encoding="utf-8")
+        (tmp / "report.html").write_text(_html_page(intro, tables, figures, views), encoding="utf-8")
     return {name: out_dir / name for name in ("metrics.json", "report.md", "report.html")}
+
+
+def _at_base(per_path: pd.DataFrame, base: dict[str, Any]) -> pd.DataFrame:
+    """The rows at the base parameters on the base map (GNSS has no filter parameters)."""
+    for col in ("jaywalk_weight", "particles", "gnss_sigma_factor"):
+        val = base[col]
+        keep = (per_path["method"] == "gnss") | (
+            per_path[col].isna() if val is None else per_path[col] == val
+        )
+        per_path = per_path[keep]
+    return per_path[per_path["map"] == base["map"]]
+
+
+def _write_figures(
+    results: list[dict], layers: MapLayers | None, base: dict[str, Any], base_path: pd.DataFrame, figdir: Path
+) -> list[tuple[str, str, bytes]]:
+    """Figures 1, 3 (when a run kept its particles), 4 and 5 as PNGs: ``(file name, alt text, bytes)``."""
+    figdir.mkdir(parents=True)
+    figs = [
+        ("fig1_tracks.png", "Fig. 1 tracks", fig_tracks(results, layers, base)),
+        ("fig3_particles.png", "Fig. 3 particles", fig_particles(results, layers, base)),
+        ("fig4_cdf.png", "Fig. 4 CDF", fig_cdf(results, base)),
+        ("fig5_per_path.png", "Fig. 5 per path", fig_per_path(base_path, base)),
+    ]
+    return [(name, alt, save_png(fig, figdir / name)) for name, alt, fig in figs if fig is not None]
+
+
+def _html_page(
+    intro: str, tables: list[Table], figures: list[tuple[str, str, bytes]], views: dict[str, str]
+) -> str:
+    """``report.html``: self-contained, figures inlined, links to the replay pages."""
+    imgs = "".join(
+        f"<figure><img alt='{alt}' src='data:image/png;base64,{base64.b64encode(data).decode()}'/></figure>"
+        for _, alt, data in figures
+    )
+    views_html = (
+        "<h2>Replay each session</h2><ul>"
+        + "".join(
+            f"<li><a href='{html.escape(href)}'>{html.escape(name)}</a></li>"
+            for name, href in sorted(views.items())
+        )
+        + "</ul>"
+    )
+    style = (
+        "body{font-family:sans-serif;max-width:1200px;margin:auto;padding:1em}"
+        "table{border-collapse:collapse;margin:.5em 0}td,th{border:1px solid #bbb;padding:3px 8px;"
+        "text-align:right}th{background:#eee}.note{color:#555;font-size:90%}img{max-width:100%}"
+    )
+    return (
+        f"<!doctype html><html><head><meta charset='utf-8'><title>curbside report</title>"
+        f"<style>{style}</style></head><body><h1>curbside evaluation report</h1>"
+        f"<p>{html.escape(intro)}</p>{''.join(t.html() for t in tables)}{imgs}{views_html}"
+        f"<p class='note'>{html.escape(settings.osm_attribution)}</p></body></html>"
+    )
