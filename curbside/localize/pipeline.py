@@ -301,13 +301,8 @@ def track_session(
     frame = _frame_for(session, map_layers)
     start, t_begin = _start_of(session)
     if map_layers is not None:
-        _check_extent(
-            session,
-            map_layers,
-            frame,
-            start if config.use_start_pose else None,
-            config.engine.extent_tolerance_m,
-        )
+        pose = start if config.use_start_pose else None
+        _check_extent(session, map_layers, frame, pose, config.engine.extent_tolerance_m)
     steps, step_source = _steps(session, config)
     velocity, velocity_source = None, None
     if config.mode != "gnss":
