@@ -260,6 +260,19 @@ def test_ipin_table_scores_methods_at_the_same_waypoints():
     assert "0 held-out trials" in held_out.title
 
 
+def test_ipin_errors_scores_an_extra_run_at_the_same_waypoints():
+    from curbside.evaluate.benchmark import ipin_errors
+    from curbside.localize.runconfig import RunConfig
+
+    h5 = Path(__file__).parent / "data" / "sessions" / "ipin2023-cut.h5"
+    coarse = RunConfig.for_mode("fused").with_overrides({"filter.n_particles": 50})
+    errors, rows, _ = ipin_errors(h5, trials=1, extra_runs={"coarse": coarse})
+    assert set(errors) == {"gnss", "inertial", "paper", "fused", "coarse"}
+    assert len(errors["coarse"]) == len(errors["fused"]) > 0
+    assert not np.array_equal(errors["coarse"], errors["fused"])  # really run with its own config
+    assert len({r["n_waypoints"] for r in rows}) == 1
+
+
 def test_simulate_a_custom_route(tmp_path):
     from curbside.localize.session import read_session
 

@@ -72,10 +72,15 @@ def test_same_seed_same_track_and_injections():
     assert not np.array_equal(err_a, err_c)
 
 
-def _recovery(n: int, kernel_scale: float = 5.0, sigma_factor: float = 0.66) -> DivergenceRecovery:
+def _recovery(
+    n: int, kernel_scale: float = 5.0, sigma_factor: float = 0.66, heading_sigma_deg: float = 0.0
+) -> DivergenceRecovery:
     rng = np.random.default_rng(0)
     gnss = GnssLikelihood(GnssConfig(sigma_factor=sigma_factor), n, rng)
-    return DivergenceRecovery(RecoveryConfig(max_fraction=0.3, kernel_scale=kernel_scale), gnss, rng)
+    config = RecoveryConfig(
+        max_fraction=0.3, kernel_scale=kernel_scale, inject_heading_sigma_deg=heading_sigma_deg
+    )
+    return DivergenceRecovery(config, gnss, rng)
 
 
 def test_injected_particles_land_around_the_fix_and_keep_current_heading_offsets():
@@ -92,6 +97,20 @@ def test_injected_particles_land_around_the_fix_and_keep_current_heading_offsets
     assert 2.2 < p.x[moved].std() < 3.1  # sigma = 0.66 * 4 m
     assert np.all((p.theta >= 0.1) & (p.theta <= 0.2))
     np.testing.assert_allclose(np.cos(p.theta), p.state[3])
+
+
+def test_injected_heading_offsets_are_jittered_around_current_ones():
+    recovery = _recovery(4000, heading_sigma_deg=30.0)
+    p = ParticleSet(4000)
+    p.x[:] = 500.0
+    p.set_heading(np.full(4000, 0.5))
+    recovery.inject(p, GnssFix(0.0, 0.0, 4.0), 0.3)
+    moved = p.x < 400
+    assert np.all(p.theta[~moved] == 0.5)  # particles that stay keep their offsets
+    assert abs(np.degrees(p.theta[moved].std()) - 30.0) < 2.0
+    assert abs(p.theta[moved].mean() - 0.5) < 0.06  # 4 standard errors
+    np.testing.assert_allclose(np.cos(p.theta), p.state[3])
+    np.testing.assert_allclose(np.sin(p.theta), p.state[4])
 
 
 def test_agreement_is_the_prior_weighted_mean_gaussian_kernel():
@@ -122,3 +141,33 @@ def test_a_collapse_is_logged_at_debug_not_as_a_warning(caplog):
     assert est.recovered and tracker.recoveries == 1
     collapse = [r for r in caplog.records if "collapsed" in r.getMessage()]
     assert collapse and all(r.levelno == logging.DEBUG for r in collapse)
+
+
+def _lost_share_after_a_heading_kidnap(heading_sigma_deg: float, seed: int) -> float:
+    """Turn every heading offset by 150 deg and move the cloud 60 m off at step 40 of a walk east with
+    good fixes; the share of steps 100-400 whose estimate is more than 10 m off."""
+    config = FilterConfig(
+        n_particles=300, recovery=RecoveryConfig(inject_heading_sigma_deg=heading_sigma_deg)
+    )
+    tracker = Tracker.from_config(None, config, seed=seed)
+    noise = np.random.default_rng(100 + seed).normal(0.0, 0.66 * ACCURACY_M, (400, 2))
+    tracker.start_at_pose(0.0, 0.0, 0.0)
+    errors = []
+    for k in range(1, 401):
+        if k == 40:
+            tracker.particles.set_heading(tracker.particles.theta + math.radians(150.0))
+            tracker.particles.y += 60.0
+        fix = GnssFix(k * STEP_M + noise[k - 1, 0], noise[k - 1, 1], ACCURACY_M)
+        est = tracker.step(k * STEP_S, displacement_en=(STEP_M, 0.0), gnss_fix=fix)
+        errors.append(math.hypot(est.x - k * STEP_M, est.y))
+    return float((np.array(errors[100:]) > 10.0).mean())
+
+
+def test_jittered_injection_recovers_a_cloud_whose_heading_offset_went_wrong():
+    # injected particles that copy the wrong offset run off again; jittered ones find the right one.
+    # One kidnap with 300 particles is a coin toss either way, so the claim is about six of them.
+    seeds = range(6)
+    without = np.mean([_lost_share_after_a_heading_kidnap(0.0, seed) for seed in seeds])
+    jittered = np.mean([_lost_share_after_a_heading_kidnap(30.0, seed) for seed in seeds])
+    assert without > 0.7
+    assert jittered < 0.35

@@ -19,6 +19,7 @@ from curbside.errors import CurbsideInputError
 from curbside.evaluate.groundtruth import groundtruth_at, waypoints_xy
 from curbside.evaluate.report import Table, write_report
 from curbside.evaluate.runner import METHOD_LABELS, METHODS, RunSpec, run_all
+from curbside.localize.runconfig import RunConfig
 from curbside.localize.session import Session, read_session
 from curbside.osmseg.mapio import read_map, write_map
 from curbside.projection import LocalFrame
@@ -221,6 +222,7 @@ def run_benchmark(
     scheduler: str | None = None,
     map_path: str | Path | None = None,
     datasf_tiles: list[str | Path] | None = None,
+    profile: str = "phone",
 ) -> dict[str, Path]:
     """Build the map, simulate the six SF walks and write the benchmark report, from scratch.
 
@@ -241,6 +243,9 @@ def run_benchmark(
         DataSF building tiles: adds a second map source (DataSF buildings + OSM streets and
         sidewalks) and the map-source comparison table. ``fast=False`` also sweeps the particle
         count (100, 500, 2000) and the GNSS sigma factor (default, 2).
+    profile
+        The inertial error profile of the simulated walks (``phone``: phone-in-hand errors;
+        ``nominal``: RoNIN's published error levels).
 
     Returns
     -------
@@ -258,7 +263,8 @@ def run_benchmark(
         log.info("building the OSM map -> %s", map_path)
         write_map(build_map(), map_path)
     map_path = Path(map_path)
-    sessions = simulate_benchmark(out_dir / "sessions", seeds, SimulationConfig(write_imu=not fast))
+    simulation = SimulationConfig(write_imu=not fast, profile=profile)
+    sessions = simulate_benchmark(out_dir / "sessions", seeds, simulation)
     maps = {"osm": str(map_path)}
     if datasf_tiles:
         maps["datasf+osm"] = str(datasf_osm_map(map_path, list(datasf_tiles), out_dir / "map-datasf.geojson"))
@@ -272,8 +278,8 @@ def run_benchmark(
     intro = (
         f"Six simulated walks in downtown San Francisco shaped like the paper's Table 1, {seeds} "
         "recording(s) each, tracked on the automatic OSM map. GNSS errors come from an urban-canyon "
-        "model driven by OSM building heights; inertial velocity is RoNIN-like (velocity.csv). "
-        "Numbers in parentheses are the paper's (real walks, real RoNIN)."
+        "model driven by OSM building heights; inertial velocity is RoNIN-like (velocity.csv) with "
+        f"the '{profile}' error profile. Numbers in parentheses are the paper's (real walks, real RoNIN)."
     )
     paths = write_report(
         results,
@@ -332,7 +338,11 @@ def demo_stage(ctx: Any) -> dict[str, Path]:
 
 
 def ipin_errors(
-    h5: str | Path, trials: int | None = None, seed: int = 0, held_out: bool = False
+    h5: str | Path,
+    trials: int | None = None,
+    seed: int = 0,
+    held_out: bool = False,
+    extra_runs: dict[str, RunConfig] | None = None,
 ) -> tuple[dict[str, np.ndarray], list[dict], int]:
     """Every method's errors at the surveyed IPIN 2023 waypoints (real data, no map).
 
@@ -350,6 +360,8 @@ def ipin_errors(
         Filter seed.
     held_out
         Only the ``repetition04`` trials, which the bundled RoNIN model never saw.
+    extra_runs
+        More runs scored at the same waypoints, by name (e.g. a reference configuration).
 
     Returns
     -------
@@ -362,7 +374,8 @@ def ipin_errors(
     from curbside.localize.ronin.data import IPIN_TEST_MARK
 
     names = [n for n in list_trials(h5) if not held_out or IPIN_TEST_MARK in n][: trials or None]
-    errors: dict[str, list[np.ndarray]] = {m: [] for m in METHODS}
+    runs = {m: RunConfig.for_mode(m) for m in METHODS} | dict(extra_runs or {})
+    errors: dict[str, list[np.ndarray]] = {m: [] for m in runs}
     rows = []
     for name in names:
         session = read_trial(h5, name)
@@ -373,15 +386,15 @@ def ipin_errors(
         )
         wt, wx, wy = waypoints_xy(session.waypoints, frame)
         tracks = {}
-        for method in METHODS:
+        for method, config in runs.items():
             try:
-                track = track_session(session, None, method, seed=seed).track
+                track = track_session(session, None, config=config, seed=seed).track
             except CurbsideInputError as exc:
                 log.warning("IPIN %s %s skipped: %s", name, method, exc)
                 continue
             if len(track) >= 2:
                 tracks[method] = track
-        if len(tracks) < len(METHODS):
+        if len(tracks) < len(runs):
             continue
         # score every method at the same waypoints: inside every track's span, the start one excluded
         common = np.arange(len(wt)) > 0
@@ -409,12 +422,16 @@ def ipin_table(
 ) -> tuple[Table, list[dict]]:
     """Real data without a map: every method at the surveyed IPIN 2023 waypoints (:func:`ipin_errors`)."""
     errors, rows, n_trials = ipin_errors(h5, trials, seed, held_out)
+    return ipin_errors_table(errors, n_trials, held_out), rows
+
+
+def ipin_errors_table(errors: dict[str, np.ndarray], n_trials: int, held_out: bool = False) -> Table:
+    """The table of :func:`ipin_errors`' pooled errors: waypoints, median, p90 and mean per run."""
     table_rows = []
-    for m in METHODS:
-        e = errors[m]
+    for m, e in errors.items():
         table_rows.append(
             [
-                METHOD_LABELS[m],
+                METHOD_LABELS.get(m, m),
                 str(len(e)),
                 f"{np.median(e):.1f}" if len(e) else "n/a",
                 f"{np.percentile(e, 90):.1f}" if len(e) else "n/a",
@@ -422,9 +439,8 @@ def ipin_table(
             ]
         )
     which = "held-out " if held_out else ""
-    table = Table(
+    return Table(
         f"IPIN 2023 Track 3 ({n_trials} {which}trials, no map): error at surveyed waypoints (m)",
         ["method", "waypoints", "median", "p90", "mean"],
         table_rows,
     )
-    return table, rows

@@ -199,16 +199,20 @@ def _git_commit() -> str | None:
 
 
 def _ipin_summary(h5: str | Path, seed: int) -> tuple[dict[str, dict[str, float]], Any]:
-    from curbside.evaluate.benchmark import ipin_errors, ipin_table
+    """Every method and version 0.1's fused filter on the held-out IPIN trials, at the same waypoints."""
+    from curbside.evaluate.benchmark import ipin_errors, ipin_errors_table
+    from curbside.localize.runconfig import RunConfig
 
-    errors, _, _ = ipin_errors(h5, seed=seed, held_out=True)
+    reference = RunConfig.for_mode("fused").with_overrides(criteria.FUSED_0_1_OVERRIDES)
+    errors, _, n_trials = ipin_errors(
+        h5, seed=seed, held_out=True, extra_runs={criteria.IPIN_BASELINE_RUN: reference}
+    )
     summary = {
         m: {"n": len(e), "median_m": float(np.median(e)), "p90_m": float(np.percentile(e, 90))}
         for m, e in errors.items()
         if len(e)
     }
-    table, _ = ipin_table(h5, seed=seed, held_out=True)
-    return summary, table
+    return summary, ipin_errors_table(errors, n_trials, held_out=True)
 
 
 def _maps(
@@ -277,6 +281,21 @@ def simulate_suite(
     }
 
 
+def _scores(
+    results: list[dict], config: SuiteConfig, maps: dict[str, str], ipin_summary: dict | None
+) -> tuple[pd.DataFrame, pd.DataFrame, list[criteria.Check]]:
+    """Pooled and per-session metrics and the done-when checks of a suite's results."""
+    pooled = pooled_by_subset(results)
+    per_session = pooled_by_subset(results, ("session",))
+    datasf = DATASF_MAP if DATASF_MAP in maps else None
+    ipin_fused = ipin_summary["fused"] if ipin_summary else None
+    ipin_baseline = ipin_summary.get(criteria.IPIN_BASELINE_RUN) if ipin_summary else None
+    checks = criteria.done_when(
+        pooled, per_session, config.jaywalk_weight, OSM_MAP, datasf, ipin_fused, ipin_baseline=ipin_baseline
+    )
+    return pooled, per_session, checks
+
+
 def run_suite(
     out_dir: str | Path,
     config: SuiteConfig | None = None,
@@ -338,15 +357,12 @@ def run_suite(
         ipin_summary, ipin_tab = _ipin_summary(ipin, config.filter_seed)
         timings["ipin_s"] = time.perf_counter() - start
 
-    pooled = pooled_by_subset(results)
-    per_session = pooled_by_subset(results, ("session",))
-    datasf = DATASF_MAP if DATASF_MAP in maps else None
-    ipin_fused = ipin_summary["fused"] if ipin_summary else None
-    checks = criteria.done_when(pooled, per_session, config.jaywalk_weight, OSM_MAP, datasf, ipin_fused)
+    pooled, per_session, checks = _scores(results, config, maps, ipin_summary)
     run_info = {
         **_run_info(config, maps, specs, sessions),
         "datasf_tiles": [str(t) for t in datasf_tiles or []],
         "ipin": str(ipin) if ipin else None,
+        "ipin_baseline_overrides": criteria.FUSED_0_1_OVERRIDES if ipin else None,
         "workers": workers,
         "scheduler": scheduler,
     }

@@ -45,8 +45,8 @@ class MotionConfig:
     heading_noise_deg: float = 1.5
     heading_jump_prob: float = 0.0
     heading_jump_sigma_deg: float = 30.0
-    scale_init_sigma: float = 0.12
-    scale_noise_per_step: float = 0.002
+    scale_init_sigma: float = 0.09
+    scale_noise_per_step: float = 0.001
 
     def __post_init__(self) -> None:
         _check(
@@ -231,6 +231,10 @@ class RecoveryConfig:
         The agreement kernel's sigma as a multiple of the GNSS likelihood's sigma.
     max_fraction
         At most this fraction of the particles is re-drawn around a fix at one update (0: off).
+    inject_heading_sigma_deg
+        A re-drawn particle takes a random particle's heading offset plus a Gaussian jitter of this
+        sigma (degrees; 0: the offset as it is). A cloud often diverges because its heading offset is
+        wrong, and particles that inherit it exactly run off the same way.
     """
 
     collapse_sigma_m: float = 5.0
@@ -239,10 +243,15 @@ class RecoveryConfig:
     trigger_ratio: float = 0.5
     kernel_scale: float = 5.0
     max_fraction: float = 0.25
+    inject_heading_sigma_deg: float = 30.0
 
     def __post_init__(self) -> None:
         _check(self.collapse_sigma_m > 0, f"collapse_sigma_m must be positive, got {self.collapse_sigma_m}")
         _check(0.0 <= self.max_fraction <= 1.0, f"max_fraction must lie in [0, 1], got {self.max_fraction}")
+        _check(
+            self.inject_heading_sigma_deg >= 0,
+            f"inject_heading_sigma_deg must be non-negative, got {self.inject_heading_sigma_deg}",
+        )
         _check(
             0.0 < self.alpha_slow < self.alpha_fast <= 1.0
             and 0.0 < self.trigger_ratio <= 1.0

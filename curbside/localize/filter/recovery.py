@@ -13,8 +13,9 @@ back. Each fix measures the cloud's agreement with it, ``w_avg = sum_i w_i exp(-
 (``d_i``: the particle's expected fix to the fix, ``s = kernel_scale *`` the likelihood's sigma,
 ``w_i``: the prior weights), a short- and a long-term average follow it, and when the short one falls
 well below the long one the fraction ``min(max_fraction, max(0, 1 - w_fast / (trigger_ratio *
-w_slow)))`` of the particles is re-drawn around the fix after resampling. Injected particles keep the
-heading offset, speed scale and bias of random current particles.
+w_slow)))`` of the particles is re-drawn around the fix after resampling. Injected particles take the
+speed scale and bias of random current particles, and their heading offset with a jitter
+(``inject_heading_sigma_deg``): a cloud usually diverges because its heading offset went wrong.
 """
 
 from __future__ import annotations
@@ -145,6 +146,10 @@ class DivergenceRecovery:
         sigma = self.gnss.sigma_m(fix)
         for row in (THETA, COS, SIN, SCALE, BIAS_X, BIAS_Y):
             s[row, idx] = s[row, donors]
+        if self.config.inject_heading_sigma_deg > 0:
+            s[THETA, idx] += math.radians(self.config.inject_heading_sigma_deg) * rng.standard_normal(k)
+            s[COS, idx] = np.cos(s[THETA, idx])
+            s[SIN, idx] = np.sin(s[THETA, idx])
         s[X, idx] = fix.x - s[BIAS_X, idx] + sigma * rng.standard_normal(k)
         s[Y, idx] = fix.y - s[BIAS_Y, idx] + sigma * rng.standard_normal(k)
         particles.log_weight[idx] = -math.log(n)
