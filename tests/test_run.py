@@ -261,6 +261,15 @@ def test_gnss_start_without_start_pose(tmp_path, map_file):
     assert np.median(errors_m(result.track)[-40:]) < 5.0
 
 
+def test_inertial_without_start_pose_says_what_anchors_it(tmp_path, map_file, caplog):
+    folder = write_walk(tmp_path / "walk", duration_s=20.0, start_xy=None, gnss_offset_m=(0, 0))
+    with caplog.at_level("WARNING", logger="curbside.localize.pipeline"):
+        track_session(read_session(folder), read_map(map_file), "fused", seed=0)
+        assert "no start pose" not in caplog.text
+        track_session(read_session(folder), read_map(map_file), "inertial", seed=0)
+    assert "no start pose: the inertial track starts at the first usable GNSS fix" in caplog.text
+
+
 def test_fixed_cadence_without_steps_or_imu(tmp_path):
     folder = write_walk(tmp_path / "walk", duration_s=10.0)
     (folder / "steps.csv").unlink()

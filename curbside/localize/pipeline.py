@@ -252,6 +252,16 @@ def _report_gnss_holds(session: Session, config: RunConfig) -> None:
         )
 
 
+def _report_unanchored_inertial(session: Session, config: RunConfig, start: StartPose | None) -> None:
+    if config.mode == "inertial" and (start is None or not config.use_start_pose):
+        logger.warning(
+            "%s: no start pose: the inertial track starts at the first usable GNSS fix with its heading "
+            "unknown (spread over the full circle), so it is anchored only by that fix and the map; add a "
+            "start pose (lat, lon, heading_deg) to meta.json for an inertial track from a known start",
+            session.name,
+        )
+
+
 def track_session(
     session: Session,
     map_layers: MapLayers | None = None,
@@ -300,6 +310,7 @@ def track_session(
     )
     frame = _frame_for(session, map_layers)
     start, t_begin = _start_of(session)
+    _report_unanchored_inertial(session, config, start)
     if map_layers is not None:
         pose = start if config.use_start_pose else None
         _check_extent(session, map_layers, frame, pose, config.engine.extent_tolerance_m)
