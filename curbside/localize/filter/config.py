@@ -1,10 +1,10 @@
 """Every parameter of the particle filter: one frozen dataclass per part, gathered in :class:`FilterConfig`.
 
 Each part of the filter (:mod:`~curbside.localize.filter.predict`, ``map_likelihood``, ``gnss``,
-``resample``, ``recovery``, ``initiate``) takes its own section; :class:`FilterConfig` holds them all and
-is written whole to ``run.json`` (:func:`curbside.configio.to_dict`), so a run is reproducible from that
-file alone. Defaults are curbside's fused filter; :meth:`FilterConfig.preset` gives the paper's plain
-filter for comparison. ``docs/filter.md`` gives the reasoning behind each value.
+``resample``, ``recovery``, ``scale``, ``initiate``) takes its own section; :class:`FilterConfig` holds
+them all and is written whole to ``run.json`` (:func:`curbside.configio.to_dict`), so a run is
+reproducible from that file alone. Defaults are curbside's fused filter; :meth:`FilterConfig.preset`
+gives the paper's plain filter for comparison. ``docs/filter.md`` gives the reasoning behind each value.
 """
 
 from __future__ import annotations
@@ -262,6 +262,64 @@ class RecoveryConfig:
 
 
 @dataclass(frozen=True)
+class ScaleCorrectionConfig:
+    """GNSS-driven speed-scale correction (:class:`~curbside.localize.filter.scale.ScaleCorrection`).
+
+    Attributes
+    ----------
+    fraction
+        Share of the particles whose speed scale is re-drawn around the fitted one when a fit disagrees
+        with the cloud (0: off).
+    window_s
+        The fixes of the last this many seconds are fitted against the cloud's inertial path; a fit is
+        made at most every quarter window, once the window is three quarters full.
+    trigger
+        A fit acts only when its scale differs from the cloud's mean by more than this (relative) ...
+    significance
+        ... and by more than this many of its standard errors ...
+    max_rotation_deg
+        ... and it needs a rotation under this (a fit that turns the path a lot does not describe it).
+    sigma
+        Log-normal spread of the re-drawn scales around the fitted one.
+    min_scale, max_scale
+        Re-drawn scales are clipped to this range.
+    min_path_m
+        A fit needs a path spanning at least ``max(min_path_m, 3 sqrt(2) median accuracy)``.
+    trim_share
+        The fit is repeated without this share of the fixes farthest from the first fit.
+    correlation_s
+        The fit's standard error counts one independent fix per this many seconds (successive fixes
+        share most of their error).
+    """
+
+    fraction: float = 0.05
+    window_s: float = 60.0
+    trigger: float = 0.15
+    significance: float = 3.0
+    max_rotation_deg: float = 20.0
+    sigma: float = 0.05
+    min_scale: float = 0.6
+    max_scale: float = 1.6
+    min_path_m: float = 20.0
+    trim_share: float = 0.2
+    correlation_s: float = 30.0
+
+    def __post_init__(self) -> None:
+        _check(0.0 <= self.fraction <= 1.0, f"fraction must lie in [0, 1], got {self.fraction}")
+        _check(0.0 <= self.trim_share < 1.0, f"trim_share must lie in [0, 1), got {self.trim_share}")
+        _check(
+            0.0 < self.min_scale < self.max_scale,
+            f"need 0 < min_scale < max_scale, got {self.min_scale}, {self.max_scale}",
+        )
+        _check(
+            min(self.window_s, self.trigger, self.significance, self.max_rotation_deg, self.correlation_s) > 0
+            and min(self.sigma, self.min_path_m) >= 0,
+            "window_s, trigger, significance, max_rotation_deg and correlation_s must be positive, sigma "
+            "and min_path_m non-negative",
+        )
+
+
+@dataclass(frozen=True)
 class FilterConfig:
     """All parameters of the particle filter.
 
@@ -269,7 +327,7 @@ class FilterConfig:
     ----------
     n_particles
         Number of particles N (the paper: 500).
-    motion, start, map, gnss, resample, recovery
+    motion, start, map, gnss, resample, recovery, scale_correction
         One section per part.
     segment_estimate
         Compute the posterior over sidewalk segments and its mode at each update (needs a map with
@@ -283,6 +341,7 @@ class FilterConfig:
     gnss: GnssConfig = field(default_factory=GnssConfig)
     resample: ResampleConfig = field(default_factory=ResampleConfig)
     recovery: RecoveryConfig = field(default_factory=RecoveryConfig)
+    scale_correction: ScaleCorrectionConfig = field(default_factory=ScaleCorrectionConfig)
     segment_estimate: bool = True
 
     def __post_init__(self) -> None:
@@ -311,6 +370,7 @@ class FilterConfig:
                 gnss=GnssConfig(sigma_factor=1.0, outlier_prob=0.0, correlation_time_s=0.0),
                 resample=ResampleConfig(policy="always"),
                 recovery=RecoveryConfig(max_fraction=0.0),
+                scale_correction=ScaleCorrectionConfig(fraction=0.0),
                 start=StartConfig(fix_sigma_factor=1.0),
             )
         raise ValueError(f"unknown preset {name!r}; one of {PRESETS}")

@@ -5,6 +5,7 @@ every update::
 
     predictor.predict          move every particle by the step's inertial displacement
     divergence.observe         (optional) measure the cloud's agreement with this update's fix
+    scale.observe              (optional) fit the recent fixes against the cloud's inertial path
     for each likelihood:       map, GNSS, or any part you add
         likelihood.weigh       add log-likelihoods to the particles' log-weights
     normalise_and_estimate     log-sum-exp normalisation; weighted mean, heading, speed scale, n_eff
@@ -12,6 +13,7 @@ every update::
     segments.mode              (optional) the MAP sidewalk segment
     resampler.resample         every update (the paper) or below an ESS threshold
     divergence.inject          (optional) re-draw a fraction of the particles around the fix
+    scale.correct              (optional) re-draw a fraction of the speed scales around the fitted one
 
 :meth:`Tracker.from_config` builds the default parts from a :class:`FilterConfig`; the constructor takes
 parts directly, and the ``likelihoods`` list may be edited (see ``docs/filter.md``). Batch runs
@@ -36,6 +38,7 @@ from curbside.localize.filter.parts import GnssFix, Likelihood, Predictor, Resam
 from curbside.localize.filter.predict import InertialPredictor
 from curbside.localize.filter.recovery import CollapseRecovery, DivergenceRecovery
 from curbside.localize.filter.resample import SystematicResampler
+from curbside.localize.filter.scale import ScaleCorrection
 from curbside.localize.filter.segments import SegmentEstimator
 from curbside.localize.raster import MapRaster, load_or_build_raster
 from curbside.osmseg.mapio import MapLayers
@@ -75,6 +78,8 @@ class Tracker:
         Local metric frame; set by the first :meth:`start_at` when ``None``.
     gnss
         The GNSS likelihood among ``likelihoods``, if any: it decides which fixes count.
+    scale
+        Optional GNSS-driven speed-scale correction.
 
     Attributes
     ----------
@@ -96,6 +101,7 @@ class Tracker:
         segments: SegmentEstimator | None = None,
         frame: LocalFrame | None = None,
         gnss: GnssLikelihood | None = None,
+        scale: ScaleCorrection | None = None,
     ) -> None:
         self.particles = particles
         self.predictor = predictor
@@ -107,6 +113,7 @@ class Tracker:
         self.segments = segments
         self.frame = frame
         self.gnss = gnss
+        self.scale = scale
         self.recoveries = 0
         self.last_estimate: Estimate | None = None
         self.last_fix: GnssFix | None = None
@@ -152,6 +159,9 @@ class Tracker:
         divergence = None
         if gnss is not None and config.recovery.max_fraction > 0:
             divergence = DivergenceRecovery(config.recovery, gnss, rng)
+        scale = None
+        if gnss is not None and config.scale_correction.fraction > 0:
+            scale = ScaleCorrection(config.scale_correction, gnss, rng)
         segments = None
         if config.segment_estimate and raster is not None and raster.segment_index is not None:
             segments = SegmentEstimator(raster, n)
@@ -166,6 +176,7 @@ class Tracker:
             segments,
             frame,
             gnss,
+            scale,
         )
 
     # -- starting -----------------------------------------------------------------------------------
@@ -279,6 +290,8 @@ class Tracker:
         update = Update(t, t - last.t, dx, dy, gnss_fix)
         self.predictor.predict(particles, dx, dy)
         inject = 0.0 if divergence is None else divergence.observe(particles, update)
+        if self.scale is not None:
+            self.scale.observe(update, last)
         for likelihood in self.likelihoods:
             likelihood.weigh(particles, update)
         if gnss_fix is not None and self.usable(gnss_fix):
@@ -306,6 +319,8 @@ class Tracker:
         injected = 0
         if inject_fraction > 0:
             injected = self.divergence.inject(p, self.last_fix, inject_fraction)
+        if self.scale is not None:
+            self.scale.correct(p)
         self.last_estimate = estimate = _new_tuple(
             Estimate,
             (t, m.x, m.y, m.theta, m.scale, m.n_eff, collapsed, self.frame, segment_id, prob, mode_x, mode_y,
