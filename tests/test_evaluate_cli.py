@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import logging
 from pathlib import Path
 
 import numpy as np
@@ -94,6 +95,14 @@ def test_dask_results_equal_serial(sessions):
         assert a["metrics_mode"] == b["metrics_mode"] == c["metrics_mode"]
         if a["spec"]["method"] == "gnss":  # no particles: the mode estimate is the estimate
             assert a["metrics_mode"] == a["metrics"]
+
+
+def test_a_heartbeat_racing_the_shutdown_is_not_reported():
+    quiet = runner.HeartbeatAtShutdown()
+    message = "Failed to communicate with scheduler during heartbeat."
+    record = logging.LogRecord("distributed.worker", logging.ERROR, "", 0, message, None, None)
+    other = logging.LogRecord("distributed.worker", logging.ERROR, "", 0, "Compute Failed", None, None)
+    assert not quiet.filter(record) and quiet.filter(other)
 
 
 @pytest.mark.slow

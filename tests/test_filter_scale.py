@@ -85,9 +85,11 @@ def test_no_correction_when_the_scale_is_right():
         assert corrections == 0 and abs(error_m) < 5.0
 
 
-def test_on_by_default_off_in_the_paper_preset_and_without_gnss():
-    assert isinstance(Tracker.from_config(None, FilterConfig(), seed=0).scale, ScaleCorrection)
+def test_off_by_default_on_when_asked_for_never_without_gnss():
+    assert Tracker.from_config(None, FilterConfig(), seed=0).scale is None
     assert Tracker.from_config(None, FilterConfig.preset("paper"), seed=0).scale is None
-    assert Tracker.from_config(None, FilterConfig(), seed=0, use_gnss=False).scale is None
+    on = FilterConfig(scale_correction=ScaleCorrectionConfig(fraction=0.05))
+    assert isinstance(Tracker.from_config(None, on, seed=0).scale, ScaleCorrection)
+    assert Tracker.from_config(None, on, seed=0, use_gnss=False).scale is None
     with pytest.raises(ValueError, match="min_scale"):
         ScaleCorrectionConfig(min_scale=1.5, max_scale=1.2)

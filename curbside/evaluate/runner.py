@@ -245,6 +245,7 @@ def run_all(
             silence_logs=logging.WARNING,
         )
         client = Client(cluster)
+        client.run(_quiet_heartbeat_at_shutdown)
     else:
         client = Client(scheduler)
     try:
@@ -261,6 +262,22 @@ def run_all(
         if cluster is not None:
             cluster.sync(_close_workers, cluster, WORKER_CLOSE_TIMEOUT_S)
             cluster.close()
+
+
+class HeartbeatAtShutdown(logging.Filter):
+    """Drops a worker's "Failed to communicate with scheduler during heartbeat" error and its traceback.
+
+    When a local cluster closes, a worker's heartbeat can race the scheduler's exit and log that error,
+    a traceback at the end of a run that succeeded; a scheduler that dies mid-run still fails the run
+    through its futures.
+    """
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        return "during heartbeat" not in record.getMessage()
+
+
+def _quiet_heartbeat_at_shutdown() -> None:
+    logging.getLogger("distributed.worker").addFilter(HeartbeatAtShutdown())
 
 
 async def _close_workers(cluster, timeout_s: float) -> None:

@@ -269,7 +269,7 @@ class ScaleCorrectionConfig:
     ----------
     fraction
         Share of the particles whose speed scale is re-drawn around the fitted one when a fit disagrees
-        with the cloud (0: off).
+        with the cloud (0, the default: off; 0.05 is the value tried, see ``docs/filter.md``).
     window_s
         The fixes of the last this many seconds are fitted against the cloud's inertial path; a fit is
         made at most every quarter window, once the window is three quarters full.
@@ -292,7 +292,7 @@ class ScaleCorrectionConfig:
         share most of their error).
     """
 
-    fraction: float = 0.05
+    fraction: float = 0.0
     window_s: float = 60.0
     trigger: float = 0.15
     significance: float = 3.0
