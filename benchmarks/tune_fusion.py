@@ -52,15 +52,21 @@ def run(folders: dict[str, list[Path]], map_path: str, variants: dict, seeds: tu
                                          overrides=tuple(sorted(overrides.items()))))
                     keys.append((name, seed, sub, path.name))
     results = run_all(specs, workers=workers)
+    # A variant with filter.smoother.lag_s also scores its smoothed positions, as "<name>+smoothed".
+    scored = [(r, k, "") for r, k in zip(results, keys, strict=True)]
+    scored += [(r, k, "+smoothed") for r, k in zip(results, keys, strict=True)
+               if r["errors_smoothed"] is not None]
     rows = []
-    for name in variants:
+    for name in dict.fromkeys(k[0] + tag for _, k, tag in scored):
         for sub in folders:
-            errors = [r["errors"] for r, k in zip(results, keys, strict=True) if k[0] == name and k[2] == sub]
+            errors = [r["errors" + ("_smoothed" if tag else "")] for r, k, tag in scored
+                      if k[0] + tag == name and k[2] == sub]
             m = metrics.summarize(pd.concat(errors, ignore_index=True))
             rows.append({"variant": name, "subset": sub, "csa": m["csa"], "median_m": m["euclid_median_m"],
                          "p90_m": m["euclid_p90_m"], "across_m": m["across_median_m"]})
-    runs = pd.DataFrame([(*k, r["metrics"]["euclid_median_m"]) for r, k in zip(results, keys, strict=True)],
-                        columns=["variant", "seed", "subset", "session", "median_m"])
+    medians = [(k[0] + tag, *k[1:], r["metrics" + ("_smoothed" if tag else "")]["euclid_median_m"])
+               for r, k, tag in scored]
+    runs = pd.DataFrame(medians, columns=["variant", "seed", "subset", "session", "median_m"])
     return pd.DataFrame(rows), runs
 
 
@@ -101,7 +107,7 @@ def main(argv: list[str] | None = None) -> int:
     pooled, runs = run(sessions(out, tuple(args.subsets), args.session_seeds), map_path, variants,
                        tuple(args.seeds), args.workers)
     pd.set_option("display.width", 200)
-    wide = pooled.pivot(index="variant", columns="subset").loc[list(variants)]
+    wide = pooled.pivot(index="variant", columns="subset").loc[list(dict.fromkeys(pooled["variant"]))]
     print(wide.round(3).to_string())
     print(gnss_ratios(runs).round(2).to_string(index=False))
     print(f"({len(runs)} runs in {time.perf_counter() - t0:.0f} s; tune split, phone profile, filter seeds "

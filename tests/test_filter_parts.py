@@ -282,8 +282,10 @@ def test_systematic_resampling_matches_filterpy_on_the_same_uniform():
         np.testing.assert_array_equal(systematic_indices(w, u0), expected)
         state = np.tile(np.arange(n, dtype=float), (8, 1))
         out = np.empty_like(state)
-        _systematic_gather(w, u0, state, out)
+        ancestors = np.full(n, -1)
+        _systematic_gather(w, u0, state, out, ancestors)
         np.testing.assert_array_equal(out.astype(int), np.tile(expected, (8, 1)))
+        np.testing.assert_array_equal(ancestors, expected)
 
 
 def test_resampler_keeps_heavy_particles_drops_zero_weights_and_follows_its_policy():

@@ -28,7 +28,7 @@ import logging
 import os
 from pathlib import Path
 
-from curbside.cli.common import positive_float, positive_int, unit_interval
+from curbside.cli.common import non_negative_float, positive_float, positive_int, unit_interval
 from curbside.errors import CurbsideInputError
 from curbside.evaluate.runner import METHODS
 from curbside.io import check_output_folder, output_folder
@@ -185,6 +185,7 @@ def _benchmark(args: argparse.Namespace) -> int:
         open_routes=args.open_routes,
         particles=args.particles,
         filter_seed=args.seed,
+        smoothing_lag_s=args.lag_s,
     )
     paths = run_suite(
         args.output,
@@ -316,6 +317,9 @@ def _register_benchmark(subparsers: argparse._SubParsersAction) -> None:
     bench.add_argument("--particles", type=positive_int, default=500,
                        help="particles per filter (default 500)")
     bench.add_argument("--seed", type=int, default=0, help="filter seed (default 0)")
+    bench.add_argument("--lag-s", type=non_negative_float, default=0.0, metavar="SECONDS",
+                       help="also score curbside fused's fixed-lag smoothed positions with this lag, as "
+                       "'fused, smoothed' (offline; default 0: off)")
     bench.add_argument("--workers", type=positive_int, default=2,
                        help="dask worker processes; 1 runs serially (default 2)")
     bench.add_argument("--scheduler", help="address of an existing dask scheduler")

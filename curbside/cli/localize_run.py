@@ -4,13 +4,14 @@
 
     localize run SESSION [--map MAP] [--mode gnss|inertial|paper|fused] [--particles N]
                  [--jaywalk-weight W] [--seed S] [--set KEY=VALUE ...] [--save-particles]
-                 [--velocity-source auto|file|ronin|pdr] [--no-start-pose] -o OUT
+                 [--lag-s SECONDS] [--velocity-source auto|file|ronin|pdr] [--no-start-pose] -o OUT
     localize run --config OUT/run.json -o OUT2          # replay a run exactly
 
 ``SESSION`` is anything :func:`curbside.localize.readers.read_any` reads (a SPEC folder, a Sensor
 Logger export, ``FILE.h5::TRIAL``, a GPX file). Writes ``OUT/track.csv``, ``OUT/track.geojson``,
 ``OUT/run.json`` (every parameter) and, with ``--save-particles``, ``OUT/particles.npz``; ``OUT`` appears
-complete or not at all. A one-line summary goes to stdout.
+complete or not at all. ``--lag-s`` adds the fixed-lag smoother's positions (``smooth_lat, smooth_lon``)
+for offline analysis. A one-line summary goes to stdout.
 """
 
 from __future__ import annotations
@@ -20,7 +21,7 @@ import json
 import logging
 from pathlib import Path
 
-from curbside.cli.common import positive_int, set_overrides, unit_interval
+from curbside.cli.common import non_negative_float, positive_int, set_overrides, unit_interval
 from curbside.errors import CurbsideInputError
 from curbside.evaluate.metrics import format_waypoint_summary, waypoint_errors, waypoint_summary
 from curbside.io import check_output_folder
@@ -68,6 +69,8 @@ def _run(args: argparse.Namespace) -> int:
         use_start_pose=False if args.no_start_pose else None,
     )
     config = config.with_overrides(set_overrides(args.set))
+    if args.lag_s is not None:
+        config = config.with_overrides({"filter.smoother.lag_s": args.lag_s})
     result = track_session(session, layers, config=config, save_particles=args.save_particles)
     run_info = {"session": _absolute(session_path), "map": _absolute(map_path) if map_path else None}
     summary = None
@@ -103,6 +106,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "--save-particles, OUT/particles.npz.",
         epilog="examples:\n  localize run walk/ --map map.geojson -o out/track\n"
         "  localize run walk/ --map map.geojson --set filter.gnss.sigma_factor=1.0 -o out/t2\n"
+        "  localize run walk/ --map map.geojson --lag-s 30 -o out/smooth   # adds smooth_lat, smooth_lon\n"
         "  localize run --config out/track/run.json -o out/replay     # the same track, byte for byte",
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
@@ -147,6 +151,14 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "engine.fix_association=once (repeatable)",
     )
     parser.add_argument("--save-particles", action="store_true", help="also write OUT/particles.npz")
+    parser.add_argument(
+        "--lag-s",
+        type=non_negative_float,
+        default=None,
+        metavar="SECONDS",
+        help="also estimate each position from the data up to SECONDS later (fixed-lag smoother; "
+        "track.csv's smooth_lat, smooth_lon; offline analysis, e.g. 30). Default 0: off",
+    )
     parser.add_argument(
         "--velocity-source",
         choices=VELOCITY_SOURCES,

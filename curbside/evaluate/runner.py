@@ -42,7 +42,10 @@ METHOD_LABELS: dict[str, str] = {
     "inertial": "RoNIN+PF",
     "paper": "paper PF",
     "fused": "curbside fused",
+    "fused_smoothed": "fused, smoothed",
 }
+#: The pseudo-method of :func:`smoothed_results`: curbside fused's fixed-lag smoothed positions (offline).
+SMOOTHED_METHOD = "fused_smoothed"
 #: Seconds a dask worker process is given to exit at shutdown. Finalising a worker's interpreter
 #: (numba, shapely, pandas) takes 1-2 s alone and more on a loaded machine, past the nanny's default
 #: of 4 s, which then logs "Worker process still alive ... killing" and kills it.
@@ -122,7 +125,9 @@ def run_one(spec: RunSpec) -> dict[str, Any]:
     dict
         ``spec`` (dict), ``path`` (route name), ``metrics`` (SPEC names), ``ate_m``, ``rte_m``,
         ``errors`` (per-footstep DataFrame), ``metrics_mode`` and ``errors_mode`` (the same for the
-        posterior-mode estimate), ``track`` (``t, x_m, y_m, gt_x_m, gt_y_m``),
+        posterior-mode estimate), ``metrics_smoothed`` and ``errors_smoothed`` (the same for the
+        fixed-lag smoother's positions; ``None`` without ``filter.smoother.lag_s``), ``track``
+        (``t, x_m, y_m, gt_x_m, gt_y_m``),
         ``snapshots`` (list of ``{"t", "x", "y"}`` clouds), ``recoveries``, ``velocity_source``.
     """
     from curbside.localize.pipeline import resolve_config, track_session
@@ -152,11 +157,8 @@ def run_one(spec: RunSpec) -> dict[str, Any]:
     gt = np.column_stack([gx, gy])
     index = _index(spec.metrics_map) if spec.metrics_map else None
     errors = metrics.step_errors(est, gt, index)
-    mode_est = est
-    if "mode_lat" in track:
-        mx, my = frame.to_xy(track["mode_lon"].to_numpy(), track["mode_lat"].to_numpy())
-        mode_est = np.column_stack([mx, my])
-    errors_mode = metrics.step_errors(mode_est, gt, index) if mode_est is not est else errors
+    errors_mode = _errors_at(track, "mode", frame, gt, index) if "mode_lat" in track else errors
+    errors_smoothed = _errors_at(track, "smooth", frame, gt, index) if "smooth_lat" in track else None
     snapshots = []
     if result.snapshots is not None and spec.snapshot_times:
         snap = result.snapshots
@@ -186,11 +188,35 @@ def run_one(spec: RunSpec) -> dict[str, Any]:
         "errors": errors,
         "metrics_mode": metrics.summarize(errors_mode),
         "errors_mode": errors_mode,
+        "metrics_smoothed": None if errors_smoothed is None else metrics.summarize(errors_smoothed),
+        "errors_smoothed": errors_smoothed,
         "track": pd.DataFrame({"t": t, "x_m": ex, "y_m": ey, "gt_x_m": gx, "gt_y_m": gy}),
         "snapshots": snapshots,
         "recoveries": int(result.recoveries),
         "velocity_source": result.velocity_source,
     }
+
+
+def smoothed_results(results: list[dict[str, Any]]) -> list[dict[str, Any]]:
+    """Each fused run that kept fixed-lag smoothed positions, as a run of :data:`SMOOTHED_METHOD`.
+
+    The copies score the smoothed positions (``errors``, ``metrics``) and pool like any method's runs.
+    """
+    out = []
+    for r in results:
+        if r["spec"]["method"] == "fused" and r.get("errors_smoothed") is not None:
+            errors, summary = r["errors_smoothed"], r["metrics_smoothed"]
+            out.append({**r, "spec": {**r["spec"], "method": SMOOTHED_METHOD}, "errors": errors,
+                        "metrics": summary, "errors_mode": errors, "metrics_mode": summary, "snapshots": []})
+    return out
+
+
+def _errors_at(
+    track: pd.DataFrame, prefix: str, frame: LocalFrame, gt: np.ndarray, index: metrics.SidewalkIndex | None
+) -> pd.DataFrame:
+    """Per-footstep errors of the track's ``{prefix}_lat, {prefix}_lon`` columns."""
+    x, y = frame.to_xy(track[f"{prefix}_lon"].to_numpy(), track[f"{prefix}_lat"].to_numpy())
+    return metrics.step_errors(np.column_stack([x, y]), gt, index)
 
 
 def _fix_at(gnss: pd.DataFrame | None, t: float, frame: LocalFrame) -> tuple[float, float, float] | None:

@@ -28,7 +28,7 @@ import curbside
 from curbside.errors import CurbsideInputError
 from curbside.evaluate import criteria
 from curbside.evaluate.benchmark import datasf_osm_map, snapshot_times
-from curbside.evaluate.runner import RunSpec, pool, run_all
+from curbside.evaluate.runner import SMOOTHED_METHOD, RunSpec, pool, run_all, smoothed_results
 from curbside.evaluate.simulate import PROFILES, SimulationConfig
 from curbside.evaluate.subsets import DEFAULT_ROUTES, SPLITS, SUBSETS, benchmark_sessions, load_world
 from curbside.localize.session import read_session
@@ -68,6 +68,9 @@ class SuiteConfig:
         Methods also run on the DataSF-buildings map (when its tiles are given).
     write_imu
         Sessions also get ``imu.csv`` (slower; the runs still read ``velocity.csv``).
+    smoothing_lag_s
+        Curbside fused on the OSM map also keeps fixed-lag smoothed positions with this lag, scored
+        as the method ``fused_smoothed`` (an offline figure; 0: off). The filter's own track is the same.
     """
 
     profile: str = "phone"
@@ -84,6 +87,7 @@ class SuiteConfig:
     velocity_source: str = "auto"
     datasf_methods: tuple[str, ...] = ("paper", "fused")
     write_imu: bool = False
+    smoothing_lag_s: float = 0.0
 
     def __post_init__(self) -> None:
         if self.profile not in PROFILES:
@@ -132,6 +136,8 @@ def plan_suite(sessions: dict[str, list[Path]], maps: dict[str, str], config: Su
             )
             for method in SUITE_METHODS[1:]:
                 for w in weights:
+                    smooth = method == "fused" and w == w0 and config.smoothing_lag_s > 0
+                    overrides = (("filter.smoother.lag_s", config.smoothing_lag_s),) if smooth else ()
                     specs.append(
                         RunSpec(
                             session,
@@ -145,6 +151,7 @@ def plan_suite(sessions: dict[str, list[Path]], maps: dict[str, str], config: Su
                             config.filter_seed,
                             snaps if w == w0 else (),
                             config.velocity_source,
+                            overrides,
                         )
                     )
             if DATASF_MAP in maps:
@@ -349,6 +356,7 @@ def run_suite(
     log.info("benchmark: %d runs over %d sessions", len(specs), sum(map(len, sessions.values())))
     start = time.perf_counter()
     results = run_all(specs, workers=workers, scheduler=scheduler)
+    results += smoothed_results(results)
     timings["track_s"] = time.perf_counter() - start
 
     ipin_summary, ipin_tab = (None, None)
@@ -388,14 +396,16 @@ def suite_summary(report_dir: str | Path) -> str:
     ]
     for subset, rows in base.groupby("subset", sort=False):
         n = doc["sessions_per_subset"].get(subset, "?")
-        lines.append(f"  {subset} ({n} sessions)    CSA  median  p90 (m)")
-        for method in SUITE_METHODS:
+        lines.append(f"  {f'{subset} ({n} sessions)':<24} CSA  median  p90 (m)")
+        for method in (*SUITE_METHODS, SMOOTHED_METHOD):
             r = rows[rows["method"] == method]
             if len(r):
                 r = r.iloc[0]
                 label = doc["labels"][method]
+                if method == SMOOTHED_METHOD:
+                    label = f"{label} {suite['smoothing_lag_s']:g} s"
                 lines.append(
-                    f"    {label:<16} {r['csa']:.2f}  {r['euclid_median_m']:5.1f}  {r['euclid_p90_m']:5.1f}"
+                    f"    {label:<22} {r['csa']:.2f}  {r['euclid_median_m']:5.1f}  {r['euclid_p90_m']:5.1f}"
                 )
     lines.append(f"done when: {doc['done_when']['overall']}")
     return "\n".join(lines) + "\n"

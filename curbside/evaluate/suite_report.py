@@ -27,7 +27,7 @@ from curbside.evaluate.figures import (
     save_png,
 )
 from curbside.evaluate.report import Table, fmt_value, json_ready, paper_value, records
-from curbside.evaluate.runner import METHOD_LABELS
+from curbside.evaluate.runner import METHOD_LABELS, SMOOTHED_METHOD
 from curbside.io import atomic_path
 from curbside.osmseg.mapio import MapLayers
 
@@ -46,16 +46,21 @@ def _base(frame: pd.DataFrame, w: float, map_name: str = "osm") -> pd.DataFrame:
     return frame[keep]
 
 
-def subset_table(pooled: pd.DataFrame, subset: str, w: float, sessions: int) -> Table:
-    """One subset: every method side by side at the base weight on the OSM map."""
+def subset_table(pooled: pd.DataFrame, subset: str, w: float, sessions: int, lag_s: float = 0.0) -> Table:
+    """One subset: every method side by side at the base weight on the OSM map (``lag_s``: the
+    smoother's lag, for the note)."""
     rows = []
     base = _base(pooled[pooled["subset"] == subset], w)
-    for method in ("gnss", "inertial", "paper", "fused"):
+    for method in ("gnss", "inertial", "paper", "fused", SMOOTHED_METHOD):
         r = base[base["method"] == method]
         if len(r):
             r = r.iloc[0]
             rows.append([METHOD_LABELS[method]] + [fmt_value(r[m], 2 if m == "csa" else 1) for m in METRICS])
     note = "Pooled over every footstep of the subset."
+    if (base["method"] == SMOOTHED_METHOD).any():
+        note += (f" '{METHOD_LABELS[SMOOTHED_METHOD]}': curbside fused's fixed-lag smoothed positions"
+                 f" (--lag-s {lag_s:g}: offline, each position estimated from the data up to {lag_s:g} s"
+                 " later).")
     if subset == "paper6":
         paper = [paper_value(m, "fused", w) for m in METRICS]
         rows.append(
@@ -277,7 +282,7 @@ def _tables(
     limit = criteria.DoneWhen().session_ratio_max
     tables = [checks_table(checks)]
     for subset in config.subsets:
-        tables.append(subset_table(pooled, subset, w, counts[subset]))
+        tables.append(subset_table(pooled, subset, w, counts[subset], config.smoothing_lag_s))
         sweep = sweep_table(pooled, subset)
         if sweep is not None:
             tables.append(sweep)
@@ -356,7 +361,8 @@ def write_suite_report(
     with atomic_path(out_dir) as tmp:
         figdir = tmp / "figures"
         figdir.mkdir(parents=True)
-        figures = _figures(results, layers, config, pooled_path, ratios, figdir)
+        filtered = [r for r in results if r["spec"]["method"] != SMOOTHED_METHOD]  # figures: filters only
+        figures = _figures(filtered, layers, config, pooled_path, ratios, figdir)
         (tmp / "metrics.json").write_text(json.dumps(json_ready(doc), indent=1), encoding="utf-8")
         (tmp / "run.json").write_text(
             json.dumps(json_ready({**run_info, "timings_s": timings}), indent=1), encoding="utf-8"

@@ -4,7 +4,9 @@
 in chunks of any size), turns them into updates of a :class:`~curbside.localize.filter.Tracker`, and
 returns each estimate as soon as every input it depends on is final (``advance``); ``finish`` flushes
 the tail. ``localize run`` pushes whole files and finishes; the live service pushes a few rows per
-request. Because an update is only made once its inputs are final, both give the same track.
+request. Because an update is only made once its inputs are final, both give the same track. With a
+fixed-lag smoother (``filter.smoother.lag_s``) each row's ``smooth_x, smooth_y`` are filled in
+``lag_s`` later, and the last ones by ``finish``.
 
 When the filter updates:
 
@@ -48,6 +50,8 @@ class Row:
         ``start``, ``step`` (a footstep) or ``time`` (no footstep for ``max_update_interval_s``).
     fix_used
         Whether a GNSS fix weighed the particles at this update.
+    smooth_x, smooth_y
+        The fixed-lag smoother's position (NaN without one, or until it is made).
     """
 
     t: float
@@ -64,6 +68,8 @@ class Row:
     segment_prob: float = math.nan
     mode_x: float = math.nan
     mode_y: float = math.nan
+    smooth_x: float = math.nan
+    smooth_y: float = math.nan
 
 
 @dataclass
@@ -83,6 +89,7 @@ class _State:
     prev_d: np.ndarray = field(default_factory=lambda: np.zeros(2))
     finished: bool = False
     clock: float = -math.inf
+    smoothed_rows: int = 0
 
 
 class SessionEngine:
@@ -181,7 +188,10 @@ class SessionEngine:
         """All inputs are in: make the remaining updates; return the new rows."""
         self._s.finished = True
         self.steps.complete_until = math.inf
-        return self.advance()
+        rows = self.advance()
+        if self.tracker is not None:
+            self._fill_smoothed(self.tracker.take_smoothed(final=True))
+        return rows
 
     @property
     def data_end(self) -> float:
@@ -338,6 +348,15 @@ class SessionEngine:
         if self.snapshots is not None:
             particles = self.tracker.particles
             self.snapshots.append(np.vstack([particles.state[[X, Y, THETA, SCALE]], particles.weights]))
+        self._fill_smoothed(self.tracker.take_smoothed())
+
+    def _fill_smoothed(self, smoothed: np.ndarray) -> None:
+        """Give the rows, in order, the fixed-lag smoother's positions (one per tracker update)."""
+        k = self._s.smoothed_rows
+        for _, x, y in smoothed:
+            self.rows[k].smooth_x, self.rows[k].smooth_y = float(x), float(y)
+            k += 1
+        self._s.smoothed_rows = k
 
     def _record(self, row: Row) -> None:
         self.rows.append(row)

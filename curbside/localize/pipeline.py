@@ -366,7 +366,11 @@ def _result(
     if tracker is not None and tracker.recoveries:
         logger.info("%s: the particle cloud collapsed %d time(s)", name, tracker.recoveries)
     track = track_table(
-        engine.rows, frame, map_layers, segments=tracker is not None and tracker.segments is not None
+        engine.rows,
+        frame,
+        map_layers,
+        segments=tracker is not None and tracker.segments is not None,
+        smoothed=tracker is not None and tracker.smoother is not None,
     )
     snapshots = _stack_snapshots(engine, track, frame) if save_particles and tracker is not None else None
     injections = 0 if tracker is None or tracker.divergence is None else tracker.divergence.injections
@@ -381,9 +385,9 @@ def _result(
 
 
 def track_table(
-    rows: list[Row], frame: LocalFrame, map_layers: MapLayers | None, segments: bool
+    rows: list[Row], frame: LocalFrame, map_layers: MapLayers | None, segments: bool, smoothed: bool = False
 ) -> pd.DataFrame:
-    """The ``track.csv`` table of the engine's rows."""
+    """The ``track.csv`` table of the engine's rows (``smooth_lat, smooth_lon`` when ``smoothed``)."""
     x = np.array([r.x for r in rows])
     y = np.array([r.y for r in rows])
     lon, lat = frame.to_lonlat(x, y)
@@ -403,6 +407,11 @@ def track_table(
             "injected": np.array([r.injected for r in rows], dtype=int),
         }
     )
+    if smoothed:
+        smooth_lon, smooth_lat = frame.to_lonlat(
+            np.array([r.smooth_x for r in rows]), np.array([r.smooth_y for r in rows])
+        )
+        track["smooth_lat"], track["smooth_lon"] = np.atleast_1d(smooth_lat), np.atleast_1d(smooth_lon)
     if map_layers is None or not len(map_layers.layer("sidewalk")):
         return track
     if segments:

@@ -1,10 +1,11 @@
 """Every parameter of the particle filter: one frozen dataclass per part, gathered in :class:`FilterConfig`.
 
 Each part of the filter (:mod:`~curbside.localize.filter.predict`, ``map_likelihood``, ``gnss``,
-``resample``, ``recovery``, ``scale``, ``initiate``) takes its own section; :class:`FilterConfig` holds
-them all and is written whole to ``run.json`` (:func:`curbside.configio.to_dict`), so a run is
-reproducible from that file alone. Defaults are curbside's fused filter; :meth:`FilterConfig.preset`
-gives the paper's plain filter for comparison. ``docs/filter.md`` gives the reasoning behind each value.
+``resample``, ``recovery``, ``scale``, ``initiate``, ``smoother``) takes its own section;
+:class:`FilterConfig` holds them all and is written whole to ``run.json``
+(:func:`curbside.configio.to_dict`), so a run is reproducible from that file alone. Defaults are
+curbside's fused filter; :meth:`FilterConfig.preset` gives the paper's plain filter for comparison.
+``docs/filter.md`` gives the reasoning behind each value.
 """
 
 from __future__ import annotations
@@ -320,6 +321,23 @@ class ScaleCorrectionConfig:
 
 
 @dataclass(frozen=True)
+class SmootherConfig:
+    """The fixed-lag smoother, an opt-in output for offline analysis (:mod:`.smoother`).
+
+    Attributes
+    ----------
+    lag_s
+        Each update's position is also estimated from the particles' genealogy ``lag_s`` seconds later
+        (0: off). The filter's own estimates do not change.
+    """
+
+    lag_s: float = 0.0
+
+    def __post_init__(self) -> None:
+        _check(0 <= self.lag_s < float("inf"), f"lag_s must be finite and >= 0, got {self.lag_s}")
+
+
+@dataclass(frozen=True)
 class FilterConfig:
     """All parameters of the particle filter.
 
@@ -327,7 +345,7 @@ class FilterConfig:
     ----------
     n_particles
         Number of particles N (the paper: 500).
-    motion, start, map, gnss, resample, recovery, scale_correction
+    motion, start, map, gnss, resample, recovery, scale_correction, smoother
         One section per part.
     segment_estimate
         Compute the posterior over sidewalk segments and its mode at each update (needs a map with
@@ -342,6 +360,7 @@ class FilterConfig:
     resample: ResampleConfig = field(default_factory=ResampleConfig)
     recovery: RecoveryConfig = field(default_factory=RecoveryConfig)
     scale_correction: ScaleCorrectionConfig = field(default_factory=ScaleCorrectionConfig)
+    smoother: SmootherConfig = field(default_factory=SmootherConfig)
     segment_estimate: bool = True
 
     def __post_init__(self) -> None:

@@ -66,6 +66,8 @@ class ParticleSet:
         self.spare = np.empty_like(self.state)
         self.log_weight = np.full(n, -math.log(n))
         self.weights = np.full(n, 1.0 / n)
+        #: The parent of each particle at the last resampling (written by the resampler).
+        self.ancestors = np.arange(n)
 
     def __len__(self) -> int:
         return self.state.shape[1]

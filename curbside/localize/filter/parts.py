@@ -83,4 +83,8 @@ class Resampler(Protocol):
     """Redraws the particles from their normalised weights."""
 
     def resample(self, particles: ParticleSet, n_eff: float) -> bool:
-        """Resample in place when the policy says so (weights then uniform); return whether it did."""
+        """Resample in place when the policy says so (weights then uniform); return whether it did.
+
+        When it did, ``particles.ancestors[k]`` must hold the index, before resampling, of the particle
+        that new particle ``k`` was drawn from (the fixed-lag smoother follows the genealogy).
+        """

@@ -3,7 +3,8 @@
 The same rule as :func:`filterpy.monte_carlo.systematic_resample` (which draws ``u0`` from numpy's global
 generator; here ``u0`` comes from the resampler's own seeded stream), compiled as one merge pass over
 the weights that gathers every state row at once into the particle set's spare array; the same kernel
-draws ``u0`` and makes the weights uniform.
+draws ``u0``, makes the weights uniform and writes each new particle's parent to
+:attr:`~curbside.localize.filter.particles.ParticleSet.ancestors` (the fixed-lag smoother's genealogy).
 """
 
 from __future__ import annotations
@@ -39,21 +40,21 @@ class SystematicResampler:
         if self.config.policy == "ess" and n_eff >= self.config.ess_fraction * len(particles):
             return False
         p = particles
-        _resample(p.weights, p.log_weight, self.stream.state, p.state, p.spare)
+        _resample(p.weights, p.log_weight, self.stream.state, p.state, p.spare, p.ancestors)
         p.swap()
         return True
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")
-def _resample(weights, log_weight, rng_state, state, out):  # pragma: no cover - compiled
-    _systematic_gather(weights, draw_random(rng_state), state, out)
+def _resample(weights, log_weight, rng_state, state, out, ancestors):  # pragma: no cover - compiled
+    _systematic_gather(weights, draw_random(rng_state), state, out, ancestors)
     n = weights.shape[0]
     log_weight[:] = -math.log(n)  # as ParticleSet.reset_weights
     weights[:] = 1.0 / n
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")  # no zero-division check in the loop
-def _systematic_gather(weights, u0, state, out):  # pragma: no cover - compiled
+def _systematic_gather(weights, u0, state, out, ancestors):  # pragma: no cover - compiled
     # One merge pass: position k goes to the first particle whose cumulative weight exceeds it.
     n = weights.shape[0]
     rows = state.shape[0]
@@ -66,6 +67,7 @@ def _systematic_gather(weights, u0, state, out):  # pragma: no cover - compiled
             cumulative += weights[j]
         for r in range(rows):
             out[r, k] = state[r, j]
+        ancestors[k] = j
 
 
 def systematic_indices(weights: np.ndarray, u0: float) -> np.ndarray:

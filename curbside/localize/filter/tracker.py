@@ -14,6 +14,7 @@ every update::
     resampler.resample         every update (the paper) or below an ESS threshold
     divergence.inject          (optional) re-draw a fraction of the particles around the fix
     scale.correct              (optional) re-draw a fraction of the speed scales around the fitted one
+    smoother.record            (optional) follow the genealogy; smooth the updates ``lag_s`` old
 
 :meth:`Tracker.from_config` builds the default parts from a :class:`FilterConfig`; the constructor takes
 parts directly, and the ``likelihoods`` list may be edited (see ``docs/filter.md``). Batch runs
@@ -40,6 +41,7 @@ from curbside.localize.filter.recovery import CollapseRecovery, DivergenceRecove
 from curbside.localize.filter.resample import SystematicResampler
 from curbside.localize.filter.scale import ScaleCorrection
 from curbside.localize.filter.segments import SegmentEstimator
+from curbside.localize.filter.smoother import FixedLagSmoother
 from curbside.localize.raster import MapRaster, load_or_build_raster
 from curbside.osmseg.mapio import MapLayers
 from curbside.projection import LocalFrame
@@ -80,6 +82,8 @@ class Tracker:
         The GNSS likelihood among ``likelihoods``, if any: it decides which fixes count.
     scale
         Optional GNSS-driven speed-scale correction.
+    smoother
+        Optional fixed-lag smoother (its output: :meth:`take_smoothed`).
 
     Attributes
     ----------
@@ -102,6 +106,7 @@ class Tracker:
         frame: LocalFrame | None = None,
         gnss: GnssLikelihood | None = None,
         scale: ScaleCorrection | None = None,
+        smoother: FixedLagSmoother | None = None,
     ) -> None:
         self.particles = particles
         self.predictor = predictor
@@ -114,6 +119,8 @@ class Tracker:
         self.frame = frame
         self.gnss = gnss
         self.scale = scale
+        self.smoother = smoother
+        self._smoothed: list[np.ndarray] = []
         self.recoveries = 0
         self.last_estimate: Estimate | None = None
         self.last_fix: GnssFix | None = None
@@ -165,6 +172,7 @@ class Tracker:
         segments = None
         if config.segment_estimate and raster is not None and raster.segment_index is not None:
             segments = SegmentEstimator(raster, n)
+        smoother = FixedLagSmoother(config.smoother, n) if config.smoother.lag_s > 0 else None
         return cls(
             ParticleSet(n),
             InertialPredictor(config.motion, n, rng),
@@ -177,6 +185,7 @@ class Tracker:
             frame,
             gnss,
             scale,
+            smoother,
         )
 
     # -- starting -----------------------------------------------------------------------------------
@@ -298,6 +307,26 @@ class Tracker:
             self.last_fix = gnss_fix
         return self._conclude(t, inject)
 
+    def take_smoothed(self, final: bool = False) -> np.ndarray:
+        """The fixed-lag smoother's positions made since the last call, oldest first.
+
+        Parameters
+        ----------
+        final
+            The data have ended: also smooth the updates younger than the lag.
+
+        Returns
+        -------
+        numpy.ndarray
+            ``(m, 3)`` rows ``t, x, y``, one per update in the order the updates were made; empty
+            without a smoother.
+        """
+        if self.smoother is not None and final:
+            self._smoothed.append(self.smoother.flush(self.particles))
+        out = np.concatenate(self._smoothed) if self._smoothed else np.empty((0, 3))
+        self._smoothed.clear()
+        return out
+
     def _conclude(self, t: float, inject_fraction: float) -> Estimate:
         """Normalise, recover from a collapse, estimate, resample, inject."""
         p, segments = self.particles, self.segments
@@ -315,12 +344,14 @@ class Tracker:
             if mode.segment >= 0:
                 segment_id, prob = segments.segment_id(mode.segment), mode.prob
                 mode_x, mode_y = mode.x, mode.y
-        self.resampler.resample(p, m.n_eff)
+        resampled = self.resampler.resample(p, m.n_eff)
         injected = 0
         if inject_fraction > 0:
             injected = self.divergence.inject(p, self.last_fix, inject_fraction)
         if self.scale is not None:
             self.scale.correct(p)
+        if self.smoother is not None:
+            self._smoothed.append(self.smoother.record(t, p, resampled))
         self.last_estimate = estimate = _new_tuple(
             Estimate,
             (t, m.x, m.y, m.theta, m.scale, m.n_eff, collapsed, self.frame, segment_id, prob, mode_x, mode_y,
