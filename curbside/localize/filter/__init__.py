@@ -11,8 +11,10 @@ module                     part
 :mod:`.gnss`               :class:`GnssLikelihood` (robust, tempered, optional bias state)
 :mod:`.resample`           :class:`SystematicResampler`
 :mod:`.recovery`           :class:`CollapseRecovery`, :class:`DivergenceRecovery`
+:mod:`.scale`              :class:`ScaleCorrection`: opt-in GNSS-driven speed-scale re-draws
 :mod:`.segments`           :class:`SegmentEstimator`: which sidewalk segment
 :mod:`.initiate`           :class:`Initiator`: start at a pose or a fix
+:mod:`.smoother`           :class:`FixedLagSmoother`: opt-in positions from the genealogy, later
 :mod:`.tracker`            :class:`Tracker`: the streaming filter that runs them
 :mod:`.random`             :class:`~.random.Stream`: seeded normals and uniforms drawn inside kernels
 :mod:`.kernelmath`         ``sincos``, ``exp``, ``logaddexp`` that vectorise inside kernels
@@ -28,6 +30,7 @@ from curbside.localize.filter.config import (
     MotionConfig,
     RecoveryConfig,
     ResampleConfig,
+    SmootherConfig,
     StartConfig,
 )
 from curbside.localize.filter.gnss import GnssLikelihood
@@ -38,7 +41,9 @@ from curbside.localize.filter.parts import GnssFix, Likelihood, Predictor, Resam
 from curbside.localize.filter.predict import InertialPredictor
 from curbside.localize.filter.recovery import CollapseRecovery, DivergenceRecovery
 from curbside.localize.filter.resample import SystematicResampler
+from curbside.localize.filter.scale import ScaleCorrection
 from curbside.localize.filter.segments import SegmentEstimator, SegmentMode
+from curbside.localize.filter.smoother import FixedLagSmoother
 from curbside.localize.filter.tracker import Tracker
 
 __all__ = [
@@ -46,6 +51,7 @@ __all__ = [
     "DivergenceRecovery",
     "Estimate",
     "FilterConfig",
+    "FixedLagSmoother",
     "GnssConfig",
     "GnssFix",
     "GnssLikelihood",
@@ -60,8 +66,10 @@ __all__ = [
     "RecoveryConfig",
     "ResampleConfig",
     "Resampler",
+    "ScaleCorrection",
     "SegmentEstimator",
     "SegmentMode",
+    "SmootherConfig",
     "StartConfig",
     "SystematicResampler",
     "Tracker",
