@@ -189,7 +189,7 @@ class SessionEngine:
         self._s.finished = True
         self.steps.complete_until = math.inf
         rows = self.advance()
-        if self.tracker is not None:
+        if self.tracker is not None and self.tracker.smoother is not None:
             self._fill_smoothed(self.tracker.take_smoothed(final=True))
         return rows
 
@@ -348,7 +348,8 @@ class SessionEngine:
         if self.snapshots is not None:
             particles = self.tracker.particles
             self.snapshots.append(np.vstack([particles.state[[X, Y, THETA, SCALE]], particles.weights]))
-        self._fill_smoothed(self.tracker.take_smoothed())
+        if self.tracker.smoother is not None:
+            self._fill_smoothed(self.tracker.take_smoothed())
 
     def _fill_smoothed(self, smoothed: np.ndarray) -> None:
         """Give the rows, in order, the fixed-lag smoother's positions (one per tracker update)."""
