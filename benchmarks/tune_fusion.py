@@ -53,19 +53,17 @@ def run(folders: dict[str, list[Path]], map_path: str, variants: dict, seeds: tu
                     keys.append((name, seed, sub, path.name))
     results = run_all(specs, workers=workers)
     # A variant with filter.smoother.lag_s also scores its smoothed positions, as "<name>+smoothed".
-    scored = [(r, k, "") for r, k in zip(results, keys, strict=True)]
-    scored += [(r, k, "+smoothed") for r, k in zip(results, keys, strict=True)
-               if r["errors_smoothed"] is not None]
+    scored = [(k[0], k, r["errors"], r["metrics"]) for r, k in zip(results, keys, strict=True)]
+    scored += [(k[0] + "+smoothed", k, r["errors_smoothed"], r["metrics_smoothed"])
+               for r, k in zip(results, keys, strict=True) if r["errors_smoothed"] is not None]
     rows = []
-    for name in dict.fromkeys(k[0] + tag for _, k, tag in scored):
+    for name in dict.fromkeys(s[0] for s in scored):
         for sub in folders:
-            errors = [r["errors" + ("_smoothed" if tag else "")] for r, k, tag in scored
-                      if k[0] + tag == name and k[2] == sub]
+            errors = [e for n, k, e, _ in scored if n == name and k[2] == sub]
             m = metrics.summarize(pd.concat(errors, ignore_index=True))
             rows.append({"variant": name, "subset": sub, "csa": m["csa"], "median_m": m["euclid_median_m"],
                          "p90_m": m["euclid_p90_m"], "across_m": m["across_median_m"]})
-    medians = [(k[0] + tag, *k[1:], r["metrics" + ("_smoothed" if tag else "")]["euclid_median_m"])
-               for r, k, tag in scored]
+    medians = [(n, *k[1:], summary["euclid_median_m"]) for n, k, _, summary in scored]
     runs = pd.DataFrame(medians, columns=["variant", "seed", "subset", "session", "median_m"])
     return pd.DataFrame(rows), runs
 
