@@ -11,7 +11,7 @@ GNSS median.
 Usage::
 
     python benchmarks/tune_fusion.py OUT --variants variants.json [--seeds 0 1] [--workers 2]
-        [--subsets paper6 downtown open] [--map MAP]
+        [--subsets paper6 downtown open] [--map MAP] [--no-map-likelihood]
 
 ``variants.json`` maps names to ``[method, {"filter.motion.heading_noise_deg": 1.5, ...}]``; ``gnss``
 is always added. ``docs/filter.md`` ("Choosing the fused filter's parameters") lists the rounds that
@@ -41,14 +41,18 @@ def sessions(out: Path, subsets: tuple[str, ...], seeds: int) -> dict[str, list[
 
 
 def run(folders: dict[str, list[Path]], map_path: str, variants: dict, seeds: tuple[int, ...],
-        workers: int) -> tuple[pd.DataFrame, pd.DataFrame]:
-    """Pooled metrics per (variant, subset) and each run's median error (for the GNSS ratios)."""
+        workers: int, filter_map: bool = True) -> tuple[pd.DataFrame, pd.DataFrame]:
+    """Pooled metrics per (variant, subset) and each run's median error (for the GNSS ratios).
+
+    ``filter_map=False`` runs the filters without the map likelihood (the map still scores them).
+    """
     specs, keys = [], []
     for name, (method, overrides) in variants.items():
         for seed in seeds if method != "gnss" else seeds[:1]:
             for sub, paths in folders.items():
                 for path in paths:
-                    specs.append(RunSpec(str(path), method, map_path, "osm", map_path, 0.4, 500, None, seed,
+                    specs.append(RunSpec(str(path), method, map_path if filter_map else None, "osm", map_path,
+                                         0.4, 500, None, seed,
                                          overrides=tuple(sorted(overrides.items()))))
                     keys.append((name, seed, sub, path.name))
     results = run_all(specs, workers=workers)
@@ -89,6 +93,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--subsets", nargs="+", choices=SUBSETS, default=list(SUBSETS))
     parser.add_argument("--map", help="map GeoJSON (default: built from the bundled extract into OUT)")
     parser.add_argument("--workers", type=int, default=2)
+    parser.add_argument("--no-map-likelihood", action="store_true",
+                        help="run the filters without the map (as on the IPIN trials); the map still scores")
     args = parser.parse_args(argv)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
@@ -103,7 +109,7 @@ def main(argv: list[str] | None = None) -> int:
     variants = {"gnss": ["gnss", {}], **json.loads(Path(args.variants).read_text(encoding="utf-8"))}
     t0 = time.perf_counter()
     pooled, runs = run(sessions(out, tuple(args.subsets), args.session_seeds), map_path, variants,
-                       tuple(args.seeds), args.workers)
+                       tuple(args.seeds), args.workers, filter_map=not args.no_map_likelihood)
     pd.set_option("display.width", 200)
     wide = pooled.pivot(index="variant", columns="subset").loc[list(dict.fromkeys(pooled["variant"]))]
     print(wide.round(3).to_string())

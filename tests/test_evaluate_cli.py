@@ -282,6 +282,19 @@ def test_ipin_errors_scores_an_extra_run_at_the_same_waypoints():
     assert len({r["n_waypoints"] for r in rows}) == 1
 
 
+def test_ipin_errors_on_training_trials_leaves_the_held_out_ones_unread(monkeypatch):
+    from curbside.evaluate.benchmark import ipin_errors
+    from curbside.localize.readers import ipin
+
+    h5 = Path(__file__).parent / "data" / "sessions" / "ipin2023-cut.h5"
+    real = ipin.list_trials(h5)
+    monkeypatch.setattr(ipin, "list_trials", lambda _: ["IPIN2023_T3_TrialXX_repetition04", *real])
+    _, rows, n_trials = ipin_errors(h5, trials=1, training=True)  # the made-up trial would not read
+    assert n_trials == 1 and {r["trial"] for r in rows} == {real[0]}
+    with pytest.raises(Exception, match="repetition04"):
+        ipin_errors(h5, trials=1)
+
+
 def test_simulate_a_custom_route(tmp_path):
     from curbside.localize.session import read_session
 

@@ -343,6 +343,7 @@ def ipin_errors(
     seed: int = 0,
     held_out: bool = False,
     extra_runs: dict[str, RunConfig] | None = None,
+    training: bool = False,
 ) -> tuple[dict[str, np.ndarray], list[dict], int]:
     """Every method's errors at the surveyed IPIN 2023 waypoints (real data, no map).
 
@@ -362,6 +363,9 @@ def ipin_errors(
         Only the ``repetition04`` trials, which the bundled RoNIN model never saw.
     extra_runs
         More runs scored at the same waypoints, by name (e.g. a reference configuration).
+    training
+        Only the trials the bundled RoNIN model was trained on (not ``repetition04``): where filter
+        parameters may be chosen.
 
     Returns
     -------
@@ -373,7 +377,10 @@ def ipin_errors(
     from curbside.localize.readers.ipin import list_trials, read_trial
     from curbside.localize.ronin.data import IPIN_TEST_MARK
 
-    names = [n for n in list_trials(h5) if not held_out or IPIN_TEST_MARK in n][: trials or None]
+    names = [
+        n for n in list_trials(h5)
+        if (not held_out or IPIN_TEST_MARK in n) and not (training and IPIN_TEST_MARK in n)
+    ][: trials or None]
     runs = {m: RunConfig.for_mode(m) for m in METHODS} | dict(extra_runs or {})
     errors: dict[str, list[np.ndarray]] = {m: [] for m in runs}
     rows = []

@@ -9,6 +9,7 @@ module                     part
 :mod:`.predict`            :class:`InertialPredictor` (heading drift, jumps, speed scale)
 :mod:`.map_likelihood`     :class:`MapLikelihood` (buildings, jaywalking, soft walls)
 :mod:`.gnss`               :class:`GnssLikelihood` (robust, tempered, optional bias state)
+:mod:`.street_heading`     :class:`StreetHeadingLikelihood`: opt-in heading from the street's axis
 :mod:`.resample`           :class:`SystematicResampler`
 :mod:`.recovery`           :class:`CollapseRecovery`, :class:`DivergenceRecovery`
 :mod:`.scale`              :class:`ScaleCorrection`: opt-in GNSS-driven speed-scale re-draws
@@ -32,6 +33,7 @@ from curbside.localize.filter.config import (
     ResampleConfig,
     SmootherConfig,
     StartConfig,
+    StreetHeadingConfig,
 )
 from curbside.localize.filter.gnss import GnssLikelihood
 from curbside.localize.filter.initiate import Initiator
@@ -44,6 +46,7 @@ from curbside.localize.filter.resample import SystematicResampler
 from curbside.localize.filter.scale import ScaleCorrection
 from curbside.localize.filter.segments import SegmentEstimator, SegmentMode
 from curbside.localize.filter.smoother import FixedLagSmoother
+from curbside.localize.filter.street_heading import StreetHeadingLikelihood
 from curbside.localize.filter.tracker import Tracker
 
 __all__ = [
@@ -71,6 +74,8 @@ __all__ = [
     "SegmentMode",
     "SmootherConfig",
     "StartConfig",
+    "StreetHeadingConfig",
+    "StreetHeadingLikelihood",
     "SystematicResampler",
     "Tracker",
     "Update",

@@ -138,6 +138,41 @@ class MapConfig:
 
 
 @dataclass(frozen=True)
+class StreetHeadingConfig:
+    """The street-heading likelihood (:mod:`~curbside.localize.filter.street_heading`).
+
+    Attributes
+    ----------
+    strength_per_m
+        Concentration of the axial von Mises density per metre walked (0: off).
+    floor
+        Weight kept by a particle walking across its sidewalk's axis (in (0, 1)).
+    min_step_m
+        Shorter steps (standing, phantom motion) weigh nothing.
+    min_sidewalk_share
+        The term applies only when at least this share of the weight is on sidewalk cells ...
+    min_axis_agreement
+        ... and those cells' street axes agree (mean resultant length of the doubled angles, in [0, 1]).
+    """
+
+    strength_per_m: float = 0.0
+    floor: float = 0.2
+    min_step_m: float = 0.2
+    min_sidewalk_share: float = 0.8
+    min_axis_agreement: float = 0.9
+
+    def __post_init__(self) -> None:
+        _check(self.strength_per_m >= 0, f"strength_per_m must be non-negative, got {self.strength_per_m}")
+        _check(0.0 < self.floor < 1.0, f"floor must lie in (0, 1), got {self.floor}")
+        _check(self.min_step_m >= 0, f"min_step_m must be non-negative, got {self.min_step_m}")
+        _check(
+            0.0 <= self.min_sidewalk_share <= 1.0 and 0.0 <= self.min_axis_agreement <= 1.0,
+            f"min_sidewalk_share and min_axis_agreement must lie in [0, 1], got {self.min_sidewalk_share}, "
+            f"{self.min_axis_agreement}",
+        )
+
+
+@dataclass(frozen=True)
 class GnssConfig:
     """The GNSS likelihood (:class:`~curbside.localize.filter.gnss.GnssLikelihood`).
 
@@ -360,6 +395,7 @@ class FilterConfig:
     resample: ResampleConfig = field(default_factory=ResampleConfig)
     recovery: RecoveryConfig = field(default_factory=RecoveryConfig)
     scale_correction: ScaleCorrectionConfig = field(default_factory=ScaleCorrectionConfig)
+    street_heading: StreetHeadingConfig = field(default_factory=StreetHeadingConfig)
     smoother: SmootherConfig = field(default_factory=SmootherConfig)
     segment_estimate: bool = True
 
@@ -390,6 +426,7 @@ class FilterConfig:
                 resample=ResampleConfig(policy="always"),
                 recovery=RecoveryConfig(max_fraction=0.0),
                 scale_correction=ScaleCorrectionConfig(fraction=0.0),
+                street_heading=StreetHeadingConfig(strength_per_m=0.0),
                 start=StartConfig(fix_sigma_factor=1.0),
             )
         raise ValueError(f"unknown preset {name!r}; one of {PRESETS}")

@@ -42,6 +42,7 @@ from curbside.localize.filter.resample import SystematicResampler
 from curbside.localize.filter.scale import ScaleCorrection
 from curbside.localize.filter.segments import SegmentEstimator
 from curbside.localize.filter.smoother import FixedLagSmoother
+from curbside.localize.filter.street_heading import StreetHeadingLikelihood
 from curbside.localize.raster import MapRaster, load_or_build_raster
 from curbside.osmseg.mapio import MapLayers
 from curbside.projection import LocalFrame
@@ -162,7 +163,11 @@ class Tracker:
         if frame is None and raster is not None:
             frame = LocalFrame(pyproj.CRS.from_wkt(raster.crs))
         gnss = GnssLikelihood(config.gnss, n, rng, raster) if use_gnss else None
-        likelihoods: list[Likelihood] = [lik for lik in (map_lik, gnss) if lik is not None]
+        on_streets = raster is not None and raster.segment_axes is not None
+        heading = None
+        if config.street_heading.strength_per_m > 0 and on_streets:
+            heading = StreetHeadingLikelihood(raster, config.street_heading)
+        likelihoods: list[Likelihood] = [lik for lik in (map_lik, heading, gnss) if lik is not None]
         divergence = None
         if gnss is not None and config.recovery.max_fraction > 0:
             divergence = DivergenceRecovery(config.recovery, gnss, rng)

@@ -1,0 +1,145 @@
+"""Oracles: what would perfect wrong-side detection, a perfect speed scale or a perfect inertial gain?
+
+In urban canyons a phone's fix often lands on the other side of the street (a reflected signal; the
+paper's Fig. 3), and the simulator reproduces this (``curbside/evaluate/gnss_model.py``). A
+likelihood that knows about it (a mirrored component, a wrong-side detector) can at best do what this
+oracle does: it copies each session, drops every fix whose nearest sidewalk segment is the
+other side of the same OSM way as the walker's true nearest segment, and runs the methods on the
+originals and the copies. If the fused filter's CSA barely moves, wrong-side fixes are not what
+limits it, and modelling them is not worth its complexity.
+
+``--oracle speed-scale`` instead divides each copy's ``velocity.csv`` by the walk's simulated speed
+scale (``meta.json``), the most a perfect speed-scale estimator could give; ``--oracle inertial``
+replaces it with the true walk's velocity (the surveyed path differentiated at the same times), the
+most any inertial model could give: what is left is down to GNSS and the map.
+
+Usage::
+
+    python benchmarks/oracle_fusion.py OUT --map MAP [--oracle wrong-side|speed-scale|inertial]
+        [--split tune|test] [--subsets paper6] [--seeds 0 1]
+
+``OUT`` is a working folder (e.g. the one of ``benchmarks/tune_fusion.py``); the sessions of ``--split``
+(default ``tune``) are simulated into it on first use. An oracle chooses no parameter, so running it on
+the scored ``test`` split bounds what any change to the filter could score there.
+"""
+
+from __future__ import annotations
+
+import argparse
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+from tune_fusion import run
+
+from curbside.evaluate.groundtruth import groundtruth_at
+from curbside.evaluate.runner import _map
+from curbside.evaluate.subsets import SUBSETS, benchmark_sessions, load_world
+from curbside.localize.filter.config import MapConfig
+from curbside.localize.raster import load_or_build_raster
+from curbside.localize.session import read_session
+from curbside.projection import LocalFrame
+
+
+def way_and_side(segment_ids: np.ndarray, index: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``(way, side)`` of each segment index (``w<way>-<k>-<L|R>``; ``""`` for -1, no segment)."""
+    names = np.where(index >= 0, segment_ids[np.maximum(index, 0)], "")
+    way = np.array([n.split("-", 1)[0] for n in names])
+    side = np.array([n.rsplit("-", 1)[-1] if n else "" for n in names])
+    return way, side
+
+
+def wrong_side_fixes(session_dir: Path, raster, segment_ids: np.ndarray) -> np.ndarray:
+    """Boolean mask over ``gnss.csv``: the fix is across the walker's own street."""
+    session = read_session(session_dir)
+    fixes = session.gnss
+    frame = LocalFrame(raster.crs)
+    fx, fy = frame.to_xy(fixes["lon"].to_numpy(), fixes["lat"].to_numpy())
+    tx, ty = groundtruth_at(session.waypoints, fixes["t"].to_numpy(float), frame)
+    fix_way, fix_side = way_and_side(segment_ids, raster.segments_at(fx, fy))
+    true_way, true_side = way_and_side(segment_ids, raster.segments_at(tx, ty))
+    return (fix_way == true_way) & (fix_way != "") & (fix_side != true_side)
+
+
+def true_velocity(session_dir: Path, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The walker's true east and north velocity (m/s) at times ``t``, from the surveyed path."""
+    session = read_session(session_dir)
+    frame = LocalFrame.around(float(session.waypoints["lon"].iat[0]), float(session.waypoints["lat"].iat[0]))
+    x, y = groundtruth_at(session.waypoints, t, frame)
+    return np.gradient(x, t), np.gradient(y, t)
+
+
+def apply_oracle(source: Path, target: Path, oracle: str, raster, segment_ids: np.ndarray) -> str:
+    """Write ``source``'s oracle version of its GNSS or velocity file into ``target``; say what changed."""
+    if oracle == "wrong-side":
+        wrong = wrong_side_fixes(source, raster, segment_ids)
+        fixes = pd.read_csv(source / "gnss.csv")
+        fixes[~wrong].to_csv(target / "gnss.csv", index=False)
+        return f"{wrong.mean():.0%} of fixes across the walker's street"
+    velocity = pd.read_csv(source / "velocity.csv")
+    if oracle == "speed-scale":
+        scale = read_session(source).meta["simulation"]["events"]["speed_scale"]
+        velocity[["ve", "vn"]] /= scale
+        change = f"velocity divided by {scale:.2f}"
+    else:
+        velocity["ve"], velocity["vn"] = true_velocity(source, velocity["t"].to_numpy(float))
+        change = "true velocity"
+    velocity.to_csv(target / "velocity.csv", index=False)
+    return change
+
+
+def oracle_copies(
+    folders: dict[str, list[Path]], map_path: str, out: Path, oracle: str
+) -> dict[str, list[Path]]:
+    """Copies of every session under ``out`` with the oracle applied; prints what it changed."""
+    config = MapConfig()
+    raster = load_or_build_raster(_map(map_path), config.raster_resolution_m, config.segment_reach_m)
+    segment_ids = np.asarray(raster.segment_ids)
+    copies: dict[str, list[Path]] = {}
+    for subset, paths in folders.items():
+        copies[subset] = []
+        for path in paths:
+            target = out / oracle / subset / path.name
+            if target.exists():
+                shutil.rmtree(target)
+            shutil.copytree(path, target)
+            change = apply_oracle(path, target, oracle, raster, segment_ids)
+            copies[subset].append(target)
+            print(f"{subset}/{path.name}: {change}")
+    return copies
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("out", help="working folder (sessions, oracle copies)")
+    parser.add_argument("--map", required=True, help="map GeoJSON (e.g. OUT/map.geojson)")
+    parser.add_argument("--oracle", choices=("wrong-side", "speed-scale", "inertial"), default="wrong-side")
+    parser.add_argument("--split", choices=("tune", "test"), default="tune",
+                        help="an oracle chooses nothing, so it may bound the scored split too")
+    parser.add_argument("--subsets", nargs="+", choices=SUBSETS, default=["paper6"])
+    parser.add_argument("--seeds", type=int, nargs="+", default=[0, 1])
+    parser.add_argument("--workers", type=int, default=2)
+    args = parser.parse_args(argv)
+    out = Path(args.out)
+    world = load_world()
+    folders = {
+        sub: benchmark_sessions(
+            out / args.split / sub, sub, split=args.split, profile="phone", seeds=3, world=world
+        )
+        for sub in args.subsets
+    }
+    copies = oracle_copies(folders, args.map, out / "oracle" / args.split, args.oracle)
+    variants = {"gnss": ["gnss", {}], "paper": ["paper", {}], "fused": ["fused", {}]}
+    rows = []
+    for label, which in (("as simulated", folders), (f"{args.oracle} oracle", copies)):
+        pooled, _ = run(which, args.map, variants, tuple(args.seeds), args.workers)
+        rows.append(pooled.assign(fixes=label))
+    table = pd.concat(rows).pivot(index=["variant", "fixes"], columns="subset")
+    pd.set_option("display.width", 200)
+    print(table.round(3).to_string())
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
