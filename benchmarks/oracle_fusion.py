@@ -11,12 +11,17 @@ limits it, and modelling them is not worth its complexity.
 ``--oracle speed-scale`` instead divides each copy's ``velocity.csv`` by the walk's simulated speed
 scale (``meta.json``), the most a perfect speed-scale estimator could give; ``--oracle inertial``
 replaces it with the true walk's velocity (the surveyed path differentiated at the same times), the
-most any inertial model could give: what is left is down to GNSS and the map.
+most any inertial model could give: what is left is down to GNSS and the map. ``--oracle speed`` keeps
+the inertial direction at the true speed, ``--oracle heading`` the inertial speed in the true
+direction: which half of the inertial error costs what. ``--oracle stance`` is not an oracle but a rule
+a filter could apply: the velocity is zeroed wherever no footstep came within a second (phantom motion
+at the kerb).
 
 Usage::
 
-    python benchmarks/oracle_fusion.py OUT --map MAP [--oracle wrong-side|speed-scale|inertial]
-        [--split tune|test] [--subsets paper6] [--seeds 0 1]
+    python benchmarks/oracle_fusion.py OUT --map MAP
+        [--oracle wrong-side|speed-scale|stance|speed|heading|inertial] [--split tune|test]
+        [--subsets paper6] [--seeds 0 1]
 
 ``OUT`` is a working folder (e.g. the one of ``benchmarks/tune_fusion.py``); the sessions of ``--split``
 (default ``tune``) are simulated into it on first use. An oracle chooses no parameter, so running it on
@@ -40,6 +45,9 @@ from curbside.localize.filter.config import MapConfig
 from curbside.localize.raster import load_or_build_raster
 from curbside.localize.session import read_session
 from curbside.projection import LocalFrame
+
+ORACLES = ("wrong-side", "speed-scale", "stance", "speed", "heading", "inertial")
+STANCE_GAP_S = 1.0  # no footstep within this long on either side: standing
 
 
 def way_and_side(segment_ids: np.ndarray, index: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -70,6 +78,14 @@ def true_velocity(session_dir: Path, t: np.ndarray) -> tuple[np.ndarray, np.ndar
     return np.gradient(x, t), np.gradient(y, t)
 
 
+def standing_at(t: np.ndarray, steps_t: np.ndarray) -> np.ndarray:
+    """Whether no footstep falls within :data:`STANCE_GAP_S` of each time ``t``."""
+    i = np.searchsorted(steps_t, t)
+    since = np.where(i > 0, t - steps_t[np.maximum(i - 1, 0)], np.inf)
+    until = np.where(i < len(steps_t), steps_t[np.minimum(i, len(steps_t) - 1)] - t, np.inf)
+    return (since > STANCE_GAP_S) & (until > STANCE_GAP_S)
+
+
 def apply_oracle(source: Path, target: Path, oracle: str, raster, segment_ids: np.ndarray) -> str:
     """Write ``source``'s oracle version of its GNSS or velocity file into ``target``; say what changed."""
     if oracle == "wrong-side":
@@ -78,13 +94,26 @@ def apply_oracle(source: Path, target: Path, oracle: str, raster, segment_ids: n
         fixes[~wrong].to_csv(target / "gnss.csv", index=False)
         return f"{wrong.mean():.0%} of fixes across the walker's street"
     velocity = pd.read_csv(source / "velocity.csv")
-    if oracle == "speed-scale":
+    if oracle == "stance":
+        steps_t = pd.read_csv(source / "steps.csv")["t"].to_numpy(float)
+        standing = standing_at(velocity["t"].to_numpy(float), steps_t)
+        velocity.loc[standing, ["ve", "vn"]] = 0.0
+        change = f"velocity zeroed over {standing.mean():.0%} of the walk (no footstep near)"
+    elif oracle == "speed-scale":
         scale = read_session(source).meta["simulation"]["events"]["speed_scale"]
         velocity[["ve", "vn"]] /= scale
         change = f"velocity divided by {scale:.2f}"
     else:
-        velocity["ve"], velocity["vn"] = true_velocity(source, velocity["t"].to_numpy(float))
-        change = "true velocity"
+        east, north = true_velocity(source, velocity["t"].to_numpy(float))
+        true, inertial = east + 1j * north, velocity["ve"].to_numpy() + 1j * velocity["vn"].to_numpy()
+        if oracle == "speed":  # the inertial direction at the true speed
+            out = np.abs(true) * np.exp(1j * np.angle(inertial))
+        elif oracle == "heading":  # the inertial speed in the true direction
+            out = np.abs(inertial) * np.exp(1j * np.angle(true))
+        else:
+            out = true
+        velocity["ve"], velocity["vn"] = out.real, out.imag
+        change = {"speed": "true speed", "heading": "true direction"}.get(oracle, "true velocity")
     velocity.to_csv(target / "velocity.csv", index=False)
     return change
 
@@ -114,7 +143,7 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("out", help="working folder (sessions, oracle copies)")
     parser.add_argument("--map", required=True, help="map GeoJSON (e.g. OUT/map.geojson)")
-    parser.add_argument("--oracle", choices=("wrong-side", "speed-scale", "inertial"), default="wrong-side")
+    parser.add_argument("--oracle", choices=ORACLES, default="wrong-side")
     parser.add_argument("--split", choices=("tune", "test"), default="tune",
                         help="an oracle chooses nothing, so it may bound the scored split too")
     parser.add_argument("--subsets", nargs="+", choices=SUBSETS, default=["paper6"])
