@@ -15,12 +15,13 @@ most any inertial model could give: what is left is down to GNSS and the map. ``
 the inertial direction at the true speed, ``--oracle heading`` the inertial speed in the true
 direction: which half of the inertial error costs what. ``--oracle stance`` is not an oracle but a rule
 a filter could apply: the velocity is zeroed wherever no footstep came within a second (phantom motion
-at the kerb).
+at the kerb), and ``--oracle step-length`` gives each footstep the running median of the last 20
+steps' inertial lengths (step-to-step speed noise).
 
 Usage::
 
     python benchmarks/oracle_fusion.py OUT --map MAP
-        [--oracle wrong-side|speed-scale|stance|speed|heading|inertial] [--split tune|test]
+        [--oracle wrong-side|speed-scale|stance|step-length|speed|heading|inertial] [--split tune|test]
         [--subsets paper6] [--seeds 0 1]
 
 ``OUT`` is a working folder (e.g. the one of ``benchmarks/tune_fusion.py``); the sessions of ``--split``
@@ -46,8 +47,9 @@ from curbside.localize.raster import load_or_build_raster
 from curbside.localize.session import read_session
 from curbside.projection import LocalFrame
 
-ORACLES = ("wrong-side", "speed-scale", "stance", "speed", "heading", "inertial")
+ORACLES = ("wrong-side", "speed-scale", "stance", "step-length", "speed", "heading", "inertial")
 STANCE_GAP_S = 1.0  # no footstep within this long on either side: standing
+STEP_WINDOW = 20  # footsteps in the running median of the step length
 
 
 def way_and_side(segment_ids: np.ndarray, index: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -86,6 +88,22 @@ def standing_at(t: np.ndarray, steps_t: np.ndarray) -> np.ndarray:
     return (since > STANCE_GAP_S) & (until > STANCE_GAP_S)
 
 
+def step_length_factor(velocity: pd.DataFrame, steps_t: np.ndarray) -> np.ndarray:
+    """Per velocity row: the factor that makes its footstep's length the running median of the last
+    :data:`STEP_WINDOW` (causal; 1 outside steps and across pauses over 1.5 s)."""
+    t = velocity["t"].to_numpy(float)
+    speed = np.hypot(velocity["ve"], velocity["vn"]).to_numpy()
+    walked = np.concatenate([[0.0], np.cumsum(0.5 * (speed[1:] + speed[:-1]) * np.diff(t))])
+    lengths = np.diff(np.interp(steps_t, t, walked))
+    factor, recent = np.ones(len(lengths)), []
+    for j in np.flatnonzero(np.diff(steps_t) < 1.5):
+        recent = [*recent, lengths[j]][-STEP_WINDOW:]
+        factor[j] = np.median(recent) / lengths[j] if lengths[j] > 1e-3 else 1.0
+    k = np.searchsorted(steps_t, t) - 1  # the footstep interval of each row
+    inside = (k >= 0) & (k < len(lengths))
+    return np.where(inside, factor[np.clip(k, 0, max(len(lengths) - 1, 0))], 1.0)
+
+
 def apply_oracle(source: Path, target: Path, oracle: str, raster, segment_ids: np.ndarray) -> str:
     """Write ``source``'s oracle version of its GNSS or velocity file into ``target``; say what changed."""
     if oracle == "wrong-side":
@@ -99,6 +117,11 @@ def apply_oracle(source: Path, target: Path, oracle: str, raster, segment_ids: n
         standing = standing_at(velocity["t"].to_numpy(float), steps_t)
         velocity.loc[standing, ["ve", "vn"]] = 0.0
         change = f"velocity zeroed over {standing.mean():.0%} of the walk (no footstep near)"
+    elif oracle == "step-length":
+        steps_t = pd.read_csv(source / "steps.csv")["t"].to_numpy(float)
+        factor = step_length_factor(velocity, steps_t)
+        velocity[["ve", "vn"]] = velocity[["ve", "vn"]].mul(factor, axis=0)
+        change = f"step lengths smoothed (factor {factor.min():.2f}-{factor.max():.2f})"
     elif oracle == "speed-scale":
         scale = read_session(source).meta["simulation"]["events"]["speed_scale"]
         velocity[["ve", "vn"]] /= scale
