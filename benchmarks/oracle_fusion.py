@@ -16,13 +16,15 @@ the inertial direction at the true speed, ``--oracle heading`` the inertial spee
 direction: which half of the inertial error costs what. ``--oracle stance`` is not an oracle but a rule
 a filter could apply: the velocity is zeroed wherever no footstep came within a second (phantom motion
 at the kerb), and ``--oracle step-length`` gives each footstep the running median of the last 20
-steps' inertial lengths (step-to-step speed noise).
+steps' inertial lengths (step-to-step speed noise). ``--oracle resimulate --velocity-set
+scale_wander_sd=0`` simulates the same sessions again with one of the phone profile's inertial error
+components switched off.
 
 Usage::
 
     python benchmarks/oracle_fusion.py OUT --map MAP
-        [--oracle wrong-side|speed-scale|stance|step-length|speed|heading|inertial] [--split tune|test]
-        [--subsets paper6] [--seeds 0 1]
+        [--oracle wrong-side|speed-scale|stance|step-length|speed|heading|inertial|resimulate]
+        [--velocity-set FIELD=VALUE ...] [--split tune|test] [--subsets paper6] [--seeds 0 1]
 
 ``OUT`` is a working folder (e.g. the one of ``benchmarks/tune_fusion.py``); the sessions of ``--split``
 (default ``tune``) are simulated into it on first use. An oracle chooses no parameter, so running it on
@@ -32,6 +34,7 @@ the scored ``test`` split bounds what any change to the filter could score there
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import shutil
 from pathlib import Path
 
@@ -41,13 +44,14 @@ from tune_fusion import run
 
 from curbside.evaluate.groundtruth import groundtruth_at
 from curbside.evaluate.runner import _map
+from curbside.evaluate.simulate import PhoneVelocityErrorModel, SimulationConfig
 from curbside.evaluate.subsets import SUBSETS, benchmark_sessions, load_world
 from curbside.localize.filter.config import MapConfig
 from curbside.localize.raster import load_or_build_raster
 from curbside.localize.session import read_session
 from curbside.projection import LocalFrame
 
-ORACLES = ("wrong-side", "speed-scale", "stance", "step-length", "speed", "heading", "inertial")
+ORACLES = ("wrong-side", "speed-scale", "stance", "step-length", "speed", "heading", "inertial", "resimulate")
 STANCE_GAP_S = 1.0  # no footstep within this long on either side: standing
 STEP_WINDOW = 20  # footsteps in the running median of the step length
 
@@ -162,17 +166,51 @@ def oracle_copies(
     return copies
 
 
+def resimulated(
+    out: Path, split: str, subsets: list[str], settings: list[str], world
+) -> dict[str, list[Path]]:
+    """The same sessions simulated again with some phone velocity-error fields changed.
+
+    Every error process is still drawn (times zero where switched off), so the walks, the fixes and the
+    other inertial errors are the ones of the sessions as simulated.
+    """
+    fields = {key: float(value) for key, value in (item.split("=", 1) for item in settings)}
+    config = SimulationConfig(profile="phone", velocity=PhoneVelocityErrorModel(**fields))
+    return {sub: benchmark_sessions(out / sub, sub, split=split, seeds=3, world=world, config=config)
+            for sub in subsets}
+
+
+def _is_number(text: str) -> bool:
+    try:
+        float(text)
+    except ValueError:
+        return False
+    return True
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("out", help="working folder (sessions, oracle copies)")
     parser.add_argument("--map", required=True, help="map GeoJSON (e.g. OUT/map.geojson)")
-    parser.add_argument("--oracle", choices=ORACLES, default="wrong-side")
+    parser.add_argument("--oracle", choices=ORACLES, default="wrong-side",
+                        help="the error source to remove (module docstring; default: wrong-side)")
     parser.add_argument("--split", choices=("tune", "test"), default="tune",
                         help="an oracle chooses nothing, so it may bound the scored split too")
-    parser.add_argument("--subsets", nargs="+", choices=SUBSETS, default=["paper6"])
-    parser.add_argument("--seeds", type=int, nargs="+", default=[0, 1])
+    parser.add_argument("--subsets", nargs="+", choices=SUBSETS, default=["paper6"],
+                        help="benchmark subsets (default: paper6)")
+    parser.add_argument("--seeds", type=int, nargs="+", default=[0, 1], help="filter seeds (default 0 1)")
     parser.add_argument("--workers", type=int, default=2)
+    parser.add_argument("--velocity-set", nargs="+", default=[], metavar="FIELD=VALUE",
+                        help="with --oracle resimulate: phone velocity-model fields to change, e.g. "
+                             "scale_wander_sd=0")
     args = parser.parse_args(argv)
+    if bool(args.velocity_set) != (args.oracle == "resimulate"):
+        parser.error("--velocity-set goes with --oracle resimulate, and only with it")
+    fields = {f.name for f in dataclasses.fields(PhoneVelocityErrorModel) if isinstance(f.default, float)}
+    for item in args.velocity_set:
+        key, _, value = item.partition("=")
+        if key not in fields or not _is_number(value):
+            parser.error(f"--velocity-set {item!r}: expected FIELD=NUMBER, FIELD one of {sorted(fields)}")
     out = Path(args.out)
     world = load_world()
     folders = {
@@ -181,7 +219,11 @@ def main(argv: list[str] | None = None) -> int:
         )
         for sub in args.subsets
     }
-    copies = oracle_copies(folders, args.map, out / "oracle" / args.split, args.oracle)
+    if args.oracle == "resimulate":
+        copies = resimulated(out / "oracle" / args.split / "resimulate", args.split, args.subsets,
+                             args.velocity_set, world)
+    else:
+        copies = oracle_copies(folders, args.map, out / "oracle" / args.split, args.oracle)
     variants = {"gnss": ["gnss", {}], "paper": ["paper", {}], "fused": ["fused", {}]}
     rows = []
     for label, which in (("as simulated", folders), (f"{args.oracle} oracle", copies)):
