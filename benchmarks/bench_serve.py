@@ -288,6 +288,59 @@ def _table(rows: list[dict], baseline: float) -> str:
     return "\n".join(lines)
 
 
+def _serve_and_ramp(
+    map_file: Path, walk: Path, args: argparse.Namespace
+) -> tuple[subprocess.CompletedProcess, float]:
+    """Start ``localize serve`` on a free loopback port, ramp the walkers against it from a client
+    process; the client's output and the server's idle memory (MB)."""
+    port = _free_port()
+    url = f"http://127.0.0.1:{port}"
+    env = os.environ | {"PYTHONPATH": str(REPO)}
+    with tempfile.TemporaryDirectory() as data_dir:
+        server = subprocess.Popen(
+            [sys.executable, "-m", "curbside.cli.localize", "serve", "--map", str(map_file), "--port",
+             str(port), "--data-dir", data_dir, "--max-sessions", "5000", "--idle-timeout", "120"],
+            env=env,
+            stdout=subprocess.DEVNULL,
+        )
+        try:
+            _wait_up(url, server)
+            import psutil
+
+            idle_rss = psutil.Process(server.pid).memory_info().rss / 1e6
+            client = subprocess.run(
+                [sys.executable, __file__, "--client", "--url", url, "--walk", str(walk), "--server-pid",
+                 str(server.pid), "--walkers", args.walkers, "--step-s", str(args.step_s), "--warmup-s",
+                 str(args.warmup_s), "--batch-s", str(args.batch_s), "--max-minutes", str(args.max_minutes)],
+                env=env,
+                capture_output=True,
+                text=True,
+                timeout=args.max_minutes * 60 + 300,
+            )
+        finally:
+            server.terminate()
+            server.wait(timeout=120)
+    return client, idle_rss
+
+
+def _summarise(rows: list[dict], baseline: float, idle_rss: float, out: str | None) -> None:
+    """Print the ramp's table, the most walkers held and the memory per session; write JSON to ``out``."""
+    print(_table(rows, baseline))
+    held = [r["walkers"] for r in rows if r["holds"]]
+    sizes = np.array([r["walkers"] for r in rows], float)
+    rss = np.array([r["server_rss_mb"] for r in rows])
+    per_session = np.polyfit(sizes, rss, 1)[0] if len(rows) > 1 else (rss[0] - idle_rss) / sizes[0]
+    print(f"\nmost walkers held (p99 < 100 ms, keeping up): {max(held) if held else 'none of the steps'}")
+    print(
+        f"memory: {idle_rss:.0f} MB with no session, {per_session:.2f} MB per session (slope over the steps)"
+    )
+    print(f"load average after the run: {os.getloadavg()}")
+    if out:
+        summary = {"rows": rows, "baseline_cpu_s_per_walker_s": baseline, "idle_rss_mb": idle_rss,
+                   "mb_per_session": per_session}
+        Path(out).write_text(json.dumps(summary, indent=2))
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--map")
@@ -309,91 +362,12 @@ def main(argv: list[str] | None = None) -> int:
     map_file, walk = prepare(args.map)
     baseline = compute_baseline(map_file, walk)
     print(f"in-process compute: {baseline * 1000:.1f} ms CPU per walker-second", flush=True)
-    port = _free_port()
-    url = f"http://127.0.0.1:{port}"
-    env = os.environ | {"PYTHONPATH": str(REPO)}
-    with tempfile.TemporaryDirectory() as data_dir:
-        server = subprocess.Popen(
-            [
-                sys.executable,
-                "-m",
-                "curbside.cli.localize",
-                "serve",
-                "--map",
-                str(map_file),
-                "--port",
-                str(port),
-                "--data-dir",
-                data_dir,
-                "--max-sessions",
-                "5000",
-                "--idle-timeout",
-                "120",
-            ],
-            env=env,
-            stdout=subprocess.DEVNULL,
-        )
-        try:
-            _wait_up(url, server)
-            import psutil
-
-            idle_rss = psutil.Process(server.pid).memory_info().rss / 1e6
-            client = subprocess.run(
-                [
-                    sys.executable,
-                    __file__,
-                    "--client",
-                    "--url",
-                    url,
-                    "--walk",
-                    str(walk),
-                    "--server-pid",
-                    str(server.pid),
-                    "--walkers",
-                    args.walkers,
-                    "--step-s",
-                    str(args.step_s),
-                    "--warmup-s",
-                    str(args.warmup_s),
-                    "--batch-s",
-                    str(args.batch_s),
-                    "--max-minutes",
-                    str(args.max_minutes),
-                ],
-                env=env,
-                capture_output=True,
-                text=True,
-                timeout=args.max_minutes * 60 + 300,
-            )
-        finally:
-            server.terminate()
-            server.wait(timeout=120)
+    client, idle_rss = _serve_and_ramp(map_file, walk, args)
     rows = [json.loads(line) for line in client.stdout.splitlines() if line.startswith("{")]
     if not rows:
         sys.stderr.write(client.stderr)
         return 1
-    print(_table(rows, baseline))
-    held = [r["walkers"] for r in rows if r["holds"]]
-    sizes = np.array([r["walkers"] for r in rows], float)
-    rss = np.array([r["server_rss_mb"] for r in rows])
-    per_session = np.polyfit(sizes, rss, 1)[0] if len(rows) > 1 else (rss[0] - idle_rss) / sizes[0]
-    print(f"\nmost walkers held (p99 < 100 ms, keeping up): {max(held) if held else 'none of the steps'}")
-    print(
-        f"memory: {idle_rss:.0f} MB with no session, {per_session:.2f} MB per session (slope over the steps)"
-    )
-    print(f"load average after the run: {os.getloadavg()}")
-    if args.out:
-        Path(args.out).write_text(
-            json.dumps(
-                {
-                    "rows": rows,
-                    "baseline_cpu_s_per_walker_s": baseline,
-                    "idle_rss_mb": idle_rss,
-                    "mb_per_session": per_session,
-                },
-                indent=2,
-            )
-        )
+    _summarise(rows, baseline, idle_rss, args.out)
     return 0
 
 

@@ -373,7 +373,6 @@ def ipin_errors(
         Errors (m) pooled per method; one row per trial and method (``trial, method, n_waypoints,
         median_m``); the number of trials read.
     """
-    from curbside.localize.pipeline import track_session
     from curbside.localize.readers.ipin import list_trials, read_trial
     from curbside.localize.ronin.data import IPIN_TEST_MARK
 
@@ -392,15 +391,7 @@ def ipin_errors(
             float(session.waypoints["lon"].iat[0]), float(session.waypoints["lat"].iat[0])
         )
         wt, wx, wy = waypoints_xy(session.waypoints, frame)
-        tracks = {}
-        for method, config in runs.items():
-            try:
-                track = track_session(session, None, config=config, seed=seed).track
-            except CurbsideInputError as exc:
-                log.warning("IPIN %s %s skipped: %s", name, method, exc)
-                continue
-            if len(track) >= 2:
-                tracks[method] = track
+        tracks = _track_every_run(session, runs, seed, name)
         if len(tracks) < len(runs):
             continue
         # score every method at the same waypoints: inside every track's span, the start one excluded
@@ -422,6 +413,22 @@ def ipin_errors(
             )
     pooled = {m: np.concatenate(v) if v else np.array([]) for m, v in errors.items()}
     return pooled, rows, len(names)
+
+
+def _track_every_run(session: Session, runs: dict[str, RunConfig], seed: int, name: str) -> dict[str, Any]:
+    """Each run's track of an IPIN trial (no map); a run the trial cannot start is logged and left out."""
+    from curbside.localize.pipeline import track_session
+
+    tracks = {}
+    for method, config in runs.items():
+        try:
+            track = track_session(session, None, config=config, seed=seed).track
+        except CurbsideInputError as exc:
+            log.warning("IPIN %s %s skipped: %s", name, method, exc)
+            continue
+        if len(track) >= 2:
+            tracks[method] = track
+    return tracks
 
 
 def ipin_table(
