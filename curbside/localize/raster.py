@@ -210,6 +210,11 @@ class RasterLookup:
         self.col_max = cols + 1.5
         self.row_max = rows + 1.5
         self.stride = cols + 2
+        #: ``(inv_res, x_offset, y_offset, col_max, row_max, stride)``: what a compiled kernel needs to
+        #: index the padded grids (:func:`curbside.localize.filter.kernelmath.cell_index`).
+        self.index_grid = (
+            self.inv_res, self.x_offset, self.y_offset, self.col_max, self.row_max, self.stride
+        )
         self._n = -1
 
     def _buffers(self, n: int) -> None:

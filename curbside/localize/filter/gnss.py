@@ -34,7 +34,7 @@ import numba
 import numpy as np
 
 from curbside.localize.filter.config import GnssConfig
-from curbside.localize.filter.kernelmath import exp, logaddexp
+from curbside.localize.filter.kernelmath import cell_index, exp, logaddexp
 from curbside.localize.filter.particles import BIAS_X, BIAS_Y, ParticleSet, X, Y
 from curbside.localize.filter.parts import GnssFix, Update
 from curbside.localize.raster import MapRaster, RasterLookup
@@ -64,8 +64,8 @@ class GnssLikelihood:
         self._streets = None  # the nearest-segment grid and segment axes, for the anisotropic model
         if config.across_factor != 1.0 and raster is not None and raster.segment_axes is not None:
             lk = RasterLookup(raster)
-            self._streets = (lk.padded_segments, lk.inv_res, lk.x_offset, lk.y_offset, lk.col_max, lk.row_max,
-                             lk.stride, np.ascontiguousarray(raster.segment_axes, dtype=np.float64))
+            self._streets = (lk.padded_segments, lk.index_grid,
+                             np.ascontiguousarray(raster.segment_axes, dtype=np.float64))
         self.log_inlier_prob = math.log1p(-config.outlier_prob)
         self.log_outlier_density = -math.inf  # no outlier component: the plain Gaussian
         if config.outlier_prob > 0:
@@ -157,16 +157,13 @@ def _add_gnss_log_likelihood(state, log_weight, fix_x, fix_y, a, b, c, exponent)
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")
 def _add_anisotropic_log_likelihood(
-    state, log_weight, fix_x, fix_y, a, a_across, b, b_aniso, c, exponent, padded_segments, inv_res, x_offset,
-    y_offset, col_max, row_max, stride, axes,
+    state, log_weight, fix_x, fix_y, a, a_across, b, b_aniso, c, exponent, padded_segments, grid, axes,
 ):  # pragma: no cover - compiled
     # Along/across the particle's nearest sidewalk segment; isotropic where no segment is near.
     for i in range(state.shape[1]):
         ex = state[X, i] - fix_x
         ey = state[Y, i] - fix_y
-        fx = min(max(state[X, i] * inv_res - x_offset, 0.0), col_max)
-        fy = min(max(state[Y, i] * inv_res - y_offset, 0.0), row_max)
-        k = padded_segments[int(fy) * stride + int(fx)]
+        k = padded_segments[cell_index(state[X, i], state[Y, i], grid)]
         if k < 0:
             inlier = (ex * ex + ey * ey) * a + b
         else:

@@ -15,7 +15,9 @@ checks for zero and raises, and that branch keeps the loop scalar.
 :func:`exp`
     ``e**x`` for ``x <= 709`` (``-inf`` and anything below -745.2 give 0, as they should);
 :func:`logaddexp`
-    ``log(e**u + e**v)`` as numpy computes it, with ``log1p`` on ``[0, 1]`` by fdlibm's ``log`` kernel.
+    ``log(e**u + e**v)`` as numpy computes it, with ``log1p`` on ``[0, 1]`` by fdlibm's ``log`` kernel;
+:func:`cell_index`
+    a point's index in a padded map raster (:attr:`~curbside.localize.raster.RasterLookup.index_grid`).
 
 numba's on-disk cache (``cache=True``) keys a kernel on its own source file only: after editing this
 module, delete the ``__pycache__`` folders of the modules whose kernels use it.
@@ -155,3 +157,15 @@ def logaddexp(u, v):  # pragma: no cover - compiled
     lo = v if u > v else u  # NaN in either: lo is NaN and so is the result
     total = hi + _log1p_unit(exp(lo - hi))
     return hi if lo == -math.inf else total
+
+
+@numba.njit(inline="always", cache=True, nogil=True)
+def cell_index(x, y, grid):  # pragma: no cover - compiled
+    """Index of point ``(x, y)`` in a padded, flattened raster; ``grid`` is ``RasterLookup.index_grid``.
+
+    The index is clipped into the padding ring, so points off the map read the ring's value.
+    """
+    inv_res, x_offset, y_offset, col_max, row_max, stride = grid
+    fx = min(max(x * inv_res - x_offset, 0.0), col_max)
+    fy = min(max(y * inv_res - y_offset, 0.0), row_max)
+    return int(fy) * stride + int(fx)

@@ -17,6 +17,7 @@ import numba
 import numpy as np
 
 from curbside.localize.filter.config import MapConfig
+from curbside.localize.filter.kernelmath import cell_index
 from curbside.localize.filter.particles import ParticleSet
 from curbside.localize.filter.parts import Update
 from curbside.localize.raster import BUILDING, STREET, MapRaster, RasterLookup, building_depth_m
@@ -51,12 +52,11 @@ class MapLikelihood:
         self.config = config
         self.lookup = RasterLookup(raster)
         self.log_table = log_weight_table(config, raster.resolution_m)
-        lk = self.lookup
-        self._grid = (lk.padded, lk.inv_res, lk.x_offset, lk.y_offset, lk.col_max, lk.row_max, lk.stride)
 
     def weigh(self, particles: ParticleSet, update: Update | None = None) -> None:
         """Add the map log-weight of every particle to ``particles.log_weight``."""
-        _add_map_log_weight(particles.state, particles.log_weight, *self._grid, self.log_table)
+        lk = self.lookup
+        _add_map_log_weight(particles.state, particles.log_weight, lk.padded, lk.index_grid, self.log_table)
 
     def log_likelihood(self, x: np.ndarray, y: np.ndarray) -> np.ndarray:
         """Map log-weight of points ``(x, y)`` (any matching shapes; a new array)."""
@@ -64,10 +64,6 @@ class MapLikelihood:
 
 
 @numba.njit(cache=True, nogil=True)
-def _add_map_log_weight(
-    state, log_weight, padded, inv_res, x_offset, y_offset, col_max, row_max, stride, table
-):  # pragma: no cover - compiled
+def _add_map_log_weight(state, log_weight, padded, grid, table):  # pragma: no cover - compiled
     for i in range(state.shape[1]):
-        fx = min(max(state[0, i] * inv_res - x_offset, 0.0), col_max)
-        fy = min(max(state[1, i] * inv_res - y_offset, 0.0), row_max)
-        log_weight[i] += table[padded[int(fy) * stride + int(fx)]]
+        log_weight[i] += table[padded[cell_index(state[0, i], state[1, i], grid)]]

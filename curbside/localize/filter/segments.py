@@ -15,6 +15,7 @@ from typing import NamedTuple
 import numba
 import numpy as np
 
+from curbside.localize.filter.kernelmath import cell_index
 from curbside.localize.filter.particles import ParticleSet
 from curbside.localize.raster import MapRaster, RasterLookup
 
@@ -57,15 +58,7 @@ class SegmentEstimator:
         lookup = RasterLookup(raster)
         self.segment_ids = raster.segment_ids
         self._segment_id_str = [str(v) for v in raster.segment_ids]
-        self._grid = (
-            lookup.padded_segments,
-            lookup.inv_res,
-            lookup.x_offset,
-            lookup.y_offset,
-            lookup.col_max,
-            lookup.row_max,
-            lookup.stride,
-        )
+        self._grid = (lookup.padded_segments, lookup.index_grid)
         self._segment_of = np.empty(n, lookup.padded_segments.dtype)
         self._sums = np.zeros((3, len(raster.segment_ids)))
 
@@ -86,12 +79,7 @@ def _segment_mode(
     weights,
     state,
     padded_segments,
-    inv_res,
-    x_offset,
-    y_offset,
-    col_max,
-    row_max,
-    stride,
+    grid,
     segment_of,
     sums,
 ):  # pragma: no cover - compiled
@@ -99,9 +87,7 @@ def _segment_mode(
     # touched entries are reset, in the second loop).
     n = weights.shape[0]
     for i in range(n):
-        fx = min(max(state[0, i] * inv_res - x_offset, 0.0), col_max)
-        fy = min(max(state[1, i] * inv_res - y_offset, 0.0), row_max)
-        k = padded_segments[int(fy) * stride + int(fx)]
+        k = padded_segments[cell_index(state[0, i], state[1, i], grid)]
         segment_of[i] = k
         if k >= 0:
             w = weights[i]

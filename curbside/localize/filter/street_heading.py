@@ -39,7 +39,7 @@ import numpy as np
 from scipy import special
 
 from curbside.localize.filter.config import StreetHeadingConfig
-from curbside.localize.filter.kernelmath import exp
+from curbside.localize.filter.kernelmath import cell_index, exp
 from curbside.localize.filter.particles import COS, SIN, ParticleSet, X, Y
 from curbside.localize.filter.parts import Update
 from curbside.localize.raster import SIDEWALK, MapRaster, RasterLookup
@@ -61,8 +61,8 @@ class StreetHeadingLikelihood:
             raise ValueError("the street-heading likelihood needs a map with sidewalk segments")
         self.config = config
         lk = RasterLookup(raster)
-        self._grid = (lk.padded, lk.padded_segments, lk.inv_res, lk.x_offset, lk.y_offset, lk.col_max,
-                      lk.row_max, lk.stride, np.ascontiguousarray(raster.segment_axes, dtype=np.float64))
+        self._grid = (lk.padded, lk.padded_segments, lk.index_grid,
+                      np.ascontiguousarray(raster.segment_axes, dtype=np.float64))
         self.log_floor = math.log(config.floor)
         self.log_inlier = math.log1p(-config.floor)
         #: The street axis (unit vector) used at the last update, ``None`` when a gate held it back.
@@ -101,9 +101,7 @@ def _log_i0(kappa: float) -> float:
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")
-def _axis_sums(
-    state, log_weight, padded, padded_segments, inv_res, x_offset, y_offset, col_max, row_max, stride, axes,
-):  # pragma: no cover - compiled
+def _axis_sums(state, log_weight, padded, padded_segments, grid, axes):  # pragma: no cover - compiled
     # Weights relative to the largest, so the sums stay finite; dead particles (-inf) add nothing.
     peak = -np.inf
     for i in range(state.shape[1]):
@@ -114,9 +112,7 @@ def _axis_sums(
     for i in range(state.shape[1]):
         w = exp(log_weight[i] - peak)
         total += w
-        fx = min(max(state[X, i] * inv_res - x_offset, 0.0), col_max)
-        fy = min(max(state[Y, i] * inv_res - y_offset, 0.0), row_max)
-        cell = int(fy) * stride + int(fx)
+        cell = cell_index(state[X, i], state[Y, i], grid)
         k = padded_segments[cell]
         if padded[cell] == SIDEWALK and k >= 0:
             on_sidewalk += w
