@@ -43,12 +43,12 @@ import pandas as pd
 from tune_fusion import run
 
 from curbside.evaluate.groundtruth import groundtruth_at
-from curbside.evaluate.runner import _map
 from curbside.evaluate.simulate import PhoneVelocityErrorModel, SimulationConfig
 from curbside.evaluate.subsets import SUBSETS, benchmark_sessions, load_world
 from curbside.localize.filter.config import MapConfig
 from curbside.localize.raster import load_or_build_raster
 from curbside.localize.session import read_session
+from curbside.osmseg.mapio import read_map
 from curbside.projection import LocalFrame
 
 ORACLES = ("wrong-side", "speed-scale", "stance", "step-length", "speed", "heading", "inertial", "resimulate")
@@ -150,7 +150,7 @@ def oracle_copies(
 ) -> dict[str, list[Path]]:
     """Copies of every session under ``out`` with the oracle applied; prints what it changed."""
     config = MapConfig()
-    raster = load_or_build_raster(_map(map_path), config.raster_resolution_m, config.segment_reach_m)
+    raster = load_or_build_raster(read_map(map_path), config.raster_resolution_m, config.segment_reach_m)
     segment_ids = np.asarray(raster.segment_ids)
     copies: dict[str, list[Path]] = {}
     for subset, paths in folders.items():
