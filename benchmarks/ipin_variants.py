@@ -11,6 +11,10 @@ Usage::
 
     python benchmarks/ipin_variants.py ../shared/data/ipin2023/ipin2023-t3.h5 --variants variants.json
         [--seeds 0 1]
+    python benchmarks/ipin_variants.py ../shared/data/ipin2023/ipin2023-t3.h5 --held-out --seeds 0 1 2 3
+
+``--held-out`` scores the held-out trials instead, to measure the defaults against 0.1 over several
+filter seeds (the benchmark runs one); it takes no variants, since nothing may be chosen there.
 
 ``variants.json`` maps names to ``{"filter.gnss.sigma_factor": 1.5, ...}``.
 """
@@ -33,14 +37,19 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("h5", help="ipin2023-t3.h5")
     parser.add_argument("--variants", help="JSON file: name -> overrides of the fused run configuration")
     parser.add_argument("--seeds", type=int, nargs="+", default=[0, 1], help="filter seeds (default 0 1)")
+    parser.add_argument("--held-out", action="store_true",
+                        help="score the held-out trials (defaults and 0.1 only: nothing is chosen there)")
     args = parser.parse_args(argv)
+    if args.held_out and args.variants:
+        parser.error("--held-out takes no --variants: parameters are chosen on the training trials only")
     variants = json.loads(Path(args.variants).read_text(encoding="utf-8")) if args.variants else {}
     fused = RunConfig.for_mode("fused")
     extra = {"fused 0.1": fused.with_overrides(FUSED_0_1_OVERRIDES)}
     extra |= {name: fused.with_overrides(overrides) for name, overrides in variants.items()}
     for seed in args.seeds:
-        errors, _, n_trials = ipin_errors(args.h5, seed=seed, extra_runs=extra, training=True)
-        print(f"filter seed {seed}: {n_trials} training trials")
+        errors, _, n_trials = ipin_errors(args.h5, seed=seed, extra_runs=extra, training=not args.held_out,
+                                          held_out=args.held_out)
+        print(f"filter seed {seed}: {n_trials} {'held-out' if args.held_out else 'training'} trials")
         for name, e in errors.items():
             print(f"  {name:<16} median {np.median(e):5.2f} m  p90 {np.percentile(e, 90):5.2f} m  "
                   f"({len(e)} waypoints)")

@@ -227,7 +227,7 @@ def main(argv: list[str] | None = None) -> int:
     variants = {"gnss": ["gnss", {}], "paper": ["paper", {}], "fused": ["fused", {}]}
     rows = []
     for label, which in (("as simulated", folders), (f"{args.oracle} oracle", copies)):
-        pooled, _ = run(which, args.map, variants, tuple(args.seeds), args.workers)
+        pooled, _, _ = run(which, args.map, variants, tuple(args.seeds), args.workers)
         rows.append(pooled.assign(fixes=label))
     table = pd.concat(rows).pivot(index=["variant", "fixes"], columns="subset")
     pd.set_option("display.width", 200)

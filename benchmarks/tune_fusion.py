@@ -31,6 +31,7 @@ import pandas as pd
 from curbside.evaluate import metrics
 from curbside.evaluate.runner import RunSpec, run_all
 from curbside.evaluate.subsets import SUBSETS, benchmark_sessions, load_world
+from curbside.evaluate.uncertainty import bootstrap_intervals
 
 
 def sessions(out: Path, subsets: tuple[str, ...], seeds: int) -> dict[str, list[Path]]:
@@ -42,7 +43,8 @@ def sessions(out: Path, subsets: tuple[str, ...], seeds: int) -> dict[str, list[
 
 def run(folders: dict[str, list[Path]], map_path: str, variants: dict, seeds: tuple[int, ...],
         workers: int, filter_map: bool = True) -> tuple[pd.DataFrame, pd.DataFrame]:
-    """Pooled metrics per (variant, subset) and each run's median error (for the GNSS ratios).
+    """Pooled metrics per (variant, subset), each run's median error (for the GNSS ratios) and the
+    variants' paired gains over the first (:func:`paired_gains`).
 
     ``filter_map=False`` runs the filters without the map likelihood (the map still scores them).
     """
@@ -69,7 +71,30 @@ def run(folders: dict[str, list[Path]], map_path: str, variants: dict, seeds: tu
                          "p90_m": m["euclid_p90_m"], "across_m": m["across_median_m"]})
     medians = [(n, *k[1:], summary["euclid_median_m"]) for n, k, _, summary in scored]
     runs = pd.DataFrame(medians, columns=["variant", "seed", "subset", "session", "median_m"])
-    return pd.DataFrame(rows), runs
+    return pd.DataFrame(rows), runs, paired_gains(scored, folders)
+
+
+def paired_gains(scored: list, folders: dict) -> pd.DataFrame:
+    """Each variant against the first one named after ``gnss``: paired session-bootstrap intervals."""
+    names = [n for n in dict.fromkeys(s[0] for s in scored) if n != "gnss"]
+    frames = []
+    for sub in folders:
+        by_name = {n: [{"session": k[3], "errors": e} for m, k, e, _ in scored if m == n and k[2] == sub]
+                   for n in names}
+        for name in names[1:]:
+            part = bootstrap_intervals({names[0]: by_name[names[0]], name: by_name[name]},
+                                       reference=name, baselines=(names[0],))
+            part = part[part["method"].str.contains(" - ")].assign(subset=sub)
+            frames.append(part)
+    return pd.concat(frames, ignore_index=True) if frames else pd.DataFrame()
+
+
+def print_gains(gains: pd.DataFrame) -> None:
+    """One line per variant and subset: the 95 % interval of each paired difference, share better."""
+    for (method, sub), part in gains.groupby(["method", "subset"], sort=False):
+        cells = [f"{r.metric.removesuffix('_m')} [{r.lo:+.3f}, {r.hi:+.3f}] {100 * r.better_share:.0f}%"
+                 for r in part.itertuples()]
+        print(f"{method:>28} {sub:>8}: " + "; ".join(cells))
 
 
 def gnss_ratios(runs: pd.DataFrame) -> pd.DataFrame:
@@ -108,12 +133,16 @@ def main(argv: list[str] | None = None) -> int:
             write_map(build_map(), map_path)
     variants = {"gnss": ["gnss", {}], **json.loads(Path(args.variants).read_text(encoding="utf-8"))}
     t0 = time.perf_counter()
-    pooled, runs = run(sessions(out, tuple(args.subsets), args.session_seeds), map_path, variants,
-                       tuple(args.seeds), args.workers, filter_map=not args.no_map_likelihood)
+    pooled, runs, gains = run(sessions(out, tuple(args.subsets), args.session_seeds), map_path, variants,
+                              tuple(args.seeds), args.workers, filter_map=not args.no_map_likelihood)
     pd.set_option("display.width", 200)
     wide = pooled.pivot(index="variant", columns="subset").loc[list(dict.fromkeys(pooled["variant"]))]
     print(wide.round(3).to_string())
     print(gnss_ratios(runs).round(2).to_string(index=False))
+    if len(gains):
+        print("paired 95 % session-bootstrap intervals, each variant minus the first "
+              "(share of resamples better):")
+        print_gains(gains)
     print(f"({len(runs)} runs in {time.perf_counter() - t0:.0f} s; tune split, phone profile, filter seeds "
           f"{args.seeds})")
     return 0

@@ -79,6 +79,7 @@ def test_report_has_tables_checks_and_figures(sessions, tmp_path):
     assert "paper PF" in md and "curbside fused" in md and "Per session, open" in md
     assert "Table 2. Correct Sidewalk Assignment by jaywalk weight, paper6" in md
     assert "Simulation profile 'phone'" in md and "OpenStreetMap" in md
+    assert "How sure: 95 % intervals" in md and "| open | curbside fused - GNSS |" in md
     figures = {p.name for p in (tmp_path / "report" / "figures").iterdir()}
     assert {
         "fig1_tracks_paper6.png",
@@ -92,6 +93,9 @@ def test_report_has_tables_checks_and_figures(sessions, tmp_path):
     assert html.count("data:image/png;base64,") == len(figures)
     doc = json.loads(paths["metrics.json"].read_text())
     assert doc["done_when"]["overall"] == criteria.overall(checks)
+    intervals = pd.DataFrame(doc["intervals_95"])
+    fused_csa = intervals.query("subset == 'open' and method == 'fused' and metric == 'csa'").iloc[0]
+    assert 0.0 <= fused_csa["lo"] <= fused_csa["hi"] <= 1.0
     ratios = pd.DataFrame(doc["session_ratios"])
     assert set(ratios["session"]) == {"path3-s1", "path3-s2"} and (ratios["ratio"] > 0).all()
     assert doc["session_events"]["path3-s1"]["jumps"] >= 0

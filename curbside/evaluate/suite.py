@@ -205,13 +205,15 @@ def _git_commit() -> str | None:
     return out.stdout.strip() or None
 
 
-def _ipin_summary(h5: str | Path, seed: int) -> tuple[dict[str, dict[str, float]], Any]:
-    """Every method and version 0.1's fused filter on the held-out IPIN trials, at the same waypoints."""
+def _ipin_summary(h5: str | Path, seed: int) -> tuple[dict[str, dict[str, float]], Any, pd.DataFrame]:
+    """Every method and version 0.1's fused filter on the held-out IPIN trials, at the same waypoints:
+    pooled figures, their table, and trial-bootstrap intervals (fused against 0.1 and the baselines)."""
     from curbside.evaluate.benchmark import ipin_errors, ipin_errors_table
+    from curbside.evaluate.uncertainty import waypoint_intervals
     from curbside.localize.runconfig import RunConfig
 
     reference = RunConfig.for_mode("fused").with_overrides(criteria.FUSED_0_1_OVERRIDES)
-    errors, _, n_trials = ipin_errors(
+    errors, rows, n_trials = ipin_errors(
         h5, seed=seed, held_out=True, extra_runs={criteria.IPIN_BASELINE_RUN: reference}
     )
     summary = {
@@ -219,7 +221,9 @@ def _ipin_summary(h5: str | Path, seed: int) -> tuple[dict[str, dict[str, float]
         for m, e in errors.items()
         if len(e)
     }
-    return summary, ipin_errors_table(errors, n_trials, held_out=True)
+    baselines = (criteria.IPIN_BASELINE_RUN, "paper", "gnss")
+    intervals = waypoint_intervals(errors, rows, "fused", baselines, seed=seed)
+    return summary, ipin_errors_table(errors, n_trials, held_out=True), intervals
 
 
 def _maps(
@@ -359,10 +363,10 @@ def run_suite(
     results += smoothed_results(results)
     timings["track_s"] = time.perf_counter() - start
 
-    ipin_summary, ipin_tab = (None, None)
+    ipin_summary, ipin_tab, ipin_intervals = (None, None, None)
     if ipin:
         start = time.perf_counter()
-        ipin_summary, ipin_tab = _ipin_summary(ipin, config.filter_seed)
+        ipin_summary, ipin_tab, ipin_intervals = _ipin_summary(ipin, config.filter_seed)
         timings["ipin_s"] = time.perf_counter() - start
 
     pooled, per_session, checks = _scores(results, config, maps, ipin_summary)
@@ -376,8 +380,9 @@ def run_suite(
     }
     start = time.perf_counter()
     layers = read_map(maps[OSM_MAP])
-    tables_in = (pooled, per_session, checks, layers, run_info, timings, ipin_summary, ipin_tab)
-    paths = write_suite_report(results, out_dir / "report", config, *tables_in)
+    tables_in = (pooled, per_session, checks, layers, run_info, timings)
+    ipin_in = (ipin_summary, ipin_tab, ipin_intervals)
+    paths = write_suite_report(results, out_dir / "report", config, *tables_in, *ipin_in)
     log.info("report written in %.0f s", time.perf_counter() - start)
     return {"report": out_dir / "report", **paths}
 

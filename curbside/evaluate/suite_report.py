@@ -28,6 +28,7 @@ from curbside.evaluate.figures import (
 )
 from curbside.evaluate.report import Table, fmt_value, json_ready, paper_value, records
 from curbside.evaluate.runner import METHOD_LABELS, SMOOTHED_METHOD
+from curbside.evaluate.uncertainty import INTERVAL_METRICS, subset_intervals
 from curbside.io import atomic_path
 from curbside.osmseg.mapio import MapLayers
 
@@ -187,6 +188,61 @@ def session_table(
     return Table(f"Per session, {subset}, w = {w:g}, map 'osm'", header, rows, note)
 
 
+def _interval_cell(row: pd.Series, metric: str, point: float | None) -> str:
+    """``value [lo, hi]`` for a method, ``[lo, hi] share %`` for a paired difference."""
+    digits = 2 if metric == "csa" else 1
+    if point is None:
+        return f"[{row['lo']:+.{digits}f}, {row['hi']:+.{digits}f}] {100 * row['better_share']:.0f} %"
+    return f"{fmt_value(point, digits)} [{row['lo']:.{digits}f}, {row['hi']:.{digits}f}]"
+
+
+def interval_table(intervals: pd.DataFrame, pooled: pd.DataFrame, w: float) -> Table | None:
+    """Each subset's figures with their 95 % session-bootstrap intervals, and fused's paired differences."""
+    if intervals.empty:
+        return None
+    rows = []
+    for subset in dict.fromkeys(intervals["subset"]):
+        part = intervals[intervals["subset"] == subset].set_index(["method", "metric"])
+        base = _base(pooled[pooled["subset"] == subset], w).set_index("method")
+        for method in dict.fromkeys(part.index.get_level_values("method")):
+            is_difference = " - " in method
+            cells = [
+                _interval_cell(part.loc[(method, metric)], metric,
+                               None if is_difference else float(base.at[method, metric]))
+                for metric in INTERVAL_METRICS
+            ]
+            rows.append([subset, " - ".join(METHOD_LABELS.get(m, m) for m in method.split(" - ")), *cells])
+    note = (
+        "95 % percentile intervals from 1,000 resamples of each subset's sessions (a cluster bootstrap: the "
+        "footsteps of a session move together). Differences are paired (every method on the same "
+        "resampled sessions); the percentage is the share of resamples in which curbside fused is better. "
+        "The three sessions of a route are resampled as independent, so the intervals are, if anything, "
+        "too narrow for the routes themselves."
+    )
+    header = ["subset", "method", *(HEADERS[METRICS.index(m)] for m in INTERVAL_METRICS)]
+    return Table(f"How sure: 95 % intervals, w = {w:g}, map 'osm'", header, rows, note)
+
+
+def ipin_interval_table(intervals: pd.DataFrame, summary: dict[str, dict[str, float]]) -> Table:
+    """The IPIN held-out figures of curbside fused with trial-bootstrap intervals, and its differences."""
+    part = intervals.set_index(["method", "metric"])
+    rows = []
+    for method in dict.fromkeys(part.index.get_level_values("method")):
+        if " - " not in method and method != "fused":
+            continue
+        point = {"euclid_median_m": "median_m", "euclid_p90_m": "p90_m"}
+        cells = [
+            _interval_cell(part.loc[(method, metric)], metric,
+                           None if " - " in method else summary[method][point[metric]])
+            for metric in point
+        ]
+        rows.append([" - ".join(METHOD_LABELS.get(m, m) for m in method.split(" - ")), *cells])
+    note = ("95 % percentile intervals from 1,000 resamples of the trials (each trial's waypoints together); "
+            "differences are paired, the percentage is the share of resamples in which curbside fused is "
+            "better.")
+    return Table("IPIN 2023 held-out: how sure (m)", ["method", "median m", "p90 m"], rows, note)
+
+
 def checks_table(checks: list[criteria.Check]) -> Table:
     """The done-when checks, one row each."""
     rows = [[c.criterion, c.scope, c.value, c.verdict] for c in checks]
@@ -275,7 +331,8 @@ def _tables(
     counts: dict[str, int],
     events: dict[str, dict],
     run_info: dict[str, Any],
-    ipin_table: Table | None,
+    ipin_tables: list[Table],
+    intervals: pd.DataFrame,
 ) -> list[Table]:
     """Every table of the report, in order."""
     w = config.jaywalk_weight
@@ -286,11 +343,13 @@ def _tables(
         sweep = sweep_table(pooled, subset)
         if sweep is not None:
             tables.append(sweep)
+    how_sure = interval_table(intervals, pooled, w)
+    if how_sure is not None:
+        tables.append(how_sure)
     datasf = map_table(pooled, w)
     if datasf is not None:
         tables.append(datasf)
-    if ipin_table is not None:
-        tables.append(ipin_table)
+    tables += ipin_tables
     tables.append(profile_table(run_info["simulation"]))
     tables += [session_table(per_session, s, w, events, limit) for s in config.subsets]
     return tables
@@ -323,6 +382,7 @@ def write_suite_report(
     timings: dict[str, float],
     ipin_summary: dict[str, dict[str, float]] | None = None,
     ipin_table: Table | None = None,
+    ipin_intervals: pd.DataFrame | None = None,
 ) -> dict[str, Path]:
     """Write ``report.md``, ``report.html``, ``metrics.json``, ``run.json`` and ``figures/`` atomically."""
     from curbside.evaluate.suite import pooled_by_subset
@@ -340,7 +400,13 @@ def write_suite_report(
         s: _base(pooled[pooled["subset"] == s], w).query("method == 'gnss'")["euclid_median_m"].iat[0]
         for s in config.subsets
     }
-    tables = _tables(pooled, per_session, checks, config, counts, events, run_info, ipin_table)
+    intervals = subset_intervals(
+        [r for r in results if r["spec"]["method"] != SMOOTHED_METHOD], w, seed=config.filter_seed
+    )
+    ipin_tables = [ipin_table] if ipin_table is not None else []
+    if ipin_intervals is not None and ipin_summary:
+        ipin_tables.append(ipin_interval_table(ipin_intervals, ipin_summary))
+    tables = _tables(pooled, per_session, checks, config, counts, events, run_info, ipin_tables, intervals)
     intro = _intro(config, counts, gnss_median, len(results), timings, run_info["workers"], checks)
     doc = {
         "generator": f"curbside {curbside.__version__}",
@@ -352,10 +418,12 @@ def write_suite_report(
             "checks": [c.__dict__ | {"verdict": c.verdict} for c in checks],
         },
         "pooled": records(pooled),
+        "intervals_95": records(intervals),
         "per_session": records(per_session),
         "session_ratios": records(ratios),
         "session_events": events,
         "ipin_held_out": ipin_summary,
+        "ipin_intervals_95": records(ipin_intervals) if ipin_intervals is not None else None,
         "timings_s": timings,
     }
     with atomic_path(out_dir) as tmp:

@@ -1,0 +1,243 @@
+"""How sure a benchmark figure is: session-bootstrap intervals, paired between methods.
+
+A pooled figure (CSA, median, p90 over every footstep of a subset) comes from a handful of sessions,
+and the footsteps of one session are strongly correlated: a cloud on the wrong sidewalk stays there
+for a block. So the unit of resampling is the session (a cluster bootstrap; Davison & Hinkley 1997,
+section 3.8): each resample draws the subset's sessions with replacement and pools their footsteps
+again. Every method is scored on the *same* resampled sessions, so the interval of a difference
+("fused minus the paper's method") is paired and much narrower than the two intervals side by side.
+
+The quantiles of a resample are weighted quantiles of the footsteps sorted once (each footstep
+weighs as many times as its session was drawn), so 1,000 resamples of a 20,000-footstep subset take
+well under a second. Intervals are percentile intervals; the point figures stay those of the pooled
+table.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+import pandas as pd
+
+from curbside.evaluate.suite import subset_of
+
+#: Metrics given an interval, and whether a larger value is better.
+INTERVAL_METRICS: dict[str, bool] = {
+    "csa": True, "euclid_median_m": False, "euclid_p90_m": False, "across_median_m": False
+}
+#: Methods compared with curbside fused (the issue's two baselines).
+BASELINES = ("paper", "gnss")
+
+
+@dataclass(frozen=True)
+class SessionSamples:
+    """One method's footsteps on one subset, grouped by session (rows follow ``sessions``).
+
+    Attributes
+    ----------
+    sessions
+        Session names, in the order shared by every method of the subset.
+    correct, steps
+        Per session: footsteps on the correct sidewalk, and all footsteps (missing ones count as
+        incorrect, as in :func:`curbside.evaluate.metrics.summarize`).
+    values
+        Per metric name: ``(sorted values, session index of each)`` over the footsteps with an estimate.
+    """
+
+    sessions: tuple[str, ...]
+    correct: np.ndarray
+    steps: np.ndarray
+    values: dict[str, tuple[np.ndarray, np.ndarray]]
+
+    @classmethod
+    def from_runs(cls, runs: list[dict[str, Any]], sessions: tuple[str, ...]) -> SessionSamples:
+        """Group :func:`curbside.evaluate.runner.run_one` outputs (several seeds of a session pool)."""
+        order = {name: k for k, name in enumerate(sessions)}
+        correct = np.zeros(len(sessions))
+        steps = np.zeros(len(sessions))
+        columns: dict[str, list[np.ndarray]] = {"euclid_m": [], "across_m": []}
+        owners: list[np.ndarray] = []
+        for run in runs:
+            k = order[run["session"]]
+            errors = run["errors"]
+            correct[k] += float(errors["correct"].sum()) if "correct" in errors else np.nan
+            steps[k] += len(errors)
+            ok = ~errors["missing"].to_numpy(bool)
+            for name, parts in columns.items():
+                column = errors[name] if name in errors else pd.Series(np.nan, index=errors.index)
+                parts.append(column.to_numpy(float)[ok])
+            owners.append(np.full(int(ok.sum()), k))
+        owner = np.concatenate(owners) if owners else np.zeros(0, int)
+        values = {}
+        for name, parts in columns.items():
+            v = np.concatenate(parts) if parts else np.zeros(0)
+            order_v = np.argsort(v, kind="stable")
+            values[name] = (v[order_v], owner[order_v])
+        return cls(sessions, correct, steps, values)
+
+    @classmethod
+    def from_errors(
+        cls, errors_m: np.ndarray, owner: np.ndarray, clusters: tuple[str, ...]
+    ) -> SessionSamples:
+        """Distances only (no sidewalks, e.g. IPIN waypoints), ``owner[i]`` the cluster of ``errors_m[i]``."""
+        order_v = np.argsort(errors_m, kind="stable")
+        no_sidewalks = np.full(len(clusters), np.nan)
+        return cls(clusters, no_sidewalks, no_sidewalks, {"euclid_m": (errors_m[order_v], owner[order_v])})
+
+    def statistics(self, counts: np.ndarray) -> dict[str, np.ndarray]:
+        """The interval metrics it has, for each row of ``counts`` (``(R, sessions)`` draws per session)."""
+        out = {}
+        if not np.isnan(self.correct).any():
+            with np.errstate(invalid="ignore", divide="ignore"):
+                out["csa"] = (counts @ self.correct) / (counts @ self.steps)
+        out["euclid_median_m"] = weighted_quantile(*self.values["euclid_m"], counts, 0.5)
+        out["euclid_p90_m"] = weighted_quantile(*self.values["euclid_m"], counts, 0.9)
+        if "across_m" in self.values and not np.isnan(self.values["across_m"][0]).all():
+            out["across_median_m"] = weighted_quantile(*self.values["across_m"], counts, 0.5)
+        return out
+
+
+def weighted_quantile(
+    sorted_values: np.ndarray, owner: np.ndarray, counts: np.ndarray, q: float, chunk: int = 200
+) -> np.ndarray:
+    """The ``q`` quantile (inverted CDF) of ``sorted_values`` weighted by ``counts[:, owner]``, per row.
+
+    Parameters
+    ----------
+    sorted_values
+        Values in ascending order (NaN-free; NaN values give a NaN result).
+    owner
+        Session index of each value.
+    counts
+        ``(R, sessions)`` weights per session.
+    q
+        Quantile in [0, 1].
+    chunk
+        Rows at a time (memory: ``chunk x len(values)`` floats).
+    """
+    out = np.full(len(counts), np.nan)
+    if len(sorted_values) == 0 or np.isnan(sorted_values).any():
+        return out
+    for start in range(0, len(counts), chunk):
+        weights = counts[start:start + chunk, owner].astype(np.float64)
+        cum = np.cumsum(weights, axis=1)
+        target = q * cum[:, -1:]
+        idx = np.minimum((cum < target).sum(axis=1), len(sorted_values) - 1)
+        out[start:start + chunk] = np.where(cum[:, -1] > 0, sorted_values[idx], np.nan)
+    return out
+
+
+def session_draws(n_sessions: int, n_resamples: int, seed: int) -> np.ndarray:
+    """``(n_resamples, n_sessions)`` multinomial counts: sessions drawn with replacement."""
+    rng = np.random.default_rng(seed)
+    return rng.multinomial(n_sessions, np.full(n_sessions, 1.0 / n_sessions), size=n_resamples)
+
+
+def bootstrap_intervals(
+    runs_by_method: dict[str, list[dict[str, Any]]],
+    n_resamples: int = 1000,
+    level: float = 0.95,
+    seed: int = 0,
+    reference: str = "fused",
+    baselines: tuple[str, ...] = BASELINES,
+) -> pd.DataFrame:
+    """Percentile intervals of each method's metrics and of ``reference`` minus each baseline, paired.
+
+    Parameters
+    ----------
+    runs_by_method
+        One subset's runs per method (same sessions for every method).
+    n_resamples, level, seed
+        Bootstrap resamples, interval coverage, and the seed of the draws.
+    reference, baselines
+        ``reference`` is compared with each of ``baselines`` that is present.
+
+    Returns
+    -------
+    pandas.DataFrame
+        One row per (``method``, ``metric``): ``lo``, ``hi``; difference rows have ``method`` like
+        ``"fused - paper"`` and also ``better_share``, the share of resamples where ``reference`` is
+        better.
+    """
+    sessions = tuple(sorted({r["session"] for runs in runs_by_method.values() for r in runs}))
+    counts = session_draws(len(sessions), n_resamples, seed)
+    stats = {
+        method: SessionSamples.from_runs(runs, sessions).statistics(counts)
+        for method, runs in runs_by_method.items()
+    }
+    return interval_rows(stats, reference, baselines, level)
+
+
+def waypoint_intervals(
+    errors: dict[str, np.ndarray],
+    rows: list[dict[str, Any]],
+    reference: str,
+    baselines: tuple[str, ...],
+    n_resamples: int = 1000,
+    seed: int = 0,
+) -> pd.DataFrame:
+    """:func:`bootstrap_intervals` for errors at surveyed waypoints, resampling whole trials.
+
+    ``errors`` and ``rows`` are :func:`curbside.evaluate.benchmark.ipin_errors`' outputs: each method's
+    errors concatenated trial by trial at the same waypoints, and one row per trial and method.
+    """
+    trials = tuple(dict.fromkeys(r["trial"] for r in rows))
+    per_trial = {r["trial"]: r["n_waypoints"] for r in rows}
+    owner = np.repeat(np.arange(len(trials)), [per_trial[t] for t in trials])
+    counts = session_draws(len(trials), n_resamples, seed)
+    stats = {
+        method: SessionSamples.from_errors(np.asarray(e, float), owner, trials).statistics(counts)
+        for method, e in errors.items() if len(e) == len(owner)
+    }
+    return interval_rows(stats, reference, baselines)
+
+
+def interval_rows(
+    stats: dict[str, dict[str, np.ndarray]], reference: str, baselines: tuple[str, ...], level: float = 0.95
+) -> pd.DataFrame:
+    """Percentile intervals of resampled statistics per method, and of ``reference`` minus each baseline."""
+    tail = 100 * (1 - level) / 2
+    rows = []
+    for method, by_metric in stats.items():
+        for metric, draws in by_metric.items():
+            lo, hi = np.nanpercentile(draws, [tail, 100 - tail])
+            rows.append({"method": method, "metric": metric, "lo": lo, "hi": hi})
+    for base in (b for b in baselines if b in stats and reference in stats):
+        for metric, draws in stats[reference].items():
+            diff = draws - stats[base][metric]
+            lo, hi = np.nanpercentile(diff, [tail, 100 - tail])
+            better = np.mean(diff > 0) if INTERVAL_METRICS[metric] else np.mean(diff < 0)
+            rows.append({"method": f"{reference} - {base}", "metric": metric, "lo": lo, "hi": hi,
+                         "better_share": float(better)})
+    return pd.DataFrame(rows)
+
+
+def subset_intervals(
+    results: list[dict[str, Any]],
+    jaywalk_weight: float,
+    map_name: str = "osm",
+    n_resamples: int = 1000,
+    seed: int = 0,
+) -> pd.DataFrame:
+    """:func:`bootstrap_intervals` of GNSS, the paper's method and fused on every subset of a benchmark.
+
+    Uses the runs on ``map_name`` at ``jaywalk_weight`` (GNSS at any weight: it has none), as the
+    subset tables do. Returns the rows of :func:`bootstrap_intervals` with a ``subset`` column first.
+    """
+    methods = ("gnss", *(b for b in BASELINES if b != "gnss"), "fused")
+    frames = []
+    for subset in dict.fromkeys(subset_of(r) for r in results):
+        runs_by_method = {}
+        for method in methods:
+            runs = [r for r in results if subset_of(r) == subset and r["spec"]["method"] == method
+                    and r["spec"]["map_name"] == map_name
+                    and (method == "gnss" or r["spec"]["jaywalk_weight"] == jaywalk_weight)]
+            if runs:
+                runs_by_method[method] = runs
+        if runs_by_method:
+            part = bootstrap_intervals(runs_by_method, n_resamples, seed=seed)
+            part.insert(0, "subset", subset)
+            frames.append(part)
+    return pd.concat(frames, ignore_index=True) if frames else pd.DataFrame()

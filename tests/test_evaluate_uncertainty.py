@@ -1,0 +1,120 @@
+"""Session-bootstrap intervals: the weighted quantile, pairing, coverage of the point figure."""
+
+from __future__ import annotations
+
+import numpy as np
+import pandas as pd
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from curbside.evaluate.uncertainty import (
+    SessionSamples,
+    bootstrap_intervals,
+    session_draws,
+    waypoint_intervals,
+    weighted_quantile,
+)
+
+
+def _run(session: str, correct: np.ndarray, euclid: np.ndarray, method: str = "fused") -> dict:
+    errors = pd.DataFrame({"euclid_m": euclid, "across_m": euclid / 2, "correct": correct,
+                           "missing": np.zeros(len(euclid), bool)})
+    return {"session": session, "errors": errors, "spec": {"method": method}}
+
+
+def _runs(rng: np.random.Generator, p_correct: float, error_scale_m: float, sessions: int = 8) -> list[dict]:
+    runs = []
+    for k in range(sessions):
+        n = int(rng.integers(50, 200))
+        session_p = np.clip(p_correct + rng.normal(0, 0.05), 0, 1)  # sessions differ, as walks do
+        runs.append(_run(f"s{k}", rng.random(n) < session_p, rng.gamma(2.0, error_scale_m, n)))
+    return runs
+
+
+@settings(max_examples=40, deadline=None)
+@given(st.integers(0, 10_000), st.sampled_from([0.1, 0.5, 0.9]))
+def test_weighted_quantile_with_unit_counts_is_the_inverted_cdf_quantile(seed, q):
+    rng = np.random.default_rng(seed)
+    values = rng.normal(size=int(rng.integers(1, 60)))
+    owner = rng.integers(0, 4, len(values))
+    order = np.argsort(values)
+    got = weighted_quantile(values[order], owner[order], np.ones((1, 4), int), q)[0]
+    assert got == pytest.approx(np.percentile(values, 100 * q, method="inverted_cdf"))
+
+
+def test_weighted_quantile_counts_repeat_a_session():
+    rng = np.random.default_rng(3)
+    values = rng.normal(size=40)
+    owner = np.repeat([0, 1], 20)
+    order = np.argsort(values)
+    counts = np.array([[2, 1], [0, 3]])
+    got = weighted_quantile(values[order], owner[order], counts, 0.5)
+    assert got[0] == pytest.approx(np.percentile(np.r_[values[:20], values[:20], values[20:]], 50,
+                                                 method="inverted_cdf"))
+    assert got[1] == pytest.approx(np.percentile(values[20:], 50, method="inverted_cdf"))
+
+
+def test_draws_are_seeded_and_keep_the_session_count():
+    a, b = session_draws(6, 50, seed=1), session_draws(6, 50, seed=1)
+    assert np.array_equal(a, b) and (a.sum(axis=1) == 6).all()
+    assert not np.array_equal(a, session_draws(6, 50, seed=2))
+
+
+def test_intervals_cover_the_pooled_figure_and_lie_within_the_sessions():
+    runs = _runs(np.random.default_rng(0), 0.8, 2.0)
+    frame = bootstrap_intervals({"fused": runs}, n_resamples=400).set_index("metric")
+    pooled_csa = sum(r["errors"]["correct"].sum() for r in runs) / sum(len(r["errors"]) for r in runs)
+    per_session = [r["errors"]["correct"].mean() for r in runs]
+    assert frame.at["csa", "lo"] <= pooled_csa <= frame.at["csa", "hi"]
+    assert min(per_session) <= frame.at["csa", "lo"] and frame.at["csa", "hi"] <= max(per_session)
+    median = np.median(np.concatenate([r["errors"]["euclid_m"] for r in runs]))
+    assert frame.at["euclid_median_m", "lo"] <= median <= frame.at["euclid_median_m", "hi"]
+
+
+def test_paired_differences_see_a_clear_winner_and_a_tie():
+    rng = np.random.default_rng(1)
+    better, worse = _runs(rng, 0.9, 1.0), _runs(rng, 0.6, 4.0)
+    for r in worse:
+        r["spec"]["method"] = "paper"
+    frame = bootstrap_intervals({"paper": worse, "fused": better, "gnss": better}, n_resamples=300)
+    diff = frame[frame["method"] == "fused - paper"].set_index("metric")
+    assert diff.at["csa", "lo"] > 0 and diff.at["euclid_p90_m", "hi"] < 0
+    assert (diff["better_share"] == 1.0).all()
+    tie = frame[frame["method"] == "fused - gnss"]  # the same runs: every paired difference is 0
+    assert (tie["lo"] == 0).all() and (tie["hi"] == 0).all() and (tie["better_share"] == 0).all()
+
+
+def test_several_runs_of_a_session_pool_into_it():
+    rng = np.random.default_rng(2)
+    runs = _runs(rng, 0.7, 2.0, sessions=3)
+    again = [_run(r["session"], r["errors"]["correct"].to_numpy(), r["errors"]["euclid_m"].to_numpy())
+             for r in runs]
+    samples = SessionSamples.from_runs(runs + again, ("s0", "s1", "s2"))
+    assert np.array_equal(samples.steps, 2 * np.array([len(r["errors"]) for r in runs]))
+    assert len(samples.values["euclid_m"][0]) == samples.steps.sum()
+
+
+def test_waypoint_intervals_resample_whole_trials_and_render():
+    from curbside.evaluate.criteria import IPIN_BASELINE_RUN
+    from curbside.evaluate.suite_report import ipin_interval_table
+
+    rng = np.random.default_rng(4)
+    sizes = [12, 15, 9, 14, 11]
+    rows, fused, old = [], [], []
+    for k, n in enumerate(sizes):
+        for method in ("fused", IPIN_BASELINE_RUN):
+            rows.append({"trial": f"t{k}", "method": method, "n_waypoints": n, "median_m": 0.0})
+        base = rng.gamma(2.0, 2.0, n)
+        fused.append(base)
+        old.append(base + 1.0)  # 0.1 is 1 m worse at every waypoint
+    errors = {"fused": np.concatenate(fused), IPIN_BASELINE_RUN: np.concatenate(old), "gnss": np.zeros(3)}
+    frame = waypoint_intervals(errors, rows, "fused", (IPIN_BASELINE_RUN, "gnss"), n_resamples=300)
+    assert "gnss" not in set(frame["method"])  # not scored at the same waypoints: left out
+    diff = frame[frame["method"] == f"fused - {IPIN_BASELINE_RUN}"].set_index("metric")
+    assert diff.at["euclid_p90_m", "hi"] < 0 and diff.at["euclid_median_m", "better_share"] == 1.0
+    assert "csa" not in set(frame["metric"])  # waypoints have no sidewalks
+    summary = {"fused": {"median_m": float(np.median(errors["fused"])),
+                         "p90_m": float(np.percentile(errors["fused"], 90))}}
+    md = ipin_interval_table(frame, summary).markdown()
+    assert "| curbside fused - curbside fused 0.1 |" in md and "100 %" in md
