@@ -355,8 +355,13 @@ def _tables(
     return tables
 
 
-def _intro(config, counts, gnss_median, n_runs, timings, workers, checks) -> str:
+def _intro(config, counts, pooled, n_runs, timings, workers, checks) -> str:
     """The report's opening paragraph: what ran, on what, how long, and the verdict."""
+    gnss_median = {
+        s: _base(pooled[pooled["subset"] == s], config.jaywalk_weight)
+        .query("method == 'gnss'")["euclid_median_m"].iat[0]
+        for s in config.subsets
+    }
     total_s = sum(timings.values())
     subsets = ", ".join(
         f"{s} {counts[s]} sessions (GNSS median {gnss_median[s]:.1f} m)" for s in config.subsets
@@ -396,10 +401,6 @@ def write_suite_report(
     events = {name: _events(path) for name, path in session_dirs.items()}
     ratios = criteria.session_ratios(per_session, "osm", w)
     pooled_path = _base(pooled_by_subset(results, ("path",)), w)
-    gnss_median = {
-        s: _base(pooled[pooled["subset"] == s], w).query("method == 'gnss'")["euclid_median_m"].iat[0]
-        for s in config.subsets
-    }
     intervals = subset_intervals(
         [r for r in results if r["spec"]["method"] != SMOOTHED_METHOD], w, seed=config.filter_seed
     )
@@ -407,7 +408,7 @@ def write_suite_report(
     if ipin_intervals is not None and ipin_summary:
         ipin_tables.append(ipin_interval_table(ipin_intervals, ipin_summary))
     tables = _tables(pooled, per_session, checks, config, counts, events, run_info, ipin_tables, intervals)
-    intro = _intro(config, counts, gnss_median, len(results), timings, run_info["workers"], checks)
+    intro = _intro(config, counts, pooled, len(results), timings, run_info["workers"], checks)
     doc = {
         "generator": f"curbside {curbside.__version__}",
         "suite": run_info["suite"],
