@@ -9,6 +9,7 @@ import pandas as pd
 import pytest
 
 from curbside.cli.localize import main
+from curbside.errors import CurbsideInputError
 from curbside.evaluate import criteria, suite
 from curbside.evaluate import simulate as sim
 from curbside.evaluate.runner import run_all
@@ -51,9 +52,24 @@ def test_plan_runs_every_method_sweeps_paper6_and_adds_datasf(sessions):
     assert all("paper6" in s.session and s.jaywalk_weight == 0.4 for s in snapshots)
 
 
+def test_more_filter_seeds_repeat_every_filter_run_but_not_gnss(sessions):
+    open_only = {"open": sessions["open"]}
+    one = suite.plan_suite(open_only, {"osm": str(MAP)}, suite.SuiteConfig(subsets=("open",), filter_seed=5))
+    three = suite.plan_suite(
+        open_only, {"osm": str(MAP)}, suite.SuiteConfig(subsets=("open",), filter_seed=5, filter_seeds=3)
+    )
+    assert [s.seed for s in three if s.method == "gnss"] == [5]
+    assert sorted(s.seed for s in three if s.method == "fused") == [5, 6, 7]
+    assert len(three) == len(one) + 2 * sum(s.method != "gnss" for s in one)
+    assert all(not s.snapshot_times for s in three if s.seed != 5)
+    with pytest.raises(CurbsideInputError, match="--filter-seeds"):
+        suite.SuiteConfig(filter_seeds=0)
+
+
 @pytest.mark.slow
 def test_report_has_tables_checks_and_figures(sessions, tmp_path):
-    config = suite.SuiteConfig(subsets=("paper6", "open"), sweep_weights=(0.0, 0.4), particles=100)
+    config = suite.SuiteConfig(subsets=("paper6", "open"), sweep_weights=(0.0, 0.4), particles=100,
+                               filter_seeds=2)
     specs = suite.plan_suite(sessions, {"osm": str(MAP)}, config)
     results = run_all(specs, workers=1, progress=False)
     pooled = suite.pooled_by_subset(results)
@@ -80,6 +96,9 @@ def test_report_has_tables_checks_and_figures(sessions, tmp_path):
     assert "Table 2. Correct Sidewalk Assignment by jaywalk weight, paper6" in md
     assert "Simulation profile 'phone'" in md and "OpenStreetMap" in md
     assert "How sure: 95 % intervals" in md and "| open | curbside fused - GNSS |" in md
+    assert "filter seeds 0-1 pooled" in md
+    fused_open = pooled.query("subset == 'open' and method == 'fused'")
+    assert fused_open["n_runs"].iat[0] == 2  # both seeds of the one session pool into one row
     figures = {p.name for p in (tmp_path / "report" / "figures").iterdir()}
     assert {
         "fig1_tracks_paper6.png",

@@ -118,3 +118,15 @@ def test_waypoint_intervals_resample_whole_trials_and_render():
                          "p90_m": float(np.percentile(errors["fused"], 90))}}
     md = ipin_interval_table(frame, summary).markdown()
     assert "| curbside fused - curbside fused 0.1 |" in md and "100 %" in md
+
+
+def test_waypoint_intervals_pool_filter_seeds_by_trial():
+    rows = [{"trial": t, "method": m, "n_waypoints": n, "median_m": 0.0}
+            for t, n in (("a", 3), ("b", 5)) for m in ("fused", "old")]
+    one_seed = {"fused": np.r_[1.0, 1, 1, 9, 9, 9, 9, 9], "old": np.r_[2.0, 2, 2, 9, 9, 9, 9, 9]}
+    two_seeds = {m: np.r_[e, e] for m, e in one_seed.items()}
+    frame = waypoint_intervals(two_seeds, rows + rows, "fused", ("old",), n_resamples=200)
+    diff = frame[frame["method"] == "fused - old"].set_index("metric")
+    # The median moves off trial "b"'s 9 m only when "a" is drawn twice (p = 1/4): then fused is 1 m better.
+    assert diff.at["euclid_median_m", "lo"] == -1.0 and diff.at["euclid_median_m", "hi"] == 0.0
+    assert diff.at["euclid_median_m", "better_share"] == pytest.approx(0.25, abs=0.08)

@@ -185,6 +185,7 @@ def _benchmark(args: argparse.Namespace) -> int:
         open_routes=args.open_routes,
         particles=args.particles,
         filter_seed=args.seed,
+        filter_seeds=args.filter_seeds,
         smoothing_lag_s=args.lag_s,
     )
     paths = run_suite(
@@ -317,6 +318,9 @@ def _register_benchmark(subparsers: argparse._SubParsersAction) -> None:
     bench.add_argument("--particles", type=positive_int, default=500,
                        help="particles per filter (default 500)")
     bench.add_argument("--seed", type=int, default=0, help="filter seed (default 0)")
+    bench.add_argument("--filter-seeds", type=positive_int, default=1, metavar="N",
+                       help="run every filter with N seeds from --seed on and pool them (less noisy "
+                       "figures and checks, N times the tracking time; default 1)")
     bench.add_argument("--lag-s", type=non_negative_float, default=0.0, metavar="SECONDS",
                        help="also score curbside fused's fixed-lag smoothed positions with this lag, as "
                        "'fused, smoothed' (offline; default 0: off)")

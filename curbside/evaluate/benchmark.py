@@ -439,8 +439,11 @@ def ipin_table(
     return ipin_errors_table(errors, n_trials, held_out), rows
 
 
-def ipin_errors_table(errors: dict[str, np.ndarray], n_trials: int, held_out: bool = False) -> Table:
-    """The table of :func:`ipin_errors`' pooled errors: waypoints, median, p90 and mean per run."""
+def ipin_errors_table(
+    errors: dict[str, np.ndarray], n_trials: int, held_out: bool = False, seeds: int = 1
+) -> Table:
+    """The table of :func:`ipin_errors`' pooled errors: waypoints, median, p90 and mean per run
+    (``seeds``: how many filter seeds the errors pool, each scoring every waypoint once)."""
     table_rows = []
     for m, e in errors.items():
         table_rows.append(
@@ -453,8 +456,9 @@ def ipin_errors_table(errors: dict[str, np.ndarray], n_trials: int, held_out: bo
             ]
         )
     which = "held-out " if held_out else ""
+    pooled = f" x {seeds} filter seeds" if seeds > 1 else ""
     return Table(
-        f"IPIN 2023 Track 3 ({n_trials} {which}trials, no map): error at surveyed waypoints (m)",
+        f"IPIN 2023 Track 3 ({n_trials} {which}trials{pooled}, no map): error at surveyed waypoints (m)",
         ["method", "waypoints", "median", "p90", "mean"],
         table_rows,
     )

@@ -17,7 +17,7 @@ import os
 import platform
 import subprocess
 import time
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 from typing import Any
 
@@ -64,6 +64,9 @@ class SuiteConfig:
         Table 2: every weight on these subsets, for the particle-filter methods.
     particles, filter_seed, velocity_source
         Filter settings passed to ``track_session``.
+    filter_seeds
+        Run every filter (not GNSS alone) with this many seeds from ``filter_seed`` on; the figures
+        pool them per session (the report's figures and Fig. 3 use the first).
     datasf_methods
         Methods also run on the DataSF-buildings map (when its tiles are given).
     write_imu
@@ -84,6 +87,7 @@ class SuiteConfig:
     sweep_subsets: tuple[str, ...] = ("paper6",)
     particles: int = 500
     filter_seed: int = 0
+    filter_seeds: int = 1
     velocity_source: str = "auto"
     datasf_methods: tuple[str, ...] = ("paper", "fused")
     write_imu: bool = False
@@ -98,6 +102,8 @@ class SuiteConfig:
             raise CurbsideInputError("--split", f"unknown split {self.split!r}; one of {list(SPLITS)}")
         if not self.subsets:
             raise CurbsideInputError("--subsets", "need at least one subset")
+        if self.filter_seeds < 1:
+            raise CurbsideInputError("--filter-seeds", f"need at least 1, got {self.filter_seeds}")
         for subset in self.subsets:
             if subset not in SUBSETS:
                 raise CurbsideInputError("--subsets", f"unknown subset {subset!r}; one of {list(SUBSETS)}")
@@ -171,6 +177,9 @@ def plan_suite(sessions: dict[str, list[Path]], maps: dict[str, str], config: Su
                             config.velocity_source,
                         )
                     )
+    more_seeds = range(config.filter_seed + 1, config.filter_seed + config.filter_seeds)
+    filters = [spec for spec in specs if spec.method != "gnss"]
+    specs += [replace(spec, seed=seed, snapshot_times=()) for seed in more_seeds for spec in filters]
     return specs
 
 
@@ -205,17 +214,27 @@ def _git_commit() -> str | None:
     return out.stdout.strip() or None
 
 
-def _ipin_summary(h5: str | Path, seed: int) -> tuple[dict[str, dict[str, float]], Any, pd.DataFrame]:
-    """Every method and version 0.1's fused filter on the held-out IPIN trials, at the same waypoints:
-    pooled figures, their table, and trial-bootstrap intervals (fused against 0.1 and the baselines)."""
+def _ipin_summary(
+    h5: str | Path, seeds: range
+) -> tuple[dict[str, dict[str, float]], Any, pd.DataFrame]:
+    """Every method and version 0.1's fused filter on the held-out IPIN trials, at the same waypoints,
+    pooled over the filter ``seeds``: pooled figures, their table, and trial-bootstrap intervals
+    (fused against 0.1 and the baselines)."""
     from curbside.evaluate.benchmark import ipin_errors, ipin_errors_table
     from curbside.evaluate.uncertainty import waypoint_intervals
     from curbside.localize.runconfig import RunConfig
 
     reference = RunConfig.for_mode("fused").with_overrides(criteria.FUSED_0_1_OVERRIDES)
-    errors, rows, n_trials = ipin_errors(
-        h5, seed=seed, held_out=True, extra_runs={criteria.IPIN_BASELINE_RUN: reference}
-    )
+    errors: dict[str, list[np.ndarray]] = {}
+    rows: list[dict] = []
+    for seed in seeds:
+        by_method, seed_rows, n_trials = ipin_errors(
+            h5, seed=seed, held_out=True, extra_runs={criteria.IPIN_BASELINE_RUN: reference}
+        )
+        for method, e in by_method.items():
+            errors.setdefault(method, []).append(e)
+        rows += seed_rows
+    errors = {method: np.concatenate(parts) for method, parts in errors.items()}
     summary = {
         m: {"n": len(e), "median_m": float(np.median(e)), "p90_m": float(np.percentile(e, 90))}
         for m, e in errors.items()
@@ -223,7 +242,7 @@ def _ipin_summary(h5: str | Path, seed: int) -> tuple[dict[str, dict[str, float]
     }
     baselines = (criteria.IPIN_BASELINE_RUN, "paper", "gnss")
     intervals = waypoint_intervals(errors, rows, "fused", baselines, seed=seed)
-    return summary, ipin_errors_table(errors, n_trials, held_out=True), intervals
+    return summary, ipin_errors_table(errors, n_trials, held_out=True, seeds=len(seeds)), intervals
 
 
 def _maps(
@@ -366,7 +385,8 @@ def run_suite(
     ipin_summary, ipin_tab, ipin_intervals = (None, None, None)
     if ipin:
         start = time.perf_counter()
-        ipin_summary, ipin_tab, ipin_intervals = _ipin_summary(ipin, config.filter_seed)
+        seeds = range(config.filter_seed, config.filter_seed + config.filter_seeds)
+        ipin_summary, ipin_tab, ipin_intervals = _ipin_summary(ipin, seeds)
         timings["ipin_s"] = time.perf_counter() - start
 
     pooled, per_session, checks = _scores(results, config, maps, ipin_summary)

@@ -355,6 +355,13 @@ def _tables(
     return tables
 
 
+def _seeds(config) -> str:
+    first = config.filter_seed
+    if config.filter_seeds == 1:
+        return f"filter seed {first}"
+    return f"filter seeds {first}-{first + config.filter_seeds - 1} pooled"
+
+
 def _intro(config, counts, pooled, n_runs, timings, workers, checks) -> str:
     """The report's opening paragraph: what ran, on what, how long, and the verdict."""
     gnss_median = {
@@ -369,7 +376,7 @@ def _intro(config, counts, pooled, n_runs, timings, workers, checks) -> str:
     stages = ", ".join(f"{k.removesuffix('_s')} {v:.0f} s" for k, v in timings.items())
     return (
         f"Profile '{config.profile}', split '{config.split}', {config.seeds} seed(s) per route: {subsets}. "
-        f"{n_runs} runs, N = {config.particles}, filter seed {config.filter_seed}, every method on the same "
+        f"{n_runs} runs, N = {config.particles}, {_seeds(config)}, every method on the same "
         f"sessions. Time: {total_s / 60:.1f} min ({stages}) with {workers} worker(s). "
         f"Done when: {criteria.overall(checks)}."
     )
@@ -430,7 +437,9 @@ def write_suite_report(
     with atomic_path(out_dir) as tmp:
         figdir = tmp / "figures"
         figdir.mkdir(parents=True)
-        filtered = [r for r in results if r["spec"]["method"] != SMOOTHED_METHOD]  # figures: filters only
+        # figures: the filters' own tracks, first filter seed only
+        filtered = [r for r in results
+                    if r["spec"]["method"] != SMOOTHED_METHOD and r["spec"]["seed"] == config.filter_seed]
         figures = _figures(filtered, layers, config, pooled_path, ratios, figdir)
         (tmp / "metrics.json").write_text(json.dumps(json_ready(doc), indent=1), encoding="utf-8")
         (tmp / "run.json").write_text(

@@ -180,12 +180,15 @@ def waypoint_intervals(
 ) -> pd.DataFrame:
     """:func:`bootstrap_intervals` for errors at surveyed waypoints, resampling whole trials.
 
-    ``errors`` and ``rows`` are :func:`curbside.evaluate.benchmark.ipin_errors`' outputs: each method's
-    errors concatenated trial by trial at the same waypoints, and one row per trial and method.
+    ``errors`` and ``rows`` are :func:`curbside.evaluate.benchmark.ipin_errors`' outputs (or several
+    seeds' of them, concatenated in the same order): each method's errors trial by trial at the same
+    waypoints, and one row per trial and method.
     """
     trials = tuple(dict.fromkeys(r["trial"] for r in rows))
-    per_trial = {r["trial"]: r["n_waypoints"] for r in rows}
-    owner = np.repeat(np.arange(len(trials)), [per_trial[t] for t in trials])
+    index = {t: k for k, t in enumerate(trials)}
+    # the errors follow the reference's rows (a trial appears once per filter seed pooled)
+    scored = [r for r in rows if r["method"] == reference]
+    owner = np.repeat([index[r["trial"]] for r in scored], [r["n_waypoints"] for r in scored])
     counts = session_draws(len(trials), n_resamples, seed)
     stats = {
         method: SessionSamples.from_errors(np.asarray(e, float), owner, trials).statistics(counts)
