@@ -33,12 +33,13 @@ BASELINES = ("paper", "gnss")
 
 @dataclass(frozen=True)
 class SessionSamples:
-    """One method's footsteps on one subset, grouped by session (rows follow ``sessions``).
+    """One method's scored points grouped by the unit resampled: footsteps by session, or IPIN
+    waypoints by trial (rows follow ``sessions``).
 
     Attributes
     ----------
     sessions
-        Session names, in the order shared by every method of the subset.
+        Session (or trial) names, in the order shared by every method compared.
     correct, steps
         Per session: footsteps on the correct sidewalk, and all footsteps (missing ones count as
         incorrect, as in :func:`curbside.evaluate.metrics.summarize`).
