@@ -160,6 +160,10 @@ def test_evaluate_writes_the_report(tmp_path, sessions):
     assert "Table 2" in md and "Table 3" in md and "Table 4" in md and "Map sources compared" in md
     assert "(0.80)" in md  # the paper's fused CSA at w = 0.4 beside ours
     assert "mean / posterior-mode estimate" in md
+    # the base map only, its methods and paired differences, with figures that match the pooled table
+    assert "How sure: 95 % intervals, w = 0.4, map 'osm'" in md and "| curbside fused - paper PF |" in md
+    intervals = pd.DataFrame(doc["intervals_95"]).set_index(["method", "metric"])
+    assert intervals.at[("fused", "csa"), "value"] == pytest.approx(fused.loc["osm", "csa"])
     html = (out / "report.html").read_text()
     assert html.count("data:image/png;base64,") >= 4
     assert not (out / "figures" / "missing.png").exists()

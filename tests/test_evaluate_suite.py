@@ -115,6 +115,7 @@ def test_report_has_tables_checks_and_figures(sessions, tmp_path):
     intervals = pd.DataFrame(doc["intervals_95"])
     fused_csa = intervals.query("subset == 'open' and method == 'fused' and metric == 'csa'").iloc[0]
     assert 0.0 <= fused_csa["lo"] <= fused_csa["hi"] <= 1.0
+    assert fused_csa["value"] == pytest.approx(fused_open["csa"].iat[0])  # the pooled table's figure
     ratios = pd.DataFrame(doc["session_ratios"])
     assert set(ratios["session"]) == {"path3-s1", "path3-s2"} and (ratios["ratio"] > 0).all()
     assert doc["session_events"]["path3-s1"]["jumps"] >= 0

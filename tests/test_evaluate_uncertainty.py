@@ -97,7 +97,7 @@ def test_several_runs_of_a_session_pool_into_it():
 
 def test_waypoint_intervals_resample_whole_trials_and_render():
     from curbside.evaluate.criteria import IPIN_BASELINE_RUN
-    from curbside.evaluate.suite_report import ipin_interval_table
+    from curbside.evaluate.suite_report import interval_tables
 
     rng = np.random.default_rng(4)
     sizes = [12, 15, 9, 14, 11]
@@ -114,10 +114,14 @@ def test_waypoint_intervals_resample_whole_trials_and_render():
     diff = frame[frame["method"] == f"fused - {IPIN_BASELINE_RUN}"].set_index("metric")
     assert diff.at["euclid_p90_m", "hi"] < 0 and diff.at["euclid_median_m", "better_share"] == 1.0
     assert "csa" not in set(frame["metric"])  # waypoints have no sidewalks
-    summary = {"fused": {"median_m": float(np.median(errors["fused"])),
-                         "p90_m": float(np.percentile(errors["fused"], 90))}}
-    md = ipin_interval_table(frame, summary).markdown()
+    fused = frame[frame["method"] == "fused"].set_index("metric")
+    assert fused.at["euclid_p90_m", "value"] == pytest.approx(np.percentile(errors["fused"], 90))
+    assert diff.at["euclid_median_m", "value"] == pytest.approx(
+        np.median(errors["fused"]) - np.median(errors[IPIN_BASELINE_RUN]))
+    _, table = interval_tables(pd.DataFrame(), frame, 0.4)
+    md = table.markdown()
     assert "| curbside fused - curbside fused 0.1 |" in md and "100 %" in md
+    assert f"| curbside fused | {np.median(errors['fused']):.1f} [" in md
 
 
 def test_waypoint_intervals_pool_filter_seeds_by_trial():

@@ -29,6 +29,7 @@ from curbside.evaluate.figures import (
 )
 from curbside.evaluate.metrics import METRIC_NAMES, MetricsConfig
 from curbside.evaluate.runner import METHOD_LABELS, METHODS, MODE_SUFFIX, pool
+from curbside.evaluate.uncertainty import subset_intervals
 from curbside.io import atomic_path
 from curbside.osmseg.mapio import MapLayers
 
@@ -126,6 +127,43 @@ def _lookup(pooled: pd.DataFrame, method: str, **where: Any) -> pd.Series | None
             sel &= pooled[col] == value
     rows = pooled[sel]
     return rows.iloc[0] if len(rows) else None
+
+
+#: Column headers of the interval metrics.
+INTERVAL_HEADERS = {"csa": "CSA", "euclid_median_m": "median m", "euclid_p90_m": "p90 m",
+                    "across_median_m": "across median m"}
+
+
+def _interval_cell(row: pd.Series) -> str:
+    """``value [lo, hi]``; a paired difference is signed and ends with the share of resamples better."""
+    digits = 2 if row["metric"] == "csa" else 1
+    if " - " not in row["method"]:
+        return f"{row['value']:.{digits}f} [{row['lo']:.{digits}f}, {row['hi']:.{digits}f}]"
+    return (f"{row['value']:+.{digits}f} [{row['lo']:+.{digits}f}, {row['hi']:+.{digits}f}] "
+            f"{100 * row['better_share']:.0f} %")
+
+
+def interval_table(intervals: pd.DataFrame, title: str, note: str) -> Table:
+    """Rows of :func:`curbside.evaluate.uncertainty.bootstrap_intervals` as a table: one row per method and
+    difference (per ``subset`` too when it has several), one column per metric."""
+    metrics = [m for m in INTERVAL_HEADERS if m in set(intervals["metric"])]
+    groups = ["subset"] if "subset" in intervals and intervals["subset"].nunique() > 1 else []
+    rows = []
+    for key, part in intervals.groupby([*groups, "method"], sort=False):
+        cells = part.set_index("metric").reindex(metrics).reset_index()
+        label = " - ".join(METHOD_LABELS.get(m, m) for m in part["method"].iat[0].split(" - "))
+        rows.append([*(key[:-1] if groups else ()), label, *(_interval_cell(r) for _, r in cells.iterrows())])
+    header = [*groups, "method", *(INTERVAL_HEADERS[m] for m in metrics)]
+    return Table(title, header, rows, note)
+
+
+#: How the interval tables are read (the note under each).
+INTERVAL_NOTE = (
+    "Each figure with its 95 % percentile interval from 1,000 resamples of the {unit} with replacement "
+    "(a cluster bootstrap: the {points} of one {one} move together). Differences are paired, every "
+    "method on the same resampled {unit}; the percentage is the share of resamples in which curbside "
+    "fused is better."
+)
 
 
 def paper_tables(pooled: pd.DataFrame, map_name: str, base: dict[str, Any]) -> list[Table]:
@@ -339,6 +377,11 @@ def write_report(
     if pooled["map"].nunique() > 1:
         tables.append(map_table(pooled, base))
     tables += sweep_tables(pooled, base)
+    intervals = subset_intervals(results, base)
+    if not intervals.empty:
+        note = INTERVAL_NOTE.format(unit="sessions", points="footsteps", one="session")
+        title = f"How sure: 95 % intervals, w = {base['jaywalk_weight']:g}, map '{base['map']}'"
+        tables.append(interval_table(intervals, title, note))
     tables += extra_tables or []
 
     doc = {
@@ -351,6 +394,7 @@ def write_report(
         "pooled": records(pooled),
         "per_path": records(per_path),
         "per_session": records(per_session),
+        "intervals_95": records(intervals),
         "definitions": _definitions(MetricsConfig()),  # run_one scores with the defaults
     }
     doc.update(extra_json or {})

@@ -313,6 +313,11 @@ async def _close_workers(cluster, timeout_s: float) -> None:
     await asyncio.gather(*(w.close(timeout=timeout_s) for w in list(cluster.workers.values())))
 
 
+def subset_of(result: dict[str, Any]) -> str:
+    """The group of a run: its session folder's parent folder name (a benchmark subset)."""
+    return Path(result["spec"]["session"]).parent.name
+
+
 def pool(results: list[dict[str, Any]], by: tuple[str, ...]) -> pd.DataFrame:
     """Metrics pooled over all footsteps of the runs sharing the ``by`` columns.
 

@@ -28,7 +28,7 @@ import curbside
 from curbside.errors import CurbsideInputError
 from curbside.evaluate import criteria
 from curbside.evaluate.benchmark import datasf_osm_map, snapshot_times
-from curbside.evaluate.runner import SMOOTHED_METHOD, RunSpec, pool, run_all, smoothed_results
+from curbside.evaluate.runner import SMOOTHED_METHOD, RunSpec, pool, run_all, smoothed_results, subset_of
 from curbside.evaluate.simulate import PROFILES, SimulationConfig
 from curbside.evaluate.subsets import DEFAULT_ROUTES, SPLITS, SUBSETS, benchmark_sessions, load_world
 from curbside.localize.session import read_session
@@ -181,11 +181,6 @@ def plan_suite(sessions: dict[str, list[Path]], maps: dict[str, str], config: Su
     filters = [spec for spec in specs if spec.method != "gnss"]
     specs += [replace(spec, seed=seed, snapshot_times=()) for seed in more_seeds for spec in filters]
     return specs
-
-
-def subset_of(result: dict[str, Any]) -> str:
-    """The subset of a run: its session folder's parent folder name."""
-    return Path(result["spec"]["session"]).parent.name
 
 
 def pooled_by_subset(results: list[dict[str, Any]], extra: tuple[str, ...] = ()) -> pd.DataFrame:

@@ -26,9 +26,17 @@ from curbside.evaluate.figures import (
     fig_tracks,
     save_png,
 )
-from curbside.evaluate.report import Table, fmt_value, json_ready, paper_value, records
-from curbside.evaluate.runner import METHOD_LABELS, SMOOTHED_METHOD
-from curbside.evaluate.uncertainty import INTERVAL_METRICS, subset_intervals
+from curbside.evaluate.report import (
+    INTERVAL_NOTE,
+    Table,
+    fmt_value,
+    interval_table,
+    json_ready,
+    paper_value,
+    records,
+)
+from curbside.evaluate.runner import METHOD_LABELS, SMOOTHED_METHOD, subset_of
+from curbside.evaluate.uncertainty import subset_intervals
 from curbside.io import atomic_path
 from curbside.osmseg.mapio import MapLayers
 
@@ -188,59 +196,21 @@ def session_table(
     return Table(f"Per session, {subset}, w = {w:g}, map 'osm'", header, rows, note)
 
 
-def _interval_cell(row: pd.Series, metric: str, point: float | None) -> str:
-    """``value [lo, hi]`` for a method, ``[lo, hi] share %`` for a paired difference."""
-    digits = 2 if metric == "csa" else 1
-    if point is None:
-        return f"[{row['lo']:+.{digits}f}, {row['hi']:+.{digits}f}] {100 * row['better_share']:.0f} %"
-    return f"{fmt_value(point, digits)} [{row['lo']:.{digits}f}, {row['hi']:.{digits}f}]"
-
-
-def interval_table(intervals: pd.DataFrame, pooled: pd.DataFrame, w: float) -> Table | None:
-    """Each subset's figures with their 95 % session-bootstrap intervals, and fused's paired differences."""
-    if intervals.empty:
-        return None
-    rows = []
-    for subset in dict.fromkeys(intervals["subset"]):
-        part = intervals[intervals["subset"] == subset].set_index(["method", "metric"])
-        base = _base(pooled[pooled["subset"] == subset], w).set_index("method")
-        for method in dict.fromkeys(part.index.get_level_values("method")):
-            is_difference = " - " in method
-            cells = [
-                _interval_cell(part.loc[(method, metric)], metric,
-                               None if is_difference else float(base.at[method, metric]))
-                for metric in INTERVAL_METRICS
-            ]
-            rows.append([subset, " - ".join(METHOD_LABELS.get(m, m) for m in method.split(" - ")), *cells])
-    note = (
-        "95 % percentile intervals from 1,000 resamples of each subset's sessions (a cluster bootstrap: the "
-        "footsteps of a session move together). Differences are paired (every method on the same "
-        "resampled sessions); the percentage is the share of resamples in which curbside fused is better. "
-        "The three sessions of a route are resampled as independent, so the intervals are, if anything, "
-        "too narrow for the routes themselves."
-    )
-    header = ["subset", "method", *(HEADERS[METRICS.index(m)] for m in INTERVAL_METRICS)]
-    return Table(f"How sure: 95 % intervals, w = {w:g}, map 'osm'", header, rows, note)
-
-
-def ipin_interval_table(intervals: pd.DataFrame, summary: dict[str, dict[str, float]]) -> Table:
-    """The IPIN held-out figures of curbside fused with trial-bootstrap intervals, and its differences."""
-    part = intervals.set_index(["method", "metric"])
-    rows = []
-    for method in dict.fromkeys(part.index.get_level_values("method")):
-        if " - " not in method and method != "fused":
-            continue
-        point = {"euclid_median_m": "median_m", "euclid_p90_m": "p90_m"}
-        cells = [
-            _interval_cell(part.loc[(method, metric)], metric,
-                           None if " - " in method else summary[method][point[metric]])
-            for metric in point
-        ]
-        rows.append([" - ".join(METHOD_LABELS.get(m, m) for m in method.split(" - ")), *cells])
-    note = ("95 % percentile intervals from 1,000 resamples of the trials (each trial's waypoints together); "
-            "differences are paired, the percentage is the share of resamples in which curbside fused is "
-            "better.")
-    return Table("IPIN 2023 held-out: how sure (m)", ["method", "median m", "p90 m"], rows, note)
+def interval_tables(
+    intervals: pd.DataFrame, ipin_intervals: pd.DataFrame | None, w: float
+) -> tuple[Table | None, Table | None]:
+    """The "how sure" tables: the subsets' methods and differences, and the IPIN trials'."""
+    subsets = ipin = None
+    if not intervals.empty:
+        note = INTERVAL_NOTE.format(unit="subset's sessions", points="footsteps", one="session") + (
+            " The three sessions of a route are resampled as independent, so the intervals are, if "
+            "anything, too narrow for the routes themselves.")
+        subsets = interval_table(intervals, f"How sure: 95 % intervals, w = {w:g}, map 'osm'", note)
+    if ipin_intervals is not None and not ipin_intervals.empty:
+        fused = ipin_intervals[ipin_intervals["method"].str.startswith("fused")]
+        note = INTERVAL_NOTE.format(unit="trials", points="waypoints", one="trial")
+        ipin = interval_table(fused, "IPIN 2023 held-out: how sure (m)", note)
+    return subsets, ipin
 
 
 def checks_table(checks: list[criteria.Check]) -> Table:
@@ -299,8 +269,6 @@ def _figures(results, layers, config, pooled_path, ratios, figdir) -> list[tuple
         "particles": config.particles,
         "gnss_sigma_factor": None,
     }
-    from curbside.evaluate.suite import subset_of
-
     by_subset = {s: [r for r in results if subset_of(r) == s] for s in config.subsets}
     out = []
     for subset, runs in by_subset.items():
@@ -332,7 +300,7 @@ def _tables(
     events: dict[str, dict],
     run_info: dict[str, Any],
     ipin_tables: list[Table],
-    intervals: pd.DataFrame,
+    how_sure: Table | None,
 ) -> list[Table]:
     """Every table of the report, in order."""
     w = config.jaywalk_weight
@@ -343,7 +311,6 @@ def _tables(
         sweep = sweep_table(pooled, subset)
         if sweep is not None:
             tables.append(sweep)
-    how_sure = interval_table(intervals, pooled, w)
     if how_sure is not None:
         tables.append(how_sure)
     datasf = map_table(pooled, w)
@@ -408,13 +375,10 @@ def write_suite_report(
     events = {name: _events(path) for name, path in session_dirs.items()}
     ratios = criteria.session_ratios(per_session, "osm", w)
     pooled_path = _base(pooled_by_subset(results, ("path",)), w)
-    intervals = subset_intervals(
-        [r for r in results if r["spec"]["method"] != SMOOTHED_METHOD], w, seed=config.filter_seed
-    )
-    ipin_tables = [ipin_table] if ipin_table is not None else []
-    if ipin_intervals is not None and ipin_summary:
-        ipin_tables.append(ipin_interval_table(ipin_intervals, ipin_summary))
-    tables = _tables(pooled, per_session, checks, config, counts, events, run_info, ipin_tables, intervals)
+    intervals = subset_intervals(results, {"map": "osm", "jaywalk_weight": w}, seed=config.filter_seed)
+    how_sure, ipin_sure = interval_tables(intervals, ipin_intervals, w)
+    ipin_tables = [t for t in (ipin_table, ipin_sure) if t is not None]
+    tables = _tables(pooled, per_session, checks, config, counts, events, run_info, ipin_tables, how_sure)
     intro = _intro(config, counts, pooled, len(results), timings, run_info["workers"], checks)
     doc = {
         "generator": f"curbside {curbside.__version__}",

@@ -21,7 +21,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from curbside.evaluate.suite import subset_of
+from curbside.evaluate.runner import subset_of
 
 #: Metrics given an interval, and whether a larger value is better.
 INTERVAL_METRICS: dict[str, bool] = {
@@ -86,6 +86,22 @@ class SessionSamples:
         order_v = np.argsort(errors_m, kind="stable")
         no_sidewalks = np.full(len(clusters), np.nan)
         return cls(clusters, no_sidewalks, no_sidewalks, {"euclid_m": (errors_m[order_v], owner[order_v])})
+
+    def point(self) -> dict[str, float]:
+        """The metrics of :meth:`statistics` on the sample itself, computed as the pooled tables do."""
+        out = {}
+        if not np.isnan(self.correct).any():
+            out["csa"] = float(self.correct.sum() / self.steps.sum()) if self.steps.sum() else np.nan
+
+        def percentile(name: str, q: float) -> float:
+            values = self.values[name][0]
+            return float(np.percentile(values, q)) if len(values) else np.nan
+
+        out["euclid_median_m"] = percentile("euclid_m", 50)
+        out["euclid_p90_m"] = percentile("euclid_m", 90)
+        if "across_m" in self.values and not np.isnan(self.values["across_m"][0]).all():
+            out["across_median_m"] = percentile("across_m", 50)
+        return out
 
     def statistics(self, counts: np.ndarray) -> dict[str, np.ndarray]:
         """The interval metrics it has, for each row of ``counts`` (``(R, sessions)`` draws per session)."""
@@ -158,17 +174,14 @@ def bootstrap_intervals(
     Returns
     -------
     pandas.DataFrame
-        One row per (``method``, ``metric``): ``lo``, ``hi``; difference rows have ``method`` like
-        ``"fused - paper"`` and also ``better_share``, the share of resamples where ``reference`` is
-        better.
+        One row per (``method``, ``metric``): ``value`` (the pooled figure), ``lo``, ``hi``; difference
+        rows have ``method`` like ``"fused - paper"`` and also ``better_share``, the share of resamples
+        where ``reference`` is better.
     """
     sessions = tuple(sorted({r["session"] for runs in runs_by_method.values() for r in runs}))
+    samples = {method: SessionSamples.from_runs(runs, sessions) for method, runs in runs_by_method.items()}
     counts = session_draws(len(sessions), n_resamples, seed)
-    stats = {
-        method: SessionSamples.from_runs(runs, sessions).statistics(counts)
-        for method, runs in runs_by_method.items()
-    }
-    return interval_rows(stats, reference, baselines, level)
+    return interval_rows(samples, counts, reference, baselines, level)
 
 
 def waypoint_intervals(
@@ -190,54 +203,61 @@ def waypoint_intervals(
     # the errors follow the reference's rows (a trial appears once per filter seed pooled)
     scored = [r for r in rows if r["method"] == reference]
     owner = np.repeat([index[r["trial"]] for r in scored], [r["n_waypoints"] for r in scored])
-    counts = session_draws(len(trials), n_resamples, seed)
-    stats = {
-        method: SessionSamples.from_errors(np.asarray(e, float), owner, trials).statistics(counts)
+    samples = {
+        method: SessionSamples.from_errors(np.asarray(e, float), owner, trials)
         for method, e in errors.items() if len(e) == len(owner)
     }
-    return interval_rows(stats, reference, baselines)
+    return interval_rows(samples, session_draws(len(trials), n_resamples, seed), reference, baselines)
 
 
 def interval_rows(
-    stats: dict[str, dict[str, np.ndarray]], reference: str, baselines: tuple[str, ...], level: float = 0.95
+    samples: dict[str, SessionSamples],
+    counts: np.ndarray,
+    reference: str,
+    baselines: tuple[str, ...],
+    level: float = 0.95,
 ) -> pd.DataFrame:
-    """Percentile intervals of resampled statistics per method, and of ``reference`` minus each baseline."""
+    """Point figure and percentile interval per method and metric, then ``reference`` minus each
+    baseline (paired: every method on the same resampled ``counts``)."""
     tail = 100 * (1 - level) / 2
+    stats = {method: sample.statistics(counts) for method, sample in samples.items()}
+    points = {method: sample.point() for method, sample in samples.items()}
     rows = []
     for method, by_metric in stats.items():
         for metric, draws in by_metric.items():
             lo, hi = np.nanpercentile(draws, [tail, 100 - tail])
-            rows.append({"method": method, "metric": metric, "lo": lo, "hi": hi})
+            rows.append({"method": method, "metric": metric, "value": points[method][metric],
+                         "lo": lo, "hi": hi})
     for base in (b for b in baselines if b in stats and reference in stats):
         for metric, draws in stats[reference].items():
             diff = draws - stats[base][metric]
             lo, hi = np.nanpercentile(diff, [tail, 100 - tail])
             better = np.mean(diff > 0) if INTERVAL_METRICS[metric] else np.mean(diff < 0)
-            rows.append({"method": f"{reference} - {base}", "metric": metric, "lo": lo, "hi": hi,
+            rows.append({"method": f"{reference} - {base}", "metric": metric,
+                         "value": points[reference][metric] - points[base][metric], "lo": lo, "hi": hi,
                          "better_share": float(better)})
     return pd.DataFrame(rows)
 
 
 def subset_intervals(
     results: list[dict[str, Any]],
-    jaywalk_weight: float,
-    map_name: str = "osm",
+    base: dict[str, Any],
     n_resamples: int = 1000,
     seed: int = 0,
 ) -> pd.DataFrame:
     """:func:`bootstrap_intervals` of GNSS, the paper's method and fused on every subset of a benchmark.
 
-    Uses the runs on ``map_name`` at ``jaywalk_weight`` (GNSS at any weight: it has none), as the
-    subset tables do. Returns the rows of :func:`bootstrap_intervals` with a ``subset`` column first.
+    ``base`` picks the runs as the reports' tables do: ``map`` (the map's name) and any of
+    ``jaywalk_weight``, ``particles``, ``gnss_sigma_factor`` (GNSS alone has none of those three).
+    Returns the rows of :func:`bootstrap_intervals` with a ``subset`` column first.
     """
     methods = ("gnss", *(b for b in BASELINES if b != "gnss"), "fused")
     frames = []
     for subset in dict.fromkeys(subset_of(r) for r in results):
         runs_by_method = {}
         for method in methods:
-            runs = [r for r in results if subset_of(r) == subset and r["spec"]["method"] == method
-                    and r["spec"]["map_name"] == map_name
-                    and (method == "gnss" or r["spec"]["jaywalk_weight"] == jaywalk_weight)]
+            runs = [r for r in results
+                    if subset_of(r) == subset and r["spec"]["method"] == method and _at_base(r["spec"], base)]
             if runs:
                 runs_by_method[method] = runs
         if runs_by_method:
@@ -245,3 +265,11 @@ def subset_intervals(
             part.insert(0, "subset", subset)
             frames.append(part)
     return pd.concat(frames, ignore_index=True) if frames else pd.DataFrame()
+
+
+def _at_base(spec: dict[str, Any], base: dict[str, Any]) -> bool:
+    """Whether a run's spec has the base parameters (GNSS alone: only the map counts)."""
+    if spec["map_name"] != base["map"]:
+        return False
+    keys = () if spec["method"] == "gnss" else ("jaywalk_weight", "particles", "gnss_sigma_factor")
+    return all(spec[k] == base[k] for k in keys if k in base)
