@@ -65,8 +65,9 @@ class SuiteConfig:
     particles, filter_seed, velocity_source
         Filter settings passed to ``track_session``.
     filter_seeds
-        Run every filter (not GNSS alone) with this many seeds from ``filter_seed`` on; the figures
-        pool them per session (the report's figures and Fig. 3 use the first).
+        Run every filter (not GNSS alone, and the IPIN runs too) with this many seeds from
+        ``filter_seed`` on; the tables, checks and intervals pool them per session, the report's
+        figures draw the first seed's runs.
     datasf_methods
         Methods also run on the DataSF-buildings map (when its tiles are given).
     write_imu
@@ -236,7 +237,7 @@ def _ipin_summary(
         if len(e)
     }
     baselines = (criteria.IPIN_BASELINE_RUN, "paper", "gnss")
-    intervals = waypoint_intervals(errors, rows, "fused", baselines, seed=seed)
+    intervals = waypoint_intervals(errors, rows, "fused", baselines, seed=seeds[0])
     return summary, ipin_errors_table(errors, n_trials, held_out=True, seeds=len(seeds)), intervals
 
 

@@ -323,6 +323,7 @@ def _tables(
 
 
 def _seeds(config) -> str:
+    """``filter seed 0`` or ``filter seeds 0-2 pooled``."""
     first = config.filter_seed
     if config.filter_seeds == 1:
         return f"filter seed {first}"
