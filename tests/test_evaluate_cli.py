@@ -164,6 +164,11 @@ def test_evaluate_writes_the_report(tmp_path, sessions):
     assert "How sure: 95 % intervals, w = 0.4, map 'osm'" in md and "| curbside fused - paper PF |" in md
     intervals = pd.DataFrame(doc["intervals_95"]).set_index(["method", "metric"])
     assert intervals.at[("fused", "csa"), "value"] == pytest.approx(fused.loc["osm", "csa"])
+    # the same map under two names: every paired difference between them is exactly 0
+    maps = pd.DataFrame(doc["map_intervals_95"])
+    assert set(maps["method"]) == {"osm", "copy", "copy - osm"}
+    same = maps[maps["method"] == "copy - osm"]
+    assert (same[["value", "lo", "hi"]] == 0).all().all() and "How sure: map sources" in md
     html = (out / "report.html").read_text()
     assert html.count("data:image/png;base64,") >= 4
     assert not (out / "figures" / "missing.png").exists()

@@ -11,6 +11,7 @@ from hypothesis import strategies as st
 from curbside.evaluate.uncertainty import (
     SessionSamples,
     bootstrap_intervals,
+    map_intervals,
     session_draws,
     waypoint_intervals,
     weighted_quantile,
@@ -97,7 +98,7 @@ def test_several_runs_of_a_session_pool_into_it():
 
 def test_waypoint_intervals_resample_whole_trials_and_render():
     from curbside.evaluate.criteria import IPIN_BASELINE_RUN
-    from curbside.evaluate.suite_report import interval_tables
+    from curbside.evaluate.suite_report import ipin_interval_table
 
     rng = np.random.default_rng(4)
     sizes = [12, 15, 9, 14, 11]
@@ -118,8 +119,7 @@ def test_waypoint_intervals_resample_whole_trials_and_render():
     assert fused.at["euclid_p90_m", "value"] == pytest.approx(np.percentile(errors["fused"], 90))
     assert diff.at["euclid_median_m", "value"] == pytest.approx(
         np.median(errors["fused"]) - np.median(errors[IPIN_BASELINE_RUN]))
-    _, table = interval_tables(pd.DataFrame(), frame, 0.4)
-    md = table.markdown()
+    md = ipin_interval_table(frame).markdown()
     assert "| curbside fused - curbside fused 0.1 |" in md and "100 %" in md
     assert f"| curbside fused | {np.median(errors['fused']):.1f} [" in md
 
@@ -134,3 +134,22 @@ def test_waypoint_intervals_pool_filter_seeds_by_trial():
     # The median moves off trial "b"'s 9 m only when "a" is drawn twice (p = 1/4): then fused is 1 m better.
     assert diff.at["euclid_median_m", "lo"] == -1.0 and diff.at["euclid_median_m", "hi"] == 0.0
     assert diff.at["euclid_median_m", "better_share"] == pytest.approx(0.25, abs=0.08)
+
+
+def test_map_intervals_pair_the_maps_on_the_same_sessions():
+    rng = np.random.default_rng(5)
+    good, bad = _runs(rng, 0.9, 1.0), _runs(rng, 0.5, 5.0)
+    spec = {"jaywalk_weight": 0.4, "particles": 500, "gnss_sigma_factor": None}
+    results = []
+    for map_name, runs in (("osm", good), ("datasf", bad)):
+        for r in runs:
+            results.append({**r, "spec": {**spec, "method": "fused", "map_name": map_name,
+                                          "session": f"/x/paper6/{r['session']}"}})
+    results.append({**good[0], "spec": {**spec, "method": "fused", "map_name": "osm", "particles": 100,
+                                        "session": "/x/paper6/s0"}})  # another N: left out
+    frame = map_intervals(results, {"map": "osm", "jaywalk_weight": 0.4, "particles": 500})
+    assert list(frame["method"].drop_duplicates()) == ["osm", "datasf", "datasf - osm"]
+    diff = frame[frame["method"] == "datasf - osm"].set_index("metric")
+    assert diff.at["csa", "hi"] < 0 and diff.at["csa", "better_share"] == 0.0
+    assert set(frame["subset"]) == {"paper6"}
+    assert map_intervals(results, {"map": "osm", "jaywalk_weight": 1.0}).empty  # no run at that w

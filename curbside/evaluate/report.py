@@ -29,7 +29,7 @@ from curbside.evaluate.figures import (
 )
 from curbside.evaluate.metrics import METRIC_NAMES, MetricsConfig
 from curbside.evaluate.runner import METHOD_LABELS, METHODS, MODE_SUFFIX, pool
-from curbside.evaluate.uncertainty import subset_intervals
+from curbside.evaluate.uncertainty import map_intervals, subset_intervals
 from curbside.io import atomic_path
 from curbside.osmseg.mapio import MapLayers
 
@@ -163,6 +163,12 @@ INTERVAL_NOTE = (
     "(a cluster bootstrap: the {points} of one {one} move together). Differences are paired, every "
     "method on the same resampled {unit}; the percentage is the share of resamples in which curbside "
     "fused is better."
+)
+#: The note under the map-source intervals.
+MAP_INTERVAL_NOTE = (
+    "Curbside fused on each map source, each figure with its 95 % percentile interval from 1,000 "
+    "resamples of the sessions (paired: both maps on the same resampled sessions). In a row 'B - A' the "
+    "percentage is the share of resamples in which map B does better than map A."
 )
 
 
@@ -370,20 +376,14 @@ def write_report(
     per_path = pool(results, (*by_run, "path"))
     per_session = pool(results, (*by_run, "session"))
     base_path = _at_base(per_path, base)
-
     tables = list(lead_tables or [])
     for map_name in pooled["map"].unique():
         tables += paper_tables(pooled, map_name, base)
     if pooled["map"].nunique() > 1:
         tables.append(map_table(pooled, base))
     tables += sweep_tables(pooled, base)
-    intervals = subset_intervals(results, base)
-    if not intervals.empty:
-        note = INTERVAL_NOTE.format(unit="sessions", points="footsteps", one="session")
-        title = f"How sure: 95 % intervals, w = {base['jaywalk_weight']:g}, map '{base['map']}'"
-        tables.append(interval_table(intervals, title, note))
-    tables += extra_tables or []
-
+    sure, sure_rows = _interval_tables(results, base)
+    tables += sure + (extra_tables or [])
     doc = {
         "generator": f"curbside {curbside.__version__}",
         "metric_names": list(METRIC_NAMES),
@@ -394,7 +394,7 @@ def write_report(
         "pooled": records(pooled),
         "per_path": records(per_path),
         "per_session": records(per_session),
-        "intervals_95": records(intervals),
+        **sure_rows,
         "definitions": _definitions(MetricsConfig()),  # run_one scores with the defaults
     }
     doc.update(extra_json or {})
@@ -411,6 +411,22 @@ def write_report(
         (tmp / "report.md").write_text("\n".join(md), encoding="utf-8")
         (tmp / "report.html").write_text(_html_page(intro, tables, figures, views), encoding="utf-8")
     return {name: out_dir / name for name in ("metrics.json", "report.md", "report.html")}
+
+
+def _interval_tables(results: list[dict], base: dict[str, Any]) -> tuple[list[Table], dict[str, Any]]:
+    """The "how sure" tables at the base parameters (methods; map sources when several) and their rows."""
+    intervals = subset_intervals(results, base)
+    maps = map_intervals(results, base)
+    w = base["jaywalk_weight"]
+    tables = []
+    if not intervals.empty:
+        note = INTERVAL_NOTE.format(unit="sessions", points="footsteps", one="session")
+        title = f"How sure: 95 % intervals, w = {w:g}, map '{base['map']}'"
+        tables.append(interval_table(intervals, title, note))
+    if not maps.empty:
+        title = f"How sure: map sources, curbside fused, w = {w:g}"
+        tables.append(interval_table(maps, title, MAP_INTERVAL_NOTE))
+    return tables, {"intervals_95": records(intervals), "map_intervals_95": records(maps)}
 
 
 def _at_base(per_path: pd.DataFrame, base: dict[str, Any]) -> pd.DataFrame:

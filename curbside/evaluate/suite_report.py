@@ -28,6 +28,7 @@ from curbside.evaluate.figures import (
 )
 from curbside.evaluate.report import (
     INTERVAL_NOTE,
+    MAP_INTERVAL_NOTE,
     Table,
     fmt_value,
     interval_table,
@@ -36,7 +37,7 @@ from curbside.evaluate.report import (
     records,
 )
 from curbside.evaluate.runner import METHOD_LABELS, SMOOTHED_METHOD, subset_of
-from curbside.evaluate.uncertainty import subset_intervals
+from curbside.evaluate.uncertainty import map_intervals, subset_intervals
 from curbside.io import atomic_path
 from curbside.osmseg.mapio import MapLayers
 
@@ -196,21 +197,36 @@ def session_table(
     return Table(f"Per session, {subset}, w = {w:g}, map 'osm'", header, rows, note)
 
 
+def ipin_interval_table(ipin_intervals: pd.DataFrame) -> Table:
+    """The IPIN held-out trials' "how sure" table: curbside fused and its paired differences."""
+    fused = ipin_intervals[ipin_intervals["method"].str.startswith("fused")]
+    note = INTERVAL_NOTE.format(unit="trials", points="waypoints", one="trial")
+    return interval_table(fused, "IPIN 2023 held-out: how sure (m)", note)
+
+
 def interval_tables(
-    intervals: pd.DataFrame, ipin_intervals: pd.DataFrame | None, w: float
-) -> tuple[Table | None, Table | None]:
-    """The "how sure" tables: the subsets' methods and differences, and the IPIN trials'."""
-    subsets = ipin = None
-    if not intervals.empty:
-        note = INTERVAL_NOTE.format(unit="subset's sessions", points="footsteps", one="session") + (
-            " The three sessions of a route are resampled as independent, so the intervals are, if "
-            "anything, too narrow for the routes themselves.")
-        subsets = interval_table(intervals, f"How sure: 95 % intervals, w = {w:g}, map 'osm'", note)
-    if ipin_intervals is not None and not ipin_intervals.empty:
-        fused = ipin_intervals[ipin_intervals["method"].str.startswith("fused")]
-        note = INTERVAL_NOTE.format(unit="trials", points="waypoints", one="trial")
-        ipin = interval_table(fused, "IPIN 2023 held-out: how sure (m)", note)
-    return subsets, ipin
+    results: list[dict], ipin_intervals: pd.DataFrame | None, config
+) -> tuple[dict[str, Table | None], dict[str, Any]]:
+    """The "how sure" tables (``subsets``, ``maps``, ``ipin``; ``None`` where not run) and their rows
+    for ``metrics.json``."""
+    w = config.jaywalk_weight
+    base = {"map": "osm", "jaywalk_weight": w}
+    intervals = subset_intervals(results, base, seed=config.filter_seed)
+    maps = map_intervals(results, base, seed=config.filter_seed)
+    note = INTERVAL_NOTE.format(unit="subset's sessions", points="footsteps", one="session") + (
+        " The three sessions of a route are resampled as independent, so the intervals are, if "
+        "anything, too narrow for the routes themselves.")
+    has_ipin = ipin_intervals is not None and not ipin_intervals.empty
+    tables = {
+        "subsets": None if intervals.empty else interval_table(
+            intervals, f"How sure: 95 % intervals, w = {w:g}, map 'osm'", note),
+        "maps": None if maps.empty else interval_table(
+            maps, f"How sure: map sources, curbside fused, w = {w:g}", MAP_INTERVAL_NOTE),
+        "ipin": ipin_interval_table(ipin_intervals) if has_ipin else None,
+    }
+    rows = {"intervals_95": records(intervals), "map_intervals_95": records(maps),
+            "ipin_intervals_95": records(ipin_intervals) if has_ipin else None}
+    return tables, rows
 
 
 def checks_table(checks: list[criteria.Check]) -> Table:
@@ -299,8 +315,8 @@ def _tables(
     counts: dict[str, int],
     events: dict[str, dict],
     run_info: dict[str, Any],
-    ipin_tables: list[Table],
-    how_sure: Table | None,
+    ipin_table: Table | None,
+    sure: dict[str, Table | None],
 ) -> list[Table]:
     """Every table of the report, in order."""
     w = config.jaywalk_weight
@@ -311,12 +327,8 @@ def _tables(
         sweep = sweep_table(pooled, subset)
         if sweep is not None:
             tables.append(sweep)
-    if how_sure is not None:
-        tables.append(how_sure)
-    datasf = map_table(pooled, w)
-    if datasf is not None:
-        tables.append(datasf)
-    tables += ipin_tables
+    tables += [t for t in (sure["subsets"], map_table(pooled, w), sure["maps"], ipin_table, sure["ipin"])
+               if t is not None]
     tables.append(profile_table(run_info["simulation"]))
     tables += [session_table(per_session, s, w, events, limit) for s in config.subsets]
     return tables
@@ -376,10 +388,8 @@ def write_suite_report(
     events = {name: _events(path) for name, path in session_dirs.items()}
     ratios = criteria.session_ratios(per_session, "osm", w)
     pooled_path = _base(pooled_by_subset(results, ("path",)), w)
-    intervals = subset_intervals(results, {"map": "osm", "jaywalk_weight": w}, seed=config.filter_seed)
-    how_sure, ipin_sure = interval_tables(intervals, ipin_intervals, w)
-    ipin_tables = [t for t in (ipin_table, ipin_sure) if t is not None]
-    tables = _tables(pooled, per_session, checks, config, counts, events, run_info, ipin_tables, how_sure)
+    sure, sure_rows = interval_tables(results, ipin_intervals, config)
+    tables = _tables(pooled, per_session, checks, config, counts, events, run_info, ipin_table, sure)
     intro = _intro(config, counts, pooled, len(results), timings, run_info["workers"], checks)
     doc = {
         "generator": f"curbside {curbside.__version__}",
@@ -391,12 +401,11 @@ def write_suite_report(
             "checks": [c.__dict__ | {"verdict": c.verdict} for c in checks],
         },
         "pooled": records(pooled),
-        "intervals_95": records(intervals),
+        **sure_rows,
         "per_session": records(per_session),
         "session_ratios": records(ratios),
         "session_events": events,
         "ipin_held_out": ipin_summary,
-        "ipin_intervals_95": records(ipin_intervals) if ipin_intervals is not None else None,
         "timings_s": timings,
     }
     with atomic_path(out_dir) as tmp:

@@ -273,3 +273,38 @@ def _at_base(spec: dict[str, Any], base: dict[str, Any]) -> bool:
         return False
     keys = () if spec["method"] == "gnss" else ("jaywalk_weight", "particles", "gnss_sigma_factor")
     return all(spec[k] == base[k] for k in keys if k in base)
+
+
+def map_intervals(
+    results: list[dict[str, Any]],
+    base: dict[str, Any],
+    method: str = "fused",
+    n_resamples: int = 1000,
+    seed: int = 0,
+) -> pd.DataFrame:
+    """One method on each map source, and each other map minus the base map (``base["map"]``), paired.
+
+    The maps' runs must share their sessions (as ``localize evaluate --maps`` and the benchmark's
+    DataSF runs do); ``better_share`` is then the share of resamples in which the other map does
+    better. Returns rows like :func:`subset_intervals`' (``method`` holds the map names).
+    """
+    params = {k: v for k, v in base.items() if k != "map"}
+    at_base = [r for r in results if r["spec"]["method"] == method
+               and _at_base(r["spec"], {**params, "map": r["spec"]["map_name"]})]
+    others = [m for m in dict.fromkeys(r["spec"]["map_name"] for r in at_base) if m != base["map"]]
+    frames = []
+    for subset in dict.fromkeys(subset_of(r) for r in at_base):
+        in_subset = [r for r in at_base if subset_of(r) == subset]
+        runs_by_map = {name: [r for r in in_subset if r["spec"]["map_name"] == name]
+                       for name in (base["map"], *others)}
+        first = base["map"]
+        for k, other in enumerate(o for o in others if runs_by_map[o] and runs_by_map[first]):
+            pair = {first: runs_by_map[first], other: runs_by_map[other]}
+            part = bootstrap_intervals(pair, n_resamples, seed=seed, reference=other, baselines=(first,))
+            if k:
+                part = part[part["method"] != first]  # the base map's rows once
+            frames.append(part.assign(subset=subset))
+    if not frames:
+        return pd.DataFrame()
+    out = pd.concat(frames, ignore_index=True)
+    return out[["subset", *(c for c in out.columns if c != "subset")]]
