@@ -137,10 +137,10 @@ INTERVAL_HEADERS = {"csa": "CSA", "euclid_median_m": "median m", "euclid_p90_m":
 def _interval_cell(row: pd.Series) -> str:
     """``value [lo, hi]``; a paired difference is signed and ends with the share of resamples better."""
     digits = 2 if row["metric"] == "csa" else 1
+    value, lo, hi = (round(row[k], digits) + 0.0 for k in ("value", "lo", "hi"))  # + 0.0: no "-0.00"
     if " - " not in row["method"]:
-        return f"{row['value']:.{digits}f} [{row['lo']:.{digits}f}, {row['hi']:.{digits}f}]"
-    return (f"{row['value']:+.{digits}f} [{row['lo']:+.{digits}f}, {row['hi']:+.{digits}f}] "
-            f"{100 * row['better_share']:.0f} %")
+        return f"{value:.{digits}f} [{lo:.{digits}f}, {hi:.{digits}f}]"
+    return f"{value:+.{digits}f} [{lo:+.{digits}f}, {hi:+.{digits}f}] {100 * row['better_share']:.0f} %"
 
 
 def interval_table(intervals: pd.DataFrame, title: str, note: str) -> Table:
