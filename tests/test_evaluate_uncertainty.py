@@ -153,3 +153,23 @@ def test_map_intervals_pair_the_maps_on_the_same_sessions():
     assert diff.at["csa", "hi"] < 0 and diff.at["csa", "better_share"] == 0.0
     assert set(frame["subset"]) == {"paper6"}
     assert map_intervals(results, {"map": "osm", "jaywalk_weight": 1.0}).empty  # no run at that w
+
+
+def test_no_sidewalks_and_no_estimates_give_no_csa_and_n_a_cells(recwarn):
+    from curbside.evaluate.report import interval_table
+
+    rng = np.random.default_rng(6)
+    no_sidewalks = [_run(f"s{k}", np.zeros(30, bool), rng.gamma(2.0, 2.0, 30)) for k in range(3)]
+    for r in no_sidewalks:
+        r["errors"] = r["errors"].drop(columns=["correct", "across_m"])
+    never_started = [_run(f"s{k}", np.zeros(30, bool), np.full(30, np.nan)) for k in range(3)]
+    for r in never_started:
+        r["errors"]["missing"] = True
+        r["errors"] = r["errors"].drop(columns=["correct", "across_m"])
+    frame = bootstrap_intervals({"fused": no_sidewalks, "gnss": never_started}, n_resamples=50)
+    assert set(frame["metric"]) == {"euclid_median_m", "euclid_p90_m"}
+    assert frame.query("method == 'fused'")[["lo", "hi"]].notna().all().all()
+    assert frame.query("method != 'fused'")[["lo", "hi"]].isna().all().all()
+    md = interval_table(frame, "t", "n").markdown()
+    assert "| GNSS | n/a | n/a |" in md
+    assert not [w for w in recwarn if "All-NaN" in str(w.message)]

@@ -137,6 +137,8 @@ INTERVAL_HEADERS = {"csa": "CSA", "euclid_median_m": "median m", "euclid_p90_m":
 def _interval_cell(row: pd.Series) -> str:
     """``value [lo, hi]``; a paired difference is signed and ends with the share of resamples better."""
     digits = 2 if row["metric"] == "csa" else 1
+    if not all(math.isfinite(row[k]) for k in ("value", "lo", "hi")):
+        return "n/a"
     value, lo, hi = (round(row[k], digits) + 0.0 for k in ("value", "lo", "hi"))  # + 0.0: no "-0.00"
     if " - " not in row["method"]:
         return f"{value:.{digits}f} [{lo:.{digits}f}, {hi:.{digits}f}]"

@@ -225,18 +225,27 @@ def interval_rows(
     rows = []
     for method, by_metric in stats.items():
         for metric, draws in by_metric.items():
-            lo, hi = np.nanpercentile(draws, [tail, 100 - tail])
+            lo, hi = _interval(draws, tail)
             rows.append({"method": method, "metric": metric, "value": points[method][metric],
                          "lo": lo, "hi": hi})
     for base in (b for b in baselines if b in stats and reference in stats):
-        for metric, draws in stats[reference].items():
-            diff = draws - stats[base][metric]
-            lo, hi = np.nanpercentile(diff, [tail, 100 - tail])
+        for metric in (m for m in stats[reference] if m in stats[base]):
+            diff = stats[reference][metric] - stats[base][metric]
+            lo, hi = _interval(diff, tail)
             better = np.mean(diff > 0) if INTERVAL_METRICS[metric] else np.mean(diff < 0)
             rows.append({"method": f"{reference} - {base}", "metric": metric,
                          "value": points[reference][metric] - points[base][metric], "lo": lo, "hi": hi,
                          "better_share": float(better)})
     return pd.DataFrame(rows)
+
+
+def _interval(draws: np.ndarray, tail: float) -> tuple[float, float]:
+    """The ``tail`` and ``100 - tail`` percentiles of the finite draws (NaN, NaN when there are none)."""
+    finite = draws[np.isfinite(draws)]
+    if not len(finite):
+        return np.nan, np.nan
+    lo, hi = np.percentile(finite, [tail, 100 - tail])
+    return float(lo), float(hi)
 
 
 def subset_intervals(
