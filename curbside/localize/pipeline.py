@@ -299,15 +299,8 @@ def track_session(
         Unknown mode, missing inputs for the mode, start pose or session outside the map, a start pose
         in a building with no free space nearby, nothing to start from.
     """
-    config = resolve_config(
-        config,
-        mode,
-        particles=particles,
-        jaywalk_weight=jaywalk_weight,
-        seed=seed,
-        velocity_source=velocity_source,
-        use_start_pose=use_start_pose,
-    )
+    config = resolve_config(config, mode, particles=particles, jaywalk_weight=jaywalk_weight, seed=seed,
+                            velocity_source=velocity_source, use_start_pose=use_start_pose)
     frame = _frame_for(session, map_layers)
     start, t_begin = _start_of(session)
     _report_unanchored_inertial(session, config, start)

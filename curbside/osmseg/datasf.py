@@ -130,9 +130,8 @@ def read_datasf(
         ``duplicate_iou`` outside (0, 1] or a negative ``min_area_m2``.
     """
     if not (0 < duplicate_iou <= 1 and min_area_m2 >= 0):
-        raise ValueError(
-            f"need 0 < duplicate_iou <= 1 and min_area_m2 >= 0, got {duplicate_iou}, {min_area_m2}"
-        )
+        raise ValueError(f"need 0 < duplicate_iou <= 1 and min_area_m2 >= 0, got {duplicate_iou}, "
+                         f"{min_area_m2}")
     if isinstance(paths, (str, os.PathLike)):
         paths = [paths]
     paths = [Path(p) for p in paths]
@@ -163,10 +162,7 @@ def read_datasf(
         "bbox": list(bbox) if bbox is not None else [float(v) for v in (west, south, east, north)],
         "attribution": DATASF_ATTRIBUTION,
         "generator": f"curbside {__version__} (osmseg import-datasf)",
-        "params": {
-            "inner_rings": "outer outlines only" if fill_holes else "holes",
-            "duplicate_iou": duplicate_iou,
-            "min_area_m2": min_area_m2,
-        },
+        "params": {"inner_rings": "outer outlines only" if fill_holes else "holes",
+                   "duplicate_iou": duplicate_iou, "min_area_m2": min_area_m2},
     }
     return MapLayers(gdf.reset_index(drop=True), meta)
