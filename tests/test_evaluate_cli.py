@@ -267,14 +267,16 @@ def test_ipin_table_scores_methods_at_the_same_waypoints():
     from curbside.evaluate.benchmark import ipin_table
 
     h5 = Path(__file__).parent / "data" / "sessions" / "ipin2023-cut.h5"
-    table, rows = ipin_table(h5)
+    (table, how_sure), rows = ipin_table(h5)
     frame = pd.DataFrame(rows)
     assert set(frame["method"]) == {"gnss", "inertial", "paper", "fused"}
     counts = frame.groupby("trial")["n_waypoints"].nunique()
     assert (counts == 1).all()  # every method at the same waypoints of a trial
     assert [r[0] for r in table.rows] == ["GNSS", "RoNIN+PF", "paper PF", "curbside fused"]
     # held out: only the repetition04 trials RoNIN never saw (none in this cut)
-    held_out, _ = ipin_table(h5, held_out=True)
+    assert [r[0] for r in how_sure.rows] == [
+        "curbside fused", "curbside fused - paper PF", "curbside fused - GNSS"]
+    (held_out,), _ = ipin_table(h5, held_out=True)  # no trial scored: no intervals
     assert "0 held-out trials" in held_out.title
 
 

@@ -35,13 +35,19 @@ def _runs(rng: np.random.Generator, p_correct: float, error_scale_m: float, sess
 
 @settings(max_examples=40, deadline=None)
 @given(st.integers(0, 10_000), st.sampled_from([0.1, 0.5, 0.9]))
-def test_weighted_quantile_with_unit_counts_is_the_inverted_cdf_quantile(seed, q):
+def test_weighted_quantile_is_numpys_quantile_of_the_repeated_sample(seed, q):
     rng = np.random.default_rng(seed)
     values = rng.normal(size=int(rng.integers(1, 60)))
     owner = rng.integers(0, 4, len(values))
     order = np.argsort(values)
-    got = weighted_quantile(values[order], owner[order], np.ones((1, 4), int), q)[0]
-    assert got == pytest.approx(np.percentile(values, 100 * q, method="inverted_cdf"))
+    counts = np.vstack([np.ones(4, int), rng.integers(0, 4, 4)])
+    got = weighted_quantile(values[order], owner[order], counts, q)
+    assert got[0] == pytest.approx(np.percentile(values, 100 * q))
+    repeated = np.repeat(values, counts[1][owner])
+    if len(repeated):
+        assert got[1] == pytest.approx(np.percentile(repeated, 100 * q))
+    else:
+        assert np.isnan(got[1])
 
 
 def test_weighted_quantile_counts_repeat_a_session():
@@ -51,9 +57,8 @@ def test_weighted_quantile_counts_repeat_a_session():
     order = np.argsort(values)
     counts = np.array([[2, 1], [0, 3]])
     got = weighted_quantile(values[order], owner[order], counts, 0.5)
-    assert got[0] == pytest.approx(np.percentile(np.r_[values[:20], values[:20], values[20:]], 50,
-                                                 method="inverted_cdf"))
-    assert got[1] == pytest.approx(np.percentile(values[20:], 50, method="inverted_cdf"))
+    assert got[0] == pytest.approx(np.percentile(np.r_[values[:20], values[:20], values[20:]], 50))
+    assert got[1] == pytest.approx(np.percentile(values[20:], 50))
 
 
 def test_draws_are_seeded_and_keep_the_session_count():
@@ -97,8 +102,8 @@ def test_several_runs_of_a_session_pool_into_it():
 
 
 def test_waypoint_intervals_resample_whole_trials_and_render():
+    from curbside.evaluate.benchmark import ipin_interval_table
     from curbside.evaluate.criteria import IPIN_BASELINE_RUN
-    from curbside.evaluate.suite_report import ipin_interval_table
 
     rng = np.random.default_rng(4)
     sizes = [12, 15, 9, 14, 11]
@@ -119,7 +124,7 @@ def test_waypoint_intervals_resample_whole_trials_and_render():
     assert fused.at["euclid_p90_m", "value"] == pytest.approx(np.percentile(errors["fused"], 90))
     assert diff.at["euclid_median_m", "value"] == pytest.approx(
         np.median(errors["fused"]) - np.median(errors[IPIN_BASELINE_RUN]))
-    md = ipin_interval_table(frame).markdown()
+    md = ipin_interval_table(frame, "IPIN").markdown()
     assert "| curbside fused - curbside fused 0.1 |" in md and "100 %" in md
     assert f"| curbside fused | {np.median(errors['fused']):.1f} [" in md
 

@@ -152,8 +152,8 @@ def _evaluate(args: argparse.Namespace) -> int:
     extra, extra_json = [], {}
     table1 = route_table(sessions)
     if args.ipin:
-        table, rows = ipin_table(args.ipin, args.ipin_trials, args.seed)
-        extra.append(table)
+        tables, rows = ipin_table(args.ipin, args.ipin_trials, args.seed)
+        extra += tables
         extra_json["ipin"] = rows
     with output_folder(args.output, "localize evaluate", overwrite=args.overwrite) as tmp:
         write_report(

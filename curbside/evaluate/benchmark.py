@@ -13,12 +13,14 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+import pandas as pd
 
 from curbside import settings
 from curbside.errors import CurbsideInputError
 from curbside.evaluate.groundtruth import groundtruth_at, waypoints_xy
-from curbside.evaluate.report import Table, write_report
+from curbside.evaluate.report import INTERVAL_NOTE, Table, interval_table, write_report
 from curbside.evaluate.runner import METHOD_LABELS, METHODS, RunSpec, run_all
+from curbside.evaluate.uncertainty import waypoint_intervals
 from curbside.localize.runconfig import RunConfig
 from curbside.localize.session import Session, read_session
 from curbside.osmseg.mapio import read_map, write_map
@@ -433,10 +435,21 @@ def _track_every_run(session: Session, runs: dict[str, RunConfig], seed: int, na
 
 def ipin_table(
     h5: str | Path, trials: int | None = None, seed: int = 0, held_out: bool = False
-) -> tuple[Table, list[dict]]:
-    """Real data without a map: every method at the surveyed IPIN 2023 waypoints (:func:`ipin_errors`)."""
+) -> tuple[list[Table], list[dict]]:
+    """Real data without a map: every method at the surveyed IPIN 2023 waypoints (:func:`ipin_errors`),
+    then curbside fused against the others with trial-bootstrap intervals (when a trial was scored)."""
     errors, rows, n_trials = ipin_errors(h5, trials, seed, held_out)
-    return ipin_errors_table(errors, n_trials, held_out), rows
+    tables = [ipin_errors_table(errors, n_trials, held_out)]
+    if rows:
+        intervals = waypoint_intervals(errors, rows, "fused", ("paper", "gnss"), seed=seed)
+        tables.append(ipin_interval_table(intervals, "IPIN 2023: how sure (m)"))
+    return tables, rows
+
+
+def ipin_interval_table(intervals: pd.DataFrame, title: str) -> Table:
+    """The IPIN trials' "how sure" table: curbside fused and its paired differences."""
+    fused = intervals[intervals["method"].str.startswith("fused")]
+    return interval_table(fused, title, INTERVAL_NOTE.format(unit="trials", points="waypoints", one="trial"))
 
 
 def ipin_errors_table(

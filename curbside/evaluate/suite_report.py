@@ -18,6 +18,7 @@ import pandas as pd
 import curbside
 from curbside import settings
 from curbside.evaluate import criteria
+from curbside.evaluate.benchmark import ipin_interval_table
 from curbside.evaluate.figures import (
     fig_cdf,
     fig_particles,
@@ -197,13 +198,6 @@ def session_table(
     return Table(f"Per session, {subset}, w = {w:g}, map 'osm'", header, rows, note)
 
 
-def ipin_interval_table(ipin_intervals: pd.DataFrame) -> Table:
-    """The IPIN held-out trials' "how sure" table: curbside fused and its paired differences."""
-    fused = ipin_intervals[ipin_intervals["method"].str.startswith("fused")]
-    note = INTERVAL_NOTE.format(unit="trials", points="waypoints", one="trial")
-    return interval_table(fused, "IPIN 2023 held-out: how sure (m)", note)
-
-
 def interval_tables(
     results: list[dict], ipin_intervals: pd.DataFrame | None, config
 ) -> tuple[dict[str, Table | None], dict[str, Any]]:
@@ -222,7 +216,7 @@ def interval_tables(
             intervals, f"How sure: 95 % intervals, w = {w:g}, map 'osm'", note),
         "maps": None if maps.empty else interval_table(
             maps, f"How sure: map sources, curbside fused, w = {w:g}", MAP_INTERVAL_NOTE),
-        "ipin": ipin_interval_table(ipin_intervals) if has_ipin else None,
+        "ipin": ipin_interval_table(ipin_intervals, "IPIN 2023 held-out: how sure (m)") if has_ipin else None,
     }
     rows = {"intervals_95": records(intervals), "map_intervals_95": records(maps),
             "ipin_intervals_95": records(ipin_intervals) if has_ipin else None}
