@@ -103,7 +103,8 @@ def benchmark_stage(ctx: DemoContext) -> dict[str, Path]:
 
 
 def benchmark_headline(report_dir: Path) -> str:
-    """A few lines from a report's ``metrics.json``: each method's CSA and error at the base parameters."""
+    """A few lines from a report's ``metrics.json``: each method's CSA and error at the base parameters,
+    and curbside fused minus each baseline with its 95 % interval."""
     from curbside.evaluate.runner import METHOD_LABELS
 
     doc = json.loads((report_dir / "metrics.json").read_text(encoding="utf-8"))
@@ -123,6 +124,17 @@ def benchmark_headline(report_dir: Path) -> str:
                 f"  {label:<14} CSA {row['csa']:.2f}   error median {row['euclid_median_m']:.1f} m, "
                 f"p90 {row['euclid_p90_m']:.1f} m"
             )
+    differences = {}
+    for row in doc.get("intervals_95") or []:
+        if " - " in row["method"] and row["metric"] in ("csa", "euclid_p90_m"):
+            differences.setdefault(row["method"], {})[row["metric"]] = row
+    for method, rows in differences.items():
+        label = " - ".join(METHOD_LABELS.get(m, m) for m in method.split(" - "))
+        csa, p90 = rows["csa"], rows["euclid_p90_m"]
+        lines.append(
+            f"  {label}: CSA {csa['value']:+.2f} [{csa['lo']:+.2f}, {csa['hi']:+.2f}], "
+            f"p90 {p90['value']:+.1f} m [{p90['lo']:+.1f}, {p90['hi']:+.1f}] (95 % session bootstrap)"
+        )
     lines.append(f"  full report: {report_dir / 'report.html'} (one replay page per session in view/)")
     return "\n".join(lines)
 

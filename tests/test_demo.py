@@ -72,6 +72,8 @@ def test_demo_end_to_end_on_the_bundled_default_area(tmp_path, capsys):
     # a short summary, not the report; each file listed once; the replay of one walk with its clouds
     assert "# curbside evaluation report" not in out and "Table 2" not in out
     assert re.search(r"^  curbside fused +CSA \d\.\d\d +error median", out, re.M)
+    signed = r"[+-]\d\.\d\d"
+    assert re.search(rf"^  curbside fused - paper PF: CSA {signed} \[{signed}, {signed}\], p90 ", out, re.M)
     assert len(set(written.values())) == len(written)
     page = written["replay_viewer"].read_text(encoding="utf-8")
     assert page.count('"cloud":{') == 2  # inertial and fused keep their particle clouds
