@@ -88,20 +88,10 @@ class SessionSamples:
         return cls(clusters, no_sidewalks, no_sidewalks, {"euclid_m": (errors_m[order_v], owner[order_v])})
 
     def point(self) -> dict[str, float]:
-        """The metrics of :meth:`statistics` on the sample itself, computed as the pooled tables do."""
-        out = {}
-        if not np.isnan(self.correct).any():
-            out["csa"] = float(self.correct.sum() / self.steps.sum()) if self.steps.sum() else np.nan
-
-        def percentile(name: str, q: float) -> float:
-            values = self.values[name][0]
-            return float(np.percentile(values, q)) if len(values) else np.nan
-
-        out["euclid_median_m"] = percentile("euclid_m", 50)
-        out["euclid_p90_m"] = percentile("euclid_m", 90)
-        if "across_m" in self.values and not np.isnan(self.values["across_m"][0]).all():
-            out["across_median_m"] = percentile("across_m", 50)
-        return out
+        """The metrics of :meth:`statistics` on the sample itself (every session drawn once): the
+        pooled tables' figures, since the resampled quantile is numpy's on unit counts."""
+        once = np.ones((1, len(self.sessions)), dtype=np.int64)
+        return {metric: float(value[0]) for metric, value in self.statistics(once).items()}
 
     def statistics(self, counts: np.ndarray) -> dict[str, np.ndarray]:
         """The interval metrics it has, for each row of ``counts`` (``(R, sessions)`` draws per session)."""
