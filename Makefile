@@ -37,13 +37,15 @@ test: $(STAMP) browser
 lint: $(STAMP)
 	$(BIN)/ruff check curbside tests benchmarks
 
-# The accuracy benchmark of docs/evaluate.md (phone profile, test split; ~6 min on 2 cores), with the
-# DataSF map and the held-out IPIN trials when ../shared/data has them. `make bench` is the speed one.
+# The accuracy benchmark of docs/evaluate.md (phone profile, test split; ~2.5 min on 2 cores), with the
+# DataSF map and the IPIN trials (held-out ones with the bundled RoNIN, all of them with one that never
+# saw IPIN) when ../shared/data has them. `make bench` is the speed one.
 SHARED := ../shared/data
 benchmark: $(STAMP)
 	$(BIN)/localize benchmark \
 		$(if $(wildcard $(SHARED)/datasf/*.topojson),--datasf-tiles $(wildcard $(SHARED)/datasf/*.topojson)) \
-		$(if $(wildcard $(SHARED)/ipin2023/ipin2023-t3.h5),--ipin $(SHARED)/ipin2023/ipin2023-t3.h5) \
+		$(if $(wildcard $(SHARED)/ipin2023/ipin2023-t3.h5),--ipin $(SHARED)/ipin2023/ipin2023-t3.h5 \
+			--ipin-ronin benchmarks/weights/ronin_ms_only.pt) \
 		-o out/benchmark
 
 bench: $(STAMP)

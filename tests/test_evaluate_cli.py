@@ -293,6 +293,21 @@ def test_ipin_errors_scores_an_extra_run_at_the_same_waypoints():
     assert len({r["n_waypoints"] for r in rows}) == 1
 
 
+def test_ipin_errors_track_with_the_given_ronin_weights():
+    from curbside import settings
+    from curbside.evaluate.benchmark import ipin_errors
+
+    h5 = Path(__file__).parent / "data" / "sessions" / "ipin2023-cut.h5"
+    ms_only = Path(__file__).parents[1] / "benchmarks" / "weights" / "ronin_ms_only.pt"
+    bundled, _, _ = ipin_errors(h5, trials=1)
+    same, _, _ = ipin_errors(h5, trials=1, ronin_weights=settings.ronin_default_weights)
+    other, _, _ = ipin_errors(h5, trials=1, ronin_weights=ms_only)
+    for method, errors in bundled.items():
+        np.testing.assert_array_equal(same[method], errors)  # inferred once, shared: same figures
+    np.testing.assert_array_equal(other["gnss"], bundled["gnss"])  # GNSS alone uses no velocity
+    assert not np.array_equal(other["inertial"], bundled["inertial"])
+
+
 def test_ipin_errors_on_training_trials_leaves_the_held_out_ones_unread(monkeypatch):
     from curbside.evaluate.benchmark import ipin_errors
     from curbside.localize.readers import ipin

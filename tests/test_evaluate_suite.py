@@ -17,6 +17,8 @@ from curbside.localize.session import write_session
 from curbside.osmseg.mapio import read_map
 
 MAP = Path(__file__).parent / "data" / "evaluate" / "sf-path3.geojson"
+IPIN_CUT = Path(__file__).parent / "data" / "sessions" / "ipin2023-cut.h5"
+MS_ONLY = Path(__file__).parents[1] / "benchmarks" / "weights" / "ronin_ms_only.pt"
 
 
 @pytest.fixture(scope="module")
@@ -89,8 +91,11 @@ def test_report_has_tables_checks_and_figures(sessions, tmp_path):
         read_map(MAP),
         run_info,
         {"track_s": 1.0},
+        [suite._ipin_summary(IPIN_CUT, range(0, 1), MS_ONLY)],
     )
     md = paths["report.md"].read_text()
+    assert "no map, RoNIN ronin_ms_only.pt): error at surveyed waypoints" in md
+    assert "IPIN 2023, RoNIN ronin_ms_only.pt: how sure (m)" in md and "not trained on these trials" in md
     assert "Done when (issue 9)" in md and "| fused beats the paper's method on CSA | paper6 |" in md
     assert "paper PF" in md and "curbside fused" in md and "Per session, open" in md
     assert "Table 2. Correct Sidewalk Assignment by jaywalk weight, paper6" in md
@@ -112,6 +117,8 @@ def test_report_has_tables_checks_and_figures(sessions, tmp_path):
     assert html.count("data:image/png;base64,") == len(figures)
     doc = json.loads(paths["metrics.json"].read_text())
     assert doc["done_when"]["overall"] == criteria.overall(checks)
+    assert doc["ipin_held_out"] is None and doc["ipin_unseen_ronin"]["fused"]["n"] > 0
+    assert {r["method"] for r in doc["ipin_unseen_ronin_intervals_95"]} >= {"fused", "fused - gnss"}
     intervals = pd.DataFrame(doc["intervals_95"])
     fused_csa = intervals.query("subset == 'open' and method == 'fused' and metric == 'csa'").iloc[0]
     assert 0.0 <= fused_csa["lo"] <= fused_csa["hi"] <= 1.0
@@ -123,6 +130,18 @@ def test_report_has_tables_checks_and_figures(sessions, tmp_path):
     paths["metrics.json"].write_text(json.dumps(doc))
     summary = suite.suite_summary(tmp_path / "report")
     assert "paper6 (1 sessions)" in summary and "curbside fused" in summary and "done when:" in summary
+
+
+def test_benchmark_cli_refuses_a_bad_ipin_ronin_before_simulating(tmp_path, capsys):
+    out = tmp_path / "out"
+    assert main(["benchmark", "--ipin-ronin", str(MS_ONLY), "-o", str(out)]) == 2
+    assert capsys.readouterr().err.strip().splitlines()[-1] == (
+        "localize: error: --ipin-ronin: needs --ipin (the trials to score)")
+    missing = tmp_path / "none.pt"
+    assert main(["benchmark", "--ipin", str(IPIN_CUT), "--ipin-ronin", str(missing), "-o", str(out)]) == 2
+    assert capsys.readouterr().err.strip().splitlines()[-1] == (
+        f"localize: error: {missing}: no such RoNIN weights/config file")
+    assert not out.exists()
 
 
 def test_benchmark_cli_bad_input(tmp_path, capsys):

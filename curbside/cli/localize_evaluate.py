@@ -12,7 +12,8 @@
                       [--workers N | --scheduler ADDRESS] [--ipin H5 [--ipin-trials K]] -o REPORT_DIR
                       [--overwrite]
     localize benchmark [--profile phone|nominal] [--split test|tune] [--subsets paper6 downtown open]
-                       [--seeds 3] [--map MAP] [--datasf-tiles T ...] [--ipin H5] [--workers 2] -o OUT
+                       [--seeds 3] [--map MAP] [--datasf-tiles T ...] [--ipin H5 [--ipin-ronin PT]]
+                       [--workers 2] -o OUT
 
 ``SESSIONS`` are session folders or folders of them. Each list option with several values is a
 parameter sweep (one at a time around the base values); all runs go to one report. ``benchmark``
@@ -176,6 +177,12 @@ def _benchmark(args: argparse.Namespace) -> int:
     for path in [*(args.datasf_tiles or []), *([args.ipin] if args.ipin else [])]:
         if not Path(path).is_file():
             raise CurbsideInputError(path, "no such file")
+    if args.ipin_ronin:
+        if not args.ipin:
+            raise CurbsideInputError("--ipin-ronin", "needs --ipin (the trials to score)")
+        from curbside.localize.ronin.infer import load_model
+
+        load_model(args.ipin_ronin)  # a missing or unreadable model fails now, not after the walks
     config = SuiteConfig(
         profile=args.profile,
         split=args.split,
@@ -196,6 +203,7 @@ def _benchmark(args: argparse.Namespace) -> int:
         workers=args.workers,
         scheduler=args.scheduler,
         ipin=args.ipin,
+        ipin_ronin=args.ipin_ronin,
     )
     print(suite_summary(paths["report"]), end="")
     print(f"{paths['report.html']}")
@@ -315,6 +323,10 @@ def _register_benchmark(subparsers: argparse._SubParsersAction) -> None:
         "--datasf-tiles", nargs="+", help="DataSF 2013 building tiles: add the DataSF-buildings map"
     )
     bench.add_argument("--ipin", help="IPIN 2023 HDF5: also score the held-out trials (real phones, no map)")
+    bench.add_argument("--ipin-ronin", metavar="PT",
+                       help="RoNIN weights never trained on IPIN (e.g. benchmarks/weights/ronin_ms_only.pt): "
+                       "also score every IPIN trial with them, as for a phone and place the model has not "
+                       "seen (reported, not a done-when check)")
     bench.add_argument("--particles", type=positive_int, default=500,
                        help="particles per filter (default 500)")
     bench.add_argument("--seed", type=int, default=0, help="filter seed (default 0)")

@@ -7,10 +7,11 @@ the paper's tables beside the paper's numbers.
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import logging
 from pathlib import Path
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 import pandas as pd
@@ -346,6 +347,7 @@ def ipin_errors(
     held_out: bool = False,
     extra_runs: dict[str, RunConfig] | None = None,
     training: bool = False,
+    ronin_weights: str | Path | None = None,
 ) -> tuple[dict[str, np.ndarray], list[dict], int]:
     """Every method's errors at the surveyed IPIN 2023 waypoints (real data, no map).
 
@@ -368,6 +370,9 @@ def ipin_errors(
     training
         Only the trials the bundled RoNIN model was trained on (not ``repetition04``): where filter
         parameters may be chosen.
+    ronin_weights
+        RoNIN weights (``.pt`` with its ``.json``) whose velocity every method tracks with (default: the
+        bundled model). Each trial's velocity is inferred once and shared by the methods.
 
     Returns
     -------
@@ -377,44 +382,60 @@ def ipin_errors(
     """
     from curbside.localize.readers.ipin import list_trials, read_trial
     from curbside.localize.ronin.data import IPIN_TEST_MARK
+    from curbside.localize.ronin.infer import load_model
 
     names = [
         n for n in list_trials(h5)
         if (not held_out or IPIN_TEST_MARK in n) and not (training and IPIN_TEST_MARK in n)
     ][: trials or None]
     runs = {m: RunConfig.for_mode(m) for m in METHODS} | dict(extra_runs or {})
+    model = load_model(ronin_weights)
     errors: dict[str, list[np.ndarray]] = {m: [] for m in runs}
     rows = []
     for name in names:
-        session = read_trial(h5, name)
-        if session.waypoints is None or len(session.waypoints) < 2:
+        session = _with_velocity(read_trial(h5, name), model)
+        if session is None or session.waypoints is None or len(session.waypoints) < 2:
             continue
-        frame = LocalFrame.around(
-            float(session.waypoints["lon"].iat[0]), float(session.waypoints["lat"].iat[0])
-        )
-        wt, wx, wy = waypoints_xy(session.waypoints, frame)
         tracks = _track_every_run(session, runs, seed, name)
         if len(tracks) < len(runs):
             continue
-        # score every method at the same waypoints: inside every track's span, the start one excluded
-        common = np.arange(len(wt)) > 0
-        for track in tracks.values():
-            common &= (wt >= track["t"].iat[0]) & (wt <= track["t"].iat[-1])
-        for method, track in tracks.items():
-            x, y = frame.to_xy(track["lon"].to_numpy(), track["lat"].to_numpy())
-            t = track["t"].to_numpy()
-            e = np.hypot(np.interp(wt[common], t, x) - wx[common], np.interp(wt[common], t, y) - wy[common])
+        for method, e in _waypoint_errors(session.waypoints, tracks).items():
             errors[method].append(e)
-            rows.append(
-                {
-                    "trial": name,
-                    "method": method,
-                    "n_waypoints": int(common.sum()),
-                    "median_m": float(np.median(e)) if len(e) else None,
-                }
-            )
+            median = float(np.median(e)) if len(e) else None
+            rows.append({"trial": name, "method": method, "n_waypoints": len(e), "median_m": median})
     pooled = {m: np.concatenate(v) if v else np.array([]) for m, v in errors.items()}
     return pooled, rows, len(names)
+
+
+def _waypoint_errors(waypoints: pd.DataFrame, tracks: dict[str, Any]) -> dict[str, np.ndarray]:
+    """Each track's error (m) at the same surveyed waypoints: those inside every track's span, the
+    start one excluded."""
+    frame = LocalFrame.around(float(waypoints["lon"].iat[0]), float(waypoints["lat"].iat[0]))
+    wt, wx, wy = waypoints_xy(waypoints, frame)
+    common = np.arange(len(wt)) > 0
+    for track in tracks.values():
+        common &= (wt >= track["t"].iat[0]) & (wt <= track["t"].iat[-1])
+    errors = {}
+    for method, track in tracks.items():
+        x, y = frame.to_xy(track["lon"].to_numpy(), track["lat"].to_numpy())
+        t = track["t"].to_numpy()
+        dx, dy = np.interp(wt[common], t, x) - wx[common], np.interp(wt[common], t, y) - wy[common]
+        errors[method] = np.hypot(dx, dy)
+    return errors
+
+
+def _with_velocity(session: Session, model: Any) -> Session | None:
+    """The trial with its RoNIN velocity from ``model`` (``None``, logged, when it has none)."""
+    from curbside.localize.ronin.infer import ronin_velocity
+
+    if session.imu is None:
+        return session
+    try:
+        velocity = ronin_velocity(session.imu, model, source=f"{session.name}/imu.csv")
+    except CurbsideInputError as exc:
+        log.warning("IPIN %s skipped: %s", session.name, exc)
+        return None
+    return dataclasses.replace(session, velocity=velocity)
 
 
 def _track_every_run(session: Session, runs: dict[str, RunConfig], seed: int, name: str) -> dict[str, Any]:
@@ -446,6 +467,36 @@ def ipin_table(
     return tables, rows
 
 
+class IpinScores(NamedTuple):
+    """One scoring of the IPIN trials in a benchmark report.
+
+    Attributes
+    ----------
+    key
+        Its ``metrics.json`` key: the pooled figures go there, the intervals to ``key + "_intervals_95"``.
+    summary
+        ``{method: {"n", "median_m", "p90_m"}}`` pooled over trials and filter seeds.
+    table
+        The errors table (:func:`ipin_errors_table`).
+    intervals
+        Trial-bootstrap intervals of curbside fused and its differences (empty when no trial scored).
+    sure_title
+        Title of the intervals' table.
+    """
+
+    key: str
+    summary: dict[str, dict[str, float]]
+    table: Table
+    intervals: pd.DataFrame
+    sure_title: str
+
+    def tables(self) -> list[Table]:
+        """The errors table and, when a trial was scored, the "how sure" table."""
+        if self.intervals.empty:
+            return [self.table]
+        return [self.table, ipin_interval_table(self.intervals, self.sure_title)]
+
+
 def ipin_interval_table(intervals: pd.DataFrame, title: str) -> Table:
     """The IPIN trials' "how sure" table: curbside fused and its paired differences."""
     fused = intervals[intervals["method"].str.startswith("fused")]
@@ -453,10 +504,15 @@ def ipin_interval_table(intervals: pd.DataFrame, title: str) -> Table:
 
 
 def ipin_errors_table(
-    errors: dict[str, np.ndarray], n_trials: int, held_out: bool = False, seeds: int = 1
+    errors: dict[str, np.ndarray],
+    n_trials: int,
+    held_out: bool = False,
+    seeds: int = 1,
+    ronin_weights: str | Path | None = None,
 ) -> Table:
     """The table of :func:`ipin_errors`' pooled errors: waypoints, median, p90 and mean per run
-    (``seeds``: how many filter seeds the errors pool, each scoring every waypoint once)."""
+    (``seeds``: how many filter seeds the errors pool, each scoring every waypoint once;
+    ``ronin_weights``: the RoNIN model the methods tracked with, when not the bundled one)."""
     table_rows = []
     for m, e in errors.items():
         table_rows.append(
@@ -470,8 +526,16 @@ def ipin_errors_table(
         )
     which = "held-out " if held_out else ""
     pooled = f" x {seeds} filter seeds" if seeds > 1 else ""
+    model, note = "", ""
+    if ronin_weights:
+        model = f", RoNIN {Path(ronin_weights).name}"
+        note = (f"Every method tracks with the velocity of {Path(ronin_weights).name}, a RoNIN model that "
+                "was not trained on these trials: the case of a phone and a place the model has not seen. "
+                "Reported beside the done-when checks, which use the bundled model on the held-out trials.")
     return Table(
-        f"IPIN 2023 Track 3 ({n_trials} {which}trials{pooled}, no map): error at surveyed waypoints (m)",
+        f"IPIN 2023 Track 3 ({n_trials} {which}trials{pooled}, no map{model}): "
+        "error at surveyed waypoints (m)",
         ["method", "waypoints", "median", "p90", "mean"],
         table_rows,
+        note,
     )

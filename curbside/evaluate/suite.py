@@ -27,7 +27,7 @@ import pandas as pd
 import curbside
 from curbside.errors import CurbsideInputError
 from curbside.evaluate import criteria
-from curbside.evaluate.benchmark import datasf_osm_map, snapshot_times
+from curbside.evaluate.benchmark import IpinScores, datasf_osm_map, snapshot_times
 from curbside.evaluate.runner import SMOOTHED_METHOD, RunSpec, pool, run_all, smoothed_results, subset_of
 from curbside.evaluate.simulate import PROFILES, SimulationConfig
 from curbside.evaluate.subsets import DEFAULT_ROUTES, SPLITS, SUBSETS, benchmark_sessions, load_world
@@ -210,12 +210,11 @@ def _git_commit() -> str | None:
     return out.stdout.strip() or None
 
 
-def _ipin_summary(
-    h5: str | Path, seeds: range
-) -> tuple[dict[str, dict[str, float]], Any, pd.DataFrame]:
-    """Every method and version 0.1's fused filter on the held-out IPIN trials, at the same waypoints,
-    pooled over the filter ``seeds``: pooled figures, their table, and trial-bootstrap intervals
-    (fused against 0.1 and the baselines)."""
+def _ipin_summary(h5: str | Path, seeds: range, ronin_weights: str | Path | None = None) -> IpinScores:
+    """Every method and version 0.1's fused filter on the IPIN trials, at the same waypoints, pooled
+    over the filter ``seeds``: pooled figures, their table, and trial-bootstrap intervals (fused
+    against 0.1 and the baselines). With the bundled RoNIN, the held-out trials; with
+    ``ronin_weights`` (a model that never saw the venue), every trial."""
     from curbside.evaluate.benchmark import ipin_errors, ipin_errors_table
     from curbside.evaluate.uncertainty import waypoint_intervals
     from curbside.localize.runconfig import RunConfig
@@ -225,7 +224,8 @@ def _ipin_summary(
     rows: list[dict] = []
     for seed in seeds:
         by_method, seed_rows, n_trials = ipin_errors(
-            h5, seed=seed, held_out=True, extra_runs={criteria.IPIN_BASELINE_RUN: reference}
+            h5, seed=seed, held_out=ronin_weights is None, ronin_weights=ronin_weights,
+            extra_runs={criteria.IPIN_BASELINE_RUN: reference},
         )
         for method, e in by_method.items():
             errors.setdefault(method, []).append(e)
@@ -238,7 +238,31 @@ def _ipin_summary(
     }
     baselines = (criteria.IPIN_BASELINE_RUN, "paper", "gnss")
     intervals = waypoint_intervals(errors, rows, "fused", baselines, seed=seeds[0])
-    return summary, ipin_errors_table(errors, n_trials, held_out=True, seeds=len(seeds)), intervals
+    table = ipin_errors_table(errors, n_trials, ronin_weights is None, len(seeds), ronin_weights)
+    if ronin_weights is None:
+        return IpinScores("ipin_held_out", summary, table, intervals, "IPIN 2023 held-out: how sure (m)")
+    title = f"IPIN 2023, RoNIN {Path(ronin_weights).name}: how sure (m)"
+    return IpinScores("ipin_unseen_ronin", summary, table, intervals, title)
+
+
+def _ipin_scorings(
+    ipin: str | Path, ipin_ronin: str | Path | None, config: SuiteConfig
+) -> list[IpinScores]:
+    """The held-out IPIN trials with the bundled RoNIN, then (with ``ipin_ronin``) all of them with it."""
+    seeds = range(config.filter_seed, config.filter_seed + config.filter_seeds)
+    scorings = [_ipin_summary(ipin, seeds)]
+    if ipin_ronin:
+        scorings.append(_ipin_summary(ipin, seeds, ipin_ronin))
+    return scorings
+
+
+def _ipin_info(ipin: str | Path | None, ipin_ronin: str | Path | None) -> dict[str, Any]:
+    """``run.json``'s IPIN entries."""
+    return {
+        "ipin": str(ipin) if ipin else None,
+        "ipin_baseline_overrides": criteria.FUSED_0_1_OVERRIDES if ipin else None,
+        "ipin_ronin": str(ipin_ronin) if ipin and ipin_ronin else None,
+    }
 
 
 def _maps(
@@ -331,6 +355,7 @@ def run_suite(
     scheduler: str | None = None,
     ipin: str | Path | None = None,
     osm_file: str | Path | None = None,
+    ipin_ronin: str | Path | None = None,
 ) -> dict[str, Path]:
     """Simulate, track, score and report a benchmark in one seeded run.
 
@@ -352,6 +377,9 @@ def run_suite(
         ``ipin2023-t3.h5``: also score the held-out IPIN trials (real phones, no map).
     osm_file
         OSM extract for the simulator (default: the bundled one).
+    ipin_ronin
+        RoNIN weights never trained on IPIN (with ``ipin``): also score every trial with their velocity
+        (a phone and place the model has not seen; reported, not judged by the criteria).
 
     Returns
     -------
@@ -370,7 +398,6 @@ def run_suite(
     start = time.perf_counter()
     sessions = simulate_suite(out_dir, config, osm_file)
     timings["simulate_s"] = time.perf_counter() - start
-
     specs = plan_suite(sessions, maps, config)
     log.info("benchmark: %d runs over %d sessions", len(specs), sum(map(len, sessions.values())))
     start = time.perf_counter()
@@ -378,27 +405,24 @@ def run_suite(
     results += smoothed_results(results)
     timings["track_s"] = time.perf_counter() - start
 
-    ipin_summary, ipin_tab, ipin_intervals = (None, None, None)
+    start = time.perf_counter()
+    ipin_scores = _ipin_scorings(ipin, ipin_ronin, config) if ipin else []
     if ipin:
-        start = time.perf_counter()
-        seeds = range(config.filter_seed, config.filter_seed + config.filter_seeds)
-        ipin_summary, ipin_tab, ipin_intervals = _ipin_summary(ipin, seeds)
         timings["ipin_s"] = time.perf_counter() - start
 
-    pooled, per_session, checks = _scores(results, config, maps, ipin_summary)
+    held_out = ipin_scores[0].summary if ipin_scores else None
+    pooled, per_session, checks = _scores(results, config, maps, held_out)
     run_info = {
         **_run_info(config, maps, specs, sessions),
         "datasf_tiles": [str(t) for t in datasf_tiles or []],
-        "ipin": str(ipin) if ipin else None,
-        "ipin_baseline_overrides": criteria.FUSED_0_1_OVERRIDES if ipin else None,
+        **_ipin_info(ipin, ipin_ronin),
         "workers": workers,
         "scheduler": scheduler,
     }
     start = time.perf_counter()
     layers = read_map(maps[OSM_MAP])
     tables_in = (pooled, per_session, checks, layers, run_info, timings)
-    ipin_in = (ipin_summary, ipin_tab, ipin_intervals)
-    paths = write_suite_report(results, out_dir / "report", config, *tables_in, *ipin_in)
+    paths = write_suite_report(results, out_dir / "report", config, *tables_in, ipin_scores)
     log.info("report written in %.0f s", time.perf_counter() - start)
     return {"report": out_dir / "report", **paths}
 

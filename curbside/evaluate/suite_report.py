@@ -18,7 +18,7 @@ import pandas as pd
 import curbside
 from curbside import settings
 from curbside.evaluate import criteria
-from curbside.evaluate.benchmark import ipin_interval_table
+from curbside.evaluate.benchmark import IpinScores
 from curbside.evaluate.figures import (
     fig_cdf,
     fig_particles,
@@ -198,11 +198,9 @@ def session_table(
     return Table(f"Per session, {subset}, w = {w:g}, map 'osm'", header, rows, note)
 
 
-def interval_tables(
-    results: list[dict], ipin_intervals: pd.DataFrame | None, config
-) -> tuple[dict[str, Table | None], dict[str, Any]]:
-    """The "how sure" tables (``subsets``, ``maps``, ``ipin``; ``None`` where not run) and their rows
-    for ``metrics.json``."""
+def interval_tables(results: list[dict], config) -> tuple[dict[str, Table | None], dict[str, Any]]:
+    """The "how sure" tables of the walks (``subsets``, ``maps``; ``None`` where not run) and their
+    rows for ``metrics.json``."""
     w = config.jaywalk_weight
     base = {"map": "osm", "jaywalk_weight": w}
     intervals = subset_intervals(results, base, seed=config.filter_seed)
@@ -210,17 +208,23 @@ def interval_tables(
     note = INTERVAL_NOTE.format(unit="subset's sessions", points="footsteps", one="session") + (
         " The three sessions of a route are resampled as independent, so the intervals are, if "
         "anything, too narrow for the routes themselves.")
-    has_ipin = ipin_intervals is not None and not ipin_intervals.empty
     tables = {
         "subsets": None if intervals.empty else interval_table(
             intervals, f"How sure: 95 % intervals, w = {w:g}, map 'osm'", note),
         "maps": None if maps.empty else interval_table(
             maps, f"How sure: map sources, curbside fused, w = {w:g}", MAP_INTERVAL_NOTE),
-        "ipin": ipin_interval_table(ipin_intervals, "IPIN 2023 held-out: how sure (m)") if has_ipin else None,
     }
-    rows = {"intervals_95": records(intervals), "map_intervals_95": records(maps),
-            "ipin_intervals_95": records(ipin_intervals) if has_ipin else None}
-    return tables, rows
+    return tables, {"intervals_95": records(intervals), "map_intervals_95": records(maps)}
+
+
+def ipin_json(ipin_scores: list[IpinScores]) -> dict[str, Any]:
+    """``metrics.json``'s IPIN entries: each scoring's pooled figures and intervals (``None`` if not run)."""
+    doc: dict[str, Any] = {"ipin_held_out": None, "ipin_intervals_95": None}
+    for scores in ipin_scores:
+        doc[scores.key] = scores.summary
+        intervals_key = "ipin_intervals_95" if scores.key == "ipin_held_out" else f"{scores.key}_intervals_95"
+        doc[intervals_key] = records(scores.intervals) if not scores.intervals.empty else None
+    return doc
 
 
 def checks_table(checks: list[criteria.Check]) -> Table:
@@ -309,7 +313,7 @@ def _tables(
     counts: dict[str, int],
     events: dict[str, dict],
     run_info: dict[str, Any],
-    ipin_table: Table | None,
+    ipin_scores: list[IpinScores],
     sure: dict[str, Table | None],
 ) -> list[Table]:
     """Every table of the report, in order."""
@@ -321,8 +325,8 @@ def _tables(
         sweep = sweep_table(pooled, subset)
         if sweep is not None:
             tables.append(sweep)
-    tables += [t for t in (sure["subsets"], map_table(pooled, w), sure["maps"], ipin_table, sure["ipin"])
-               if t is not None]
+    tables += [t for t in (sure["subsets"], map_table(pooled, w), sure["maps"]) if t is not None]
+    tables += [t for scores in ipin_scores for t in scores.tables()]
     tables.append(profile_table(run_info["simulation"]))
     tables += [session_table(per_session, s, w, events, limit) for s in config.subsets]
     return tables
@@ -366,11 +370,10 @@ def write_suite_report(
     layers: MapLayers | None,
     run_info: dict[str, Any],
     timings: dict[str, float],
-    ipin_summary: dict[str, dict[str, float]] | None = None,
-    ipin_table: Table | None = None,
-    ipin_intervals: pd.DataFrame | None = None,
+    ipin_scores: list[IpinScores] | None = None,
 ) -> dict[str, Path]:
-    """Write ``report.md``, ``report.html``, ``metrics.json``, ``run.json`` and ``figures/`` atomically."""
+    """Write ``report.md``, ``report.html``, ``metrics.json``, ``run.json`` and ``figures/`` atomically
+    (``ipin_scores``: the held-out IPIN trials first, then any other scoring of them)."""
     from curbside.evaluate.suite import pooled_by_subset
 
     out_dir = Path(out_dir)
@@ -382,8 +385,9 @@ def write_suite_report(
     events = {name: _events(path) for name, path in session_dirs.items()}
     ratios = criteria.session_ratios(per_session, "osm", w)
     pooled_path = _base(pooled_by_subset(results, ("path",)), w)
-    sure, sure_rows = interval_tables(results, ipin_intervals, config)
-    tables = _tables(pooled, per_session, checks, config, counts, events, run_info, ipin_table, sure)
+    ipin_scores = ipin_scores or []
+    sure, sure_rows = interval_tables(results, config)
+    tables = _tables(pooled, per_session, checks, config, counts, events, run_info, ipin_scores, sure)
     intro = _intro(config, counts, pooled, len(results), timings, run_info["workers"], checks)
     doc = {
         "generator": f"curbside {curbside.__version__}",
@@ -399,7 +403,7 @@ def write_suite_report(
         "per_session": records(per_session),
         "session_ratios": records(ratios),
         "session_events": events,
-        "ipin_held_out": ipin_summary,
+        **ipin_json(ipin_scores),
         "timings_s": timings,
     }
     with atomic_path(out_dir) as tmp:
