@@ -90,6 +90,32 @@ def test_without_footsteps_the_filter_advances_on_the_time_grid(tmp_path):
     assert 0.8 < np.median(speed) < 1.8
 
 
+def test_standing_rule_stops_phantom_motion_but_not_a_walk_with_missed_steps(tmp_path):
+    folder = write_walk(tmp_path / "walk", duration_s=20.0)
+    steps = pd.read_csv(folder / "steps.csv")
+    steps[(steps["t"] < 5.0) | (steps["t"] > 12.0)].to_csv(folder / "steps.csv", index=False)
+    walking = read_session(folder)
+    velocity = walking.velocity.copy()
+    still = (velocity["t"] > 5.0) & (velocity["t"] < 12.0)
+    velocity.loc[still, ["ve", "vn"]] = [0.25, -0.15]  # a handled phone's drift while standing
+    standing = read_session(folder)
+    standing.velocity = velocity
+
+    def gap_speed(session, standing_speed_mps):
+        config = RunConfig.for_mode("inertial", seed=0).with_overrides(
+            {"engine.standing_speed_mps": standing_speed_mps})
+        track = track_session(session, block_layers(), config=config).track
+        gap = track[(track["t"] > 5.5) & (track["t"] < 12.0)]
+        assert (gap["update"] == "time").all()
+        return np.median(np.hypot(np.diff(gap["x_m"]), np.diff(gap["y_m"])) / np.diff(gap["t"]))
+
+    assert 0.2 < gap_speed(standing, 0.0) < 0.4  # off: the drift moves the walker
+    assert gap_speed(standing, 0.6) < 0.05  # on: no footsteps and slow, so standing
+    assert 0.8 < gap_speed(walking, 0.6) < 1.8  # missed footsteps at walking pace still move
+    with pytest.raises(ValueError, match="standing speed"):
+        EngineConfig(standing_speed_mps=-1.0)
+
+
 def test_fix_store_interpolates_holds_expires_and_applies_each_fix_once():
     store = FixStore("interpolate", interp_max_gap_s=2.0, max_fix_age_s=3.0)
     tf = np.array([0.0, 1.0, 2.0, 10.0])

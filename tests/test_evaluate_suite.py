@@ -96,6 +96,7 @@ def test_report_has_tables_checks_and_figures(sessions, tmp_path):
     md = paths["report.md"].read_text()
     assert "no map, RoNIN ronin_ms_only.pt): error at surveyed waypoints" in md
     assert "IPIN 2023, RoNIN ronin_ms_only.pt: how sure (m)" in md and "not trained on these trials" in md
+    assert "| curbside fused, standing rule |" in md
     assert "Done when (issue 9)" in md and "| fused beats the paper's method on CSA | paper6 |" in md
     assert "paper PF" in md and "curbside fused" in md and "Per session, open" in md
     assert "Table 2. Correct Sidewalk Assignment by jaywalk weight, paper6" in md

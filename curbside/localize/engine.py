@@ -12,7 +12,9 @@ When the filter updates:
 
 - at every footstep (the paper), and
 - when no footstep has come for ``max_update_interval_s``, on that time grid (a detector that misses
-  steps, or a walker standing at a crossing, never leaves a stretch untracked).
+  steps, or a walker standing at a crossing, never leaves a stretch untracked). With
+  ``engine.standing_speed_mps``, such an update whose inertial speed is under that bound is a walker
+  standing still: the velocity model's drift while the phone is handled moves no particle.
 
 The first update is the start: the known start pose (``meta.json``) at its time, with the heading
 offset that turns the first ``heading_align_distance_m`` of inertial motion onto the start heading; or,
@@ -139,6 +141,8 @@ class SessionEngine:
         self.start = start if config.use_start_pose else None
         self.t_begin = -math.inf if t_begin is None else float(t_begin)
         self.displacement = DisplacementIntegrator(e.velocity_max_gap_s, step_means_velocity)
+        #: Below this inertial speed, a time-grid update is standing (needs real footsteps).
+        self.standing_speed = 0.0 if cadence or step_means_velocity else e.standing_speed_mps
         self.steps = StepTimes(e.cadence_s if cadence else None)
         self.fixes = FixStore(e.fix_association, e.interp_max_gap_s, e.max_fix_age_s)
         self.rows: list[Row] = []
@@ -316,8 +320,11 @@ class SessionEngine:
                 self._record(Row(t, fix.x, fix.y, kind, True))
         else:
             d = self.displacement.at(t)
+            moved = d - s.prev_d
+            if kind == "time" and math.hypot(*moved) < self.standing_speed * (t - s.prev_t):
+                moved = np.zeros(2)  # no footstep and hardly any inertial speed: standing
             use = fix if self.config.mode in ("paper", "fused") else None
-            estimate = self.tracker.step(t, displacement_en=d - s.prev_d, gnss_fix=use)
+            estimate = self.tracker.step(t, displacement_en=moved, gnss_fix=use)
             self._record_estimate(estimate, kind, self.tracker.usable(use))
             s.prev_d = d
         s.prev_t = t

@@ -53,6 +53,12 @@ class EngineConfig:
         See ``fix_association``.
     velocity_max_gap_s
         Velocity samples further apart are a gap: no motion is integrated across it.
+    standing_speed_mps
+        A time-grid update (no footstep for ``max_update_interval_s``) whose inertial speed over the
+        interval is under this counts as standing: the particles do not move (0: off). A velocity
+        model reads a few tenths of a m/s for a phone in the hand of someone standing still; the
+        speed bound keeps a walk whose footsteps the detector misses moving. Needs footsteps (a file
+        or the detector), not a fixed cadence.
     heading_align_distance_m
         With a known start heading, the heading offset turns the first this-many metres of inertial
         motion onto it.
@@ -76,6 +82,7 @@ class EngineConfig:
     interp_max_gap_s: float = 2.0
     max_fix_age_s: float = 3.0
     velocity_max_gap_s: float = 1.0
+    standing_speed_mps: float = 0.0
     heading_align_distance_m: float = 3.0
     extent_tolerance_m: float = 100.0
     steps: StepConfig = field(default_factory=StepConfig)
@@ -105,9 +112,10 @@ class EngineConfig:
                 self.max_fix_age_s,
                 self.heading_align_distance_m,
                 self.extent_tolerance_m,
+                self.standing_speed_mps,
             )
             >= 0,
-            "fix gaps, align distance and extent tolerance must be >= 0",
+            "fix gaps, align distance, extent tolerance and standing speed must be >= 0",
         )
 
     @property
