@@ -322,7 +322,8 @@ def _register_benchmark(subparsers: argparse._SubParsersAction) -> None:
     bench.add_argument(
         "--datasf-tiles", nargs="+", help="DataSF 2013 building tiles: add the DataSF-buildings map"
     )
-    bench.add_argument("--ipin", help="IPIN 2023 HDF5: also score the held-out trials (real phones, no map)")
+    bench.add_argument("--ipin", metavar="H5",
+                       help="IPIN 2023 HDF5: also score the held-out trials (real phones, no map)")
     bench.add_argument("--ipin-ronin", metavar="PT",
                        help="RoNIN weights never trained on IPIN (e.g. benchmarks/weights/ronin_ms_only.pt): "
                        "also score every IPIN trial with them, as for a phone and place the model has not "
