@@ -472,8 +472,8 @@ class IpinScores(NamedTuple):
 
     Attributes
     ----------
-    key
-        Its ``metrics.json`` key: the pooled figures go there, the intervals to ``key + "_intervals_95"``.
+    key, intervals_key
+        Its ``metrics.json`` keys: of the pooled figures and of the intervals.
     summary
         ``{method: {"n", "median_m", "p90_m"}}`` pooled over trials and filter seeds.
     table
@@ -485,6 +485,7 @@ class IpinScores(NamedTuple):
     """
 
     key: str
+    intervals_key: str
     summary: dict[str, dict[str, float]]
     table: Table
     intervals: pd.DataFrame

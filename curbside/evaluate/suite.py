@@ -218,9 +218,9 @@ STANDING_RULE_OVERRIDES: dict[str, object] = {"engine.standing_speed_mps": 0.6}
 
 
 def _ipin_summary(h5: str | Path, seeds: range, ronin_weights: str | Path | None = None) -> IpinScores:
-    """Every method and version 0.1's fused filter on the IPIN trials, at the same waypoints, pooled
-    over the filter ``seeds``: pooled figures, their table, and trial-bootstrap intervals (fused
-    against 0.1 and the baselines). With the bundled RoNIN, the held-out trials; with
+    """Every method, version 0.1's fused filter and the standing rule on the IPIN trials, at the same
+    waypoints, pooled over the filter ``seeds``: pooled figures, their table, and trial-bootstrap
+    intervals (fused against 0.1 and the baselines). With the bundled RoNIN, the held-out trials; with
     ``ronin_weights`` (a model that never saw the venue), every trial."""
     from curbside.evaluate.benchmark import ipin_errors, ipin_errors_table
     from curbside.evaluate.uncertainty import waypoint_intervals
@@ -248,9 +248,10 @@ def _ipin_summary(h5: str | Path, seeds: range, ronin_weights: str | Path | None
     intervals = waypoint_intervals(errors, rows, "fused", baselines, seed=seeds[0])
     table = ipin_errors_table(errors, n_trials, ronin_weights is None, len(seeds), ronin_weights)
     if ronin_weights is None:
-        return IpinScores("ipin_held_out", summary, table, intervals, "IPIN 2023 held-out: how sure (m)")
+        title = "IPIN 2023 held-out: how sure (m)"
+        return IpinScores("ipin_held_out", "ipin_intervals_95", summary, table, intervals, title)
     title = f"IPIN 2023, RoNIN {Path(ronin_weights).name}: how sure (m)"
-    return IpinScores("ipin_unseen_ronin", summary, table, intervals, title)
+    return IpinScores("ipin_unseen_ronin", "ipin_unseen_ronin_intervals_95", summary, table, intervals, title)
 
 
 def _ipin_scorings(

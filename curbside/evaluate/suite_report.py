@@ -219,11 +219,11 @@ def interval_tables(results: list[dict], config) -> tuple[dict[str, Table | None
 
 def ipin_json(ipin_scores: list[IpinScores]) -> dict[str, Any]:
     """``metrics.json``'s IPIN entries: each scoring's pooled figures and intervals (``None`` if not run)."""
-    doc: dict[str, Any] = {"ipin_held_out": None, "ipin_intervals_95": None}
+    doc: dict[str, Any] = dict.fromkeys(
+        ("ipin_held_out", "ipin_intervals_95", "ipin_unseen_ronin", "ipin_unseen_ronin_intervals_95"))
     for scores in ipin_scores:
         doc[scores.key] = scores.summary
-        intervals_key = "ipin_intervals_95" if scores.key == "ipin_held_out" else f"{scores.key}_intervals_95"
-        doc[intervals_key] = records(scores.intervals) if not scores.intervals.empty else None
+        doc[scores.intervals_key] = records(scores.intervals) if not scores.intervals.empty else None
     return doc
 
 
