@@ -393,8 +393,11 @@ def ipin_errors(
     errors: dict[str, list[np.ndarray]] = {m: [] for m in runs}
     rows = []
     for name in names:
-        session = _with_velocity(read_trial(h5, name), model)
-        if session is None or session.waypoints is None or len(session.waypoints) < 2:
+        session = read_trial(h5, name)
+        if session.waypoints is None or len(session.waypoints) < 2:
+            continue  # nothing to score: no RoNIN inference either
+        session = _with_velocity(session, model)
+        if session is None:
             continue
         tracks = _track_every_run(session, runs, seed, name)
         if len(tracks) < len(runs):
