@@ -216,3 +216,25 @@ def test_run_json_replays_the_same_track_byte_for_byte(tmp_path, monkeypatch):
         fix_association="once"
     )
     assert replayed.filter.n_particles == 300 and replayed.seed == 5
+
+
+def test_unseen_velocity_flag_applies_its_preset_and_set_wins(tmp_path, monkeypatch):
+    import json
+
+    from curbside.cli.localize import main
+    from curbside.localize.runconfig import UNSEEN_VELOCITY_OVERRIDES
+
+    monkeypatch.setattr(settings, "cache_dir", tmp_path / "cache")
+    folder = write_walk(tmp_path / "walk", duration_s=10.0)
+
+    def config(*options):
+        out = tmp_path / f"run{len(list(tmp_path.glob('run*')))}"
+        assert main(["run", str(folder), *options, "-o", str(out)]) == 0
+        return RunConfig.from_dict(json.loads((out / "run.json").read_text())["config"])
+
+    plain, unseen = config(), config("--unseen-velocity")
+    assert plain.filter.motion.step_noise_fraction == 0.25 and plain.engine.standing_speed_mps == 0.0
+    assert unseen == plain.with_overrides(UNSEEN_VELOCITY_OVERRIDES)
+    assert unseen.filter.motion.step_noise_fraction == 0.55 and unseen.engine.standing_speed_mps == 0.6
+    mixed = config("--unseen-velocity", "--set", "engine.standing_speed_mps=0.3")
+    assert mixed.engine.standing_speed_mps == 0.3 and mixed.filter.motion.step_noise_fraction == 0.55

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import json
 from pathlib import Path
 
@@ -68,6 +69,26 @@ def test_more_filter_seeds_repeat_every_filter_run_but_not_gnss(sessions):
         suite.SuiteConfig(filter_seeds=0)
 
 
+def test_unseen_velocity_runs_curbside_fused_with_the_preset_and_nothing_else(sessions):
+    from curbside.localize.runconfig import UNSEEN_VELOCITY_OVERRIDES
+
+    maps = {"osm": str(MAP), "datasf": str(MAP)}
+    subsets = ("paper6", "open")
+    plain = suite.plan_suite(sessions, maps, suite.SuiteConfig(subsets=subsets))
+    preset = suite.plan_suite(sessions, maps, suite.SuiteConfig(subsets=subsets, unseen_velocity=True))
+    assert [dataclasses.replace(s, overrides=()) for s in preset] == plain
+    assert all(dict(s.overrides) == UNSEEN_VELOCITY_OVERRIDES for s in preset if s.method == "fused")
+    assert not any(s.overrides for s in preset if s.method != "fused")
+    assert sum(s.method == "fused" and s.map_name == "datasf" for s in preset) == 2
+    runs = suite._ipin_runs(suite.SuiteConfig())
+    judged = suite._ipin_runs(suite.SuiteConfig(unseen_velocity=True))
+    assert set(runs) == {criteria.IPIN_BASELINE_RUN, suite.UNSEEN_VELOCITY_RUN}
+    assert set(judged) == {criteria.IPIN_BASELINE_RUN, "fused"}
+    assert judged["fused"] == runs[suite.UNSEEN_VELOCITY_RUN]
+    assert judged[criteria.IPIN_BASELINE_RUN] == runs[criteria.IPIN_BASELINE_RUN]
+    assert judged["fused"].engine.standing_speed_mps == 0.6
+
+
 @pytest.mark.slow
 def test_report_has_tables_checks_and_figures(sessions, tmp_path):
     config = suite.SuiteConfig(subsets=("paper6", "open"), sweep_weights=(0.0, 0.4), particles=100,
@@ -91,12 +112,12 @@ def test_report_has_tables_checks_and_figures(sessions, tmp_path):
         read_map(MAP),
         run_info,
         {"track_s": 1.0},
-        [suite._ipin_summary(IPIN_CUT, range(0, 1), MS_ONLY)],
+        [suite._ipin_summary(IPIN_CUT, range(0, 1), suite._ipin_runs(config), MS_ONLY)],
     )
     md = paths["report.md"].read_text()
     assert "no map, RoNIN ronin_ms_only.pt): error at surveyed waypoints" in md
     assert "IPIN 2023, RoNIN ronin_ms_only.pt: how sure (m)" in md and "not trained on these trials" in md
-    assert "| curbside fused, standing rule |" in md
+    assert "| curbside fused, --unseen-velocity |" in md
     assert "Done when (issue 9)" in md and "| fused beats the paper's method on CSA | paper6 |" in md
     assert "paper PF" in md and "curbside fused" in md and "Per session, open" in md
     assert "Table 2. Correct Sidewalk Assignment by jaywalk weight, paper6" in md

@@ -491,3 +491,16 @@ def test_the_javascript_client_of_the_docs_runs(docs_server, walk_on_map):
     )
     assert done.returncode == 0, done.stderr
     assert "Market Street, north side" in done.stdout and "ended: " in done.stdout
+
+
+def test_serve_unseen_velocity_flag_reaches_every_session_config(monkeypatch):
+    from curbside.cli import localize_serve
+    from curbside.cli.common import config_overrides
+    from curbside.cli.localize import main
+    from curbside.localize.runconfig import UNSEEN_VELOCITY_OVERRIDES
+
+    seen = []
+    monkeypatch.setattr(localize_serve, "_serve", lambda args: seen.append(config_overrides(args)) or 0)
+    assert main(["serve", "--unseen-velocity", "--set", "filter.n_particles=300"]) == 0
+    assert main(["serve"]) == 0
+    assert seen == [{**UNSEEN_VELOCITY_OVERRIDES, "filter.n_particles": "300"}, {}]

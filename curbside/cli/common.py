@@ -87,6 +87,29 @@ def set_overrides(pairs: list[str]) -> dict[str, str]:
     return out
 
 
+def add_config_options(parser: argparse.ArgumentParser, set_help: str) -> None:
+    """``--unseen-velocity`` and ``--set KEY=VALUE``: the run-configuration options (read back with
+    :func:`config_overrides`)."""
+    from curbside.localize.runconfig import UNSEEN_VELOCITY_OVERRIDES
+
+    preset = ", ".join(f"{key}={value}" for key, value in UNSEEN_VELOCITY_OVERRIDES.items())
+    parser.add_argument(
+        "--unseen-velocity",
+        action="store_true",
+        help="the velocity model has not seen this phone, its carrier or the place (a new user's usual "
+        f"case): wider step noise and the standing rule ({preset}; --set wins)",
+    )
+    parser.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", help=set_help)
+
+
+def config_overrides(args: argparse.Namespace) -> dict[str, object]:
+    """The overrides :func:`add_config_options` asked for: ``--unseen-velocity``'s preset, then ``--set``."""
+    from curbside.localize.runconfig import UNSEEN_VELOCITY_OVERRIDES
+
+    preset = UNSEEN_VELOCITY_OVERRIDES if args.unseen_velocity else {}
+    return {**preset, **set_overrides(args.set)}
+
+
 def make_parser(prog: str, description: str) -> argparse.ArgumentParser:
     """A parser with ``-v/--verbose`` and one-line usage errors."""
     parser = _ArgumentParser(prog=prog, description=description)

@@ -194,6 +194,7 @@ def _benchmark(args: argparse.Namespace) -> int:
         filter_seed=args.seed,
         filter_seeds=args.filter_seeds,
         smoothing_lag_s=args.lag_s,
+        unseen_velocity=args.unseen_velocity,
     )
     paths = run_suite(
         args.output,
@@ -337,6 +338,9 @@ def _register_benchmark(subparsers: argparse._SubParsersAction) -> None:
     bench.add_argument("--lag-s", type=non_negative_float, default=0.0, metavar="SECONDS",
                        help="also score curbside fused's fixed-lag smoothed positions with this lag, as "
                        "'fused, smoothed' (offline; default 0: off)")
+    bench.add_argument("--unseen-velocity", action="store_true",
+                       help="run curbside fused everywhere with localize run's --unseen-velocity preset (the "
+                       "checks then judge it; version 0.1's fused filter stays the IPIN baseline)")
     bench.add_argument("--workers", type=positive_int, default=2,
                        help="dask worker processes; 1 runs serially (default 2)")
     bench.add_argument("--scheduler", help="address of an existing dask scheduler")

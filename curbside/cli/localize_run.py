@@ -4,7 +4,8 @@
 
     localize run SESSION [--map MAP] [--mode gnss|inertial|paper|fused] [--particles N]
                  [--jaywalk-weight W] [--seed S] [--set KEY=VALUE ...] [--save-particles]
-                 [--lag-s SECONDS] [--velocity-source auto|file|ronin|pdr] [--no-start-pose] -o OUT
+                 [--lag-s SECONDS] [--velocity-source auto|file|ronin|pdr] [--unseen-velocity]
+                 [--no-start-pose] -o OUT
     localize run --config OUT/run.json -o OUT2          # replay a run exactly
 
 ``SESSION`` is anything :func:`curbside.localize.readers.read_any` reads (a SPEC folder, a Sensor
@@ -21,7 +22,13 @@ import json
 import logging
 from pathlib import Path
 
-from curbside.cli.common import non_negative_float, positive_int, set_overrides, unit_interval
+from curbside.cli.common import (
+    add_config_options,
+    config_overrides,
+    non_negative_float,
+    positive_int,
+    unit_interval,
+)
 from curbside.errors import CurbsideInputError
 from curbside.evaluate.metrics import format_waypoint_summary, waypoint_errors, waypoint_summary
 from curbside.io import check_output_folder
@@ -68,7 +75,7 @@ def _run(args: argparse.Namespace) -> int:
         velocity_source=args.velocity_source,
         use_start_pose=False if args.no_start_pose else None,
     )
-    config = config.with_overrides(set_overrides(args.set))
+    config = config.with_overrides(config_overrides(args))
     if args.lag_s is not None:
         config = config.with_overrides({"filter.smoother.lag_s": args.lag_s})
     result = track_session(session, layers, config=config, save_particles=args.save_particles)
@@ -107,6 +114,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         epilog="examples:\n  localize run walk/ --map map.geojson -o out/track\n"
         "  localize run walk/ --map map.geojson --set filter.gnss.sigma_factor=1.0 -o out/t2\n"
         "  localize run walk/ --map map.geojson --lag-s 30 -o out/smooth   # adds smooth_lat, smooth_lon\n"
+        "  localize run walk/ --map map.geojson --unseen-velocity -o out/new   # phone new to RoNIN\n"
         "  localize run --config out/track/run.json -o out/replay     # the same track, byte for byte",
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
@@ -142,12 +150,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument(
         "--seed", type=int, default=None, help="random seed (default 0): same seed, same track"
     )
-    parser.add_argument(
-        "--set",
-        action="append",
-        default=[],
-        metavar="KEY=VALUE",
-        help="set any parameter of run.json's config, e.g. filter.gnss.sigma_factor=1.0 or "
+    add_config_options(
+        parser,
+        "set any parameter of run.json's config, e.g. filter.gnss.sigma_factor=1.0 or "
         "engine.fix_association=once (repeatable)",
     )
     parser.add_argument("--save-particles", action="store_true", help="also write OUT/particles.npz")

@@ -20,7 +20,7 @@ import sys
 from pathlib import Path
 
 from curbside import settings
-from curbside.cli.common import positive_float, positive_int, set_overrides
+from curbside.cli.common import add_config_options, config_overrides, positive_float, positive_int
 from curbside.errors import CurbsideInputError
 from curbside.localize.runconfig import MODES
 
@@ -74,7 +74,7 @@ def _serve(args: argparse.Namespace) -> int:
         data_dir=_data_dir(args.data_dir),
         token=_token(args.token_file),
         mode=args.mode,
-        overrides=set_overrides(args.set),
+        overrides=config_overrides(args),
         idle_timeout_s=args.idle_timeout,
         max_sessions=args.max_sessions,
     )
@@ -123,12 +123,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument(
         "--mode", choices=MODES, default="fused", help="every session's method (default fused)"
     )
-    parser.add_argument(
-        "--set",
-        action="append",
-        default=[],
-        metavar="KEY=VALUE",
-        help="a run.json config parameter for every session, e.g. filter.n_particles=300 (repeatable)",
+    add_config_options(
+        parser, "a run.json config parameter for every session, e.g. filter.n_particles=300 (repeatable)"
     )
     parser.add_argument(
         "--idle-timeout",

@@ -75,6 +75,10 @@ class SuiteConfig:
     smoothing_lag_s
         Curbside fused on the OSM map also keeps fixed-lag smoothed positions with this lag, scored
         as the method ``fused_smoothed`` (an offline figure; 0: off). The filter's own track is the same.
+    unseen_velocity
+        Curbside fused runs with ``--unseen-velocity``'s preset
+        (:data:`~curbside.localize.runconfig.UNSEEN_VELOCITY_OVERRIDES`) everywhere, the checks judging it;
+        version 0.1's fused filter, the IPIN baseline, stays as it was.
     """
 
     profile: str = "phone"
@@ -93,6 +97,7 @@ class SuiteConfig:
     datasf_methods: tuple[str, ...] = ("paper", "fused")
     write_imu: bool = False
     smoothing_lag_s: float = 0.0
+    unseen_velocity: bool = False
 
     def __post_init__(self) -> None:
         if self.profile not in PROFILES:
@@ -108,6 +113,16 @@ class SuiteConfig:
         for subset in self.subsets:
             if subset not in SUBSETS:
                 raise CurbsideInputError("--subsets", f"unknown subset {subset!r}; one of {list(SUBSETS)}")
+
+    def overrides_of(self, method: str, smooth: bool = False) -> tuple[tuple[str, object], ...]:
+        """``method``'s run-configuration overrides: ``--unseen-velocity``'s preset for curbside fused,
+        and the smoother's lag (``smooth``)."""
+        from curbside.localize.runconfig import UNSEEN_VELOCITY_OVERRIDES
+
+        overrides = dict(UNSEEN_VELOCITY_OVERRIDES) if self.unseen_velocity and method == "fused" else {}
+        if smooth:
+            overrides["filter.smoother.lag_s"] = self.smoothing_lag_s
+        return tuple(sorted(overrides.items()))
 
     def routes_of(self, subset: str) -> int | None:
         """Route count of a random subset (``None`` for ``paper6``)."""
@@ -144,7 +159,7 @@ def plan_suite(sessions: dict[str, list[Path]], maps: dict[str, str], config: Su
             for method in SUITE_METHODS[1:]:
                 for w in weights:
                     smooth = method == "fused" and w == w0 and config.smoothing_lag_s > 0
-                    overrides = (("filter.smoother.lag_s", config.smoothing_lag_s),) if smooth else ()
+                    overrides = config.overrides_of(method, smooth)
                     specs.append(
                         RunSpec(
                             session,
@@ -176,6 +191,7 @@ def plan_suite(sessions: dict[str, list[Path]], maps: dict[str, str], config: Su
                             config.filter_seed,
                             (),
                             config.velocity_source,
+                            config.overrides_of(method),
                         )
                     )
     more_seeds = range(config.filter_seed + 1, config.filter_seed + config.filter_seeds)
@@ -210,25 +226,34 @@ def _git_commit() -> str | None:
     return out.stdout.strip() or None
 
 
-#: curbside fused with the opt-in standing rule (``engine.standing_speed_mps``; docs/filter.md), run beside
-#: the defaults on the IPIN trials: real phones that stand still mid-walk, which the simulator's walks
-#: barely test.
-STANDING_RULE_RUN = "curbside fused, standing rule"
-STANDING_RULE_OVERRIDES: dict[str, object] = {"engine.standing_speed_mps": 0.6}
+#: curbside fused with ``--unseen-velocity`` (:data:`~curbside.localize.runconfig.UNSEEN_VELOCITY_OVERRIDES`:
+#: wider step noise and the standing rule; docs/filter.md), run beside the defaults on the IPIN trials:
+#: the preset for a velocity model that has not seen the place.
+UNSEEN_VELOCITY_RUN = "curbside fused, --unseen-velocity"
 
 
-def _ipin_summary(h5: str | Path, seeds: range, ronin_weights: str | Path | None = None) -> IpinScores:
-    """Every method, version 0.1's fused filter and the standing rule on the IPIN trials, at the same
-    waypoints, pooled over the filter ``seeds``: pooled figures, their table, and trial-bootstrap
-    intervals (fused against 0.1 and the baselines). With the bundled RoNIN, the held-out trials; with
-    ``ronin_weights`` (a model that never saw the venue), every trial."""
-    from curbside.evaluate.benchmark import ipin_errors, ipin_errors_table
-    from curbside.evaluate.uncertainty import waypoint_intervals
-    from curbside.localize.runconfig import RunConfig
+def _ipin_runs(config: SuiteConfig) -> dict[str, Any]:
+    """The IPIN runs beside the methods: version 0.1's fused filter, and ``--unseen-velocity``'s preset
+    (as curbside fused itself when the suite runs with it)."""
+    from curbside.localize.runconfig import UNSEEN_VELOCITY_OVERRIDES, RunConfig
 
     fused = RunConfig.for_mode("fused")
-    extra_runs = {criteria.IPIN_BASELINE_RUN: fused.with_overrides(criteria.FUSED_0_1_OVERRIDES),
-                  STANDING_RULE_RUN: fused.with_overrides(STANDING_RULE_OVERRIDES)}
+    preset = fused.with_overrides(UNSEEN_VELOCITY_OVERRIDES)
+    runs = {criteria.IPIN_BASELINE_RUN: fused.with_overrides(criteria.FUSED_0_1_OVERRIDES)}
+    runs["fused" if config.unseen_velocity else UNSEEN_VELOCITY_RUN] = preset
+    return runs
+
+
+def _ipin_summary(
+    h5: str | Path, seeds: range, extra_runs: dict[str, Any], ronin_weights: str | Path | None = None
+) -> IpinScores:
+    """Every method and ``extra_runs`` (:func:`_ipin_runs`) on the IPIN trials, at the same waypoints,
+    pooled over the filter ``seeds``: pooled figures, their table, and trial-bootstrap intervals (fused
+    against 0.1 and the baselines). With the bundled RoNIN, the held-out trials; with ``ronin_weights``
+    (a model that never saw the venue), every trial."""
+    from curbside.evaluate.benchmark import ipin_errors, ipin_errors_table
+    from curbside.evaluate.uncertainty import waypoint_intervals
+
     errors: dict[str, list[np.ndarray]] = {}
     rows: list[dict] = []
     for seed in seeds:
@@ -259,9 +284,10 @@ def _ipin_scorings(
 ) -> list[IpinScores]:
     """The held-out IPIN trials with the bundled RoNIN, then (with ``ipin_ronin``) all of them with it."""
     seeds = range(config.filter_seed, config.filter_seed + config.filter_seeds)
-    scorings = [_ipin_summary(ipin, seeds)]
+    runs = _ipin_runs(config)
+    scorings = [_ipin_summary(ipin, seeds, runs)]
     if ipin_ronin:
-        scorings.append(_ipin_summary(ipin, seeds, ipin_ronin))
+        scorings.append(_ipin_summary(ipin, seeds, runs, ipin_ronin))
     return scorings
 
 

@@ -355,9 +355,13 @@ def _intro(config, counts, pooled, n_runs, timings, workers, checks) -> str:
     return (
         f"Profile '{config.profile}', split '{config.split}', {config.seeds} seed(s) per route: {subsets}. "
         f"{n_runs} runs, N = {config.particles}, {_seeds(config)}, every method on the same "
-        f"sessions. Time: {total_s / 60:.1f} min ({stages}) with {workers} worker(s). "
+        f"sessions{_PRESET_NOTE if config.unseen_velocity else ''}. "
+        f"Time: {total_s / 60:.1f} min ({stages}) with {workers} worker(s). "
         f"Done when: {criteria.overall(checks)}."
     )
+
+
+_PRESET_NOTE = ", curbside fused with --unseen-velocity"
 
 
 def write_suite_report(
