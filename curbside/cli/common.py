@@ -97,7 +97,7 @@ def add_config_options(parser: argparse.ArgumentParser, set_help: str) -> None:
         "--unseen-velocity",
         action="store_true",
         help="the velocity model has not seen this phone, its carrier or the place (a new user's usual "
-        f"case): wider step noise and the standing rule ({preset}; --set wins)",
+        f"case): wider step noise, the standing rule and the speed-scale correction ({preset}; --set wins)",
     )
     parser.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", help=set_help)
 
