@@ -16,6 +16,9 @@ Usage::
 ``--held-out`` scores the held-out trials instead, to measure the defaults against 0.1 over several
 filter seeds (the benchmark runs one); it takes no variants, since nothing may be chosen there.
 
+``--ronin benchmarks/weights/ronin_ms_only.pt`` tracks with a RoNIN that never saw the venue (the
+choice of ``--unseen-velocity``'s values, docs/filter.md).
+
 ``variants.json`` maps names to ``{"filter.gnss.sigma_factor": 1.5, ...}``.
 """
 
@@ -39,6 +42,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--seeds", type=int, nargs="+", default=[0, 1], help="filter seeds (default 0 1)")
     parser.add_argument("--held-out", action="store_true",
                         help="score the held-out trials (defaults and 0.1 only: nothing is chosen there)")
+    parser.add_argument("--ronin", metavar="PT",
+                        help="track with this RoNIN model's velocity instead of the bundled one (e.g. "
+                        "benchmarks/weights/ronin_ms_only.pt, which never saw IPIN)")
     args = parser.parse_args(argv)
     if args.held_out and args.variants:
         parser.error("--held-out takes no --variants: parameters are chosen on the training trials only")
@@ -48,7 +54,7 @@ def main(argv: list[str] | None = None) -> int:
     extra |= {name: fused.with_overrides(overrides) for name, overrides in variants.items()}
     for seed in args.seeds:
         errors, _, n_trials = ipin_errors(args.h5, seed=seed, extra_runs=extra, training=not args.held_out,
-                                          held_out=args.held_out)
+                                          held_out=args.held_out, ronin_weights=args.ronin)
         print(f"filter seed {seed}: {n_trials} {'held-out' if args.held_out else 'training'} trials")
         for name, e in errors.items():
             print(f"  {name:<16} median {np.median(e):5.2f} m  p90 {np.percentile(e, 90):5.2f} m  "
