@@ -226,9 +226,9 @@ def _git_commit() -> str | None:
     return out.stdout.strip() or None
 
 
-#: curbside fused with ``--unseen-velocity`` (:data:`~curbside.localize.runconfig.UNSEEN_VELOCITY_OVERRIDES`:
-#: wider step noise and the standing rule; docs/filter.md), run beside the defaults on the IPIN trials:
-#: the preset for a velocity model that has not seen the place.
+#: curbside fused with ``--unseen-velocity`` (:data:`~curbside.localize.runconfig.UNSEEN_VELOCITY_OVERRIDES`;
+#: docs/filter.md), run beside the defaults on the IPIN trials: the preset for a velocity model that has
+#: not seen the place.
 UNSEEN_VELOCITY_RUN = "curbside fused, --unseen-velocity"
 
 
