@@ -31,6 +31,7 @@ from curbside.evaluate.benchmark import IpinScores, datasf_osm_map, snapshot_tim
 from curbside.evaluate.runner import SMOOTHED_METHOD, RunSpec, pool, run_all, smoothed_results, subset_of
 from curbside.evaluate.simulate import PROFILES, SimulationConfig
 from curbside.evaluate.subsets import DEFAULT_ROUTES, SPLITS, SUBSETS, benchmark_sessions, load_world
+from curbside.localize.runconfig import UNSEEN_VELOCITY_OVERRIDES, RunConfig
 from curbside.localize.session import read_session
 from curbside.osmseg.mapio import read_map, write_map
 
@@ -117,8 +118,6 @@ class SuiteConfig:
     def overrides_of(self, method: str, smooth: bool = False) -> tuple[tuple[str, object], ...]:
         """``method``'s run-configuration overrides: ``--unseen-velocity``'s preset for curbside fused,
         and the smoother's lag (``smooth``)."""
-        from curbside.localize.runconfig import UNSEEN_VELOCITY_OVERRIDES
-
         overrides = dict(UNSEEN_VELOCITY_OVERRIDES) if self.unseen_velocity and method == "fused" else {}
         if smooth:
             overrides["filter.smoother.lag_s"] = self.smoothing_lag_s
@@ -232,11 +231,9 @@ def _git_commit() -> str | None:
 UNSEEN_VELOCITY_RUN = "curbside fused, --unseen-velocity"
 
 
-def _ipin_runs(config: SuiteConfig) -> dict[str, Any]:
+def _ipin_runs(config: SuiteConfig) -> dict[str, RunConfig]:
     """The IPIN runs beside the methods: version 0.1's fused filter, and ``--unseen-velocity``'s preset
     (as curbside fused itself when the suite runs with it)."""
-    from curbside.localize.runconfig import UNSEEN_VELOCITY_OVERRIDES, RunConfig
-
     fused = RunConfig.for_mode("fused")
     preset = fused.with_overrides(UNSEEN_VELOCITY_OVERRIDES)
     runs = {criteria.IPIN_BASELINE_RUN: fused.with_overrides(criteria.FUSED_0_1_OVERRIDES)}
@@ -245,7 +242,7 @@ def _ipin_runs(config: SuiteConfig) -> dict[str, Any]:
 
 
 def _ipin_summary(
-    h5: str | Path, seeds: range, extra_runs: dict[str, Any], ronin_weights: str | Path | None = None
+    h5: str | Path, seeds: range, extra_runs: dict[str, RunConfig], ronin_weights: str | Path | None = None
 ) -> IpinScores:
     """Every method and ``extra_runs`` (:func:`_ipin_runs`) on the IPIN trials, at the same waypoints,
     pooled over the filter ``seeds``: pooled figures, their table, and trial-bootstrap intervals (fused
