@@ -19,7 +19,9 @@ def test_every_parameter_round_trips_through_json():
     again = RunConfig.from_dict(json.loads(json.dumps(config.to_dict())))
     assert again == config
     assert again.filter.gnss.sigma_factor == 1.0 and again.filter.start.fix_heading_sigma_deg == 20.0
-    assert RunConfig.from_dict({}) == RunConfig()
+    assert RunConfig.from_dict({"unseen_velocity": {}}) == RunConfig()
+    before_auto = RunConfig().with_overrides({"unseen_velocity.mode": "off"})
+    assert RunConfig.from_dict({}) == before_auto  # a run.json from before the block replays as it ran
 
 
 def test_the_paper_preset_is_the_plain_filter():

@@ -222,19 +222,82 @@ def test_unseen_velocity_flag_applies_its_preset_and_set_wins(tmp_path, monkeypa
     import json
 
     from curbside.cli.localize import main
-    from curbside.localize.runconfig import UNSEEN_VELOCITY_OVERRIDES
 
     monkeypatch.setattr(settings, "cache_dir", tmp_path / "cache")
     folder = write_walk(tmp_path / "walk", duration_s=10.0)
 
+    switched = []
+
     def config(*options):
         out = tmp_path / f"run{len(list(tmp_path.glob('run*')))}"
         assert main(["run", str(folder), *options, "-o", str(out)]) == 0
-        return RunConfig.from_dict(json.loads((out / "run.json").read_text())["config"])
+        info = json.loads((out / "run.json").read_text())
+        switched.append(info["unseen_velocity_from_s"])
+        return RunConfig.from_dict(info["config"])
 
-    plain, unseen = config(), config("--unseen-velocity")
-    assert plain.filter.motion.step_noise_fraction == 0.25 and plain.engine.standing_speed_mps == 0.0
-    assert unseen == plain.with_overrides(UNSEEN_VELOCITY_OVERRIDES)
-    assert unseen.filter.motion.step_noise_fraction == 0.55 and unseen.engine.standing_speed_mps == 0.6
-    mixed = config("--unseen-velocity", "--set", "engine.standing_speed_mps=0.3")
-    assert mixed.engine.standing_speed_mps == 0.3 and mixed.filter.motion.step_noise_fraction == 0.55
+    plain, unseen, auto = config(), config("--unseen-velocity"), config("--unseen-velocity", "auto")
+    assert plain.unseen_velocity.mode == "auto" and plain == auto
+    assert switched[0] is None and switched[1] == 0.0  # the walk's clean velocity never reads a standstill
+    assert unseen == plain.with_overrides({"unseen_velocity.mode": "on"})
+    assert RunConfig.for_mode("paper").unseen_velocity.mode == "off"
+    older = {key: value for key, value in plain.to_dict().items() if key != "unseen_velocity"}
+    assert RunConfig.from_dict(older).unseen_velocity.mode == "off"  # run.json from before the block
+    assert config("--unseen-velocity", "off").unseen_velocity.mode == "off"
+    effective = unseen.with_unseen_velocity()
+    assert effective.filter.motion.step_noise_fraction == 0.55 and effective.engine.standing_speed_mps == 0.6
+    assert effective.filter.scale_correction.fraction == 0.05
+    mixed = config("--unseen-velocity", "--set", "unseen_velocity.standing_speed_mps=0.3")
+    assert mixed.with_unseen_velocity().engine.standing_speed_mps == 0.3
+
+
+def _standstill(tmp_path, velocity_en) -> object:
+    """A 30 s walk whose footsteps stop from 5 to 16 s while the velocity reads ``velocity_en``."""
+    folder = write_walk(tmp_path / "walk", duration_s=30.0)
+    steps = pd.read_csv(folder / "steps.csv")
+    steps[(steps["t"] < 5.0) | (steps["t"] > 16.0)].to_csv(folder / "steps.csv", index=False)
+    session = read_session(folder)
+    if velocity_en is not None:
+        still = (session.velocity["t"] > 5.0) & (session.velocity["t"] < 16.0)
+        session.velocity.loc[still, ["ve", "vn"]] = velocity_en
+    return session
+
+
+@pytest.mark.parametrize(
+    "velocity_en, switches",
+    [((0.25, -0.15), True), ((0.0, 0.0), False), (None, False)],  # handled drift, a still model, missed steps
+)
+def test_auto_switches_to_the_unseen_preset_when_the_model_reads_motion_at_a_standstill(
+    tmp_path, raster, velocity_en, switches
+):
+    session = _standstill(tmp_path, velocity_en)
+    config = RunConfig.for_mode("fused", seed=1).with_overrides({"unseen_velocity.mode": "auto"})
+    engine = _engine(session, raster, config)
+    engine.push_velocity(session.velocity["t"].to_numpy(), session.velocity[["ve", "vn"]].to_numpy())
+    engine.push_steps(session.steps["t"].to_numpy(), math.inf)
+    engine.push_gnss(session.gnss)
+    rows = engine.finish()
+    noise = engine.tracker.predictor.config.step_noise_fraction
+    if not switches:
+        assert engine.unseen_since_t is None and noise == 0.25 and engine.standing_speed == 0.0
+        return
+    times = [r.t for r in rows if r.kind == "time"]
+    assert engine.unseen_since_t == times[5]  # the fifth standstill update 2 s after the last footstep
+    assert noise == 0.55 and engine.standing_speed == 0.6 and engine.tracker.scale.config.fraction == 0.05
+    after = [(r.t, r.x, r.y) for r in rows if r.kind == "time" and r.t > times[6]]
+    assert np.allclose(np.diff(np.array(after)[:, 1:], axis=0), 0.0, atol=0.1)  # standing from then on
+    streamed = _stream(session, raster, config, [6.2, 9.7, 10.05, 13.3])
+    pd.testing.assert_frame_equal(_stream(session, raster, config, []), streamed)
+
+
+def test_auto_ignores_the_last_steps_still_in_the_velocity_window(tmp_path, raster):
+    session = _standstill(tmp_path, (0.0, 0.0))
+    v = session.velocity
+    v.loc[(v["t"] > 5.0) & (v["t"] < 8.0), ["ve", "vn"]] = (0.5, 0.0)  # the window still walking
+    config = RunConfig.for_mode("fused").with_overrides({"unseen_velocity.mode": "auto"})
+    for settle_s, switches in ((2.0, False), (0.0, True)):
+        engine = _engine(session, raster, config.with_overrides({"unseen_velocity.settle_s": settle_s}))
+        engine.push_velocity(v["t"].to_numpy(), v[["ve", "vn"]].to_numpy())
+        engine.push_steps(session.steps["t"].to_numpy(), math.inf)
+        engine.push_gnss(session.gnss)
+        engine.finish()
+        assert (engine.unseen_since_t is not None) == switches

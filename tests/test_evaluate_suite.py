@@ -70,23 +70,28 @@ def test_more_filter_seeds_repeat_every_filter_run_but_not_gnss(sessions):
 
 
 def test_unseen_velocity_runs_curbside_fused_with_the_preset_and_nothing_else(sessions):
-    from curbside.localize.runconfig import UNSEEN_VELOCITY_OVERRIDES
-
     maps = {"osm": str(MAP), "datasf": str(MAP)}
     subsets = ("paper6", "open")
     plain = suite.plan_suite(sessions, maps, suite.SuiteConfig(subsets=subsets))
-    preset = suite.plan_suite(sessions, maps, suite.SuiteConfig(subsets=subsets, unseen_velocity=True))
+    preset = suite.plan_suite(sessions, maps, suite.SuiteConfig(subsets=subsets, unseen_velocity="on"))
     assert [dataclasses.replace(s, overrides=()) for s in preset] == plain
-    assert all(dict(s.overrides) == UNSEEN_VELOCITY_OVERRIDES for s in preset if s.method == "fused")
+    assert all(dict(s.overrides) == {"unseen_velocity.mode": "on"} for s in preset if s.method == "fused")
     assert not any(s.overrides for s in preset if s.method != "fused")
     assert sum(s.method == "fused" and s.map_name == "datasf" for s in preset) == 2
     runs = suite._ipin_runs(suite.SuiteConfig())
-    judged = suite._ipin_runs(suite.SuiteConfig(unseen_velocity=True))
+    judged = suite._ipin_runs(suite.SuiteConfig(unseen_velocity="on"))
     assert set(runs) == {criteria.IPIN_BASELINE_RUN, suite.UNSEEN_VELOCITY_RUN}
     assert set(judged) == {criteria.IPIN_BASELINE_RUN, "fused"}
     assert judged["fused"] == runs[suite.UNSEEN_VELOCITY_RUN]
     assert judged[criteria.IPIN_BASELINE_RUN] == runs[criteria.IPIN_BASELINE_RUN]
-    assert judged["fused"].engine.standing_speed_mps == 0.6
+    assert judged["fused"].unseen_velocity.mode == "on"
+    assert judged[criteria.IPIN_BASELINE_RUN].unseen_velocity.mode == "off"
+    off = suite._ipin_runs(suite.SuiteConfig(unseen_velocity="off"))
+    assert off["fused"].unseen_velocity.mode == "off" and off[suite.UNSEEN_VELOCITY_RUN] == judged["fused"]
+    assert all(s.overrides == (("unseen_velocity.mode", "off"),) for s in suite.plan_suite(
+        sessions, maps, suite.SuiteConfig(subsets=subsets, unseen_velocity="off")) if s.method == "fused")
+    with pytest.raises(CurbsideInputError, match="--unseen-velocity"):
+        suite.SuiteConfig(unseen_velocity="sometimes")
 
 
 @pytest.mark.slow

@@ -50,10 +50,16 @@ def test_the_robust_fit_ignores_a_few_fixes_tens_of_metres_off():
     assert np.mean(robust_errors) < 0.3 * np.mean(plain_errors)
 
 
-def _straight_walk(fraction: float, seed: int, true_speed_mps: float, duration_s: float = 300.0):
-    """East at ``true_speed_mps`` while the inertial velocity says 1 m/s; a 6 m fix every second."""
-    config = FilterConfig(scale_correction=ScaleCorrectionConfig(fraction=fraction, window_s=120.0))
+def _straight_walk(
+    fraction: float, seed: int, true_speed_mps: float, duration_s: float = 300.0, adopt: bool = False
+):
+    """East at ``true_speed_mps`` while the inertial velocity says 1 m/s; a 6 m fix every second.
+    ``adopt``: start idle and turn the correction on with ``Tracker.adopt_motion`` at the first step."""
+    correction = ScaleCorrectionConfig(fraction=fraction, window_s=120.0)
+    config = FilterConfig(scale_correction=correction if not adopt else ScaleCorrectionConfig(window_s=120.0))
     tracker = Tracker.from_config(None, config, seed=seed)
+    if adopt:
+        tracker.adopt_motion(config.motion, correction)
     tracker.frame = LocalFrame(pyproj.CRS("EPSG:32610"))
     rng = np.random.default_rng(100 + seed)
     estimate = tracker.start_at_pose(0.0, X0, Y0, 0.0)
@@ -77,6 +83,9 @@ def test_a_cloud_lagging_good_fixes_gets_its_speed_scale_back():
     assert sum(c for _, _, c in on) >= 3
     assert sum(abs(s - 1.5) < 0.1 for s, _, _ in on) >= 3
     assert np.median([abs(e) for _, e, _ in on]) < 0.3 * np.median([abs(e) for _, e, _ in off])
+    assert sum(c for _, _, c in off) == 0
+    adopted = [_straight_walk(0.05, seed, 1.5, adopt=True) for seed in range(4)]
+    assert [c for _, _, c in adopted] == [c for _, _, c in on]  # turned on mid-walk, the same part
 
 
 def test_no_correction_when_the_scale_is_right():
@@ -85,9 +94,10 @@ def test_no_correction_when_the_scale_is_right():
         assert corrections == 0 and abs(error_m) < 5.0
 
 
-def test_off_by_default_on_when_asked_for_never_without_gnss():
-    assert Tracker.from_config(None, FilterConfig(), seed=0).scale is None
-    assert Tracker.from_config(None, FilterConfig.preset("paper"), seed=0).scale is None
+def test_idle_by_default_on_when_asked_for_never_without_gnss():
+    for config in (FilterConfig(), FilterConfig.preset("paper")):
+        idle = Tracker.from_config(None, config, seed=0).scale
+        assert idle.config.fraction == 0.0  # built, so adopt_motion can turn it on, but idle
     on = FilterConfig(scale_correction=ScaleCorrectionConfig(fraction=0.05))
     assert isinstance(Tracker.from_config(None, on, seed=0).scale, ScaleCorrection)
     assert Tracker.from_config(None, on, seed=0, use_gnss=False).scale is None

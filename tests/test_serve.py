@@ -497,10 +497,10 @@ def test_serve_unseen_velocity_flag_reaches_every_session_config(monkeypatch):
     from curbside.cli import localize_serve
     from curbside.cli.common import config_overrides
     from curbside.cli.localize import main
-    from curbside.localize.runconfig import UNSEEN_VELOCITY_OVERRIDES
-
     seen = []
     monkeypatch.setattr(localize_serve, "_serve", lambda args: seen.append(config_overrides(args)) or 0)
     assert main(["serve", "--unseen-velocity", "--set", "filter.n_particles=300"]) == 0
     assert main(["serve"]) == 0
-    assert seen == [{**UNSEEN_VELOCITY_OVERRIDES, "filter.n_particles": "300"}, {}]
+    assert main(["serve", "--unseen-velocity", "auto"]) == 0
+    on, auto = {"unseen_velocity.mode": "on"}, {"unseen_velocity.mode": "auto"}
+    assert seen == [{**on, "filter.n_particles": "300"}, {}, auto]

@@ -90,24 +90,29 @@ def set_overrides(pairs: list[str]) -> dict[str, str]:
 def add_config_options(parser: argparse.ArgumentParser, set_help: str) -> None:
     """``--unseen-velocity`` and ``--set KEY=VALUE``: the run-configuration options (read back with
     :func:`config_overrides`)."""
-    from curbside.localize.runconfig import UNSEEN_VELOCITY_OVERRIDES
+    from curbside.localize.runconfig import UNSEEN_VELOCITY_MODES, UnseenVelocityConfig
 
-    preset = ", ".join(f"{key}={value}" for key, value in UNSEEN_VELOCITY_OVERRIDES.items())
+    u = UnseenVelocityConfig()
     parser.add_argument(
         "--unseen-velocity",
-        action="store_true",
-        help="the velocity model has not seen this phone, its carrier or the place (a new user's usual "
-        f"case): wider step noise, the standing rule and the speed-scale correction ({preset}; --set wins)",
+        nargs="?",
+        const="on",
+        choices=UNSEEN_VELOCITY_MODES,
+        metavar="{" + ",".join(UNSEEN_VELOCITY_MODES) + "}",
+        help="the motion model for a velocity model that has not seen this phone, its carrier or the place "
+        f"(step noise {u.step_noise_fraction:g}, standing below {u.standing_speed_mps:g} m/s, speed-scale "
+        f"correction {u.scale_correction_fraction:g}): 'on' (the flag alone) from the start, 'auto' once "
+        f"the model reads {u.still_speed_mps:g} m/s or more while no footstep comes, 'off' never "
+        f"(default: {u.mode} for --mode fused, off for the baselines; tune with --set "
+        "unseen_velocity.KEY=VALUE)",
     )
     parser.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", help=set_help)
 
 
 def config_overrides(args: argparse.Namespace) -> dict[str, object]:
-    """The overrides :func:`add_config_options` asked for: ``--unseen-velocity``'s preset, then ``--set``."""
-    from curbside.localize.runconfig import UNSEEN_VELOCITY_OVERRIDES
-
-    preset = UNSEEN_VELOCITY_OVERRIDES if args.unseen_velocity else {}
-    return {**preset, **set_overrides(args.set)}
+    """The overrides :func:`add_config_options` asked for: ``--unseen-velocity``'s mode, then ``--set``."""
+    mode = {} if args.unseen_velocity is None else {"unseen_velocity.mode": args.unseen_velocity}
+    return {**mode, **set_overrides(args.set)}
 
 
 def make_parser(prog: str, description: str) -> argparse.ArgumentParser:

@@ -302,6 +302,8 @@ def _register_evaluate(subparsers: argparse._SubParsersAction) -> None:
 
 
 def _register_benchmark(subparsers: argparse._SubParsersAction) -> None:
+    from curbside.localize.runconfig import UNSEEN_VELOCITY_MODES, UnseenVelocityConfig
+
     bench = subparsers.add_parser(
         "benchmark",
         help="the benchmark: simulated subsets x every method, done-when checks, report",
@@ -338,9 +340,11 @@ def _register_benchmark(subparsers: argparse._SubParsersAction) -> None:
     bench.add_argument("--lag-s", type=non_negative_float, default=0.0, metavar="SECONDS",
                        help="also score curbside fused's fixed-lag smoothed positions with this lag, as "
                        "'fused, smoothed' (offline; default 0: off)")
-    bench.add_argument("--unseen-velocity", action="store_true",
-                       help="run curbside fused everywhere with localize run's --unseen-velocity preset (the "
-                       "checks then judge it; version 0.1's fused filter stays the IPIN baseline)")
+    bench.add_argument("--unseen-velocity", nargs="?", const="on", default=UnseenVelocityConfig().mode,
+                       choices=UNSEEN_VELOCITY_MODES, metavar="{" + ",".join(UNSEEN_VELOCITY_MODES) + "}",
+                       help="run curbside fused everywhere with this --unseen-velocity mode, as localize run "
+                       f"takes it ('on' for the flag alone; default {UnseenVelocityConfig().mode}, its own); "
+                       "the checks judge it, version 0.1's fused filter stays the IPIN baseline")
     bench.add_argument("--workers", type=positive_int, default=2,
                        help="dask worker processes; 1 runs serially (default 2)")
     bench.add_argument("--scheduler", help="address of an existing dask scheduler")

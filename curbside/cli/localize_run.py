@@ -4,8 +4,8 @@
 
     localize run SESSION [--map MAP] [--mode gnss|inertial|paper|fused] [--particles N]
                  [--jaywalk-weight W] [--seed S] [--set KEY=VALUE ...] [--save-particles]
-                 [--lag-s SECONDS] [--velocity-source auto|file|ronin|pdr] [--unseen-velocity]
-                 [--no-start-pose] -o OUT
+                 [--lag-s SECONDS] [--velocity-source auto|file|ronin|pdr]
+                 [--unseen-velocity [on|auto|off]] [--no-start-pose] -o OUT
     localize run --config OUT/run.json -o OUT2          # replay a run exactly
 
 ``SESSION`` is anything :func:`curbside.localize.readers.read_any` reads (a SPEC folder, a Sensor
@@ -92,6 +92,11 @@ def _run(args: argparse.Namespace) -> int:
         f"velocity {result.velocity_source or '-'}, steps {result.step_source}, "
         f"{result.recoveries} recoveries"
     )
+    if result.unseen_velocity_from_s is not None:
+        print(
+            f"{args.output}: from t = {result.unseen_velocity_from_s:.1f} s, the motion model for a velocity "
+            "model new to the phone or the place (--unseen-velocity)"
+        )
     if summary is not None:
         print(f"{args.output}: {format_waypoint_summary(summary)}")
     return 0
@@ -114,7 +119,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         epilog="examples:\n  localize run walk/ --map map.geojson -o out/track\n"
         "  localize run walk/ --map map.geojson --set filter.gnss.sigma_factor=1.0 -o out/t2\n"
         "  localize run walk/ --map map.geojson --lag-s 30 -o out/smooth   # adds smooth_lat, smooth_lon\n"
-        "  localize run walk/ --map map.geojson --unseen-velocity -o out/new   # phone new to RoNIN\n"
+        "  localize run walk/ --map map.geojson --unseen-velocity -o out/new   # phone surely new to RoNIN\n"
         "  localize run --config out/track/run.json -o out/replay     # the same track, byte for byte",
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )

@@ -31,7 +31,7 @@ from curbside.evaluate.benchmark import IpinScores, datasf_osm_map, snapshot_tim
 from curbside.evaluate.runner import SMOOTHED_METHOD, RunSpec, pool, run_all, smoothed_results, subset_of
 from curbside.evaluate.simulate import PROFILES, SimulationConfig
 from curbside.evaluate.subsets import DEFAULT_ROUTES, SPLITS, SUBSETS, benchmark_sessions, load_world
-from curbside.localize.runconfig import UNSEEN_VELOCITY_OVERRIDES, RunConfig
+from curbside.localize.runconfig import UNSEEN_VELOCITY_MODES, RunConfig, UnseenVelocityConfig
 from curbside.localize.session import read_session
 from curbside.osmseg.mapio import read_map, write_map
 
@@ -77,9 +77,9 @@ class SuiteConfig:
         Curbside fused on the OSM map also keeps fixed-lag smoothed positions with this lag, scored
         as the method ``fused_smoothed`` (an offline figure; 0: off). The filter's own track is the same.
     unseen_velocity
-        Curbside fused runs with ``--unseen-velocity``'s preset
-        (:data:`~curbside.localize.runconfig.UNSEEN_VELOCITY_OVERRIDES`) everywhere, the checks judging it;
-        version 0.1's fused filter, the IPIN baseline, stays as it was.
+        Curbside fused's ``unseen_velocity.mode`` everywhere (:class:`~curbside.localize.runconfig.
+        UnseenVelocityConfig`; default ``auto``, its own), the checks judging it; version 0.1's fused
+        filter, the IPIN baseline, stays as it was.
     """
 
     profile: str = "phone"
@@ -98,7 +98,7 @@ class SuiteConfig:
     datasf_methods: tuple[str, ...] = ("paper", "fused")
     write_imu: bool = False
     smoothing_lag_s: float = 0.0
-    unseen_velocity: bool = False
+    unseen_velocity: str = UnseenVelocityConfig().mode
 
     def __post_init__(self) -> None:
         if self.profile not in PROFILES:
@@ -111,6 +111,9 @@ class SuiteConfig:
             raise CurbsideInputError("--subsets", "need at least one subset")
         if self.filter_seeds < 1:
             raise CurbsideInputError("--filter-seeds", f"need at least 1, got {self.filter_seeds}")
+        if self.unseen_velocity not in UNSEEN_VELOCITY_MODES:
+            mode, known = self.unseen_velocity, list(UNSEEN_VELOCITY_MODES)
+            raise CurbsideInputError("--unseen-velocity", f"unknown mode {mode!r}; one of {known}")
         for subset in self.subsets:
             if subset not in SUBSETS:
                 raise CurbsideInputError("--subsets", f"unknown subset {subset!r}; one of {list(SUBSETS)}")
@@ -118,7 +121,9 @@ class SuiteConfig:
     def overrides_of(self, method: str, smooth: bool = False) -> tuple[tuple[str, object], ...]:
         """``method``'s run-configuration overrides: ``--unseen-velocity``'s preset for curbside fused,
         and the smoother's lag (``smooth``)."""
-        overrides = dict(UNSEEN_VELOCITY_OVERRIDES) if self.unseen_velocity and method == "fused" else {}
+        overrides: dict[str, object] = {}
+        if self.unseen_velocity != UnseenVelocityConfig().mode and method == "fused":
+            overrides["unseen_velocity.mode"] = self.unseen_velocity
         if smooth:
             overrides["filter.smoother.lag_s"] = self.smoothing_lag_s
         return tuple(sorted(overrides.items()))
@@ -225,19 +230,21 @@ def _git_commit() -> str | None:
     return out.stdout.strip() or None
 
 
-#: curbside fused with ``--unseen-velocity`` (:data:`~curbside.localize.runconfig.UNSEEN_VELOCITY_OVERRIDES`;
+#: curbside fused with ``--unseen-velocity on`` (:class:`~curbside.localize.runconfig.UnseenVelocityConfig`;
 #: docs/filter.md), run beside the defaults on the IPIN trials: the preset for a velocity model that has
 #: not seen the place.
 UNSEEN_VELOCITY_RUN = "curbside fused, --unseen-velocity"
 
 
 def _ipin_runs(config: SuiteConfig) -> dict[str, RunConfig]:
-    """The IPIN runs beside the methods: version 0.1's fused filter, and ``--unseen-velocity``'s preset
-    (as curbside fused itself when the suite runs with it)."""
+    """The IPIN runs beside the methods: version 0.1's fused filter, and ``--unseen-velocity on`` (as
+    curbside fused itself when the suite runs with it; curbside fused with another mode when asked)."""
     fused = RunConfig.for_mode("fused")
-    preset = fused.with_overrides(UNSEEN_VELOCITY_OVERRIDES)
+    preset = fused.with_overrides({"unseen_velocity.mode": "on"})
     runs = {criteria.IPIN_BASELINE_RUN: fused.with_overrides(criteria.FUSED_0_1_OVERRIDES)}
-    runs["fused" if config.unseen_velocity else UNSEEN_VELOCITY_RUN] = preset
+    runs["fused" if config.unseen_velocity == "on" else UNSEEN_VELOCITY_RUN] = preset
+    if config.unseen_velocity not in ("on", fused.unseen_velocity.mode):
+        runs["fused"] = fused.with_overrides({"unseen_velocity.mode": config.unseen_velocity})
     return runs
 
 

@@ -40,6 +40,7 @@ from curbside.evaluate.report import (
 from curbside.evaluate.runner import METHOD_LABELS, SMOOTHED_METHOD, subset_of
 from curbside.evaluate.uncertainty import map_intervals, subset_intervals
 from curbside.io import atomic_path
+from curbside.localize.runconfig import UnseenVelocityConfig
 from curbside.osmseg.mapio import MapLayers
 
 _STYLE = (
@@ -355,13 +356,15 @@ def _intro(config, counts, pooled, n_runs, timings, workers, checks) -> str:
     return (
         f"Profile '{config.profile}', split '{config.split}', {config.seeds} seed(s) per route: {subsets}. "
         f"{n_runs} runs, N = {config.particles}, {_seeds(config)}, every method on the same "
-        f"sessions{_PRESET_NOTE if config.unseen_velocity else ''}. "
+        f"sessions{_preset_note(config.unseen_velocity)}. "
         f"Time: {total_s / 60:.1f} min ({stages}) with {workers} worker(s). "
         f"Done when: {criteria.overall(checks)}."
     )
 
 
-_PRESET_NOTE = ", curbside fused with --unseen-velocity"
+def _preset_note(mode: str) -> str:
+    """The report's note on curbside fused's ``unseen_velocity.mode`` when it is not its default."""
+    return "" if mode == UnseenVelocityConfig().mode else f", curbside fused with --unseen-velocity {mode}"
 
 
 def write_suite_report(

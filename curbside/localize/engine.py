@@ -16,6 +16,14 @@ When the filter updates:
   ``engine.standing_speed_mps``, such an update whose inertial speed is under that bound is a walker
   standing still: the velocity model's drift while the phone is handled moves no particle.
 
+With ``unseen_velocity.mode = on`` the filter moves with the preset for a velocity model new to the
+phone or the place (:class:`~curbside.localize.runconfig.UnseenVelocityConfig`) from the start; with
+``auto``, from the update at which the model is caught reading motion while the walker stands: the
+median inertial speed of the first ``still_updates`` time-grid updates slower than the preset's
+standing bound, ``settle_s`` or more after the last footstep, is at least ``still_speed_mps``. Each
+update is decided from inputs before it, so a file and a live feed switch at the same update
+(:attr:`SessionEngine.unseen_since_t`).
+
 The first update is the start: the known start pose (``meta.json``) at its time, with the heading
 offset that turns the first ``heading_align_distance_m`` of inertial motion onto the start heading; or,
 without one, the first update time whose fix is usable. At each update the inertial displacement since
@@ -35,7 +43,7 @@ from curbside.errors import CurbsideInputError
 from curbside.localize.filter.particles import SCALE, THETA, X, Y
 from curbside.localize.filter.tracker import Tracker
 from curbside.localize.raster import MapRaster
-from curbside.localize.runconfig import RunConfig
+from curbside.localize.runconfig import RunConfig, UnseenVelocityConfig
 from curbside.localize.streams import DisplacementIntegrator, FixStore, StepTimes
 from curbside.projection import LocalFrame
 
@@ -92,6 +100,26 @@ class _State:
     finished: bool = False
     clock: float = -math.inf
     smoothed_rows: int = 0
+    last_step_t: float = -math.inf
+
+
+class _StillSpeedCheck:
+    """``unseen_velocity.mode = auto``: collects the inertial speed of time-grid updates (no footstep)
+    under the standing bound, and decides once whether the velocity model reads motion at a standstill."""
+
+    def __init__(self, config: UnseenVelocityConfig) -> None:
+        self.config = config
+        self.speeds: list[float] = []
+
+    def caught(self, speed_mps: float, since_step_s: float) -> bool:
+        """Add one time-grid update's speed (``since_step_s`` after the last footstep); ``True`` exactly
+        once, when the model is caught."""
+        c = self.config
+        counts = speed_mps < c.standing_speed_mps and since_step_s >= c.settle_s
+        if not counts or len(self.speeds) >= c.still_updates:
+            return False
+        self.speeds.append(speed_mps)
+        return len(self.speeds) == c.still_updates and float(np.median(self.speeds)) >= c.still_speed_mps
 
 
 class SessionEngine:
@@ -132,17 +160,26 @@ class SessionEngine:
     ) -> None:
         self.config = config
         self.frame = frame
+        real_steps = not (cadence or step_means_velocity)
+        unseen = config.unseen_velocity.mode
+        #: Time from which the unseen-velocity preset applies (``-inf``: from the start; ``None``: not).
+        self.unseen_since_t: float | None = -math.inf if unseen == "on" else None
+        if unseen == "on":
+            config = config.with_unseen_velocity()
         e = config.engine
         self.tracker = None
         if config.mode != "gnss":
             self.tracker = Tracker.from_config(
                 raster, config.filter, config.seed, frame, use_gnss=config.mode in ("paper", "fused")
             )
+        self._still_check = None
+        if unseen == "auto" and real_steps and self.tracker is not None:
+            self._still_check = _StillSpeedCheck(config.unseen_velocity)
         self.start = start if config.use_start_pose else None
         self.t_begin = -math.inf if t_begin is None else float(t_begin)
         self.displacement = DisplacementIntegrator(e.velocity_max_gap_s, step_means_velocity)
         #: Below this inertial speed, a time-grid update is standing (needs real footsteps).
-        self.standing_speed = 0.0 if cadence or step_means_velocity else e.standing_speed_mps
+        self.standing_speed = e.standing_speed_mps if real_steps else 0.0
         self.steps = StepTimes(e.cadence_s if cadence else None)
         self.fixes = FixStore(e.fix_association, e.interp_max_gap_s, e.max_fix_age_s)
         self.rows: list[Row] = []
@@ -196,6 +233,13 @@ class SessionEngine:
         if self.tracker is not None and self.tracker.smoother is not None:
             self._fill_smoothed(self.tracker.take_smoothed(final=True))
         return rows
+
+    @property
+    def unseen_velocity_from_s(self) -> float | None:
+        """Time of the first update with the unseen-velocity motion model (``None``: none had it)."""
+        if self.unseen_since_t is None or not self.rows:
+            return None
+        return max(self.unseen_since_t, self.rows[0].t)
 
     @property
     def data_end(self) -> float:
@@ -321,16 +365,33 @@ class SessionEngine:
         else:
             d = self.displacement.at(t)
             moved = d - s.prev_d
-            if kind == "time" and math.hypot(*moved) < self.standing_speed * (t - s.prev_t):
+            speed = math.hypot(*moved) / max(t - s.prev_t, 1e-9)
+            if kind == "time" and speed < self.standing_speed:
                 moved = np.zeros(2)  # no footstep and hardly any inertial speed: standing
             use = fix if self.config.mode in ("paper", "fused") else None
             estimate = self.tracker.step(t, displacement_en=moved, gnss_fix=use)
             self._record_estimate(estimate, kind, self.tracker.usable(use))
             s.prev_d = d
+            if kind == "step":
+                s.last_step_t = t
+            elif self._still_check is not None and self._still_check.caught(speed, t - s.last_step_t):
+                self._switch_to_unseen_velocity(t, float(np.median(self._still_check.speeds)))
         s.prev_t = t
         self.displacement.forget_before(t)
         self.steps.forget_before(t)
         self.fixes.forget_before(t - self.config.engine.max_fix_age_s)
+
+    def _switch_to_unseen_velocity(self, t: float, still_speed_mps: float) -> None:
+        unseen = self.config.with_unseen_velocity()
+        self.tracker.adopt_motion(unseen.filter.motion, unseen.filter.scale_correction)
+        self.standing_speed = unseen.engine.standing_speed_mps
+        self.unseen_since_t = t
+        logger.info(
+            "t=%.1f s: the velocity model reads %.2f m/s while no footstep comes: from here on, the motion "
+            "model for a velocity model new to the phone or the place (unseen_velocity.mode = auto)",
+            t,
+            still_speed_mps,
+        )
 
     def _record_estimate(self, e, kind: str, fix_used: bool) -> None:
         prob = e.segment_prob if self.tracker.segments is not None else math.nan

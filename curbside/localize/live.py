@@ -375,7 +375,8 @@ class LiveSession:
         track = track_table(self.rows, self.frame, self.map_layers, segments=segments)
         injections = 0 if tracker is None or tracker.divergence is None else tracker.divergence.injections
         return TrackResult(
-            track, self.config, self.velocity_source, self.step_source, self.recoveries, injections
+            track, self.config, self.velocity_source, self.step_source, self.recoveries, injections,
+            unseen_velocity_from_s=self.engine.unseen_velocity_from_s,
         )
 
 

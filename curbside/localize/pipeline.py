@@ -77,6 +77,8 @@ class TrackResult:
         Where the velocity and the footsteps came from (``None`` for velocity in ``gnss`` mode).
     recoveries, injections
         Collapses re-seeded; particles injected by the divergence recovery.
+    unseen_velocity_from_s
+        Time from which the filter moved with the unseen-velocity motion model (``None``: never).
     snapshots
         With ``save_particles``: ``t`` ``(K,)``, ``x``, ``y`` ``(K, N)`` float32 metres relative to
         ``origin``, ``theta`` and ``scale`` ``(K, N)`` float32, ``origin`` ``(2,)``, ``crs`` (WKT), and
@@ -91,6 +93,7 @@ class TrackResult:
     recoveries: int = 0
     injections: int = 0
     snapshots: dict[str, np.ndarray] | None = None
+    unseen_velocity_from_s: float | None = None
 
     @property
     def mode(self) -> str:
@@ -374,6 +377,7 @@ def _result(
         0 if tracker is None else tracker.recoveries,
         injections,
         snapshots,
+        engine.unseen_velocity_from_s,
     )
 
 

@@ -20,19 +20,9 @@ from curbside.localize.steps import StepConfig
 #: The methods: GNSS alone; the filter without GNSS (RoNIN+PF); the paper's plain fused filter; curbside's.
 MODES = ("gnss", "inertial", "paper", "fused")
 VELOCITY_SOURCES = ("auto", "file", "ronin", "pdr")
-#: ``--unseen-velocity``: for a velocity model that has not seen this phone, its carrier or the place (a
-#: new user's usual case): a wider step noise, the standing rule and the GNSS-driven speed-scale
-#: correction. Chosen on the benchmark's tune split
-#: and the IPIN training trials tracked with a RoNIN that never saw that venue (docs/filter.md, "A velocity
-#: model that has not seen the place"). Not the default: where the model was trained on the same place,
-#: the IPIN held-out trials with the bundled RoNIN, it costs accuracy.
-UNSEEN_VELOCITY_OVERRIDES: dict[str, object] = {
-    "filter.motion.step_noise_fraction": 0.55,
-    "engine.standing_speed_mps": 0.6,
-    "filter.scale_correction.fraction": 0.05,
-}
 STEP_SOURCES = ("auto", "file", "detect", "cadence")
 FIX_ASSOCIATIONS = ("interpolate", "once")
+UNSEEN_VELOCITY_MODES = ("off", "on", "auto")
 
 
 def _check(condition: bool, message: str) -> None:
@@ -136,6 +126,55 @@ class EngineConfig:
 
 
 @dataclass(frozen=True)
+class UnseenVelocityConfig:
+    """The motion model for a velocity model that has not seen this phone, its carrier or the place.
+
+    A new user's usual case (docs/filter.md, "A velocity model that has not seen the place"): a wider
+    step noise, the standing rule and the GNSS-driven speed-scale correction. Chosen on the benchmark's
+    tune split and the IPIN training trials tracked with a RoNIN that never saw that venue; where the
+    model was trained on the same place (the IPIN held-out trials with the bundled RoNIN) it costs
+    accuracy, hence ``auto``.
+
+    Attributes
+    ----------
+    mode
+        ``off``; ``on`` (``--unseen-velocity``: from the start); ``auto`` (curbside fused's default): from
+        the update at which the velocity model is caught reading motion while the walker stands (below).
+    still_speed_mps, still_updates, settle_s
+        ``auto``: after ``still_updates`` time-grid updates at least ``settle_s`` after the last footstep
+        (RoNIN's one-second window still carries the last steps before that) and slower than the
+        standing bound, the model is unseen when their median inertial speed is at least
+        ``still_speed_mps``. The bundled RoNIN reads 0.002 m/s on the IPIN trials while no footstep
+        comes, a RoNIN that never saw them 0.25-0.49 m/s (per-trial 10th-90th percentile). Needs
+        footsteps (a file or the detector) and sampled velocity (not PDR).
+    step_noise_fraction, standing_speed_mps, scale_correction_fraction
+        The preset: ``filter.motion.step_noise_fraction``, ``engine.standing_speed_mps`` and
+        ``filter.scale_correction.fraction`` once it applies.
+    """
+
+    mode: str = "auto"
+    still_speed_mps: float = 0.1
+    still_updates: int = 5
+    settle_s: float = 2.0
+    step_noise_fraction: float = 0.55
+    standing_speed_mps: float = 0.6
+    scale_correction_fraction: float = 0.05
+
+    def __post_init__(self) -> None:
+        _check(
+            self.mode in UNSEEN_VELOCITY_MODES,
+            f"mode must be one of {UNSEEN_VELOCITY_MODES}, got {self.mode!r}",
+        )
+        _check(self.still_updates >= 1, f"still_updates must be at least 1, got {self.still_updates}")
+        _check(
+            min(self.still_speed_mps, self.settle_s, self.step_noise_fraction, self.standing_speed_mps) >= 0
+            and 0.0 <= self.scale_correction_fraction <= 1.0,
+            "still_speed_mps, settle_s, step_noise_fraction and standing_speed_mps must be >= 0, "
+            "scale_correction_fraction in [0, 1]",
+        )
+
+
+@dataclass(frozen=True)
 class RunConfig:
     """One tracking run: method, seed, whether to use the known start pose, and every parameter.
 
@@ -152,6 +191,8 @@ class RunConfig:
         The particle filter's parameters (the ``paper`` mode uses ``FilterConfig.preset("paper")``).
     engine
         How the session's streams become updates.
+    unseen_velocity
+        When to switch to the motion model for a velocity model new to the phone or the place.
     """
 
     mode: str = "fused"
@@ -159,15 +200,22 @@ class RunConfig:
     use_start_pose: bool = True
     filter: FilterConfig = field(default_factory=FilterConfig)
     engine: EngineConfig = field(default_factory=EngineConfig)
+    unseen_velocity: UnseenVelocityConfig = field(default_factory=UnseenVelocityConfig)
 
     def __post_init__(self) -> None:
         _check(self.mode in MODES, f"mode must be one of {MODES}, got {self.mode!r}")
 
     @classmethod
     def for_mode(cls, mode: str, **kwargs: Any) -> RunConfig:
-        """The default run of ``mode`` (the paper preset for ``paper``); ``kwargs`` set other fields."""
+        """The default run of ``mode`` (the paper preset for ``paper``); ``kwargs`` set other fields.
+
+        Only curbside fused switches to the unseen-velocity motion model (``auto``); the baselines
+        (``inertial``, ``paper``) keep their own motion model.
+        """
         _check(mode in MODES, f"mode must be one of {MODES}, got {mode!r}")
         preset = FilterConfig.preset("paper" if mode == "paper" else "fused")
+        if mode != "fused":
+            kwargs.setdefault("unseen_velocity", UnseenVelocityConfig(mode="off"))
         return cls(mode=mode, filter=kwargs.pop("filter", preset), **kwargs)
 
     def with_overrides(self, overrides: dict[str, Any]) -> RunConfig:
@@ -178,11 +226,31 @@ class RunConfig:
         """A copy with ``n`` particles."""
         return replace(self, filter=replace(self.filter, n_particles=int(n)))
 
+    def with_unseen_velocity(self) -> RunConfig:
+        """A copy whose filter and engine carry the :class:`UnseenVelocityConfig` preset's values."""
+        u = self.unseen_velocity
+        f = self.filter
+        return replace(
+            self,
+            filter=replace(
+                f,
+                motion=replace(f.motion, step_noise_fraction=u.step_noise_fraction),
+                scale_correction=replace(f.scale_correction, fraction=u.scale_correction_fraction),
+            ),
+            engine=replace(self.engine, standing_speed_mps=u.standing_speed_mps),
+        )
+
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready (the ``config`` member of ``run.json``)."""
         return to_dict(self)
 
     @classmethod
     def from_dict(cls, data: dict[str, Any], where: str = "run.json config") -> RunConfig:
-        """Rebuild from :meth:`to_dict` output (unknown keys or bad values: one-line input error)."""
+        """Rebuild from :meth:`to_dict` output (unknown keys or bad values: one-line input error).
+
+        A config written before the ``unseen_velocity`` block existed ran without it: it replays with
+        mode ``off``, not today's default.
+        """
+        if isinstance(data, dict) and "unseen_velocity" not in data:
+            data = {**data, "unseen_velocity": {"mode": "off"}}
         return from_dict(cls, data, where)

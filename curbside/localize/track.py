@@ -110,6 +110,7 @@ def write_track(
         "rows": len(result.track),
         "recoveries": result.recoveries,
         "injections": result.injections,
+        "unseen_velocity_from_s": result.unseen_velocity_from_s,
         "config": result.config.to_dict(),
     }
     with output_folder(out_dir, "localize run", overwrite=overwrite) as tmp:

@@ -56,11 +56,24 @@ class InertialPredictor:
     """
 
     def __init__(self, config: MotionConfig, n: int, rng: np.random.Generator) -> None:
+        #: The noise parameters, read at every update (a tracker may swap them mid-walk).
         self.config = config
         self.stream = Stream(rng)
-        self.theta_sigma = math.radians(config.heading_noise_deg)
-        self.scale_sigma = config.scale_noise_per_step
-        self.jump_sigma = math.radians(config.heading_jump_sigma_deg)
+
+    @property
+    def theta_sigma(self) -> float:
+        """Heading-offset random walk per update (radians)."""
+        return math.radians(self.config.heading_noise_deg)
+
+    @property
+    def scale_sigma(self) -> float:
+        """Speed-scale random walk per update."""
+        return self.config.scale_noise_per_step
+
+    @property
+    def jump_sigma(self) -> float:
+        """Sigma of a heading-offset jump (radians)."""
+        return math.radians(self.config.heading_jump_sigma_deg)
 
     def position_sigma(self, dx: float, dy: float) -> float:
         """Position noise sigma (m) of a step with displacement ``(dx, dy)``."""

@@ -100,7 +100,12 @@ class ScaleCorrection:
         self.corrections = 0
 
     def observe(self, update: Update, last: Estimate) -> None:
-        """Before the likelihoods: extend the inertial path; keep an accepted fix; fit when due."""
+        """Before the likelihoods: extend the inertial path; keep an accepted fix; fit when due.
+
+        Idle while ``config.fraction`` is 0 (a tracker may turn it on mid-walk).
+        """
+        if self.config.fraction <= 0:
+            return
         turn = complex(math.cos(last.theta), math.sin(last.theta))
         self.path += turn * complex(update.dx, update.dy)
         fix, t = update.fix, update.t

@@ -30,7 +30,7 @@ import numpy as np
 import pyproj
 
 from curbside.errors import CurbsideInputError
-from curbside.localize.filter.config import FilterConfig
+from curbside.localize.filter.config import FilterConfig, MotionConfig, ScaleCorrectionConfig
 from curbside.localize.filter.gnss import GnssLikelihood
 from curbside.localize.filter.initiate import Initiator
 from curbside.localize.filter.map_likelihood import MapLikelihood
@@ -171,9 +171,8 @@ class Tracker:
         divergence = None
         if gnss is not None and config.recovery.max_fraction > 0:
             divergence = DivergenceRecovery(config.recovery, gnss, rng)
-        scale = None
-        if gnss is not None and config.scale_correction.fraction > 0:
-            scale = ScaleCorrection(config.scale_correction, gnss, rng)
+        # Built whenever GNSS weighs, idle at fraction 0, so adopt_motion can turn it on mid-walk.
+        scale = None if gnss is None else ScaleCorrection(config.scale_correction, gnss, rng)
         segments = None
         if config.segment_estimate and raster is not None and raster.segment_index is not None:
             segments = SegmentEstimator(raster, n)
@@ -260,6 +259,13 @@ class Tracker:
     def usable(self, fix: GnssFix | None) -> bool:
         """Whether ``fix`` would weigh the particles (valid, and accurate enough for the GNSS part)."""
         return self.gnss.accepts(fix) if self.gnss is not None else False
+
+    def adopt_motion(self, motion: MotionConfig, scale_correction: ScaleCorrectionConfig) -> None:
+        """From the next update on, move with ``motion``'s noise and correct the speed scale by
+        ``scale_correction`` (the switch to a velocity model's unseen-place motion model, mid-walk)."""
+        self.predictor.config = motion
+        if self.scale is not None:
+            self.scale.config = scale_correction
 
     def step(
         self,
