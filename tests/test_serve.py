@@ -145,6 +145,7 @@ def test_streamed_in_small_batches_the_service_gives_the_localize_run_track(tmp_
     pd.testing.assert_frame_equal(live_track, batch_track)
     assert info["config"] == batch_info["config"]
     assert (info["velocity_source"], info["step_source"]) == ("ronin", "detected")
+    assert live_unseen(estimates) == info["unseen_velocity_from_s"] == batch_info["unseen_velocity_from_s"]
     assert summary["saved"] and summary["updates"] == len(batch_track) > 20
     # every estimate sent while streaming is the track's row at its time, before the walk ended
     live = [e for e in estimates if e["t"] is not None]
@@ -153,6 +154,28 @@ def test_streamed_in_small_batches_the_service_gives_the_localize_run_track(tmp_
     for e in live:
         as_written = [float(f"{e[k]:.10g}") for k in ("t", "lat", "lon", "n_eff")]  # track.csv's format
         assert as_written[1:] == rows.loc[as_written[0], ["lat", "lon", "n_eff"]].tolist()
+
+
+def live_unseen(estimates: list[dict]) -> float | None:
+    """The last estimate's ``unseen_velocity_from_s``."""
+    return estimates[-1]["unseen_velocity_from_s"]
+
+
+def test_estimates_say_since_when_the_unseen_velocity_motion_model_applies(tmp_path, model, walk):
+    with client_for(tmp_path, model, inference_wait_s=0.0) as client:
+        session_id = new_session(client, walk, seed=3, unseen_velocity={"mode": "on"})
+        estimates = replay(client, session_id, walk, 0.5)
+        for _ in range(100):  # the velocity model may still be catching up with the data
+            latest = client.get(f"/sessions/{session_id}/estimate").json()
+            if latest["t"] is not None:
+                break
+            time.sleep(0.1)
+        client.delete(f"/sessions/{session_id}")
+        info = client.get(f"/tracks/{session_id}").json()["run"]
+        start_t = saved_track(client, session_id)["t"].iat[0]
+    assert all(e["unseen_velocity_from_s"] is None for e in estimates if e["t"] is None)
+    assert {e["unseen_velocity_from_s"] for e in estimates if e["t"] is not None} <= {start_t}
+    assert latest["unseen_velocity_from_s"] == info["unseen_velocity_from_s"] == start_t
 
 
 def test_live_estimates_trail_the_data_by_the_fix_look_ahead_and_delay(walk, model):

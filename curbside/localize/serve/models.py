@@ -132,6 +132,11 @@ class Estimate(BaseModel):
     place: str | None = Field(None, description='e.g. "Market Street, north side"')
     n_eff: float | None = Field(None, description="effective number of particles")
     recoveries: int = Field(0, description="collapses of the particle cloud so far")
+    unseen_velocity_from_s: float | None = Field(
+        None,
+        description="since when the filter moves with the motion model for a velocity model new to the "
+        "phone or the place (--unseen-velocity; null: not so far)",
+    )
     update: str | None = Field(None, description="start, step (a footstep) or time (no footstep for 1 s)")
     gnss_used: bool | None = None
     updates: int = Field(0, description="filter updates so far")

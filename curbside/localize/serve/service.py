@@ -142,6 +142,7 @@ _ESTIMATE_FIELDS = (
     "place",
     "n_eff",
     "recoveries",
+    "unseen_velocity_from_s",
     "update",
     "gnss_used",
     "updates",
@@ -517,6 +518,7 @@ class TrackingService:
             {
                 "status": "failed" if live.failed else "tracking" if rows else "starting",
                 "recoveries": live.recoveries,
+                "unseen_velocity_from_s": None if live.engine is None else live.engine.unseen_velocity_from_s,
                 "updates": len(rows),
                 "data_until": _finite(live.received_until),
                 "warnings": warnings,
