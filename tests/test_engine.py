@@ -246,6 +246,8 @@ def test_unseen_velocity_flag_applies_its_preset_and_set_wins(tmp_path, monkeypa
     effective = unseen.with_unseen_velocity()
     assert effective.filter.motion.step_noise_fraction == 0.55 and effective.engine.standing_speed_mps == 0.6
     assert effective.filter.scale_correction.fraction == 0.05
+    assert effective.filter.motion.step_noise_across_fraction == 0.25  # wider along the step only
+    assert plain.filter.motion.step_noise_across_fraction is None
     mixed = config("--unseen-velocity", "--set", "unseen_velocity.standing_speed_mps=0.3")
     assert mixed.with_unseen_velocity().engine.standing_speed_mps == 0.3
 

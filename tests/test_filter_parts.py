@@ -89,9 +89,10 @@ def test_predictor_noise_scales_with_step_length():
     np.testing.assert_allclose(spreads, [0.05, 0.2, 0.4], rtol=0.03)
 
 
-@pytest.mark.parametrize("scale_noise", [0.0, 0.01])
-def test_compiled_predictor_matches_its_oracle_fed_the_same_draws(scale_noise):
-    cfg = MotionConfig(heading_jump_prob=0.05, heading_jump_sigma_deg=40.0, scale_noise_per_step=scale_noise)
+@pytest.mark.parametrize("scale_noise, across", [(0.0, None), (0.01, None), (0.01, 0.1)])
+def test_compiled_predictor_matches_its_oracle_fed_the_same_draws(scale_noise, across):
+    cfg = MotionConfig(heading_jump_prob=0.05, heading_jump_sigma_deg=40.0, scale_noise_per_step=scale_noise,
+                       step_noise_across_fraction=across)
     p = random_particles(500)
     pred = InertialPredictor(cfg, 500, np.random.default_rng(2))
     before, replay = p.state.copy(), pred.stream.copy()
@@ -110,9 +111,22 @@ def test_compiled_predictor_matches_its_oracle_fed_the_same_draws(scale_noise):
         pred.scale_sigma,
         jump_idx,
         jump_rad,
+        None if across is None else pred.across_sigma(0.6, 0.3),
     )
     np.testing.assert_allclose(p.state, expected, rtol=1e-15, atol=1e-12)  # sin/cos within an ulp
     np.testing.assert_array_equal(pred.stream.state, replay.state)  # the kernel drew exactly these
+
+
+def test_anisotropic_step_noise_spreads_along_each_particles_step_not_across_it():
+    cfg = MotionConfig(heading_noise_deg=0.0, scale_init_sigma=0.0, scale_noise_per_step=0.0,
+                       step_noise_fraction=0.5, step_noise_across_fraction=0.1, step_noise_floor_m=0.0)
+    p = ParticleSet(4000)
+    p.set_heading(np.where(np.arange(4000) < 2000, 0.0, math.pi / 2))  # half turn the step north
+    InertialPredictor(cfg, 4000, np.random.default_rng(1)).predict(p, 2.0, 0.0)
+    east, north = p.x[:2000], p.y[2000:]  # along each half's step
+    np.testing.assert_allclose([np.std(east), np.std(p.y[:2000])], [1.0, 0.2], rtol=0.06)
+    np.testing.assert_allclose([np.std(north), np.std(p.x[2000:])], [1.0, 0.2], rtol=0.06)
+    np.testing.assert_allclose([np.mean(east), np.mean(north)], [2.0, 2.0], atol=0.06)
 
 
 def test_predictor_turns_by_huge_heading_offsets_with_the_c_library():

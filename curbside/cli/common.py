@@ -100,7 +100,8 @@ def add_config_options(parser: argparse.ArgumentParser, set_help: str) -> None:
         choices=UNSEEN_VELOCITY_MODES,
         metavar="{" + ",".join(UNSEEN_VELOCITY_MODES) + "}",
         help="the motion model for a velocity model that has not seen this phone, its carrier or the place "
-        f"(step noise {u.step_noise_fraction:g}, standing below {u.standing_speed_mps:g} m/s, speed-scale "
+        f"(step noise {u.step_noise_fraction:g} along the step and {u.step_noise_across_fraction:g} across "
+        f"it, standing below {u.standing_speed_mps:g} m/s, speed-scale "
         f"correction {u.scale_correction_fraction:g}): 'on' (the flag alone) from the start, 'auto' once "
         f"the model reads {u.still_speed_mps:g} m/s or more while no footstep comes, 'off' never "
         f"(default: {u.mode} for --mode fused, off for the baselines; tune with --set "

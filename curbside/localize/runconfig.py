@@ -147,8 +147,9 @@ class UnseenVelocityConfig:
         ``still_speed_mps``. The bundled RoNIN reads 0.002 m/s on the IPIN trials while no footstep
         comes, a RoNIN that never saw them 0.25-0.49 m/s (per-trial 10th-90th percentile). Needs
         footsteps (a file or the detector) and sampled velocity (not PDR).
-    step_noise_fraction, standing_speed_mps, scale_correction_fraction
-        The preset: ``filter.motion.step_noise_fraction``, ``engine.standing_speed_mps`` and
+    step_noise_fraction, step_noise_across_fraction, standing_speed_mps, scale_correction_fraction
+        The preset: ``filter.motion.step_noise_fraction`` (along the step) and
+        ``step_noise_across_fraction`` (across it; ``None``: isotropic), ``engine.standing_speed_mps`` and
         ``filter.scale_correction.fraction`` once it applies.
     """
 
@@ -157,6 +158,7 @@ class UnseenVelocityConfig:
     still_updates: int = 5
     settle_s: float = 2.0
     step_noise_fraction: float = 0.55
+    step_noise_across_fraction: float | None = 0.25
     standing_speed_mps: float = 0.6
     scale_correction_fraction: float = 0.05
 
@@ -166,6 +168,10 @@ class UnseenVelocityConfig:
             f"mode must be one of {UNSEEN_VELOCITY_MODES}, got {self.mode!r}",
         )
         _check(self.still_updates >= 1, f"still_updates must be at least 1, got {self.still_updates}")
+        _check(
+            self.step_noise_across_fraction is None or self.step_noise_across_fraction >= 0,
+            f"step_noise_across_fraction must be non-negative, got {self.step_noise_across_fraction}",
+        )
         _check(
             min(self.still_speed_mps, self.settle_s, self.step_noise_fraction, self.standing_speed_mps) >= 0
             and 0.0 <= self.scale_correction_fraction <= 1.0,
@@ -234,7 +240,11 @@ class RunConfig:
             self,
             filter=replace(
                 f,
-                motion=replace(f.motion, step_noise_fraction=u.step_noise_fraction),
+                motion=replace(
+                    f.motion,
+                    step_noise_fraction=u.step_noise_fraction,
+                    step_noise_across_fraction=u.step_noise_across_fraction,
+                ),
                 scale_correction=replace(f.scale_correction, fraction=u.scale_correction_fraction),
             ),
             engine=replace(self.engine, standing_speed_mps=u.standing_speed_mps),

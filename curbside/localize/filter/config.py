@@ -29,6 +29,10 @@ class MotionConfig:
     ----------
     step_noise_fraction, step_noise_floor_m
         Position noise per update, east and north: sigma = max(floor, fraction * step length).
+    step_noise_across_fraction
+        With a value, the position noise is anisotropic: ``step_noise_fraction`` along the particle's
+        step and this across it (``None``: isotropic). Inertial speed errors lie along the step; the
+        heading state already carries the direction's.
     heading_noise_deg
         Random walk of the heading offset per update (one sigma, degrees).
     heading_jump_prob
@@ -43,6 +47,7 @@ class MotionConfig:
 
     step_noise_fraction: float = 0.25
     step_noise_floor_m: float = 0.05
+    step_noise_across_fraction: float | None = None
     heading_noise_deg: float = 1.5
     heading_jump_prob: float = 0.0
     heading_jump_sigma_deg: float = 30.0
@@ -60,6 +65,10 @@ class MotionConfig:
             )
             >= 0,
             "motion noise parameters must be non-negative",
+        )
+        _check(
+            self.step_noise_across_fraction is None or self.step_noise_across_fraction >= 0,
+            f"step_noise_across_fraction must be non-negative, got {self.step_noise_across_fraction}",
         )
         _check(
             0.0 <= self.heading_jump_prob <= 1.0,

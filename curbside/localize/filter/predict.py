@@ -9,7 +9,9 @@ At an update with inertial displacement ``(dx, dy)`` (metres east/north over the
 2. every particle's heading offset ``theta`` takes a random-walk increment and its speed scale too;
 3. every particle moves by ``(dx, dy)`` rotated by ``theta`` and multiplied by ``scale``, plus isotropic
    position noise of sigma ``max(step_noise_floor_m, step_noise_fraction * |(dx, dy)|)``: the error of
-   an inertial step grows with its length, and the floor keeps a standing cloud alive.
+   an inertial step grows with its length, and the floor keeps a standing cloud alive. With
+   ``step_noise_across_fraction`` the noise is that sigma along the particle's own step and
+   ``max(floor, across_fraction * |(dx, dy)|)`` across it (the same draws, turned onto the step).
 
 The predictor owns a :class:`~curbside.localize.filter.random.Stream` seeded from the filter's
 generator, and its compiled kernel (:func:`_predict`) draws the normals as it goes, with no buffer:
@@ -76,8 +78,15 @@ class InertialPredictor:
         return math.radians(self.config.heading_jump_sigma_deg)
 
     def position_sigma(self, dx: float, dy: float) -> float:
-        """Position noise sigma (m) of a step with displacement ``(dx, dy)``."""
+        """Position noise sigma (m) of a step with displacement ``(dx, dy)`` (along it, when anisotropic)."""
         return max(self.config.step_noise_floor_m, self.config.step_noise_fraction * math.hypot(dx, dy))
+
+    def across_sigma(self, dx: float, dy: float) -> float:
+        """Position noise sigma (m) across the step (the same as :meth:`position_sigma` when isotropic)."""
+        across = self.config.step_noise_across_fraction
+        if across is None:
+            return self.position_sigma(dx, dy)
+        return max(self.config.step_noise_floor_m, across * math.hypot(dx, dy))
 
     def predict(self, particles: ParticleSet, dx: float, dy: float) -> None:
         """Move ``particles`` in place by the step displacement ``(dx, dy)`` metres (east, north)."""
@@ -87,6 +96,7 @@ class InertialPredictor:
             dx,
             dy,
             self.position_sigma(dx, dy),
+            self.across_sigma(dx, dy),
             self.theta_sigma,
             self.scale_sigma,
             self.config.heading_jump_prob,
@@ -96,9 +106,11 @@ class InertialPredictor:
 
 @numba.njit(cache=True, nogil=True)
 def _predict(
-    state, rng_state, dx, dy, sigma_xy, sigma_theta, sigma_scale, jump_prob, jump_sigma
+    state, rng_state, dx, dy, sigma_xy, sigma_across, sigma_theta, sigma_scale, jump_prob, jump_sigma
 ):  # pragma: no cover - compiled
     n = state.shape[1]
+    turned = sigma_across != sigma_xy  # anisotropic: the position draws wait for each particle's step
+    z_pos = np.empty((2, n if turned else 0))
     s = load(rng_state)
     if jump_prob > 0:
         log_miss = math.log1p(-jump_prob)
@@ -122,8 +134,11 @@ def _predict(
         if sigma_scale > 0:
             zs, s = standard_normal(s)
             state[SCALE, i] += sigma_scale * zs
-        state[X, i] += sigma_xy * zx
-        state[Y, i] += sigma_xy * zy
+        if turned:
+            z_pos[0, i], z_pos[1, i] = zx, zy
+        else:
+            state[X, i] += sigma_xy * zx
+            state[Y, i] += sigma_xy * zy
     store(rng_state, s)
     if out_of_range:  # heading offsets beyond a thousand radians: the C library's sine and cosine
         for i in range(n):
@@ -132,6 +147,22 @@ def _predict(
         for i in range(n):
             sn, c = sincos(state[THETA, i])
             _move(state, i, c, sn, dx, dy)
+    if turned:
+        _add_turned_noise(state, z_pos, dx, dy, sigma_xy, sigma_across)
+
+
+@numba.njit(cache=True, nogil=True)
+def _add_turned_noise(state, z_pos, dx, dy, sigma_along, sigma_across):  # pragma: no cover - compiled
+    """Position draws ``z_pos`` along and across each particle's turned step (east if it has none)."""
+    length = math.hypot(dx, dy)
+    for i in range(state.shape[1]):
+        c, sn = state[COS, i], state[SIN, i]
+        ux, uy = 1.0, 0.0
+        if length > 0:
+            ux, uy = (c * dx - sn * dy) / length, (sn * dx + c * dy) / length
+        along, across = sigma_along * z_pos[0, i], sigma_across * z_pos[1, i]
+        state[X, i] += along * ux - across * uy
+        state[Y, i] += along * uy + across * ux
 
 
 @numba.njit(inline="always", cache=True, nogil=True)
@@ -183,15 +214,24 @@ def reference_predict(
     sigma_scale: float,
     jump_idx: np.ndarray,
     jump_rad: np.ndarray,
+    sigma_across: float | None = None,
 ) -> np.ndarray:
-    """The numpy oracle of the compiled update (tests only): the new state, ``state`` untouched."""
+    """The numpy oracle of the compiled update (tests only): the new state, ``state`` untouched.
+    ``sigma_across``: anisotropic, ``sigma_xy`` along each particle's turned step and this across it."""
     out = state.copy()
     np.add.at(out[THETA], jump_idx, jump_rad)
     out[THETA] += sigma_theta * noise[2]
     out[SCALE] += sigma_scale * noise[3]
-    out[X] += sigma_xy * noise[0]
-    out[Y] += sigma_xy * noise[1]
     out[COS], out[SIN] = np.cos(out[THETA]), np.sin(out[THETA])
-    out[X] += (out[COS] * dx - out[SIN] * dy) * out[SCALE]
-    out[Y] += (out[SIN] * dx + out[COS] * dy) * out[SCALE]
+    step_x = out[COS] * dx - out[SIN] * dy
+    step_y = out[SIN] * dx + out[COS] * dy
+    if sigma_across is None:
+        out[X] += sigma_xy * noise[0]
+        out[Y] += sigma_xy * noise[1]
+    else:
+        ux, uy = step_x / np.hypot(dx, dy), step_y / np.hypot(dx, dy)
+        out[X] += sigma_xy * noise[0] * ux - sigma_across * noise[1] * uy
+        out[Y] += sigma_xy * noise[0] * uy + sigma_across * noise[1] * ux
+    out[X] += step_x * out[SCALE]
+    out[Y] += step_y * out[SCALE]
     return out
