@@ -98,7 +98,6 @@ def add_config_options(parser: argparse.ArgumentParser, set_help: str) -> None:
         nargs="?",
         const="on",
         choices=UNSEEN_VELOCITY_MODES,
-        metavar="{" + ",".join(UNSEEN_VELOCITY_MODES) + "}",
         help="the motion model for a velocity model that has not seen this phone, its carrier or the place "
         f"(step noise {u.step_noise_fraction:g} along the step and {u.step_noise_across_fraction:g} across "
         f"it, standing below {u.standing_speed_mps:g} m/s, speed-scale "

@@ -341,7 +341,7 @@ def _register_benchmark(subparsers: argparse._SubParsersAction) -> None:
                        help="also score curbside fused's fixed-lag smoothed positions with this lag, as "
                        "'fused, smoothed' (offline; default 0: off)")
     bench.add_argument("--unseen-velocity", nargs="?", const="on", default=UnseenVelocityConfig().mode,
-                       choices=UNSEEN_VELOCITY_MODES, metavar="{" + ",".join(UNSEEN_VELOCITY_MODES) + "}",
+                       choices=UNSEEN_VELOCITY_MODES,
                        help="run curbside fused everywhere with this --unseen-velocity mode, as localize run "
                        f"takes it ('on' for the flag alone; default {UnseenVelocityConfig().mode}, its own); "
                        "the checks judge it, version 0.1's fused filter stays the IPIN baseline")
