@@ -119,8 +119,8 @@ class SuiteConfig:
                 raise CurbsideInputError("--subsets", f"unknown subset {subset!r}; one of {list(SUBSETS)}")
 
     def overrides_of(self, method: str, smooth: bool = False) -> tuple[tuple[str, object], ...]:
-        """``method``'s run-configuration overrides: ``--unseen-velocity``'s preset for curbside fused,
-        and the smoother's lag (``smooth``)."""
+        """``method``'s run-configuration overrides: the ``--unseen-velocity`` mode for curbside fused
+        when it is not its default, and the smoother's lag (``smooth``)."""
         overrides: dict[str, object] = {}
         if self.unseen_velocity != UnseenVelocityConfig().mode and method == "fused":
             overrides["unseen_velocity.mode"] = self.unseen_velocity
