@@ -119,7 +119,12 @@ class _StillSpeedCheck:
         if not counts or len(self.speeds) >= c.still_updates:
             return False
         self.speeds.append(speed_mps)
-        return len(self.speeds) == c.still_updates and float(np.median(self.speeds)) >= c.still_speed_mps
+        return len(self.speeds) == c.still_updates and self.median_mps >= c.still_speed_mps
+
+    @property
+    def median_mps(self) -> float:
+        """Median speed of the standstill updates collected so far."""
+        return float(np.median(self.speeds))
 
 
 class SessionEngine:
@@ -375,7 +380,7 @@ class SessionEngine:
             if kind == "step":
                 s.last_step_t = t
             elif self._still_check is not None and self._still_check.caught(speed, t - s.last_step_t):
-                self._switch_to_unseen_velocity(t, float(np.median(self._still_check.speeds)))
+                self._switch_to_unseen_velocity(t, self._still_check.median_mps)
         s.prev_t = t
         self.displacement.forget_before(t)
         self.steps.forget_before(t)
