@@ -273,11 +273,28 @@ def test_ipin_table_scores_methods_at_the_same_waypoints():
     counts = frame.groupby("trial")["n_waypoints"].nunique()
     assert (counts == 1).all()  # every method at the same waypoints of a trial
     assert [r[0] for r in table.rows] == ["GNSS", "RoNIN+PF", "paper PF", "curbside fused"]
+    n_trials = frame["trial"].nunique()
+    assert table.header[-1] == "trials above GNSS" and table.rows[0][-1] == "–"
+    assert all(r[-1].endswith(f" of {n_trials}") for r in table.rows[1:])
     # held out: only the repetition04 trials RoNIN never saw (none in this cut)
     assert [r[0] for r in how_sure.rows] == [
         "curbside fused", "curbside fused - paper PF", "curbside fused - GNSS"]
     (held_out,), _ = ipin_table(h5, held_out=True)  # no trial scored: no intervals
     assert "0 held-out trials" in held_out.title
+
+
+def test_trials_above_gnss_pairs_each_trial_run_with_gnss_on_the_same_run():
+    from curbside.evaluate.benchmark import trials_above_gnss
+
+    def row(trial, method, median):
+        return {"trial": trial, "method": method, "n_waypoints": 5, "median_m": median}
+
+    seed0 = [row("a", "gnss", 5.0), row("a", "fused", 6.0), row("b", "gnss", 5.0), row("b", "fused", 4.0),
+             row("c", "gnss", None), row("c", "fused", 9.0)]  # c: no waypoint scored
+    seed1 = [row("a", "gnss", 5.0), row("a", "fused", 4.0), row("b", "gnss", 5.0), row("b", "fused", 7.0)]
+    assert trials_above_gnss(seed0) == {"fused": (1, 2)}
+    assert trials_above_gnss(seed0 + seed1) == {"fused": (2, 4)}  # a at seed 0, b at seed 1
+    assert trials_above_gnss([row("a", "fused", 1.0)]) == {}
 
 
 def test_ipin_errors_scores_an_extra_run_at_the_same_waypoints():

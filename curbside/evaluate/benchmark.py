@@ -463,7 +463,7 @@ def ipin_table(
     """Real data without a map: every method at the surveyed IPIN 2023 waypoints (:func:`ipin_errors`),
     then curbside fused against the others with trial-bootstrap intervals (when a trial was scored)."""
     errors, rows, n_trials = ipin_errors(h5, trials, seed, held_out)
-    tables = [ipin_errors_table(errors, n_trials, held_out)]
+    tables = [ipin_errors_table(errors, n_trials, held_out, rows=rows)]
     if rows:
         intervals = waypoint_intervals(errors, rows, "fused", ("paper", "gnss"), seed=seed)
         tables.append(ipin_interval_table(intervals, "IPIN 2023: how sure (m)"))
@@ -507,18 +507,40 @@ def ipin_interval_table(intervals: pd.DataFrame, title: str) -> Table:
     return interval_table(fused, title, INTERVAL_NOTE.format(unit="trials", points="waypoints", one="trial"))
 
 
+def trials_above_gnss(rows: list[dict]) -> dict[str, tuple[int, int]]:
+    """Per method of :func:`ipin_errors`' ``rows`` (one filter seed's, or several seeds' in turn): in how
+    many trial runs its median error exceeds GNSS alone's on the same run, and how many it was scored
+    in (a trial scored once per seed). GNSS itself is left out."""
+    frame = pd.DataFrame(rows, columns=["trial", "method", "n_waypoints", "median_m"])
+    frame["run"] = frame.groupby(["trial", "method"]).cumcount()  # the filter seed, in order
+    medians = frame.pivot_table(index=["trial", "run"], columns="method", values="median_m", dropna=False)
+    if "gnss" not in medians:
+        return {}
+    gnss = medians["gnss"]
+    scored = gnss.notna()
+    return {
+        m: (int((medians[m][scored] > gnss[scored]).sum()), int(medians[m][scored].notna().sum()))
+        for m in medians.columns
+        if m != "gnss"
+    }
+
+
 def ipin_errors_table(
     errors: dict[str, np.ndarray],
     n_trials: int,
     held_out: bool = False,
     seeds: int = 1,
     ronin_weights: str | Path | None = None,
+    rows: list[dict] | None = None,
 ) -> Table:
-    """The table of :func:`ipin_errors`' pooled errors: waypoints, median, p90 and mean per run
+    """The table of :func:`ipin_errors`' pooled errors: waypoints, median, p90 and mean per run, and
+    with its ``rows``, the trial runs whose median is above GNSS alone's (:func:`trials_above_gnss`)
     (``seeds``: how many filter seeds the errors pool, each scoring every waypoint once;
     ``ronin_weights``: the RoNIN model the methods tracked with, when not the bundled one)."""
+    above = trials_above_gnss(rows or [])
     table_rows = []
     for m, e in errors.items():
+        worse, scored = above.get(m, (0, 0))
         table_rows.append(
             [
                 METHOD_LABELS.get(m, m),
@@ -526,20 +548,24 @@ def ipin_errors_table(
                 f"{np.median(e):.1f}" if len(e) else "n/a",
                 f"{np.percentile(e, 90):.1f}" if len(e) else "n/a",
                 f"{e.mean():.1f}" if len(e) else "n/a",
+                f"{worse} of {scored}" if scored else "–",
             ]
         )
     which = "held-out " if held_out else ""
     pooled = f" x {seeds} filter seeds" if seeds > 1 else ""
     model, note = "", ""
+    if above:
+        note = ("Trials above GNSS: trial runs (a trial at one filter seed) whose median error exceeds "
+                "GNSS alone's on the same run, of those scored. ")
     if ronin_weights:
         model = f", RoNIN {Path(ronin_weights).name}"
-        note = (f"Every method tracks with the velocity of {Path(ronin_weights).name}, a RoNIN model that "
+        note += (f"Every method tracks with the velocity of {Path(ronin_weights).name}, a RoNIN model that "
                 "was not trained on these trials: the case of a phone and a place the model has not seen. "
                 "Reported beside the done-when checks, which use the bundled model on the held-out trials.")
     return Table(
         f"IPIN 2023 Track 3 ({n_trials} {which}trials{pooled}, no map{model}): "
         "error at surveyed waypoints (m)",
-        ["method", "waypoints", "median", "p90", "mean"],
+        ["method", "waypoints", "median", "p90", "mean", "trials above GNSS"],
         table_rows,
         note,
     )

@@ -255,7 +255,7 @@ def _ipin_summary(
     pooled over the filter ``seeds``: pooled figures, their table, and trial-bootstrap intervals (fused
     against 0.1 and the baselines). With the bundled RoNIN, the held-out trials; with ``ronin_weights``
     (a model that never saw the venue), every trial."""
-    from curbside.evaluate.benchmark import ipin_errors, ipin_errors_table
+    from curbside.evaluate.benchmark import ipin_errors, ipin_errors_table, trials_above_gnss
     from curbside.evaluate.uncertainty import waypoint_intervals
 
     errors: dict[str, list[np.ndarray]] = {}
@@ -273,9 +273,12 @@ def _ipin_summary(
         for m, e in errors.items()
         if len(e)
     }
+    for m, (above, scored) in trials_above_gnss(rows).items():
+        if m in summary:
+            summary[m] |= {"trials_above_gnss": above, "trials_scored": scored}
     baselines = (criteria.IPIN_BASELINE_RUN, "paper", "gnss")
     intervals = waypoint_intervals(errors, rows, "fused", baselines, seed=seeds[0])
-    table = ipin_errors_table(errors, n_trials, ronin_weights is None, len(seeds), ronin_weights)
+    table = ipin_errors_table(errors, n_trials, ronin_weights is None, len(seeds), ronin_weights, rows)
     if ronin_weights is None:
         title = "IPIN 2023 held-out: how sure (m)"
         return IpinScores("ipin_held_out", "ipin_intervals_95", summary, table, intervals, title)
