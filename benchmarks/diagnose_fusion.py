@@ -1,0 +1,164 @@
+"""Where the fused filter's errors come from: its along-track bias and its wrong-side episodes.
+
+Two questions that pooled CSA and medians do not answer, measured on the benchmark's sessions:
+
+- **Along-track bias.** At footsteps on the right sidewalk, the error projected on the walker's true
+  direction of travel (positive: the estimate is ahead). GNSS alone is the reference: its errors are
+  unbiased along the street, so a method's median away from zero is the method's own lag or lead.
+- **Wrong-side episodes.** Runs of consecutive footsteps scored wrong (``correct`` false). For each:
+  its length, whether it starts within 10 m of a crosswalk (turns and crossings) and, for long ones,
+  the share of its fixes nearer the truth than the estimate. A high share means the fixes were right
+  and the filter did not follow them (a recovery question). A low one means the fixes led it there
+  (a GNSS-model question).
+
+Usage::
+
+    python benchmarks/diagnose_fusion.py OUT --map MAP [--split tune|test] [--subsets paper6 downtown]
+        [--methods gnss fused] [--seeds 0 1] [--set KEY=VALUE ...] [--episodes CSV]
+
+``OUT`` is a working folder (e.g. ``benchmarks/tune_fusion.py``'s); the sessions of ``--split`` (default
+``tune``) are simulated into it on first use. ``--set`` overrides the fused run's configuration. It
+chooses nothing, so it may run on the scored ``test`` split.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import shapely
+from pyproj import Transformer
+
+from curbside.evaluate.runner import RunSpec, run_all
+from curbside.evaluate.subsets import SUBSETS, benchmark_sessions, load_world
+from curbside.osmseg.mapio import read_map
+
+#: Episodes at least this long (footsteps) count as long.
+LONG_EPISODE_STEPS = 20
+#: An episode starting this close to a crosswalk (m) starts "at a crossing".
+CROSSWALK_NEAR_M = 10.0
+
+
+def signed_along_m(track: pd.DataFrame) -> np.ndarray:
+    """Estimate minus truth along the truth's direction of travel (m; NaN where the walker stands)."""
+    t = track["t"].to_numpy()
+    gx, gy = track["gt_x_m"].to_numpy(), track["gt_y_m"].to_numpy()
+    vx, vy = np.gradient(gx, t), np.gradient(gy, t)
+    speed = np.hypot(vx, vy)
+    ex, ey = track["x_m"].to_numpy() - gx, track["y_m"].to_numpy() - gy
+    along = (ex * vx + ey * vy) / np.maximum(speed, 1e-9)
+    return np.where(speed > 0.8, along, np.nan)
+
+
+def episodes(wrong: np.ndarray) -> list[tuple[int, int]]:
+    """``(start, stop)`` of each run of ``True`` in ``wrong`` (stop exclusive)."""
+    edges = np.flatnonzero(np.diff(np.concatenate([[0], wrong.astype(np.int8), [0]])))
+    return list(zip(edges[::2].tolist(), edges[1::2].tolist(), strict=True))
+
+
+def fixes_nearer_truth(session: Path, track: pd.DataFrame, t0: float, t1: float, to_xy: Transformer) -> float:
+    """Share of the usable fixes between ``t0`` and ``t1`` nearer the truth than the estimate."""
+    gnss = pd.read_csv(session / "gnss.csv")
+    gnss = gnss[(gnss["t"] >= t0) & (gnss["t"] <= t1) & (gnss["accuracy_m"] <= 50)]
+    if gnss.empty:
+        return float("nan")
+    fx, fy = to_xy.transform(gnss["lon"].to_numpy(), gnss["lat"].to_numpy())
+    t = track["t"].to_numpy()
+    at = {c: np.interp(gnss["t"].to_numpy(), t, track[c].to_numpy())
+          for c in ("x_m", "y_m", "gt_x_m", "gt_y_m")}
+    to_est = np.hypot(fx - at["x_m"], fy - at["y_m"])
+    to_truth = np.hypot(fx - at["gt_x_m"], fy - at["gt_y_m"])
+    return float(np.mean(to_truth < to_est))
+
+
+def session_episodes(
+    result: dict, session: Path, crosswalks, to_xy: Transformer, with_fixes: bool = True
+) -> list[dict]:
+    """One row per wrong-side episode of one run (``with_fixes``: where the fixes lay, for long ones)."""
+    errors, track = result["errors"].reset_index(drop=True), result["track"].reset_index(drop=True)
+    wrong = ~errors["correct"].astype(bool).to_numpy() & ~errors["missing"].to_numpy()
+    rows = []
+    for start, stop in episodes(wrong):
+        start_xy = shapely.points(track["gt_x_m"][start], track["gt_y_m"][start])
+        long = with_fixes and stop - start >= LONG_EPISODE_STEPS
+        rows.append({
+            "session": session.name, "start_s": float(track["t"][start]), "steps": stop - start,
+            "near_crosswalk": bool(shapely.distance(start_xy, crosswalks) < CROSSWALK_NEAR_M),
+            "fixes_nearer_truth": fixes_nearer_truth(session, track, track["t"][start], track["t"][stop - 1],
+                                                     to_xy) if long else float("nan"),
+        })
+    return rows
+
+
+def summarise(
+    method: str, subset: str, results: list[dict], sessions: list[Path], map_path: str
+) -> tuple[dict, list[dict]]:
+    """The along-track bias and the episode statistics of one method on one subset."""
+    layers = read_map(map_path)
+    gdf = layers.gdf
+    crosswalks = shapely.union_all(gdf.loc[gdf["class"] == "crosswalk"].geometry.to_numpy())
+    to_xy = Transformer.from_crs(4326, layers.crs, always_xy=True)
+    along, rows, n_steps = [], [], 0
+    for result, session in zip(results, sessions, strict=True):
+        correct = result["errors"]["correct"].astype(bool).to_numpy()
+        along.append(signed_along_m(result["track"].reset_index(drop=True))[correct])
+        n_steps += len(correct)
+        found = session_episodes(result, session, crosswalks, to_xy, with_fixes=method != "gnss")
+        rows += [dict(row, method=method, subset=subset) for row in found]
+    along = np.concatenate(along)
+    eps = pd.DataFrame(rows)
+    summary = {"method": method, "subset": subset, "along_median_m": np.nanmedian(along),
+               "along_mean_m": np.nanmean(along)}
+    if len(eps):
+        long = eps[eps["steps"] >= LONG_EPISODE_STEPS]
+        scored = long.dropna(subset=["fixes_nearer_truth"])
+        summary |= {
+            "wrong_share": eps["steps"].sum() / n_steps,
+            "in_long_episodes": long["steps"].sum() / eps["steps"].sum(),
+            "long_start_near_crosswalk": long["near_crosswalk"].mean() if len(long) else np.nan,
+            "long_fixes_nearer_truth": np.average(scored["fixes_nearer_truth"], weights=scored["steps"])
+            if len(scored) else np.nan,
+        }
+    return summary, rows
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("out", help="working folder (sessions are simulated into it on first use)")
+    parser.add_argument("--map", required=True, help="map GeoJSON (filters and scoring)")
+    parser.add_argument("--split", choices=("tune", "test"), default="tune")
+    parser.add_argument("--subsets", nargs="+", choices=SUBSETS, default=["paper6", "downtown"])
+    parser.add_argument("--methods", nargs="+", default=["gnss", "fused"])
+    parser.add_argument("--seeds", type=int, nargs="+", default=[0], help="filter seeds (default 0)")
+    parser.add_argument("--set", nargs="*", default=[], metavar="KEY=VALUE",
+                        help="overrides of the fused run (JSON values), e.g. filter.recovery.kernel_scale=3")
+    parser.add_argument("--episodes", help="write every wrong-side episode to this CSV")
+    parser.add_argument("--workers", type=int, default=2)
+    args = parser.parse_args(argv)
+    overrides = tuple(sorted((k, json.loads(v)) for k, v in (item.split("=", 1) for item in args.set)))
+    world = load_world()
+    summaries, all_rows = [], []
+    for subset in args.subsets:
+        sessions = benchmark_sessions(Path(args.out) / args.split / subset, subset, split=args.split,
+                                      profile="phone", world=world)
+        for method in args.methods:
+            filter_map = args.map if method != "gnss" else None
+            specs = [RunSpec(str(s), method, filter_map, "osm", args.map, 0.4, 500, None, seed,
+                             overrides=overrides if method == "fused" else ())
+                     for seed in args.seeds for s in sessions]
+            summary, rows = summarise(method, subset, run_all(specs, workers=args.workers),
+                                      sessions * len(args.seeds), args.map)
+            summaries.append(summary)
+            all_rows += rows
+    pd.set_option("display.width", 200)
+    print(pd.DataFrame(summaries).round(3).to_string(index=False))
+    if args.episodes:
+        pd.DataFrame(all_rows).to_csv(args.episodes, index=False)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

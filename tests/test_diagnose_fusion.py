@@ -1,0 +1,27 @@
+"""benchmarks/diagnose_fusion.py: the along-track sign and the episode runs it reports."""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+sys.path.insert(0, str(Path(__file__).parents[1] / "benchmarks"))
+from diagnose_fusion import episodes, signed_along_m  # noqa: E402
+
+
+def test_episodes_are_the_runs_of_wrong_footsteps():
+    wrong = np.array([True, True, False, False, True, False, True, True, True])
+    assert episodes(wrong) == [(0, 2), (4, 5), (6, 9)]
+    assert episodes(np.zeros(4, bool)) == []
+
+
+def test_along_is_negative_behind_the_walker_and_undefined_while_standing():
+    t = np.arange(0.0, 20.0, 0.5)
+    gx = np.where(t < 10, 1.3 * t, 13.0)  # walks east, then stands
+    track = pd.DataFrame({"t": t, "gt_x_m": gx, "gt_y_m": 0.0, "x_m": gx - 2.0, "y_m": 3.0})
+    along = signed_along_m(track)
+    np.testing.assert_allclose(along[1:18], -2.0)  # 2 m behind; the 3 m across does not count
+    assert np.isnan(along[22:]).all()
