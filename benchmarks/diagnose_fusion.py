@@ -29,12 +29,14 @@ from pathlib import Path
 
 import numpy as np
 import pandas as pd
+import pyproj
 import shapely
-from pyproj import Transformer
 
 from curbside.evaluate.runner import RunSpec, run_all
 from curbside.evaluate.subsets import SUBSETS, benchmark_sessions, load_world
+from curbside.localize.session import read_session
 from curbside.osmseg.mapio import read_map
+from curbside.projection import LocalFrame
 
 #: Episodes at least this long (footsteps) count as long.
 LONG_EPISODE_STEPS = 20
@@ -59,13 +61,14 @@ def episodes(wrong: np.ndarray) -> list[tuple[int, int]]:
     return list(zip(edges[::2].tolist(), edges[1::2].tolist(), strict=True))
 
 
-def fixes_nearer_truth(session: Path, track: pd.DataFrame, t0: float, t1: float, to_xy: Transformer) -> float:
+def fixes_nearer_truth(
+    gnss: pd.DataFrame, track: pd.DataFrame, t0: float, t1: float, frame: LocalFrame
+) -> float:
     """Share of the usable fixes between ``t0`` and ``t1`` nearer the truth than the estimate."""
-    gnss = pd.read_csv(session / "gnss.csv")
     gnss = gnss[(gnss["t"] >= t0) & (gnss["t"] <= t1) & (gnss["accuracy_m"] <= 50)]
     if gnss.empty:
         return float("nan")
-    fx, fy = to_xy.transform(gnss["lon"].to_numpy(), gnss["lat"].to_numpy())
+    fx, fy = frame.to_xy(gnss["lon"].to_numpy(), gnss["lat"].to_numpy())
     t = track["t"].to_numpy()
     at = {c: np.interp(gnss["t"].to_numpy(), t, track[c].to_numpy())
           for c in ("x_m", "y_m", "gt_x_m", "gt_y_m")}
@@ -75,10 +78,11 @@ def fixes_nearer_truth(session: Path, track: pd.DataFrame, t0: float, t1: float,
 
 
 def session_episodes(
-    result: dict, session: Path, crosswalks, to_xy: Transformer, with_fixes: bool = True
+    result: dict, session: Path, crosswalks, frame: LocalFrame, with_fixes: bool = True
 ) -> list[dict]:
     """One row per wrong-side episode of one run (``with_fixes``: where the fixes lay, for long ones)."""
     errors, track = result["errors"].reset_index(drop=True), result["track"].reset_index(drop=True)
+    gnss = read_session(session).gnss if with_fixes else None
     wrong = ~errors["correct"].astype(bool).to_numpy() & ~errors["missing"].to_numpy()
     rows = []
     for start, stop in episodes(wrong):
@@ -87,8 +91,8 @@ def session_episodes(
         rows.append({
             "session": session.name, "start_s": float(track["t"][start]), "steps": stop - start,
             "near_crosswalk": bool(shapely.distance(start_xy, crosswalks) < CROSSWALK_NEAR_M),
-            "fixes_nearer_truth": fixes_nearer_truth(session, track, track["t"][start], track["t"][stop - 1],
-                                                     to_xy) if long else float("nan"),
+            "fixes_nearer_truth": fixes_nearer_truth(gnss, track, track["t"][start], track["t"][stop - 1],
+                                                     frame) if long and gnss is not None else float("nan"),
         })
     return rows
 
@@ -100,13 +104,13 @@ def summarise(
     layers = read_map(map_path)
     gdf = layers.gdf
     crosswalks = shapely.union_all(gdf.loc[gdf["class"] == "crosswalk"].geometry.to_numpy())
-    to_xy = Transformer.from_crs(4326, layers.crs, always_xy=True)
+    frame = LocalFrame(pyproj.CRS(layers.crs))
     along, rows, n_steps = [], [], 0
     for result, session in zip(results, sessions, strict=True):
         correct = result["errors"]["correct"].astype(bool).to_numpy()
         along.append(signed_along_m(result["track"].reset_index(drop=True))[correct])
         n_steps += len(correct)
-        found = session_episodes(result, session, crosswalks, to_xy, with_fixes=method != "gnss")
+        found = session_episodes(result, session, crosswalks, frame, with_fixes=method != "gnss")
         rows += [dict(row, method=method, subset=subset) for row in found]
     along = np.concatenate(along)
     eps = pd.DataFrame(rows)
