@@ -133,14 +133,18 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("out", help="working folder (sessions are simulated into it on first use)")
     parser.add_argument("--map", required=True, help="map GeoJSON (filters and scoring)")
-    parser.add_argument("--split", choices=("tune", "test"), default="tune")
-    parser.add_argument("--subsets", nargs="+", choices=SUBSETS, default=["paper6", "downtown"])
-    parser.add_argument("--methods", nargs="+", default=["gnss", "fused"])
+    parser.add_argument("--split", choices=("tune", "test"), default="tune",
+                        help="which sessions: the tuning split (default) or the scored one")
+    parser.add_argument("--subsets", nargs="+", choices=SUBSETS, default=["paper6", "downtown"],
+                        help="default: paper6 downtown")
+    parser.add_argument("--methods", nargs="+", choices=("gnss", "inertial", "paper", "fused"),
+                        default=["gnss", "fused"],
+                        help="default: gnss fused (GNSS is the along-track reference)")
     parser.add_argument("--seeds", type=int, nargs="+", default=[0], help="filter seeds (default 0)")
     parser.add_argument("--set", nargs="*", default=[], metavar="KEY=VALUE",
                         help="overrides of the fused run (JSON values), e.g. filter.recovery.kernel_scale=3")
     parser.add_argument("--episodes", help="write every wrong-side episode to this CSV")
-    parser.add_argument("--workers", type=int, default=2)
+    parser.add_argument("--workers", type=int, default=2, help="dask worker processes (default 2)")
     args = parser.parse_args(argv)
     overrides = tuple(sorted((k, json.loads(v)) for k, v in (item.split("=", 1) for item in args.set)))
     world = load_world()
