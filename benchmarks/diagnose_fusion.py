@@ -97,14 +97,18 @@ def session_episodes(
     return rows
 
 
-def summarise(
-    method: str, subset: str, results: list[dict], sessions: list[Path], map_path: str
-) -> tuple[dict, list[dict]]:
-    """The along-track bias and the episode statistics of one method on one subset."""
+def crosswalks_and_frame(map_path: str) -> tuple[shapely.Geometry, LocalFrame]:
+    """The map's crosswalks as one geometry, and its metric frame."""
     layers = read_map(map_path)
     gdf = layers.gdf
     crosswalks = shapely.union_all(gdf.loc[gdf["class"] == "crosswalk"].geometry.to_numpy())
-    frame = LocalFrame(pyproj.CRS(layers.crs))
+    return crosswalks, LocalFrame(pyproj.CRS(layers.crs))
+
+
+def summarise(
+    method: str, subset: str, results: list[dict], sessions: list[Path], crosswalks, frame: LocalFrame
+) -> tuple[dict, list[dict]]:
+    """The along-track bias and the episode statistics of one method on one subset."""
     along, rows, n_steps = [], [], 0
     for result, session in zip(results, sessions, strict=True):
         correct = result["errors"]["correct"].astype(bool).to_numpy()
@@ -148,6 +152,7 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     overrides = tuple(sorted((k, json.loads(v)) for k, v in (item.split("=", 1) for item in args.set)))
     world = load_world()
+    crosswalks, frame = crosswalks_and_frame(args.map)
     summaries, all_rows = [], []
     for subset in args.subsets:
         sessions = benchmark_sessions(Path(args.out) / args.split / subset, subset, split=args.split,
@@ -158,7 +163,7 @@ def main(argv: list[str] | None = None) -> int:
                              overrides=overrides if method == "fused" else ())
                      for seed in args.seeds for s in sessions]
             summary, rows = summarise(method, subset, run_all(specs, workers=args.workers),
-                                      sessions * len(args.seeds), args.map)
+                                      sessions * len(args.seeds), crosswalks, frame)
             summaries.append(summary)
             all_rows += rows
     pd.set_option("display.width", 200)
