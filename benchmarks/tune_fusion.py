@@ -114,7 +114,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("out", help="working folder (tune sessions, map)")
     parser.add_argument("--variants", required=True, help="JSON file: name -> [method, overrides]")
     parser.add_argument("--seeds", type=int, nargs="+", default=[0, 1], help="filter seeds (default 0 1)")
-    parser.add_argument("--session-seeds", type=int, default=9,
+    parser.add_argument("--session-seeds", type=int, default=9, metavar="N",
                         help="sessions per route (default 9; with 3, paper6 gains of 0.03 CSA did not "
                              "repeat on other sessions: docs/filter.md)")
     parser.add_argument("--subsets", nargs="+", choices=SUBSETS, default=list(SUBSETS))
