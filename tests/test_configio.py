@@ -28,6 +28,7 @@ def test_the_paper_preset_is_the_plain_filter():
     paper = FilterConfig.preset("paper")
     assert (paper.gnss.outlier_prob, paper.gnss.correlation_time_s, paper.recovery.max_fraction) == (0, 0, 0)
     assert paper.gnss.sigma_factor == 1.0 and paper.map == FilterConfig().map
+    assert (paper.n_particles, FilterConfig().n_particles) == (500, 2000)
     with pytest.raises(ValueError):
         FilterConfig.preset("best")
 

@@ -14,6 +14,7 @@ from curbside.errors import CurbsideInputError
 from curbside.evaluate import criteria, suite
 from curbside.evaluate import simulate as sim
 from curbside.evaluate.runner import run_all
+from curbside.localize.filter import FilterConfig
 from curbside.localize.session import write_session
 from curbside.osmseg.mapio import read_map
 
@@ -37,7 +38,8 @@ def sessions(tmp_path_factory) -> dict[str, list[Path]]:
 
 
 def test_plan_runs_every_method_sweeps_paper6_and_adds_datasf(sessions):
-    config = suite.SuiteConfig(subsets=("paper6", "open"), sweep_weights=(0.0, 0.4, 1.0), particles=100)
+    config = suite.SuiteConfig(subsets=("paper6", "open"), sweep_weights=(0.0, 0.4, 1.0), particles=100,
+                               fused_particles=300)
     specs = suite.plan_suite(sessions, {"osm": str(MAP), "datasf": str(MAP)}, config)
     paper6 = [s for s in specs if "paper6" in s.session]
     open_ = [s for s in specs if "/open/" in s.session]
@@ -49,7 +51,10 @@ def test_plan_runs_every_method_sweeps_paper6_and_adds_datasf(sessions):
         ("paper", 0.4),
         ("fused", 0.4),
     }
-    assert all(s.metrics_map == str(MAP) and s.particles == 100 for s in specs)
+    assert all(s.metrics_map == str(MAP) for s in specs)
+    # the paper's N for its methods, curbside fused's own (its default unless set)
+    assert all(s.particles == (300 if s.method == "fused" else 100) for s in specs)
+    assert suite.SuiteConfig().particles_of("fused") == FilterConfig().n_particles
     snapshots = [s for s in specs if s.snapshot_times]
     assert {s.method for s in snapshots} == {"inertial", "paper", "fused"}
     assert all("paper6" in s.session and s.jaywalk_weight == 0.4 for s in snapshots)

@@ -211,13 +211,13 @@ def test_cli_writes_track_files_and_same_seed_same_track(tmp_path, map_file, cap
     assert kinds[0] == "LineString" and kinds.count("Point") == len(track)
     with np.load(tmp_path / "a" / "particles.npz") as npz:
         clouds = unpack_particles(npz)
-    assert clouds.x.shape == (len(track), 500)
+    assert clouds.x.shape == (len(track), 2000)  # curbside fused's default N
     weight = np.ones(clouds.y.shape) if clouds.weight is None else clouds.weight
     mean_y = (weight * clouds.y).sum(axis=1) / weight.sum(axis=1)
     assert np.abs(mean_y - track["y_m"]).max() < 0.06  # decimetre positions, weights in 1/255
     info = json.loads((tmp_path / "a" / "run.json").read_text())
     assert info["velocity_source"] == "file" and info["step_source"] == "file" and info["config"]["seed"] == 3
-    assert info["config"]["filter"]["n_particles"] == 500
+    assert info["config"]["filter"]["n_particles"] == 2000
     assert info["config"]["filter"]["map"]["jaywalk_weight"] == 0.4
     assert not (tmp_path / "b" / "particles.npz").exists()
     assert "updates" in capsys.readouterr().out

@@ -144,7 +144,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "fused (curbside's; the default)",
     )
     parser.add_argument(
-        "--particles", type=positive_int, default=None, help="number of particles (default 500)"
+        "--particles", type=positive_int, default=None,
+        help="number of particles (default 2000; 500 with --mode paper, the paper's)"
     )
     parser.add_argument(
         "--jaywalk-weight",

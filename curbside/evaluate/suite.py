@@ -31,6 +31,7 @@ from curbside.evaluate.benchmark import IpinScores, datasf_osm_map, snapshot_tim
 from curbside.evaluate.runner import SMOOTHED_METHOD, RunSpec, pool, run_all, smoothed_results, subset_of
 from curbside.evaluate.simulate import PROFILES, SimulationConfig
 from curbside.evaluate.subsets import DEFAULT_ROUTES, SPLITS, SUBSETS, benchmark_sessions, load_world
+from curbside.localize.filter import FilterConfig
 from curbside.localize.runconfig import UNSEEN_VELOCITY_MODES, RunConfig, UnseenVelocityConfig
 from curbside.localize.session import read_session
 from curbside.osmseg.mapio import read_map, write_map
@@ -64,7 +65,10 @@ class SuiteConfig:
     sweep_weights, sweep_subsets
         Table 2: every weight on these subsets, for the particle-filter methods.
     particles, filter_seed, velocity_source
-        Filter settings passed to ``track_session``.
+        Filter settings passed to ``track_session``; ``particles`` is the paper's N, for its method and
+        RoNIN+PF.
+    fused_particles
+        Curbside fused's N (its own default).
     filter_seeds
         Run every filter (not GNSS alone, and the IPIN runs too) with this many seeds from
         ``filter_seed`` on; the tables, checks and intervals pool them per session, the report's
@@ -92,6 +96,7 @@ class SuiteConfig:
     sweep_weights: tuple[float, ...] = (0.0, 0.4, 1.0)
     sweep_subsets: tuple[str, ...] = ("paper6",)
     particles: int = 500
+    fused_particles: int = FilterConfig().n_particles
     filter_seed: int = 0
     filter_seeds: int = 1
     velocity_source: str = "auto"
@@ -127,6 +132,10 @@ class SuiteConfig:
         if smooth:
             overrides["filter.smoother.lag_s"] = self.smoothing_lag_s
         return tuple(sorted(overrides.items()))
+
+    def particles_of(self, method: str) -> int:
+        """``method``'s particle count."""
+        return self.fused_particles if method == "fused" else self.particles
 
     def routes_of(self, subset: str) -> int | None:
         """Route count of a random subset (``None`` for ``paper6``)."""
@@ -172,7 +181,7 @@ def plan_suite(sessions: dict[str, list[Path]], maps: dict[str, str], config: Su
                             OSM_MAP,
                             metrics_map,
                             w,
-                            config.particles,
+                            config.particles_of(method),
                             None,
                             config.filter_seed,
                             snaps if w == w0 else (),
@@ -190,7 +199,7 @@ def plan_suite(sessions: dict[str, list[Path]], maps: dict[str, str], config: Su
                             DATASF_MAP,
                             metrics_map,
                             w0,
-                            config.particles,
+                            config.particles_of(method),
                             None,
                             config.filter_seed,
                             (),
