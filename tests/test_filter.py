@@ -36,7 +36,9 @@ def _cache_in_tmp(tmp_path, monkeypatch):
 
 
 def quiet(**kw) -> FilterConfig:
-    """No process noise: motion is deterministic."""
+    """No process noise: motion is deterministic. 500 particles unless given, as these tests were sized
+    for."""
+    kw.setdefault("n_particles", 500)
     return FilterConfig(motion=QUIET, **kw)
 
 

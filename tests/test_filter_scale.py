@@ -56,7 +56,8 @@ def _straight_walk(
     """East at ``true_speed_mps`` while the inertial velocity says 1 m/s; a 6 m fix every second.
     ``adopt``: start idle and turn the correction on with ``Tracker.adopt_motion`` at the first step."""
     correction = ScaleCorrectionConfig(fraction=fraction, window_s=120.0)
-    config = FilterConfig(scale_correction=correction if not adopt else ScaleCorrectionConfig(window_s=120.0))
+    config = FilterConfig(n_particles=500,  # the N these seeds were drawn for
+                          scale_correction=correction if not adopt else ScaleCorrectionConfig(window_s=120.0))
     tracker = Tracker.from_config(None, config, seed=seed)
     if adopt:
         tracker.adopt_motion(config.motion, correction)

@@ -161,7 +161,7 @@ def test_particles_never_stay_in_buildings(walk_results):
         alive = snaps["weight"] > 0 if "weight" in snaps else np.ones(x.shape, bool)
         in_building = (raster.codes_at(x, y) >= BUILDING) & alive
         assert in_building.mean(axis=1).max() == 0.0 and alive.mean(axis=1).min() > 0.3
-        assert snaps["x"].shape == (len(walk_results[0][mode].track), 500)
+        assert snaps["x"].shape == (len(walk_results[0][mode].track), 2000)  # the default N
 
 
 def test_drift_state_learns_the_inertial_heading_error(walk_results):

@@ -416,11 +416,11 @@ class FilterConfig:
     def preset(cls, name: str) -> FilterConfig:
         """``"fused"``: curbside's filter (the defaults). ``"paper"``: the paper's plain filter.
 
-        The paper's filter (Dubiner, Ren & Manduchi; Ren & Ke 2010 for the GNSS weighting): 500 particles,
-        position and
-        heading-drift noise, hard walls, a Gaussian GNSS likelihood with sigma equal to the reported
-        accuracy for fixes under a threshold, every fix counted as independent, resampling at every
-        update, no outlier model, no speed scale, no recovery beyond re-seeding a collapsed cloud.
+        The paper's filter (Dubiner, Ren & Manduchi; Ren & Ke 2010 for the GNSS weighting): 500
+        particles, position and heading-drift noise, hard walls, a Gaussian GNSS likelihood with sigma
+        equal to the reported accuracy for fixes under a threshold, every fix counted as independent,
+        resampling at every update, no outlier model, no speed scale, no recovery beyond re-seeding a
+        collapsed cloud.
         """
         if name == "fused":
             return cls()
