@@ -19,13 +19,21 @@ from curbside.errors import CurbsideInputError
 from curbside.evaluate.metrics import format_waypoint_summary, waypoint_errors, waypoint_summary
 from curbside.localize.particle_store import (
     FORMAT,
+    ParticleClouds,
     pack_particles,
     pack_snapshots,
     read_particles,
     unpack_particles,
     write_particles,
 )
-from curbside.localize.view import PAGE_OFFSET_UNIT_DEG, label_runs, load_run, view_page
+from curbside.localize.view import (
+    MAX_DRAWN_PARTICLES,
+    PAGE_OFFSET_UNIT_DEG,
+    _cloud_data,
+    label_runs,
+    load_run,
+    view_page,
+)
 from curbside.projection import LocalFrame
 
 UTM10N = "EPSG:32610"
@@ -246,3 +254,20 @@ def test_cloud_every_keeps_fewer_clouds(runs, tmp_path):
     every = read_particles(runs[1] / "particles.npz")
     assert cloud["t"] == pytest.approx(np.round(every.t[::5], 3).tolist())
     assert len(base64.b64decode(cloud["dlat"])) == 2 * 100 * len(every.t[::5])
+
+
+def test_large_clouds_are_drawn_thinned_with_their_weights():
+    rng = np.random.default_rng(0)
+    x = 550_000.0 + rng.normal(0, 5, (3, 2000))
+    y = 4_180_000.0 + rng.normal(0, 5, (3, 2000))
+    weight = rng.random((3, 2000))
+    weight /= weight.sum(axis=1, keepdims=True)
+    weight[:, 4] = 1.0  # the 5th particle (kept: every 4th from the first) is each cloud's heaviest
+    clouds = ParticleClouds(np.arange(3.0), x, y, None, None, weight, pyproj.CRS(UTM10N).to_wkt())
+    page = _cloud_data(clouds, every=2)
+    assert page["n"] == MAX_DRAWN_PARTICLES and len(page["t"]) == 2
+    dlat = np.frombuffer(base64.b64decode(page["dlat"]), "<i2")
+    alpha = np.frombuffer(base64.b64decode(page["alpha"]), "u1").reshape(2, MAX_DRAWN_PARTICLES)
+    assert len(dlat) == 2 * MAX_DRAWN_PARTICLES and (alpha[:, 1] == 255).all()
+    small = ParticleClouds(np.arange(3.0), x[:, :300], y[:, :300], None, None, None, clouds.crs)
+    assert _cloud_data(small)["n"] == 300  # at most MAX_DRAWN_PARTICLES: every particle is drawn

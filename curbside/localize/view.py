@@ -59,6 +59,9 @@ PAGE_OFFSET_UNIT_DEG = 1e-6
 MAP_MARGIN_M = 80.0
 #: Pages larger than this (MB) get a warning: they take seconds to open.
 LARGE_PAGE_MB = 20.0
+#: Clouds of more particles are drawn thinned to about this many (every k-th particle): the page
+#: stays the size it had at the paper's N = 500, and a cloud of 500 dots shows its shape as well.
+MAX_DRAWN_PARTICLES = 500
 
 
 @dataclass
@@ -202,9 +205,12 @@ def _b64(values: np.ndarray, dtype: str) -> str:
 
 
 def _cloud_data(clouds: ParticleClouds, every: int = 1) -> dict:
-    """Every ``every``-th cloud as base64 little-endian int16 micro-degree offsets from its mean."""
+    """Every ``every``-th cloud as base64 little-endian int16 micro-degree offsets from its mean, each
+    thinned to every k-th particle when it has more than :data:`MAX_DRAWN_PARTICLES`."""
     to_wgs84 = pyproj.Transformer.from_crs(pyproj.CRS(clouds.crs), WGS84, always_xy=True)
-    lon, lat = to_wgs84.transform(clouds.x[::every], clouds.y[::every])
+    stride = -(-clouds.n_particles // MAX_DRAWN_PARTICLES)
+    drawn = (slice(None, None, every), slice(None, None, stride))
+    lon, lat = to_wgs84.transform(clouds.x[drawn], clouds.y[drawn])
     ref_lon, ref_lat = np.mean(lon, axis=1), np.mean(lat, axis=1)
     limit = np.iinfo(np.int16).max
     dlon = np.rint((lon - ref_lon[:, None]) / PAGE_OFFSET_UNIT_DEG)
@@ -214,14 +220,14 @@ def _cloud_data(clouds: ParticleClouds, every: int = 1) -> dict:
         log.warning("%d particle(s) more than 3 km from their cloud's mean are drawn at the edge", far)
     out = {
         "t": _round(clouds.t[::every], 3),
-        "n": clouds.n_particles,
+        "n": lon.shape[1],
         "ref_lat": _round(ref_lat, 7),
         "ref_lon": _round(ref_lon, 7),
         "dlat": _b64(np.clip(dlat, -limit, limit), "<i2"),
         "dlon": _b64(np.clip(dlon, -limit, limit), "<i2"),
     }
     if clouds.weight is not None:
-        weight = clouds.weight[::every]
+        weight = clouds.weight[drawn]
         peak = np.maximum(weight.max(axis=1, keepdims=True), 1e-300)
         out["alpha"] = _b64(np.rint(255 * weight / peak), "u1")
     return out
