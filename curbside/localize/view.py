@@ -221,6 +221,7 @@ def _cloud_data(clouds: ParticleClouds, every: int = 1) -> dict:
     out = {
         "t": _round(clouds.t[::every], 3),
         "n": lon.shape[1],
+        "n_total": clouds.n_particles,
         "ref_lat": _round(ref_lat, 7),
         "ref_lon": _round(ref_lon, 7),
         "dlat": _b64(np.clip(dlat, -limit, limit), "<i2"),

@@ -294,7 +294,8 @@ requestAnimationFrame(() => {
     };
     const layer = new TimeCanvas(drawCloud(view), { pane: "clouds" }).addTo(map);
     state.clouds.push(layer);
-    layers.addOverlay(layer, swatch(r.colour, `${r.label}: particles (N = ${r.cloud.n})`));
+    const drawn = r.cloud.n < r.cloud.n_total ? `, ${r.cloud.n} drawn` : "";
+    layers.addOverlay(layer, swatch(r.colour, `${r.label}: particles (N = ${r.cloud.n_total}${drawn})`));
   }
   setIndex(0);
   ui.slider.disabled = false;
