@@ -47,3 +47,21 @@ def two_sidewalk_map() -> MapLayers:
         crs=UTM10,
     )
     return MapLayers(gdf)
+
+
+
+def blocked_sidewalk_map() -> MapLayers:
+    """A sidewalk along x (0 < y < 4) between buildings, with a wall across it at 40 < x < 44: a
+    building the map has and the street does not (an old or misdrawn footprint)."""
+    rows = [
+        ("sidewalk", box(-40, 0, 200, 4), "E"),
+        ("building", box(-40, 4, 200, 40), None),
+        ("building", box(-40, -40, 200, 0), None),
+        ("building", box(40, 0, 44, 4), None),
+    ]
+    gdf = gpd.GeoDataFrame(
+        {"class": [r[0] for r in rows], "segment_id": [r[2] for r in rows], "street": None, "side": None},
+        geometry=[r[1] for r in rows],
+        crs=UTM10,
+    )
+    return MapLayers(gdf)

@@ -7,9 +7,11 @@ import math
 
 import numpy as np
 import pytest
+from filter_maps import X0, Y0, blocked_sidewalk_map
 
 from curbside.localize.filter import (
     DivergenceRecovery,
+    Estimate,
     FilterConfig,
     GnssConfig,
     GnssFix,
@@ -17,6 +19,7 @@ from curbside.localize.filter import (
     ParticleSet,
     RecoveryConfig,
     Tracker,
+    Update,
 )
 
 STEP_M = 0.7  # a straight walk east, one footstep every 0.5 s, a fix at every footstep
@@ -171,3 +174,57 @@ def test_jittered_injection_recovers_a_cloud_whose_heading_offset_went_wrong():
     jittered = np.mean([_lost_share_after_a_heading_kidnap(30.0, seed) for seed in seeds])
     assert without > 0.7
     assert jittered < 0.35
+
+
+# -- the stall trigger ------------------------------------------------------------------------------
+
+
+def blocked_walk(stall_ratio: float, seed: int, steps: int = 180) -> tuple[np.ndarray, np.ndarray]:
+    """East along a sidewalk whose map has a wall across it at x = 40-44 m (``blocked_sidewalk_map``);
+    fixes at the truth (3 m noise, 10 m accuracy). Returns the error and the injections per step."""
+    config = FilterConfig(n_particles=1000, recovery=RecoveryConfig(stall_ratio=stall_ratio))
+    tracker = Tracker.from_config(blocked_sidewalk_map(), config, seed=seed)
+    noise = np.random.default_rng(50 + seed).normal(0.0, 3.0, (steps, 2))
+    tracker.start_at_pose(0.0, X0, Y0 + 2.0, 0.0)
+    errors, injected = [], []
+    for k in range(1, steps + 1):
+        x = STEP_M * k
+        fix = GnssFix(X0 + x + noise[k - 1, 0], Y0 + 2.0 + noise[k - 1, 1], 10.0)
+        est = tracker.step(k * STEP_S, displacement_en=(STEP_M, 0.0), gnss_fix=fix)
+        errors.append(math.hypot(est.x - X0 - x, est.y - Y0 - 2.0))
+        injected.append(est.injected)
+    return np.array(errors), np.array(injected)
+
+
+def test_a_cloud_the_map_holds_still_while_the_phone_walks_on_is_redrawn_around_the_fixes():
+    # The walker passes the wall (a footprint the street does not have) at step 57; the cloud stops there.
+    on = [blocked_walk(0.2, seed) for seed in range(4)]
+    off = [blocked_walk(0.0, seed) for seed in range(4)]
+    for errors, injected in on:
+        assert not injected[:57].any()  # walking freely is no stall
+        assert 57 < np.argmax(injected > 0) <= 57 + 25  # within the 10 s window after the wall
+        assert errors[85:130].max() < 8.0
+    # without the trigger only the agreement kernel (5 sigma, 33 m) or a collapse brings it back
+    assert np.mean([e[85:130].mean() for e, _ in off]) > 3 * np.mean([e[85:130].mean() for e, _ in on])
+    assert all(not injected[:120].any() for _, injected in off)
+
+
+def stall_verdicts(step_east_m, estimate_x, updates: int = 40) -> list[bool]:
+    """``stalled`` at each of ``updates`` updates 0.5 s apart: footstep ``k`` moves ``step_east_m(k)``
+    east, and the estimate before it stands at ``(estimate_x(k), 5)``."""
+    recovery = DivergenceRecovery(RecoveryConfig(), GnssLikelihood(GnssConfig(), 10, None), None)
+    estimate = Estimate(0.0, 5.0, 5.0, 0.0, 1.0, 10.0, False, None, None, 0.0, 5.0, 5.0, 0)
+    return [
+        recovery.stalled(Update(k * 0.5, 0.5, step_east_m(k), 0.0, None),
+                         estimate._replace(t=k * 0.5, x=estimate_x(k)))
+        for k in range(1, updates + 1)
+    ]
+
+
+def test_stalled_needs_the_whole_window_a_walking_pace_and_a_still_estimate():
+    walking_still = stall_verdicts(lambda k: 0.7, lambda k: 5.0)  # 1.4 m/s, the estimate never moves
+    assert not any(walking_still[:18]) and all(walking_still[20:])  # 10 s of history first
+    assert not any(stall_verdicts(lambda k: 0.1, lambda k: 5.0))  # 0.2 m/s of phantom motion: standing
+    assert not any(stall_verdicts(lambda k: 0.7, lambda k: 0.35 * k))  # moving at half the inertial pace
+    # 5 s out and 5 s back: the inertial displacement over 10 s is nil, so turning back is no stall
+    assert not any(stall_verdicts(lambda k: 0.7 if k % 20 < 10 else -0.7, lambda k: 5.0))

@@ -22,9 +22,9 @@ import pandas as pd
 #: The run the IPIN criterion must not regress from: version 0.1's fused filter, i.e. today's fused
 #: defaults with 0.1's particle count (500), motion and resampling (no speed-scale state or correction,
 #: heading noise 0.5 deg, step noise 15 %, resampling at every update, injection without heading
-#: jitter, no switch to the unseen-velocity motion model). The benchmark runs it on the same held-out
-#: trials and waypoints as the fused filter it judges (a figure from an older run would have been
-#: measured on another set of waypoints).
+#: jitter, no stall trigger, no switch to the unseen-velocity motion model). The benchmark runs it on
+#: the same held-out trials and waypoints as the fused filter it judges (a figure from an older run
+#: would have been measured on another set of waypoints).
 IPIN_BASELINE_RUN = "curbside fused 0.1"
 FUSED_0_1_OVERRIDES: dict[str, object] = {
     "filter.n_particles": 500,
@@ -34,6 +34,7 @@ FUSED_0_1_OVERRIDES: dict[str, object] = {
     "filter.motion.heading_noise_deg": 0.5,
     "filter.motion.step_noise_fraction": 0.15,
     "filter.recovery.inject_heading_sigma_deg": 0.0,
+    "filter.recovery.stall_ratio": 0.0,
     "filter.scale_correction.fraction": 0.0,
     "unseen_velocity.mode": "off",
 }

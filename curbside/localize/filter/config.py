@@ -280,6 +280,16 @@ class RecoveryConfig:
         A re-drawn particle takes a random particle's heading offset plus a Gaussian jitter of this
         sigma (degrees; 0: the offset as it is). A cloud often diverges because its heading offset is
         wrong, and particles that inherit it exactly run off the same way.
+    stall_ratio
+        The cloud is *stalled* when its estimate moved less than this fraction of the inertial
+        displacement over the last ``stall_window_s`` (0: never). Walkers do not walk into walls, so a cloud
+        that the map holds still while the phone walks on is in the wrong place.
+    stall_window_s, stall_min_speed_mps
+        The window, and the least net inertial speed over it for the test to apply (standing, or
+        turning back, is no stall).
+    stall_fraction
+        While stalled, this fraction of the particles (at most ``max_fraction``) is re-drawn around
+        each usable fix, as for a divergence.
     """
 
     collapse_sigma_m: float = 5.0
@@ -289,9 +299,23 @@ class RecoveryConfig:
     kernel_scale: float = 5.0
     max_fraction: float = 0.25
     inject_heading_sigma_deg: float = 30.0
+    stall_ratio: float = 0.2
+    stall_window_s: float = 10.0
+    stall_min_speed_mps: float = 0.5
+    stall_fraction: float = 0.1
 
     def __post_init__(self) -> None:
         _check(self.collapse_sigma_m > 0, f"collapse_sigma_m must be positive, got {self.collapse_sigma_m}")
+        _check(
+            0.0 <= self.stall_ratio < 1.0 and 0.0 <= self.stall_fraction <= 1.0,
+            f"need 0 <= stall_ratio < 1 and 0 <= stall_fraction <= 1, got {self.stall_ratio}, "
+            f"{self.stall_fraction}",
+        )
+        _check(
+            self.stall_window_s > 0 and self.stall_min_speed_mps > 0,
+            f"stall_window_s and stall_min_speed_mps must be positive, got {self.stall_window_s}, "
+            f"{self.stall_min_speed_mps}",
+        )
         _check(0.0 <= self.max_fraction <= 1.0, f"max_fraction must lie in [0, 1], got {self.max_fraction}")
         _check(
             self.inject_heading_sigma_deg >= 0,
@@ -436,7 +460,7 @@ class FilterConfig:
                 ),
                 gnss=GnssConfig(sigma_factor=1.0, outlier_prob=0.0, correlation_time_s=0.0),
                 resample=ResampleConfig(policy="always"),
-                recovery=RecoveryConfig(max_fraction=0.0),
+                recovery=RecoveryConfig(max_fraction=0.0, stall_ratio=0.0),
                 scale_correction=ScaleCorrectionConfig(fraction=0.0),
                 street_heading=StreetHeadingConfig(strength_per_m=0.0),
                 start=StartConfig(fix_sigma_factor=1.0),

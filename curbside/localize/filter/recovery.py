@@ -16,10 +16,20 @@ well below the long one the fraction ``min(max_fraction, max(0, 1 - w_fast / (tr
 w_slow)))`` of the particles is re-drawn around the fix after resampling. Injected particles take the
 speed scale and bias of random current particles, and their heading offset with a jitter
 (``inject_heading_sigma_deg``): a cloud usually diverges because its heading offset went wrong.
+
+**Stall** (the same part, a second trigger): the map can hold a cloud still while the phone walks on.
+A cloud that lags along the street turns at the corner too early, into a wall, and the only particles
+left are those that the walls stop; with fixes reporting 10 m accuracy, the agreement kernel reads a
+cloud 50 m away as agreeing for minutes. Walkers do not walk into walls, so when the estimate has
+moved less than ``stall_ratio`` of the inertial displacement over the last ``stall_window_s`` (turned
+and scaled by the estimate's heading offset and speed scale, and at least ``stall_min_speed_mps``
+per second), ``stall_fraction`` of the particles is re-drawn around each usable fix, as for a
+divergence, until the cloud moves again.
 """
 
 from __future__ import annotations
 
+import collections
 import logging
 import math
 
@@ -30,7 +40,18 @@ from curbside.localize.filter.config import RecoveryConfig
 from curbside.localize.filter.gnss import GnssLikelihood
 from curbside.localize.filter.kernelmath import exp
 from curbside.localize.filter.map_likelihood import MapLikelihood
-from curbside.localize.filter.particles import BIAS_X, BIAS_Y, COS, SCALE, SIN, THETA, ParticleSet, X, Y
+from curbside.localize.filter.particles import (
+    BIAS_X,
+    BIAS_Y,
+    COS,
+    SCALE,
+    SIN,
+    THETA,
+    Estimate,
+    ParticleSet,
+    X,
+    Y,
+)
 from curbside.localize.filter.parts import GnssFix, Update
 
 logger = logging.getLogger(__name__)
@@ -113,16 +134,27 @@ class DivergenceRecovery:
         self.w_fast = math.nan  # both start at the first fix's agreement
         self.w_slow = math.nan
         self.injections = 0
+        self.inertial = 0j  # the turned and scaled inertial displacement so far (east + i north)
+        # (t, estimate, inertial) over the stall window, oldest first; positions as complex numbers
+        self.recent: collections.deque[tuple[float, complex, complex]] = collections.deque()
 
     def log_agreement(self, particles: ParticleSet, fix: GnssFix) -> float:
         """``log w_avg`` under the current (prior, normalised) log-weights."""
         scale = -0.5 / (self.config.kernel_scale * self.gnss.sigma_m(fix)) ** 2
         return _log_agreement(particles.state, particles.log_weight, fix.x, fix.y, scale)
 
-    def observe(self, particles: ParticleSet, update: Update) -> float:
-        """Before the likelihoods: update both averages with ``update.fix``; the fraction to inject."""
+    def observe(self, particles: ParticleSet, update: Update, last: Estimate | None = None) -> float:
+        """Before the likelihoods: the fraction of the particles to re-draw around ``update.fix``.
+
+        ``last`` (the estimate before this update) feeds the stall test; without it only the
+        agreement averages decide. While stalled the averages are left as they are.
+        """
+        stalled = last is not None and self.stalled(update, last)
         if self.config.max_fraction <= 0 or not self.gnss.accepts(update.fix):
             return 0.0
+        if stalled:
+            logger.debug("t=%.1f: the cloud is stalled", update.t)
+            return min(self.config.max_fraction, self.config.stall_fraction)
         w_avg = math.exp(self.log_agreement(particles, update.fix))
         if math.isnan(self.w_slow):
             self.w_fast = self.w_slow = w_avg
@@ -133,6 +165,25 @@ class DivergenceRecovery:
         if not threshold > 0:  # no fix ever agreed (or it underflowed): nothing to compare with
             return 0.0
         return min(self.config.max_fraction, max(0.0, 1.0 - self.w_fast / threshold))
+
+    def stalled(self, update: Update, last: Estimate) -> bool:
+        """Whether the estimate moved less than ``stall_ratio`` of the inertial displacement (turned
+        and scaled by the estimate's heading offset and speed scale) over the stall window; called once
+        per update, in order. The displacement is a vector sum, so a walker who turns back is no stall."""
+        config = self.config
+        if config.stall_ratio <= 0:
+            return False
+        turn = last.scale * complex(math.cos(last.theta), math.sin(last.theta))
+        self.inertial += turn * complex(update.dx, update.dy)
+        recent = self.recent
+        recent.append((last.t, complex(last.x, last.y), self.inertial))
+        while len(recent) > 1 and recent[1][0] <= last.t - config.stall_window_s:
+            recent.popleft()
+        t0, position0, inertial0 = recent[0]
+        span_s, walked_m = last.t - t0, abs(self.inertial - inertial0)
+        if span_s < 0.9 * config.stall_window_s or walked_m < config.stall_min_speed_mps * span_s:
+            return False
+        return abs(complex(last.x, last.y) - position0) < config.stall_ratio * walked_m
 
     def inject(self, particles: ParticleSet, fix: GnssFix, fraction: float) -> int:
         """After resampling: replace ``round(fraction * N)`` random particles by draws around ``fix``."""
@@ -154,11 +205,7 @@ class DivergenceRecovery:
         s[Y, idx] = fix.y - s[BIAS_Y, idx] + sigma * rng.standard_normal(k)
         particles.log_weight[idx] = -math.log(n)
         self.injections += k
-        logger.debug(
-            "cloud disagrees with GNSS (w_fast/w_slow = %.3g): %d particles injected",
-            self.w_fast / self.w_slow,
-            k,
-        )
+        logger.debug("%d particles injected (w_fast/w_slow = %.3g)", k, self.w_fast / self.w_slow)
         return k
 
 

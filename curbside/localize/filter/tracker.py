@@ -4,7 +4,8 @@ A :class:`Tracker` composes the parts of :mod:`curbside.localize.filter` and run
 every update::
 
     predictor.predict          move every particle by the step's inertial displacement
-    divergence.observe         (optional) measure the cloud's agreement with this update's fix
+    divergence.observe         (optional) measure the cloud's agreement with this update's fix, and
+                               whether the map holds it still while the phone walks (a stall)
     scale.observe              (optional) fit the recent fixes against the cloud's inertial path
     for each likelihood:       map, GNSS, or any part you add
         likelihood.weigh       add log-likelihoods to the particles' log-weights
@@ -309,7 +310,7 @@ class Tracker:
         particles, divergence = self.particles, self.divergence
         update = Update(t, t - last.t, dx, dy, gnss_fix)
         self.predictor.predict(particles, dx, dy)
-        inject = 0.0 if divergence is None else divergence.observe(particles, update)
+        inject = 0.0 if divergence is None else divergence.observe(particles, update, last)
         if self.scale is not None:
             self.scale.observe(update, last)
         for likelihood in self.likelihoods:
