@@ -166,6 +166,7 @@ def test_map_likelihood_kills_building_particles_and_weighs_streets():
     p.log_weight[:] = 0.0
     lik.weigh(p, Update(1.0, 0.5, 0.0, 0.0))
     np.testing.assert_array_equal(p.log_weight, out)
+    assert lik.blocked_share == 0.2  # one particle of five behind a wall; the street's 0.4 is not one
 
 
 def test_soft_walls_tolerate_a_metre_of_map_error_but_not_ten():
@@ -175,6 +176,10 @@ def test_soft_walls_tolerate_a_metre_of_map_error_but_not_ten():
     assert w[0] == 1.0 and 0.8 < w[1] < 0.95 and 0.3 < w[2] < 0.6 and w[3] == 0.0
     hard = MapLikelihood(raster, MapConfig())
     assert np.exp(hard.log_likelihood(np.array([X0]), np.array([Y0 + 10.75])))[0] == 0.0
+    p = ParticleSet(4)  # with soft walls, a particle counts as stopped once its weight is under 1 %
+    p.state[0], p.state[1] = np.full(4, X0), Y0 + np.array([9.0, 10.75, 12.0, 20.0])
+    lik.weigh(p, Update(1.0, 0.5, 0.0, 0.0))
+    assert lik.blocked_share == 0.25
 
 
 # -- GNSS likelihood ------------------------------------------------------------------------------------

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import logging
 import math
+import types
 
 import numpy as np
 import pytest
@@ -209,10 +210,12 @@ def test_a_cloud_the_map_holds_still_while_the_phone_walks_on_is_redrawn_around_
     assert all(not injected[:120].any() for _, injected in off)
 
 
-def stall_verdicts(step_east_m, estimate_x, updates: int = 40) -> list[bool]:
+def stall_verdicts(step_east_m, estimate_x, blocked_share: float = 0.5, updates: int = 40) -> list[bool]:
     """``stalled`` at each of ``updates`` updates 0.5 s apart: footstep ``k`` moves ``step_east_m(k)``
-    east, and the estimate before it stands at ``(estimate_x(k), 5)``."""
-    recovery = DivergenceRecovery(RecoveryConfig(), GnssLikelihood(GnssConfig(), 10, None), None)
+    east, the estimate before it stands at ``(estimate_x(k), 5)`` and the map stops ``blocked_share``
+    of the particles at every update."""
+    walls = types.SimpleNamespace(blocked_share=blocked_share)  # what the test reads of the map
+    recovery = DivergenceRecovery(RecoveryConfig(), GnssLikelihood(GnssConfig(), 10, None), None, walls)
     estimate = Estimate(0.0, 5.0, 5.0, 0.0, 1.0, 10.0, False, None, None, 0.0, 5.0, 5.0, 0)
     return [
         recovery.stalled(Update(k * 0.5, 0.5, step_east_m(k), 0.0, None),
@@ -221,10 +224,12 @@ def stall_verdicts(step_east_m, estimate_x, updates: int = 40) -> list[bool]:
     ]
 
 
-def test_stalled_needs_the_whole_window_a_walking_pace_and_a_still_estimate():
+def test_stalled_needs_the_whole_window_a_walking_pace_a_still_estimate_and_walls():
     walking_still = stall_verdicts(lambda k: 0.7, lambda k: 5.0)  # 1.4 m/s, the estimate never moves
     assert not any(walking_still[:18]) and all(walking_still[20:])  # 10 s of history first
     assert not any(stall_verdicts(lambda k: 0.1, lambda k: 5.0))  # 0.2 m/s of phantom motion: standing
     assert not any(stall_verdicts(lambda k: 0.7, lambda k: 0.35 * k))  # moving at half the inertial pace
     # 5 s out and 5 s back: the inertial displacement over 10 s is nil, so turning back is no stall
     assert not any(stall_verdicts(lambda k: 0.7 if k % 20 < 10 else -0.7, lambda k: 5.0))
+    # held back with no wall in the way (fixes that lag the walker pull it): no stall
+    assert not any(stall_verdicts(lambda k: 0.7, lambda k: 5.0, blocked_share=0.1))

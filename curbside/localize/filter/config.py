@@ -287,6 +287,9 @@ class RecoveryConfig:
     stall_window_s, stall_min_speed_mps
         The window, and the least net inertial speed over it for the test to apply (standing, or
         turning back, is no stall).
+    stall_blocked_share
+        ... and only when the map stopped at least this share of the particles (weight under 1 %) at
+        an average update of the window: the walls hold the cloud, not fixes that pull it back.
     stall_fraction
         While stalled, this fraction of the particles (at most ``max_fraction``) is re-drawn around
         each usable fix, as for a divergence.
@@ -302,14 +305,16 @@ class RecoveryConfig:
     stall_ratio: float = 0.2
     stall_window_s: float = 10.0
     stall_min_speed_mps: float = 0.5
+    stall_blocked_share: float = 0.3
     stall_fraction: float = 0.1
 
     def __post_init__(self) -> None:
         _check(self.collapse_sigma_m > 0, f"collapse_sigma_m must be positive, got {self.collapse_sigma_m}")
         _check(
-            0.0 <= self.stall_ratio < 1.0 and 0.0 <= self.stall_fraction <= 1.0,
-            f"need 0 <= stall_ratio < 1 and 0 <= stall_fraction <= 1, got {self.stall_ratio}, "
-            f"{self.stall_fraction}",
+            0.0 <= self.stall_ratio < 1.0 and min(self.stall_fraction, self.stall_blocked_share) >= 0.0
+            and max(self.stall_fraction, self.stall_blocked_share) <= 1.0,
+            f"need 0 <= stall_ratio < 1 and stall_fraction, stall_blocked_share in [0, 1], got "
+            f"{self.stall_ratio}, {self.stall_fraction}, {self.stall_blocked_share}",
         )
         _check(
             self.stall_window_s > 0 and self.stall_min_speed_mps > 0,

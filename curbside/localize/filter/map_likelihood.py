@@ -7,6 +7,8 @@ metre or two off (an old footprint, a misplaced facade) no longer kills particle
 
 The lookup is one gather in the raster's ``uint8`` codes (building cells carry their depth, see
 :mod:`curbside.localize.raster`) and one in a 256-entry table of log-weights, compiled into one loop.
+The same loop counts the particles that a wall stops (weight under 1 %): ``blocked_share``, which the
+divergence recovery's stall test reads.
 """
 
 from __future__ import annotations
@@ -21,6 +23,9 @@ from curbside.localize.filter.kernelmath import cell_index
 from curbside.localize.filter.particles import ParticleSet
 from curbside.localize.filter.parts import Update
 from curbside.localize.raster import BUILDING, STREET, MapRaster, RasterLookup, building_depth_m
+
+#: A particle whose map weight is below this (1 %) counts as stopped by a wall.
+BLOCKED_LOG_WEIGHT = math.log(0.01)
 
 
 def log_weight_table(config: MapConfig, resolution_m: float) -> np.ndarray:
@@ -52,11 +57,15 @@ class MapLikelihood:
         self.config = config
         self.lookup = RasterLookup(raster)
         self.log_table = log_weight_table(config, raster.resolution_m)
+        #: Share of the particles that the last :meth:`weigh` found behind a wall (weight under 1 %).
+        self.blocked_share = 0.0
 
     def weigh(self, particles: ParticleSet, update: Update | None = None) -> None:
         """Add the map log-weight of every particle to ``particles.log_weight``."""
         lk = self.lookup
-        _add_map_log_weight(particles.state, particles.log_weight, lk.padded, lk.index_grid, self.log_table)
+        blocked = _add_map_log_weight(particles.state, particles.log_weight, lk.padded, lk.index_grid,
+                                      self.log_table)
+        self.blocked_share = blocked / max(1, len(particles))
 
     def log_likelihood(self, x: np.ndarray, y: np.ndarray) -> np.ndarray:
         """Map log-weight of points ``(x, y)`` (any matching shapes; a new array)."""
@@ -65,5 +74,9 @@ class MapLikelihood:
 
 @numba.njit(cache=True, nogil=True)
 def _add_map_log_weight(state, log_weight, padded, grid, table):  # pragma: no cover - compiled
+    blocked = 0
     for i in range(state.shape[1]):
-        log_weight[i] += table[padded[cell_index(state[0, i], state[1, i], grid)]]
+        w = table[padded[cell_index(state[0, i], state[1, i], grid)]]
+        log_weight[i] += w
+        blocked += w < BLOCKED_LOG_WEIGHT
+    return blocked

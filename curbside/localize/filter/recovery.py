@@ -23,8 +23,10 @@ left are those that the walls stop; with fixes reporting 10 m accuracy, the agre
 cloud 50 m away as agreeing for minutes. Walkers do not walk into walls, so when the estimate has
 moved less than ``stall_ratio`` of the inertial displacement over the last ``stall_window_s`` (turned
 and scaled by the estimate's heading offset and speed scale, and at least ``stall_min_speed_mps``
-per second), ``stall_fraction`` of the particles is re-drawn around each usable fix, as for a
-divergence, until the cloud moves again.
+per second) *and* the map stopped at least ``stall_blocked_share`` of the particles at an average
+update of that window, ``stall_fraction`` of the particles is re-drawn around each usable fix, as for
+a divergence, until the cloud moves again. The second condition tells walls from fixes: a run of
+fixes that lag the walker also holds a cloud back, and re-drawing around them would follow them.
 """
 
 from __future__ import annotations
@@ -125,18 +127,27 @@ class DivergenceRecovery:
         The GNSS likelihood (which fixes count, and their sigma).
     rng
         The filter's seeded generator (drawn from only when particles are injected).
+    map_likelihood
+        The map, whose walls the stall test watches (``None``: no map, no stall).
     """
 
-    def __init__(self, config: RecoveryConfig, gnss: GnssLikelihood, rng: np.random.Generator) -> None:
+    def __init__(
+        self,
+        config: RecoveryConfig,
+        gnss: GnssLikelihood,
+        rng: np.random.Generator,
+        map_likelihood: MapLikelihood | None = None,
+    ) -> None:
         self.config = config
         self.gnss = gnss
         self.rng = rng
+        self.map_likelihood = map_likelihood
         self.w_fast = math.nan  # both start at the first fix's agreement
         self.w_slow = math.nan
         self.injections = 0
         self.inertial = 0j  # the turned and scaled inertial displacement so far (east + i north)
-        # (t, estimate, inertial) over the stall window, oldest first; positions as complex numbers
-        self.recent: collections.deque[tuple[float, complex, complex]] = collections.deque()
+        # (t, estimate, inertial, blocked share) over the stall window, oldest first; positions complex
+        self.recent: collections.deque[tuple[float, complex, complex, float]] = collections.deque()
 
     def log_agreement(self, particles: ParticleSet, fix: GnssFix) -> float:
         """``log w_avg`` under the current (prior, normalised) log-weights."""
@@ -167,23 +178,30 @@ class DivergenceRecovery:
         return min(self.config.max_fraction, max(0.0, 1.0 - self.w_fast / threshold))
 
     def stalled(self, update: Update, last: Estimate) -> bool:
-        """Whether the estimate moved less than ``stall_ratio`` of the inertial displacement (turned
-        and scaled by the estimate's heading offset and speed scale) over the stall window; called once
-        per update, in order. The displacement is a vector sum, so a walker who turns back is no stall."""
+        """Whether the walls hold the cloud still while the phone walks on (see the module docstring);
+        called once per update, in order.
+
+        The estimate moved less than ``stall_ratio`` of the inertial displacement over the stall window
+        (turned and scaled by the estimate's heading offset and speed scale; a vector sum, so a walker
+        who turns back is no stall), and the map stopped at least ``stall_blocked_share`` of the
+        particles at an average update of the window (fixes that pull a cloud back stop none).
+        """
         config = self.config
-        if config.stall_ratio <= 0:
+        if config.stall_ratio <= 0 or self.map_likelihood is None:
             return False
         turn = last.scale * complex(math.cos(last.theta), math.sin(last.theta))
         self.inertial += turn * complex(update.dx, update.dy)
         recent = self.recent
-        recent.append((last.t, complex(last.x, last.y), self.inertial))
+        recent.append((last.t, complex(last.x, last.y), self.inertial, self.map_likelihood.blocked_share))
         while len(recent) > 1 and recent[1][0] <= last.t - config.stall_window_s:
             recent.popleft()
-        t0, position0, inertial0 = recent[0]
+        t0, position0, inertial0, _ = recent[0]
         span_s, walked_m = last.t - t0, abs(self.inertial - inertial0)
         if span_s < 0.9 * config.stall_window_s or walked_m < config.stall_min_speed_mps * span_s:
             return False
-        return abs(complex(last.x, last.y) - position0) < config.stall_ratio * walked_m
+        if abs(complex(last.x, last.y) - position0) >= config.stall_ratio * walked_m:
+            return False
+        return sum(entry[3] for entry in recent) >= config.stall_blocked_share * len(recent)
 
     def inject(self, particles: ParticleSet, fix: GnssFix, fraction: float) -> int:
         """After resampling: replace ``round(fraction * N)`` random particles by draws around ``fix``."""

@@ -171,7 +171,7 @@ class Tracker:
         likelihoods: list[Likelihood] = [lik for lik in (map_lik, heading, gnss) if lik is not None]
         divergence = None
         if gnss is not None and config.recovery.max_fraction > 0:
-            divergence = DivergenceRecovery(config.recovery, gnss, rng)
+            divergence = DivergenceRecovery(config.recovery, gnss, rng, map_lik)
         # Built whenever GNSS weighs, idle at fraction 0, so adopt_motion can turn it on mid-walk.
         scale = None if gnss is None else ScaleCorrection(config.scale_correction, gnss, rng)
         segments = None
