@@ -108,12 +108,24 @@ def new_session(client, session, **config) -> str:
     return reply.json()["id"]
 
 
-def replay(client, session_id: str, session, batch_s: float) -> list[dict]:
+def replay(client, session_id: str, session, batch_s: float, settle_every_s: float = 0.0) -> list[dict]:
+    """POST the session in ``batch_s`` batches as fast as the client goes; the replies.
+
+    With ``settle_every_s``, wait after every that many seconds of data past the start pose until the
+    filter has caught up with it (:func:`caught_up_estimate`), so that the replies after it carry
+    estimates however slowly the inference thread runs on this machine.
+    """
     estimates = []
-    for body in batches(session, batch_s):
+    t0 = session.time_span()[0]
+    settled_until = session.meta.get("start", {}).get("t", t0)
+    for k, body in enumerate(batches(session, batch_s)):
         reply = client.post(f"/sessions/{session_id}/samples", json=body)
         assert reply.status_code == 200, reply.text
         estimates.append(reply.json())
+        sent_until = t0 + (k + 1) * batch_s
+        if settle_every_s and sent_until - settled_until >= settle_every_s:
+            caught_up_estimate(client, session_id, sent_until)
+            settled_until = sent_until
     return estimates
 
 
@@ -153,7 +165,7 @@ def test_streamed_in_small_batches_the_service_gives_the_localize_run_track(tmp_
     batch_track, batch_info = batch_run
     with client_for(tmp_path, model, inference_wait_s=0.0) as client:  # replies faster than real time
         session_id = new_session(client, walk, seed=3)
-        estimates = replay(client, session_id, walk, 0.2)
+        estimates = replay(client, session_id, walk, 0.2, settle_every_s=10.0)
         summary = client.delete(f"/sessions/{session_id}").json()
         live_track = saved_track(client, session_id)
         info = client.get(f"/tracks/{session_id}").json()["run"]
