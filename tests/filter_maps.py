@@ -49,7 +49,6 @@ def two_sidewalk_map() -> MapLayers:
     return MapLayers(gdf)
 
 
-
 def blocked_sidewalk_map() -> MapLayers:
     """A sidewalk along x (0 < y < 4) between buildings, with a wall across it at 40 < x < 44: a
     building the map has and the street does not (an old or misdrawn footprint)."""
