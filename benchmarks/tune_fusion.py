@@ -4,9 +4,10 @@ Issue 9 asks that the fused filter's parameters be chosen on seeds and routes th
 score. :func:`curbside.evaluate.subsets.benchmark_sessions` makes a disjoint ``tune`` split of every
 subset (other route seeds, session seeds 101..); this script simulates it once (phone profile) and
 runs each named variant -- a method plus ``--set``-style overrides of the run configuration -- over it
-with several filter seeds, then prints per subset the pooled CSA, Euclidean median and p90 and the
-across-street median, and per variant how many session-seed runs have a median above 1.5x their
-GNSS median.
+with several filter seeds (each method at the benchmark's N: curbside fused 2000, the paper's method and
+RoNIN+PF 500; ``filter.n_particles`` overrides it), then prints per subset the pooled CSA, Euclidean
+median and p90 and the across-street median, and per variant how many session-seed runs have a
+median above 1.5x their GNSS median.
 
 Usage::
 
@@ -31,6 +32,7 @@ import pandas as pd
 from curbside.evaluate import metrics
 from curbside.evaluate.runner import RunSpec, run_all
 from curbside.evaluate.subsets import SUBSETS, benchmark_sessions, load_world
+from curbside.evaluate.suite import SuiteConfig
 from curbside.evaluate.uncertainty import bootstrap_intervals
 
 
@@ -54,7 +56,7 @@ def run(folders: dict[str, list[Path]], map_path: str, variants: dict, seeds: tu
             for sub, paths in folders.items():
                 for path in paths:
                     specs.append(RunSpec(str(path), method, map_path if filter_map else None, "osm", map_path,
-                                         0.4, 500, None, seed,
+                                         0.4, SuiteConfig().particles_of(method), None, seed,
                                          overrides=tuple(sorted(overrides.items()))))
                     keys.append((name, seed, sub, path.name))
     results = run_all(specs, workers=workers)
