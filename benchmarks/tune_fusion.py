@@ -50,13 +50,14 @@ def run(folders: dict[str, list[Path]], map_path: str, variants: dict, seeds: tu
 
     ``filter_map=False`` runs the filters without the map likelihood (the map still scores them).
     """
+    suite = SuiteConfig()  # each method's N, as the benchmark runs it
     specs, keys = [], []
     for name, (method, overrides) in variants.items():
         for seed in seeds if method != "gnss" else seeds[:1]:
             for sub, paths in folders.items():
                 for path in paths:
                     specs.append(RunSpec(str(path), method, map_path if filter_map else None, "osm", map_path,
-                                         0.4, SuiteConfig().particles_of(method), None, seed,
+                                         0.4, suite.particles_of(method), None, seed,
                                          overrides=tuple(sorted(overrides.items()))))
                     keys.append((name, seed, sub, path.name))
     results = run_all(specs, workers=workers)
