@@ -32,6 +32,15 @@ def block_map() -> MapLayers:
     return MapLayers(gdf)
 
 
+def shifted_building_map() -> MapLayers:
+    """:func:`block_map` with its building drawn 2 m too far south, over half of the sidewalk (a building
+    layer from another source than the streets)."""
+    layers = block_map()
+    gdf = layers.gdf.copy()
+    gdf.loc[gdf["class"] == "building", "geometry"] = box(-100, 8, 100, 60)
+    return MapLayers(gdf)
+
+
 def two_sidewalk_map() -> MapLayers:
     """A street along x with a sidewalk on each side: "N" (6 < y < 10) and "S" (-10 < y < -6)."""
     bands = ((-6, 6), (6, 10), (-10, -6), (40, 45))

@@ -6,7 +6,7 @@ import math
 
 import numpy as np
 import pytest
-from filter_maps import X0, Y0, block_map, two_sidewalk_map
+from filter_maps import X0, Y0, block_map, shifted_building_map, two_sidewalk_map
 from filterpy.monte_carlo import systematic_resample
 from scipy.stats import multivariate_normal
 
@@ -33,6 +33,7 @@ from curbside.localize.filter.gnss import (
     reference_log_likelihood,
     reference_student_log_likelihood,
 )
+from curbside.localize.filter.map_likelihood import wall_tolerance_for
 from curbside.localize.filter.particles import reference_moments
 from curbside.localize.filter.predict import reference_draws, reference_predict
 from curbside.localize.filter.resample import _systematic_gather, systematic_indices
@@ -180,6 +181,18 @@ def test_soft_walls_tolerate_a_metre_of_map_error_but_not_ten():
     p.state[0], p.state[1] = np.full(4, X0), Y0 + np.array([9.0, 10.75, 12.0, 20.0])
     lik.weigh(p, Update(1.0, 0.5, 0.0, 0.0))
     assert lik.blocked_share == 0.25
+
+
+def test_walls_soften_on_a_map_whose_buildings_cover_its_sidewalks():
+    conflicted = rasterize_map(shifted_building_map(), 0.5)  # building from y = 8, over half the sidewalk
+    lik = MapLikelihood(conflicted, MapConfig())
+    assert lik.wall_tolerance_m == 1.5
+    w = np.exp(lik.log_likelihood(np.full(3, X0 + 50.0), Y0 + np.array([7.0, 8.75, 14.0])))
+    assert w[0] == 1.0 and 0.8 < w[1] < 0.95 and w[2] == 0.0  # 0.75 m inside: soft; 6 m: past 3 t
+    assert MapLikelihood(rasterize_map(block_map(), 0.5), MapConfig()).wall_tolerance_m == 0.0
+    assert wall_tolerance_for(conflicted, FilterConfig.preset("paper").map) == 0.0  # the paper's hard walls
+    assert wall_tolerance_for(conflicted, MapConfig(conflict_share_min=0.6)) == 0.0  # 0.5 covered
+    assert wall_tolerance_for(conflicted, MapConfig(wall_tolerance_m=2.0)) == 2.0
 
 
 # -- GNSS likelihood ------------------------------------------------------------------------------------

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 import shapely
-from filter_maps import X0, Y0, block_map, two_sidewalk_map
+from filter_maps import X0, Y0, block_map, shifted_building_map, two_sidewalk_map
 
 from curbside import settings
 from curbside.localize import raster as raster_mod
@@ -77,6 +77,14 @@ def test_raster_is_cached_on_disk_and_reused(monkeypatch):
     np.testing.assert_array_equal(first.codes, second.codes)
     assert (second.x0, second.y0, second.resolution_m) == (first.x0, first.y0, first.resolution_m)
     assert map_hash(layers, 0.5, 25.0) != map_hash(layers, 1.0, 25.0) != map_hash(layers, 1.0, 20.0)
+
+
+def test_raster_measures_the_share_of_sidewalk_under_buildings():
+    assert rasterize_map(block_map(), 0.5).sidewalk_under_buildings == 0.0  # disjoint classes
+    layers = shifted_building_map()  # the building covers the sidewalk's northern 2 of 4 m
+    assert rasterize_map(layers, 0.5).sidewalk_under_buildings == pytest.approx(0.5, abs=0.01)
+    built = load_or_build_raster(layers, 0.5)
+    assert load_or_build_raster(layers, 0.5).sidewalk_under_buildings == built.sidewalk_under_buildings > 0.4
 
 
 def test_nearest_free_cell_from_inside_a_building():

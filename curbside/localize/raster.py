@@ -14,6 +14,9 @@ Class codes increase with precedence, so the grid is the element-wise maximum of
 cells also record how deep inside the building they lie: code ``BUILDING + k`` for a cell centre about
 ``(k + 0.5) * resolution`` metres past the wall (:func:`building_depth_m`; Euclidean distance transform),
 so that a map likelihood can soften the walls by a few metres of map error without another lookup.
+The share of sidewalk cells that a building covers (:attr:`MapRaster.sidewalk_under_buildings`) says
+whether the map's buildings and streets agree: zero for a map ``osmseg`` built (its classes are disjoint),
+more for a building layer from another source or year laid over the streets.
 
 Alongside the class codes, the same grid holds the index of the nearest sidewalk segment of every cell
 within the segment reach (25 m by default) of one (-1 farther away), with the ``segment_id``
@@ -58,7 +61,7 @@ CLASS_CODES: dict[str, int] = {
 }
 
 #: Bumped whenever the rasteriser's output changes, so stale cache files are not reused.
-RASTER_FORMAT_VERSION = 5
+RASTER_FORMAT_VERSION = 6
 
 
 @dataclass(frozen=True)
@@ -87,6 +90,8 @@ class MapRaster:
         ``segment_id`` string of each indexed segment (``None`` with :attr:`segment_index`).
     segment_axes
         ``(S, 2)`` unit vector along each segment (its street's direction; :func:`long_axes`).
+    sidewalk_under_buildings
+        Share of the sidewalk cells that a building polygon also covers (0 without sidewalks).
     """
 
     codes: np.ndarray
@@ -97,6 +102,7 @@ class MapRaster:
     segment_index: np.ndarray | None = None
     segment_ids: np.ndarray | None = None
     segment_axes: np.ndarray | None = None
+    sidewalk_under_buildings: float = 0.0
 
     @property
     def shape(self) -> tuple[int, int]:
@@ -434,18 +440,22 @@ def rasterize_map(
     cols = int(np.ceil((maxx + margin_m - x0) / res))
     rows = int(np.ceil((maxy + margin_m - y0) / res))
     codes = np.zeros((rows, cols), dtype=np.uint8)
+    sidewalk = None
     for cls, code in tqdm(sorted(CLASS_CODES.items(), key=lambda kv: kv[1]), desc="rasterising map",
                           unit="class", leave=False, disable=None):
         geoms = layers.layer(cls).geometry.values
         mask = rasterize_mask(np.asarray(geoms), x0, y0, res, (rows, cols))
         codes[mask] = code
         logger.debug("rasterised %d %s polygons: %d cells", len(geoms), cls, int(mask.sum()))
+        sidewalk = mask if code == SIDEWALK else sidewalk
+    n_sidewalk = int(sidewalk.sum())
+    under_buildings = int((codes[sidewalk] == BUILDING).sum()) / n_sidewalk if n_sidewalk else 0.0
     _encode_building_depth(codes)
     segments = rasterize_segments(layers, float(x0), float(y0), res, (rows, cols), segment_reach_m)
     segment_index, segment_ids, segment_axes = segments if segments is not None else (None, None, None)
     return MapRaster(
         codes, float(x0), float(y0), res, pyproj.CRS(layers.crs).to_wkt(), segment_index, segment_ids,
-        segment_axes,
+        segment_axes, under_buildings,
     )
 
 
@@ -469,7 +479,8 @@ def building_depth_m(codes: np.ndarray | int, resolution_m: float) -> np.ndarray
 def _arrays(raster: MapRaster) -> dict[str, np.ndarray]:
     """A raster as the arrays of its cache entry (``segment_ids`` is a str array: no pickle)."""
     arrays = {"codes": raster.codes, "x0": np.float64(raster.x0), "y0": np.float64(raster.y0),
-              "resolution_m": np.float64(raster.resolution_m), "crs": np.array(raster.crs)}
+              "resolution_m": np.float64(raster.resolution_m), "crs": np.array(raster.crs),
+              "sidewalk_under_buildings": np.float64(raster.sidewalk_under_buildings)}
     if raster.segment_index is not None:
         arrays |= {"segment_index": raster.segment_index, "segment_ids": raster.segment_ids,
                    "segment_axes": raster.segment_axes}
@@ -500,8 +511,8 @@ def load_or_build_raster(
     arrays = disk_cache.cached_arrays(
         "rasters", map_hash(layers, res, segment_reach_m),
         lambda: _arrays(rasterize_map(layers, res, segment_reach_m)),
-        required=("codes", "x0", "y0", "resolution_m", "crs"),
+        required=("codes", "x0", "y0", "resolution_m", "crs", "sidewalk_under_buildings"),
     )
     return MapRaster(arrays["codes"], float(arrays["x0"]), float(arrays["y0"]), float(arrays["resolution_m"]),
                      str(arrays["crs"]), arrays.get("segment_index"), arrays.get("segment_ids"),
-                     arrays.get("segment_axes"))
+                     arrays.get("segment_axes"), float(arrays["sidewalk_under_buildings"]))

@@ -122,6 +122,11 @@ class MapConfig:
     wall_tolerance_m
         Soft building edges: a particle ``d`` metres inside a building weighs ``exp(-d^2 / (2 t^2))``
         instead of 0 (0: the paper's hard walls), and 0 beyond ``3 t``. Tolerates metre-scale map error.
+    conflict_share_min, conflict_wall_tolerance_m
+        A map whose buildings cover at least ``conflict_share_min`` of its sidewalk area
+        (:attr:`~curbside.localize.raster.MapRaster.sidewalk_under_buildings`: a building layer from
+        another source or year than the streets) has walls soft by at least ``conflict_wall_tolerance_m``.
+        A map ``osmseg`` built covers none (0 m: every map keeps ``wall_tolerance_m``).
     raster_resolution_m
         Cell size of the map raster.
     segment_reach_m
@@ -130,6 +135,8 @@ class MapConfig:
 
     jaywalk_weight: float = 0.4
     wall_tolerance_m: float = 0.0
+    conflict_share_min: float = 0.02
+    conflict_wall_tolerance_m: float = 1.5
     raster_resolution_m: float = 0.5
     segment_reach_m: float = 25.0
 
@@ -138,7 +145,13 @@ class MapConfig:
             0.0 <= self.jaywalk_weight <= 1.0, f"jaywalk_weight must lie in [0, 1], got {self.jaywalk_weight}"
         )
         _check(
-            self.wall_tolerance_m >= 0, f"wall_tolerance_m must be non-negative, got {self.wall_tolerance_m}"
+            min(self.wall_tolerance_m, self.conflict_wall_tolerance_m) >= 0,
+            "wall_tolerance_m and conflict_wall_tolerance_m must be non-negative, got "
+            f"{self.wall_tolerance_m}, {self.conflict_wall_tolerance_m}",
+        )
+        _check(
+            0.0 <= self.conflict_share_min <= 1.0,
+            f"conflict_share_min must lie in [0, 1], got {self.conflict_share_min}",
         )
         _check(
             self.raster_resolution_m > 0 and self.segment_reach_m > 0,
@@ -465,6 +478,7 @@ class FilterConfig:
                 ),
                 gnss=GnssConfig(sigma_factor=1.0, outlier_prob=0.0, correlation_time_s=0.0),
                 resample=ResampleConfig(policy="always"),
+                map=MapConfig(conflict_wall_tolerance_m=0.0),
                 recovery=RecoveryConfig(max_fraction=0.0, stall_ratio=0.0),
                 scale_correction=ScaleCorrectionConfig(fraction=0.0),
                 street_heading=StreetHeadingConfig(strength_per_m=0.0),

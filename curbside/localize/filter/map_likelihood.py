@@ -4,6 +4,9 @@ Weights: 0 in a building, ``jaywalk_weight`` on street surface outside crosswalk
 sidewalks, free space and anywhere off the raster. With ``wall_tolerance_m = t > 0`` the walls are soft:
 a particle ``d`` metres past a wall weighs ``exp(-d^2 / (2 t^2))``, and 0 beyond ``3 t``, so a map a
 metre or two off (an old footprint, a misplaced facade) no longer kills particles on a real sidewalk.
+A map whose buildings cover its own sidewalks (a building layer from another source or year than the
+streets) is such a map: its walls are soft by at least ``conflict_wall_tolerance_m``
+(:func:`wall_tolerance_for`).
 
 The lookup is one gather in the raster's ``uint8`` codes (building cells carry their depth, see
 :mod:`curbside.localize.raster`) and one in a 256-entry table of log-weights, compiled into one loop.
@@ -13,6 +16,7 @@ divergence recovery's stall test reads.
 
 from __future__ import annotations
 
+import logging
 import math
 
 import numba
@@ -24,16 +28,29 @@ from curbside.localize.filter.particles import ParticleSet
 from curbside.localize.filter.parts import Update
 from curbside.localize.raster import BUILDING, STREET, MapRaster, RasterLookup, building_depth_m
 
+logger = logging.getLogger(__name__)
+
 #: A particle whose map weight is below this (1 %) counts as stopped by a wall.
 BLOCKED_LOG_WEIGHT = math.log(0.01)
 
 
-def log_weight_table(config: MapConfig, resolution_m: float) -> np.ndarray:
-    """Log-weight of each of the 256 raster codes under ``config``."""
+def wall_tolerance_for(raster: MapRaster, config: MapConfig) -> float:
+    """The wall tolerance (m) on ``raster``: ``wall_tolerance_m``, or ``conflict_wall_tolerance_m`` if larger
+    where the map's buildings cover at least ``conflict_share_min`` of its sidewalks."""
+    share = raster.sidewalk_under_buildings
+    conflict = share > 0 and share >= config.conflict_share_min
+    return max(config.wall_tolerance_m, config.conflict_wall_tolerance_m if conflict else 0.0)
+
+
+def log_weight_table(
+    config: MapConfig, resolution_m: float, wall_tolerance_m: float | None = None
+) -> np.ndarray:
+    """Log-weight of each of the 256 raster codes under ``config`` (walls soft by ``wall_tolerance_m``,
+    default ``config.wall_tolerance_m``)."""
     table = np.zeros(256)
     table[STREET] = math.log(config.jaywalk_weight) if config.jaywalk_weight > 0 else -math.inf
     depth = building_depth_m(np.arange(BUILDING, 256), resolution_m)
-    t = config.wall_tolerance_m
+    t = config.wall_tolerance_m if wall_tolerance_m is None else wall_tolerance_m
     if t > 0:
         table[BUILDING:] = np.where(depth <= 3 * t, -0.5 * (depth / t) ** 2, -math.inf)
     else:
@@ -56,7 +73,16 @@ class MapLikelihood:
         self.raster = raster
         self.config = config
         self.lookup = RasterLookup(raster)
-        self.log_table = log_weight_table(config, raster.resolution_m)
+        #: The walls' softness on this map (m; :func:`wall_tolerance_for`).
+        self.wall_tolerance_m = wall_tolerance_for(raster, config)
+        if self.wall_tolerance_m > config.wall_tolerance_m:
+            logger.info(
+                "the map's buildings cover %.1f %% of its sidewalks (buildings from another source or year "
+                "than its streets?): walls soft by %.2g m (filter.map.conflict_wall_tolerance_m)",
+                100 * raster.sidewalk_under_buildings,
+                self.wall_tolerance_m,
+            )
+        self.log_table = log_weight_table(config, raster.resolution_m, self.wall_tolerance_m)
         #: Share of the particles that the last :meth:`weigh` found behind a wall (weight under 1 %).
         self.blocked_share = 0.0
 
