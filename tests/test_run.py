@@ -188,6 +188,24 @@ def run_cli(*args) -> int:
     return localize_main(["run", *map(str, args)])
 
 
+def test_cli_softens_the_walls_of_a_map_whose_buildings_cover_its_sidewalks(tmp_path, map_file, capsys):
+    session = write_walk(tmp_path / "walk", duration_s=30.0)
+    layers = block_layers()
+    north = layers.gdf["geometry"].bounds["miny"] == Y0 + 10
+    layers.gdf.loc[north & (layers.gdf["class"] == "building"), "geometry"] = shapely.box(
+        X0 - 150, Y0 + 8, X0 + 150, Y0 + 60
+    )  # drawn 2 m south, over the north sidewalk the walker is on (y = 8 m)
+    shifted = write_map(layers, tmp_path / "shifted.geojson")
+    assert run_cli(session, "--map", map_file, "-o", tmp_path / "clean") == 0
+    assert "walls soft" not in capsys.readouterr().out
+    assert run_cli(session, "--map", shifted, "-o", tmp_path / "shifted") == 0
+    assert "walls soft by 1.5 m" in capsys.readouterr().out
+    info = {name: json.loads((tmp_path / name / "run.json").read_text()) for name in ("clean", "shifted")}
+    assert info["clean"]["wall_tolerance_m"] == 0.0 and info["shifted"]["wall_tolerance_m"] == 1.5
+    track = pd.read_csv(tmp_path / "shifted" / "track.csv")
+    assert np.median(np.abs(track["y_m"] - (Y0 + 8.0))) < 0.9  # hard walls: 1.1 m (the wall at 8 m)
+
+
 def test_cli_writes_track_files_and_same_seed_same_track(tmp_path, map_file, capsys):
     session = write_walk(tmp_path / "walk", duration_s=40.0)
     assert run_cli(session, "--map", map_file, "--seed", 3, "--save-particles", "-o", tmp_path / "a") == 0

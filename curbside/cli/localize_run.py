@@ -97,6 +97,13 @@ def _run(args: argparse.Namespace) -> int:
             f"{args.output}: from t = {result.unseen_velocity_from_s:.1f} s, the motion model for a velocity "
             "model new to the phone or the place (--unseen-velocity)"
         )
+    configured = result.config.filter.map.wall_tolerance_m
+    if result.wall_tolerance_m is not None and result.wall_tolerance_m > configured:
+        print(
+            f"{args.output}: the map's buildings cover part of its sidewalks (another source or year "
+            f"than its streets?): walls soft by {result.wall_tolerance_m:g} m "
+            "(filter.map.conflict_wall_tolerance_m)"
+        )
     if summary is not None:
         print(f"{args.output}: {format_waypoint_summary(summary)}")
     return 0

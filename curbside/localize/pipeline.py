@@ -79,6 +79,9 @@ class TrackResult:
         Collapses re-seeded; particles injected by the divergence recovery.
     unseen_velocity_from_s
         Time from which the filter moved with the unseen-velocity motion model (``None``: never).
+    wall_tolerance_m
+        How soft the walls were (m; ``None`` without a map): ``filter.map.wall_tolerance_m``, or
+        ``conflict_wall_tolerance_m`` on a map whose buildings cover its sidewalks.
     snapshots
         With ``save_particles``: ``t`` ``(K,)``, ``x``, ``y`` ``(K, N)`` float32 metres relative to
         ``origin``, ``theta`` and ``scale`` ``(K, N)`` float32, ``origin`` ``(2,)``, ``crs`` (WKT), and
@@ -94,6 +97,7 @@ class TrackResult:
     injections: int = 0
     snapshots: dict[str, np.ndarray] | None = None
     unseen_velocity_from_s: float | None = None
+    wall_tolerance_m: float | None = None
 
     @property
     def mode(self) -> str:
@@ -378,6 +382,7 @@ def _result(
         injections,
         snapshots,
         engine.unseen_velocity_from_s,
+        None if tracker is None else tracker.wall_tolerance_m,
     )
 
 

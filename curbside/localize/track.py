@@ -111,6 +111,7 @@ def write_track(
         "recoveries": result.recoveries,
         "injections": result.injections,
         "unseen_velocity_from_s": result.unseen_velocity_from_s,
+        "wall_tolerance_m": result.wall_tolerance_m,
         "config": result.config.to_dict(),
     }
     with output_folder(out_dir, "localize run", overwrite=overwrite) as tmp:

@@ -206,6 +206,12 @@ class Tracker:
         map_lik = self.initiator.map_likelihood
         return None if map_lik is None else map_lik.raster
 
+    @property
+    def wall_tolerance_m(self) -> float | None:
+        """How soft the map's walls are on this map (m; ``None`` without a map)."""
+        map_lik = self.initiator.map_likelihood
+        return None if map_lik is None else map_lik.wall_tolerance_m
+
     def to_xy(self, *, lat: float, lon: float) -> tuple[float, float]:
         """Metres in this tracker's frame of a WGS84 position (sets the frame when there is none).
 
