@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import json
 
 import pytest
@@ -22,12 +23,18 @@ def test_every_parameter_round_trips_through_json():
     assert RunConfig.from_dict({"unseen_velocity": {}}) == RunConfig()
     before_auto = RunConfig().with_overrides({"unseen_velocity.mode": "off"})
     assert RunConfig.from_dict({}) == before_auto  # a run.json from before the block replays as it ran
+    older = RunConfig().to_dict()
+    del older["filter"]["map"]["conflict_share_min"], older["filter"]["map"]["conflict_wall_tolerance_m"]
+    assert RunConfig.from_dict(older).filter.map.conflict_wall_tolerance_m == 0.0  # hard walls, as it ran
+    partial = {"filter": {"map": {"jaywalk_weight": 0.2}}}
+    assert RunConfig.from_dict(partial).filter.map.conflict_wall_tolerance_m == 1.5  # by hand: the defaults
 
 
 def test_the_paper_preset_is_the_plain_filter():
     paper = FilterConfig.preset("paper")
     assert (paper.gnss.outlier_prob, paper.gnss.correlation_time_s, paper.recovery.max_fraction) == (0, 0, 0)
-    assert paper.gnss.sigma_factor == 1.0 and paper.map == FilterConfig().map
+    assert paper.gnss.sigma_factor == 1.0 and paper.map.conflict_wall_tolerance_m == 0.0  # hard walls always
+    assert paper.map == dataclasses.replace(FilterConfig().map, conflict_wall_tolerance_m=0.0)
     assert (paper.n_particles, FilterConfig().n_particles) == (500, 2000)
     with pytest.raises(ValueError):
         FilterConfig.preset("best")

@@ -259,8 +259,16 @@ class RunConfig:
         """Rebuild from :meth:`to_dict` output (unknown keys or bad values: one-line input error).
 
         A config written before the ``unseen_velocity`` block existed ran without it: it replays with
-        mode ``off``, not today's default.
+        mode ``off``, not today's default; one whose ``filter.map`` holds exactly the four keys written
+        before ``conflict_*`` existed replays with hard walls on every map, as it ran (a partial block
+        written by hand keeps the defaults).
         """
         if isinstance(data, dict) and "unseen_velocity" not in data:
             data = {**data, "unseen_velocity": {"mode": "off"}}
+        filter_block = data.get("filter") if isinstance(data, dict) else None
+        map_block = filter_block.get("map") if isinstance(filter_block, dict) else None
+        whole_before_rule = {"jaywalk_weight", "wall_tolerance_m", "raster_resolution_m", "segment_reach_m"}
+        if isinstance(map_block, dict) and set(map_block) == whole_before_rule:  # an older run.json's block
+            map_block = {**map_block, "conflict_wall_tolerance_m": 0.0}
+            data = {**data, "filter": {**filter_block, "map": map_block}}
         return from_dict(cls, data, where)
