@@ -447,7 +447,8 @@ def rasterize_map(
         mask = rasterize_mask(np.asarray(geoms), x0, y0, res, (rows, cols))
         codes[mask] = code
         logger.debug("rasterised %d %s polygons: %d cells", len(geoms), cls, int(mask.sum()))
-        sidewalk = mask if code == SIDEWALK else sidewalk
+        if code == SIDEWALK:
+            sidewalk = mask
     n_sidewalk = int(sidewalk.sum())
     under_buildings = int((codes[sidewalk] == BUILDING).sum()) / n_sidewalk if n_sidewalk else 0.0
     _encode_building_depth(codes)

@@ -42,15 +42,12 @@ def wall_tolerance_for(raster: MapRaster, config: MapConfig) -> float:
     return max(config.wall_tolerance_m, config.conflict_wall_tolerance_m if conflict else 0.0)
 
 
-def log_weight_table(
-    config: MapConfig, resolution_m: float, wall_tolerance_m: float | None = None
-) -> np.ndarray:
-    """Log-weight of each of the 256 raster codes under ``config`` (walls soft by ``wall_tolerance_m``,
-    default ``config.wall_tolerance_m``)."""
+def log_weight_table(config: MapConfig, resolution_m: float, wall_tolerance_m: float) -> np.ndarray:
+    """Log-weight of each of the 256 raster codes under ``config``, walls soft by ``wall_tolerance_m``."""
     table = np.zeros(256)
     table[STREET] = math.log(config.jaywalk_weight) if config.jaywalk_weight > 0 else -math.inf
     depth = building_depth_m(np.arange(BUILDING, 256), resolution_m)
-    t = config.wall_tolerance_m if wall_tolerance_m is None else wall_tolerance_m
+    t = wall_tolerance_m
     if t > 0:
         table[BUILDING:] = np.where(depth <= 3 * t, -0.5 * (depth / t) ** 2, -math.inf)
     else:
