@@ -43,12 +43,13 @@ def sessions(out: Path, subsets: tuple[str, ...], seeds: int) -> dict[str, list[
                                     world=world) for sub in subsets}
 
 
-def run(folders: dict[str, list[Path]], map_path: str, variants: dict, seeds: tuple[int, ...],
-        workers: int, filter_map: bool = True) -> tuple[pd.DataFrame, pd.DataFrame]:
+def run(folders: dict[str, list[Path]], map_path: str, variants: dict, seeds: tuple[int, ...], workers: int,
+        filter_map: bool = True, score_map: str | None = None) -> tuple[pd.DataFrame, pd.DataFrame]:
     """Pooled metrics per (variant, subset), each run's median error (for the GNSS ratios) and the
     variants' paired gains over the first (:func:`paired_gains`).
 
-    ``filter_map=False`` runs the filters without the map likelihood (the map still scores them).
+    ``filter_map=False`` runs the filters without the map likelihood (the map still scores them);
+    ``score_map`` scores against another map's sidewalks than the filters use (default: the same).
     """
     suite = SuiteConfig()  # each method's N, as the benchmark runs it
     specs, keys = [], []
@@ -56,7 +57,8 @@ def run(folders: dict[str, list[Path]], map_path: str, variants: dict, seeds: tu
         for seed in seeds if method != "gnss" else seeds[:1]:
             for sub, paths in folders.items():
                 for path in paths:
-                    specs.append(RunSpec(str(path), method, map_path if filter_map else None, "osm", map_path,
+                    specs.append(RunSpec(str(path), method, map_path if filter_map else None, "osm",
+                                         score_map or map_path,
                                          0.4, suite.particles_of(method), None, seed,
                                          overrides=tuple(sorted(overrides.items()))))
                     keys.append((name, seed, sub, path.name))
@@ -122,6 +124,9 @@ def main(argv: list[str] | None = None) -> int:
                              "repeat on other sessions: docs/filter.md)")
     parser.add_argument("--subsets", nargs="+", choices=SUBSETS, default=list(SUBSETS))
     parser.add_argument("--map", help="map GeoJSON (default: built from the bundled extract into OUT)")
+    parser.add_argument("--score-map", metavar="MAP",
+                        help="score against this map's sidewalks (the true one) while the filters use --map "
+                             "(e.g. one whose buildings were moved on purpose); default: --map")
     parser.add_argument("--workers", type=int, default=2)
     parser.add_argument("--no-map-likelihood", action="store_true",
                         help="run the filters without the map (as on the IPIN trials); the map still scores")
@@ -139,7 +144,8 @@ def main(argv: list[str] | None = None) -> int:
     variants = {"gnss": ["gnss", {}], **json.loads(Path(args.variants).read_text(encoding="utf-8"))}
     t0 = time.perf_counter()
     pooled, runs, gains = run(sessions(out, tuple(args.subsets), args.session_seeds), map_path, variants,
-                              tuple(args.seeds), args.workers, filter_map=not args.no_map_likelihood)
+                              tuple(args.seeds), args.workers, filter_map=not args.no_map_likelihood,
+                              score_map=args.score_map)
     pd.set_option("display.width", 200)
     wide = pooled.pivot(index="variant", columns="subset").loc[list(dict.fromkeys(pooled["variant"]))]
     print(wide.round(3).to_string())

@@ -18,9 +18,9 @@ from curbside.cli.osmseg import main as osmseg_main
 from curbside.configio import from_dict, to_dict
 from curbside.osmseg.build import build_map
 from curbside.osmseg.config import SegmentationConfig
-from curbside.osmseg.mapio import CLASSES, MapLayers, read_map
+from curbside.osmseg.mapio import CLASSES, MapLayers, read_map, write_map
 from curbside.osmseg.reader import read_osm_file
-from curbside.osmseg.streets import mapped_sidewalks
+from curbside.osmseg.streets import mapped_sidewalks, sidewalk_length_in_buildings
 
 OSM_DATA = Path(__file__).parent / "data" / "osm"
 
@@ -155,6 +155,39 @@ def test_mapped_sidewalks_are_not_inside_street(scenes):
     # ... and they lie in sidewalk segments.
     covered = shapely.length(shapely.intersection(lines, layers.union("sidewalk"))).sum()
     assert covered > 0.9 * shapely.length(lines).sum() - 4 * 12.0
+
+
+def test_sidewalk_length_in_buildings_is_the_share_inside_walls():
+    lines = np.array([shapely.LineString([(0, 0), (100, 0)]), shapely.LineString([(0, 10), (100, 10)])])
+    buildings = np.array([shapely.box(10, -1, 30, 1), shapely.box(60, 9, 65, 20), shapely.box(0, 50, 9, 60)])
+    assert sidewalk_length_in_buildings(lines, buildings) == pytest.approx((20 + 5) / 200)
+    assert sidewalk_length_in_buildings(lines[:0], buildings) == 0.0
+    assert sidewalk_length_in_buildings(lines, buildings[:0]) == 0.0
+
+
+def test_buildings_misaligned_with_the_mapped_sidewalks_soften_the_walls(scenes, monkeypatch, tmp_path):
+    from curbside.localize.filter import MapConfig, MapLikelihood
+    from curbside.localize.raster import rasterize_map
+    from curbside.osmseg import build as build_mod
+
+    aligned = scenes["crossroads-mapped-sidewalks"]
+    assert aligned.meta["sidewalk_ways_in_buildings"] == 0.0
+    derive = build_mod.derive_buildings
+
+    def shifted(*args, **kwargs):  # the footprints drawn 4 m off, as from offset imagery
+        gdf = derive(*args, **kwargs)
+        return gdf.set_geometry(shapely.transform(gdf.geometry.values, lambda xy: xy + np.array([4.0, 4.0])))
+
+    monkeypatch.setattr(build_mod, "derive_buildings", shifted)
+    misaligned = build_map(osm_file=OSM_DATA / "crossroads-mapped-sidewalks.osm")
+    assert misaligned.meta["sidewalk_ways_in_buildings"] > 0.02
+    for pair, area in class_overlaps_m2(misaligned).items():
+        assert area < 0.01, pair  # the classes stay disjoint: only the footways show the conflict
+    again = read_map(write_map(misaligned, tmp_path / "misaligned.geojson"))
+    raster = rasterize_map(again, 0.5)
+    assert raster.sidewalk_under_buildings == misaligned.meta["sidewalk_ways_in_buildings"]
+    assert MapLikelihood(raster, MapConfig()).wall_tolerance_m == 1.5
+    assert MapLikelihood(rasterize_map(aligned, 0.5), MapConfig()).wall_tolerance_m == 0.0
 
 
 def test_width_tag_sets_carriageway(scenes):

@@ -14,9 +14,11 @@ Class codes increase with precedence, so the grid is the element-wise maximum of
 cells also record how deep inside the building they lie: code ``BUILDING + k`` for a cell centre about
 ``(k + 0.5) * resolution`` metres past the wall (:func:`building_depth_m`; Euclidean distance transform),
 so that a map likelihood can soften the walls by a few metres of map error without another lookup.
-The share of sidewalk cells that a building covers (:attr:`MapRaster.sidewalk_under_buildings`) says
-whether the map's buildings and streets agree: zero for a map ``osmseg`` built (its classes are disjoint),
-more for a building layer from another source or year laid over the streets.
+:attr:`MapRaster.sidewalk_under_buildings` says whether the map's buildings and sidewalks agree: the
+share of sidewalk cells a building covers (zero for a map ``osmseg`` built, whose classes are disjoint;
+more for a building layer from another source or year laid over the streets), or, if larger, the share
+of the mapped sidewalk ways' length inside a building that ``osmseg`` recorded in the map's metadata
+(``sidewalk_ways_in_buildings``: a building layer misaligned with the city's mapped footways).
 
 Alongside the class codes, the same grid holds the index of the nearest sidewalk segment of every cell
 within the segment reach (25 m by default) of one (-1 farther away), with the ``segment_id``
@@ -91,7 +93,8 @@ class MapRaster:
     segment_axes
         ``(S, 2)`` unit vector along each segment (its street's direction; :func:`long_axes`).
     sidewalk_under_buildings
-        Share of the sidewalk cells that a building polygon also covers (0 without sidewalks).
+        Share of the sidewalk cells that a building polygon also covers (0 without sidewalks), or the
+        map metadata's ``sidewalk_ways_in_buildings`` if larger.
     """
 
     codes: np.ndarray
@@ -282,6 +285,7 @@ def map_hash(layers: MapLayers, resolution_m: float, segment_reach_m: float) -> 
         digest.update(wkb)
     if "segment_id" in layers.gdf:
         digest.update("\0".join(map(str, layers.gdf["segment_id"].tolist())).encode())
+    digest.update(f";ways_in_buildings={_recorded_ways_in_buildings(layers)!r}".encode())
     return digest.hexdigest()
 
 
@@ -451,6 +455,7 @@ def rasterize_map(
             sidewalk = mask
     n_sidewalk = int(sidewalk.sum())
     under_buildings = int((codes[sidewalk] == BUILDING).sum()) / n_sidewalk if n_sidewalk else 0.0
+    under_buildings = max(under_buildings, _recorded_ways_in_buildings(layers))
     _encode_building_depth(codes)
     segments = rasterize_segments(layers, float(x0), float(y0), res, (rows, cols), segment_reach_m)
     segment_index, segment_ids, segment_axes = segments if segments is not None else (None, None, None)
@@ -458,6 +463,12 @@ def rasterize_map(
         codes, float(x0), float(y0), res, pyproj.CRS(layers.crs).to_wkt(), segment_index, segment_ids,
         segment_axes, under_buildings,
     )
+
+
+def _recorded_ways_in_buildings(layers: MapLayers) -> float:
+    """The metadata's ``sidewalk_ways_in_buildings`` (``osmseg build``), 0 where absent or not a number."""
+    value = layers.meta.get("sidewalk_ways_in_buildings")
+    return float(value) if isinstance(value, int | float) and 0 <= value <= 1 else 0.0
 
 
 def _encode_building_depth(codes: np.ndarray) -> None:

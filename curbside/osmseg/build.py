@@ -32,7 +32,7 @@ from curbside.osmseg.mapio import MapLayers
 from curbside.osmseg.overlay import polygons_only, subtract
 from curbside.osmseg.reader import OsmData, bbox_polygon, clip_to_bbox, read_osm_file
 from curbside.osmseg.sidewalks import sidewalk_segments
-from curbside.osmseg.streets import carriageways
+from curbside.osmseg.streets import carriageways, mapped_sidewalks, sidewalk_length_in_buildings
 from curbside.projection import LocalFrame
 
 log = logging.getLogger(__name__)
@@ -187,7 +187,8 @@ def build_map(
     -------
     MapLayers
         Polygons in local UTM; ``meta`` holds ``source``, ``bbox``, ``osm_timestamp``,
-        ``generator``, ``attribution`` and ``params`` (``config`` as a dict).
+        ``generator``, ``attribution``, ``params`` (``config`` as a dict) and
+        ``sidewalk_ways_in_buildings`` (:func:`~curbside.osmseg.streets.sidewalk_length_in_buildings`).
 
     Raises
     ------
@@ -204,8 +205,10 @@ def build_map(
     if len(osm.ways) == 0 and len(osm.areas) == 0:
         raise CurbsideInputError(source, f"no highways or buildings {where}")
     gdf = derive_layers(osm, config)
+    sidewalk_lines = mapped_sidewalks(osm.ways, config).geometry.values
     if clip_bbox is not None:
         window = bbox_polygon(clip_bbox, osm.crs)
+        sidewalk_lines = shapely.intersection(sidewalk_lines, window)
         gdf = gdf.set_geometry(shapely.intersection(gdf.geometry.values, window))
         gdf = gdf.explode(index_parts=False)
         gdf = gdf[gdf.geom_type == "Polygon"]
@@ -230,6 +233,9 @@ def build_map(
         "generator": f"curbside {curbside.__version__}",
         "attribution": settings.osm_attribution,
         "params": to_dict(config),
+        "sidewalk_ways_in_buildings": round(
+            sidewalk_length_in_buildings(sidewalk_lines, gdf.geometry.values[gdf["class"] == "building"]), 4
+        ),
     }
     counts = gdf["class"].value_counts().to_dict()
     log.info("built %s", ", ".join(f"{k}: {v}" for k, v in counts.items()))

@@ -157,6 +157,24 @@ def mapped_sidewalks(ways: gpd.GeoDataFrame, config: SegmentationConfig | None =
     return out.assign(width_m=np.where(np.isnan(width), config.mapped_sidewalk_width_m, width))
 
 
+def sidewalk_length_in_buildings(sidewalk_lines: np.ndarray, buildings: np.ndarray) -> float:
+    """Share of the mapped sidewalks' length that lies inside a building (0 without mapped sidewalks).
+
+    A building layer drawn where its city's sidewalks are mapped (misaligned imagery, an import offset
+    from hand-traced footways) puts walls across them; an aligned one leaves this at 0. ``buildings``
+    must not overlap each other (as :func:`curbside.osmseg.buildings.buildings` leaves them), so the
+    pieces inside them add up.
+    """
+    lines = np.asarray(sidewalk_lines, dtype=object)
+    total = float(shapely.length(lines).sum()) if len(lines) else 0.0
+    if total <= 0 or len(buildings) == 0:
+        return 0.0
+    buildings = np.asarray(buildings, dtype=object)
+    line_idx, building_idx = shapely.STRtree(buildings).query(lines, predicate="intersects")
+    inside = shapely.length(shapely.intersection(lines[line_idx], buildings[building_idx]))
+    return float(inside.sum()) / total
+
+
 def side_distances(
     lines: np.ndarray,
     targets: np.ndarray,

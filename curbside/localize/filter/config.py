@@ -123,10 +123,10 @@ class MapConfig:
         Soft building edges: a particle ``d`` metres inside a building weighs ``exp(-d^2 / (2 t^2))``
         instead of 0 (0: the paper's hard walls), and 0 beyond ``3 t``. Tolerates metre-scale map error.
     conflict_share_min, conflict_wall_tolerance_m
-        A map whose buildings cover at least ``conflict_share_min`` of its sidewalk area
-        (:attr:`~curbside.localize.raster.MapRaster.sidewalk_under_buildings`: a building layer from
-        another source or year than the streets) has walls soft by at least ``conflict_wall_tolerance_m``.
-        A map ``osmseg`` built covers none (0 m: every map keeps ``wall_tolerance_m``).
+        A map whose buildings cover at least ``conflict_share_min`` of its sidewalk area, or of its
+        mapped sidewalk ways' length (:attr:`~curbside.localize.raster.MapRaster.sidewalk_under_buildings`:
+        a building layer from another source or year than the streets, or misaligned with them), has
+        walls soft by at least ``conflict_wall_tolerance_m`` (0 m: every map keeps ``wall_tolerance_m``).
     raster_resolution_m
         Cell size of the map raster.
     segment_reach_m
