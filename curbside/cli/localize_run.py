@@ -100,8 +100,8 @@ def _run(args: argparse.Namespace) -> int:
     configured = result.config.filter.map.wall_tolerance_m
     if result.wall_tolerance_m is not None and result.wall_tolerance_m > configured:
         print(
-            f"{args.output}: the map's buildings cover part of its sidewalks (another source or year "
-            f"than its streets?): walls soft by {result.wall_tolerance_m:g} m "
+            f"{args.output}: the map's buildings stand on part of its sidewalks (another source or year "
+            f"than its streets, or misaligned?): walls soft by {result.wall_tolerance_m:g} m "
             "(filter.map.conflict_wall_tolerance_m)"
         )
     if summary is not None:

@@ -74,8 +74,8 @@ class MapLikelihood:
         self.wall_tolerance_m = wall_tolerance_for(raster, config)
         if self.wall_tolerance_m > config.wall_tolerance_m:
             logger.info(
-                "the map's buildings cover %.1f %% of its sidewalks (buildings from another source or year "
-                "than its streets?): walls soft by %.2g m (filter.map.conflict_wall_tolerance_m)",
+                "the map's buildings stand on %.1f %% of its sidewalks (another source or year than its "
+                "streets, or misaligned?): walls soft by %.2g m (filter.map.conflict_wall_tolerance_m)",
                 100 * raster.sidewalk_under_buildings,
                 self.wall_tolerance_m,
             )
