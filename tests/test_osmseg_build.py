@@ -165,7 +165,7 @@ def test_sidewalk_length_in_buildings_is_the_share_inside_walls():
     assert sidewalk_length_in_buildings(lines, buildings[:0]) == 0.0
 
 
-def test_buildings_misaligned_with_the_mapped_sidewalks_soften_the_walls(scenes, monkeypatch, tmp_path):
+def test_buildings_misaligned_with_mapped_sidewalks_soften_the_walls(scenes, monkeypatch, tmp_path, capsys):
     from curbside.localize.filter import MapConfig, MapLikelihood
     from curbside.localize.raster import rasterize_map
     from curbside.osmseg import build as build_mod
@@ -188,6 +188,12 @@ def test_buildings_misaligned_with_the_mapped_sidewalks_soften_the_walls(scenes,
     assert raster.sidewalk_under_buildings == misaligned.meta["sidewalk_ways_in_buildings"]
     assert MapLikelihood(raster, MapConfig()).wall_tolerance_m == 1.5
     assert MapLikelihood(rasterize_map(aligned, 0.5), MapConfig()).wall_tolerance_m == 0.0
+    osm_file = str(OSM_DATA / "crossroads-mapped-sidewalks.osm")
+    assert osmseg_main(["build", "--osm", osm_file, "-o", str(tmp_path / "cli.geojson")]) == 0
+    assert "run inside buildings: are the buildings misaligned" in capsys.readouterr().out
+    monkeypatch.setattr(build_mod, "derive_buildings", derive)
+    assert osmseg_main(["build", "--osm", osm_file, "-o", str(tmp_path / "aligned.geojson")]) == 0
+    assert "inside buildings" not in capsys.readouterr().out
 
 
 def test_width_tag_sets_carriageway(scenes):

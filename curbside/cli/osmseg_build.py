@@ -64,6 +64,13 @@ def summary_lines(layers: MapLayers) -> list[str]:
     return lines
 
 
+def _conflict_share_min() -> float:
+    """The filter's threshold (imported only when needed: the filter package is slow to import)."""
+    from curbside.localize.filter.config import MapConfig
+
+    return MapConfig.conflict_share_min
+
+
 def run(args: argparse.Namespace) -> int:
     """Build the map and write it."""
     check_output_file(args.output)
@@ -76,4 +83,11 @@ def run(args: argparse.Namespace) -> int:
     out.write(f"wrote {path} ({layers.meta['source']}; {settings.osm_attribution})\n")
     for line in summary_lines(layers):
         out.write(line + "\n")
+    inside = layers.meta.get("sidewalk_ways_in_buildings", 0.0)
+    if inside > 0 and inside >= _conflict_share_min():
+        out.write(
+            f"{100 * inside:.1f} % of the mapped sidewalks (footway=sidewalk) run inside buildings: are the "
+            "buildings misaligned with the streets? localize softens this map's walls "
+            "(filter.map.conflict_wall_tolerance_m)\n"
+        )
     return 0
