@@ -94,6 +94,23 @@ def test_png_draws_each_class_present_and_only_those(tmp_path, crossroads, build
     assert _colour_fraction(hand, street) < 0.001
 
 
+def test_png_shows_where_buildings_stand_on_sidewalks(tmp_path, crossroads):
+    clean = read_map(crossroads)
+    assert len(plot.sidewalk_under_buildings(clean)) == 0  # osmseg's classes are disjoint
+    conflicted = _layers([
+        ("street", shapely.box(0, 0, 100, 12), None),
+        ("sidewalk", shapely.box(0, 12, 100, 16), "Main St"),
+        ("building", shapely.box(0, 14, 100, 40), None),  # drawn 2 m over the sidewalk
+    ])
+    pieces = plot.sidewalk_under_buildings(conflicted)
+    assert shapely.area(pieces.values).sum() == pytest.approx(200.0)
+    png_clean, png_conflicted = tmp_path / "clean.png", tmp_path / "conflicted.png"
+    assert main(["show", str(crossroads), "-o", str(png_clean)]) == 0
+    assert main(["show", str(write_map(conflicted, tmp_path / "c.geojson")), "-o", str(png_conflicted)]) == 0
+    assert _colour_fraction(png_conflicted, plot.CONFLICT_COLOUR) > 0.01
+    assert _colour_fraction(png_clean, plot.CONFLICT_COLOUR) < 0.0005
+
+
 def test_html_has_one_layer_per_class_tooltips_attribution_and_no_tiles(tmp_path, crossroads):
     out = tmp_path / "map.html"
     assert main(["show", str(crossroads), "-o", str(out)]) == 0

@@ -27,6 +27,11 @@ from curbside.projection import WGS84
 
 log = logging.getLogger(__name__)
 
+#: Where a map's buildings stand on its own sidewalks, and the smallest such piece drawn (osmseg's sliver
+#: size: shared edges drawn twice leave overlaps of a few square decimetres on any map).
+CONFLICT_COLOUR = "#d62728"
+MIN_CONFLICT_AREA_M2 = 0.5
+
 #: Output formats by file extension.
 FORMATS: dict[str, str] = {".png": "png", ".html": "html", ".htm": "html"}
 
@@ -91,8 +96,22 @@ def _scale_bar(ax: Axes, extent: tuple[float, float, float, float]) -> None:
     ax.text(x0 + length / 2, y0 + 1.8 * tick, label, ha="center", va="bottom", fontsize=8, zorder=10)
 
 
+def sidewalk_under_buildings(layers: MapLayers) -> gpd.GeoSeries:
+    """Where a building polygon covers a sidewalk polygon (empty for a map ``osmseg`` built, whose classes
+    are disjoint): a building layer from another source or year than the streets."""
+    buildings = layers.layer("building").geometry.values
+    sidewalks = layers.layer("sidewalk").geometry.values
+    if len(buildings) == 0 or len(sidewalks) == 0:
+        return gpd.GeoSeries([], crs=layers.crs)
+    i, j = shapely.STRtree(buildings).query(sidewalks, predicate="intersects")
+    pieces = shapely.intersection(sidewalks[i], buildings[j])
+    pieces = pieces[shapely.area(pieces) >= MIN_CONFLICT_AREA_M2]
+    return gpd.GeoSeries(pieces, crs=layers.crs)
+
+
 def plot_map(layers: MapLayers, ax: Axes, title: str | None = None) -> Axes:
-    """Draw a map's classes, a legend, a scale bar and the attribution on a matplotlib axes.
+    """Draw a map's classes, a legend, a scale bar and the attribution on a matplotlib axes; where its
+    buildings stand on its sidewalks (:func:`sidewalk_under_buildings`), that area in red.
 
     Parameters
     ----------
@@ -123,6 +142,11 @@ def plot_map(layers: MapLayers, ax: Axes, title: str | None = None) -> Axes:
             fill = {**fill, **stripes, "facecolor": style["facecolor"]}
         handles.append(Patch(**fill, label=f"{style['label']} ({len(rows):,})"))
     handles.append(Patch(facecolor=BACKGROUND, edgecolor="#999999", linewidth=0.5, label="free space"))
+    conflict = sidewalk_under_buildings(layers)
+    if len(conflict):
+        conflict.plot(ax=ax, facecolor=CONFLICT_COLOUR, edgecolor="none", zorder=5)
+        area_m2 = float(shapely.area(conflict.values).sum())
+        handles.append(Patch(facecolor=CONFLICT_COLOUR, label=f"building over sidewalk ({area_m2:,.0f} m²)"))
     minx, miny, maxx, maxy = layers.gdf.total_bounds
     pad = 0.01 * max(maxx - minx, maxy - miny)
     extent = (minx - pad, miny - pad, maxx + pad, maxy + pad)
