@@ -109,6 +109,11 @@ def test_png_shows_where_buildings_stand_on_sidewalks(tmp_path, crossroads):
     assert main(["show", str(write_map(conflicted, tmp_path / "c.geojson")), "-o", str(png_conflicted)]) == 0
     assert _colour_fraction(png_conflicted, plot.CONFLICT_COLOUR) > 0.01
     assert _colour_fraction(png_clean, plot.CONFLICT_COLOUR) < 0.0005
+    html_clean, html_conflicted = tmp_path / "clean.html", tmp_path / "conflicted.html"
+    assert main(["show", str(crossroads), "-o", str(html_clean)]) == 0
+    assert main(["show", str(tmp_path / "c.geojson"), "-o", str(html_conflicted)]) == 0
+    assert "building over sidewalk (200 m²)" in html_conflicted.read_text(encoding="utf-8")
+    assert "building over sidewalk" not in html_clean.read_text(encoding="utf-8")
 
 
 def test_html_has_one_layer_per_class_tooltips_attribution_and_no_tiles(tmp_path, crossroads):

@@ -8,6 +8,7 @@ maps with only some of the classes. Drawing happens in the map's local metric CR
 from __future__ import annotations
 
 import html
+import json
 import logging
 import math
 from pathlib import Path
@@ -22,7 +23,16 @@ from curbside.errors import CurbsideInputError
 from curbside.io import atomic_path
 from curbside.osmseg.mapio import MapLayers
 from curbside.osmseg.style import BACKGROUND, CLASS_STYLE
-from curbside.osmseg.webmap import attribution, bounds_js, class_features, class_overlay_js, leaflet_page
+from curbside.osmseg.webmap import (
+    COORDINATE_DECIMALS,
+    attribution,
+    bounds_js,
+    class_features,
+    class_overlay_js,
+    leaflet_page,
+    script_json,
+    swatch_label,
+)
 from curbside.projection import WGS84
 
 log = logging.getLogger(__name__)
@@ -223,8 +233,26 @@ def html_page(layers: MapLayers) -> str:
     by_class = class_features(layers)
     west, south, east, north = layers.gdf.to_crs(WGS84).total_bounds
     script = "\n".join(class_overlay_js(cls, f) for cls, f in by_class.items() if f)
+    conflict = sidewalk_under_buildings(layers)
+    if len(conflict):
+        script += "\n" + conflict_overlay_js(conflict)
     script += f"\nmap.fitBounds({bounds_js(west, south, east, north)});"
     return leaflet_page(_title(layers), script, attribution_html=html.escape(attribution(layers)))
+
+
+def conflict_overlay_js(pieces: gpd.GeoSeries) -> str:
+    """The overlay of :func:`sidewalk_under_buildings` (red, above the classes; area in its label)."""
+    area_m2 = float(shapely.area(pieces.values).sum())
+    shown = shapely.set_precision(pieces.to_crs(WGS84).values, 10.0**-COORDINATE_DECIMALS)
+    features = [{"type": "Feature", "properties": {}, "geometry": json.loads(shapely.to_geojson(g))}
+                for g in shown if not g.is_empty]
+    style = {"fillColor": CONFLICT_COLOUR, "color": CONFLICT_COLOUR, "weight": 1, "fillOpacity": 0.9}
+    label = swatch_label(CONFLICT_COLOUR, CONFLICT_COLOUR, f"building over sidewalk ({area_m2:,.0f} m²)")
+    collection = {"type": "FeatureCollection", "features": features}
+    return (
+        f"layers.addOverlay(L.geoJson({script_json(collection)}, {{style: () => ({script_json(style)}), "
+        f"interactive: false}}).addTo(map), {script_json(label)});"
+    )
 
 
 def save_html(layers: MapLayers, path: str | Path) -> Path:
