@@ -17,6 +17,7 @@ from curbside.errors import CurbsideInputError
 from curbside.osmseg import plot
 from curbside.osmseg.mapio import CLASSES, MapLayers, read_map, write_map
 from curbside.osmseg.plot import CLASS_STYLE, clip_to_bbox, render_map
+from curbside.osmseg.style import CONFLICT_COLOUR
 from curbside.osmseg.summary import class_summary, format_summary
 
 UTM10 = "EPSG:32610"
@@ -107,8 +108,8 @@ def test_png_shows_where_buildings_stand_on_sidewalks(tmp_path, crossroads):
     png_clean, png_conflicted = tmp_path / "clean.png", tmp_path / "conflicted.png"
     assert main(["show", str(crossroads), "-o", str(png_clean)]) == 0
     assert main(["show", str(write_map(conflicted, tmp_path / "c.geojson")), "-o", str(png_conflicted)]) == 0
-    assert _colour_fraction(png_conflicted, plot.CONFLICT_COLOUR) > 0.01
-    assert _colour_fraction(png_clean, plot.CONFLICT_COLOUR) < 0.0005
+    assert _colour_fraction(png_conflicted, CONFLICT_COLOUR) > 0.01
+    assert _colour_fraction(png_clean, CONFLICT_COLOUR) < 0.0005
     html_clean, html_conflicted = tmp_path / "clean.html", tmp_path / "conflicted.html"
     assert main(["show", str(crossroads), "-o", str(html_clean)]) == 0
     assert main(["show", str(tmp_path / "c.geojson"), "-o", str(html_conflicted)]) == 0

@@ -8,7 +8,6 @@ maps with only some of the classes. Drawing happens in the map's local metric CR
 from __future__ import annotations
 
 import html
-import json
 import logging
 import math
 from pathlib import Path
@@ -22,24 +21,21 @@ from matplotlib.patches import Patch, Rectangle
 from curbside.errors import CurbsideInputError
 from curbside.io import atomic_path
 from curbside.osmseg.mapio import MapLayers
-from curbside.osmseg.style import BACKGROUND, CLASS_STYLE
+from curbside.osmseg.style import BACKGROUND, CLASS_STYLE, CONFLICT_COLOUR
 from curbside.osmseg.webmap import (
-    COORDINATE_DECIMALS,
     attribution,
     bounds_js,
     class_features,
     class_overlay_js,
+    conflict_overlay_js,
     leaflet_page,
-    script_json,
-    swatch_label,
 )
 from curbside.projection import WGS84
 
 log = logging.getLogger(__name__)
 
-#: Where a map's buildings stand on its own sidewalks, and the smallest such piece drawn (osmseg's sliver
-#: size: shared edges drawn twice leave overlaps of a few square decimetres on any map).
-CONFLICT_COLOUR = "#d62728"
+#: The smallest piece of building over sidewalk drawn (osmseg's sliver size: shared edges drawn twice
+#: leave overlaps of a few square decimetres on any map).
 MIN_CONFLICT_AREA_M2 = 0.5
 
 #: Output formats by file extension.
@@ -238,21 +234,6 @@ def html_page(layers: MapLayers) -> str:
         script += "\n" + conflict_overlay_js(conflict)
     script += f"\nmap.fitBounds({bounds_js(west, south, east, north)});"
     return leaflet_page(_title(layers), script, attribution_html=html.escape(attribution(layers)))
-
-
-def conflict_overlay_js(pieces: gpd.GeoSeries) -> str:
-    """The overlay of :func:`sidewalk_under_buildings` (red, above the classes; area in its label)."""
-    area_m2 = float(shapely.area(pieces.values).sum())
-    shown = shapely.set_precision(pieces.to_crs(WGS84).values, 10.0**-COORDINATE_DECIMALS)
-    features = [{"type": "Feature", "properties": {}, "geometry": json.loads(shapely.to_geojson(g))}
-                for g in shown if not g.is_empty]
-    style = {"fillColor": CONFLICT_COLOUR, "color": CONFLICT_COLOUR, "weight": 1, "fillOpacity": 0.9}
-    label = swatch_label(CONFLICT_COLOUR, CONFLICT_COLOUR, f"building over sidewalk ({area_m2:,.0f} m²)")
-    collection = {"type": "FeatureCollection", "features": features}
-    return (
-        f"layers.addOverlay(L.geoJson({script_json(collection)}, {{style: () => ({script_json(style)}), "
-        f"interactive: false}}).addTo(map), {script_json(label)});"
-    )
 
 
 def save_html(layers: MapLayers, path: str | Path) -> Path:

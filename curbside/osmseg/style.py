@@ -19,6 +19,8 @@ CLASS_STYLE: dict[str, dict[str, object]] = {
     },
     "building": {"facecolor": "#6f4646", "edgecolor": "#3f2626", "linewidth": 0.2, "label": "building"},
 }
+#: Where a map's buildings stand on its own sidewalks (a map assembled from two sources).
+CONFLICT_COLOUR = "#d62728"
 #: Colour of the space no polygon covers (freely walkable).
 BACKGROUND = "#f3efe6"
 

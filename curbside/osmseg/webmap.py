@@ -13,9 +13,13 @@ import json
 import re
 from pathlib import Path
 
+import geopandas as gpd
+import shapely
+
 from curbside import settings
 from curbside.osmseg.mapio import MapLayers, to_geojson
-from curbside.osmseg.style import BACKGROUND, CLASS_STYLE, stroke_colour
+from curbside.osmseg.style import BACKGROUND, CLASS_STYLE, CONFLICT_COLOUR, stroke_colour
+from curbside.projection import WGS84
 
 #: Decimals of the lon/lat coordinates written into pages (6 decimals ~ 0.1 m: display only; the
 #: GeoJSON map files keep 7).
@@ -101,6 +105,22 @@ def class_overlay_js(cls: str, features: list[dict], prefix: str = "", visible: 
     return (
         f"layers.addOverlay(L.geoJson({script_json(collection)}, "
         f"{{style: () => ({script_json(path_style)}){interactive}}}){add}, {script_json(label)});"
+    )
+
+
+def conflict_overlay_js(pieces: gpd.GeoSeries) -> str:
+    """The overlay of :func:`curbside.osmseg.plot.sidewalk_under_buildings` (red, above the classes;
+    area in its label)."""
+    area_m2 = float(shapely.area(pieces.values).sum())
+    shown = shapely.set_precision(pieces.to_crs(WGS84).values, 10.0**-COORDINATE_DECIMALS)
+    features = [{"type": "Feature", "properties": {}, "geometry": json.loads(shapely.to_geojson(g))}
+                for g in shown if not g.is_empty]
+    style = {"fillColor": CONFLICT_COLOUR, "color": CONFLICT_COLOUR, "weight": 1, "fillOpacity": 0.9}
+    label = swatch_label(CONFLICT_COLOUR, CONFLICT_COLOUR, f"building over sidewalk ({area_m2:,.0f} m²)")
+    collection = {"type": "FeatureCollection", "features": features}
+    return (
+        f"layers.addOverlay(L.geoJson({script_json(collection)}, {{style: () => ({script_json(style)}), "
+        f"interactive: false}}).addTo(map), {script_json(label)});"
     )
 
 
