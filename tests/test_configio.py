@@ -23,18 +23,26 @@ def test_every_parameter_round_trips_through_json():
     assert RunConfig.from_dict({"unseen_velocity": {}}) == RunConfig()
     before_auto = RunConfig().with_overrides({"unseen_velocity.mode": "off"})
     assert RunConfig.from_dict({}) == before_auto  # a run.json from before the block replays as it ran
+    stop27 = RunConfig().to_dict()
+    del stop27["filter"]["map"]["conflict_walkable_first"]
+    replayed = RunConfig.from_dict(stop27).filter.map  # soft walls, buildings over sidewalks, as it ran
+    assert (replayed.conflict_wall_tolerance_m, replayed.conflict_walkable_first) == (1.5, False)
     older = RunConfig().to_dict()
-    del older["filter"]["map"]["conflict_share_min"], older["filter"]["map"]["conflict_wall_tolerance_m"]
-    assert RunConfig.from_dict(older).filter.map.conflict_wall_tolerance_m == 0.0  # hard walls, as it ran
-    partial = {"filter": {"map": {"jaywalk_weight": 0.2}}}
-    assert RunConfig.from_dict(partial).filter.map.conflict_wall_tolerance_m == 1.5  # by hand: the defaults
+    for key in ("conflict_share_min", "conflict_wall_tolerance_m", "conflict_walkable_first"):
+        del older["filter"]["map"][key]
+    replayed = RunConfig.from_dict(older).filter.map  # hard walls, as it ran
+    assert (replayed.conflict_wall_tolerance_m, replayed.conflict_walkable_first) == (0.0, False)
+    partial = RunConfig.from_dict({"filter": {"map": {"jaywalk_weight": 0.2}}}).filter.map  # by hand
+    assert (partial.conflict_wall_tolerance_m, partial.conflict_walkable_first) == (1.5, True)
 
 
 def test_the_paper_preset_is_the_plain_filter():
     paper = FilterConfig.preset("paper")
     assert (paper.gnss.outlier_prob, paper.gnss.correlation_time_s, paper.recovery.max_fraction) == (0, 0, 0)
     assert paper.gnss.sigma_factor == 1.0 and paper.map.conflict_wall_tolerance_m == 0.0  # hard walls always
-    assert paper.map == dataclasses.replace(FilterConfig().map, conflict_wall_tolerance_m=0.0)
+    assert paper.map == dataclasses.replace(
+        FilterConfig().map, conflict_wall_tolerance_m=0.0, conflict_walkable_first=False
+    )
     assert (paper.n_particles, FilterConfig().n_particles) == (500, 2000)
     with pytest.raises(ValueError):
         FilterConfig.preset("best")

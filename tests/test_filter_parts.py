@@ -183,13 +183,19 @@ def test_soft_walls_tolerate_a_metre_of_map_error_but_not_ten():
     assert lik.blocked_share == 0.25
 
 
-def test_walls_soften_on_a_map_whose_buildings_cover_its_sidewalks():
-    conflicted = rasterize_map(shifted_building_map(), 0.5)  # building from y = 8, over half the sidewalk
+def test_sidewalks_win_and_walls_soften_on_a_map_whose_buildings_cover_its_sidewalks():
+    conflicted = rasterize_map(shifted_building_map(), 0.5)  # building from y = 8, over the sidewalk's 8-10 m
     lik = MapLikelihood(conflicted, MapConfig())
-    assert lik.wall_tolerance_m == 1.5
-    w = np.exp(lik.log_likelihood(np.full(3, X0 + 50.0), Y0 + np.array([7.0, 8.75, 14.0])))
+    assert lik.wall_tolerance_m == 1.5 and lik.walkable_first
+    w = np.exp(lik.log_likelihood(np.full(4, X0 + 50.0), Y0 + np.array([7.0, 8.75, 10.75, 16.0])))
+    assert w[0] == w[1] == 1.0 and 0.8 < w[2] < 0.95 and w[3] == 0.0  # the wall now starts at 10 m, soft
+    walls_only = MapLikelihood(conflicted, MapConfig(conflict_walkable_first=False))
+    assert not walls_only.walkable_first and walls_only.raster is conflicted
+    w = np.exp(walls_only.log_likelihood(np.full(3, X0 + 50.0), Y0 + np.array([7.0, 8.75, 14.0])))
     assert w[0] == 1.0 and 0.8 < w[1] < 0.95 and w[2] == 0.0  # 0.75 m inside: soft; 6 m: past 3 t
-    assert MapLikelihood(rasterize_map(block_map(), 0.5), MapConfig()).wall_tolerance_m == 0.0
+    clean = MapLikelihood(rasterize_map(block_map(), 0.5), MapConfig())
+    assert clean.wall_tolerance_m == 0.0 and not clean.walkable_first
+    assert not MapLikelihood(conflicted, FilterConfig.preset("paper").map).walkable_first
     assert wall_tolerance_for(conflicted, FilterConfig.preset("paper").map) == 0.0  # the paper's hard walls
     assert wall_tolerance_for(conflicted, MapConfig(conflict_share_min=0.6)) == 0.0  # 0.5 covered
     assert wall_tolerance_for(conflicted, MapConfig(wall_tolerance_m=2.0)) == 2.0

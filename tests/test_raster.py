@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 import shapely
-from filter_maps import X0, Y0, block_map, shifted_building_map, two_sidewalk_map
+from filter_maps import X0, Y0, block_map, box, shifted_building_map, two_sidewalk_map
 
 from curbside import settings
 from curbside.localize import raster as raster_mod
@@ -85,6 +85,24 @@ def test_raster_measures_the_share_of_sidewalk_under_buildings():
     assert rasterize_map(layers, 0.5).sidewalk_under_buildings == pytest.approx(0.5, abs=0.01)
     built = load_or_build_raster(layers, 0.5)
     assert load_or_build_raster(layers, 0.5).sidewalk_under_buildings == built.sidewalk_under_buildings > 0.4
+
+
+def test_sidewalks_and_crosswalks_over_buildings_where_they_overlap():
+    assert rasterize_map(block_map(), 0.5).walkable_first_cells is None  # disjoint: nothing to patch
+    layers = block_map()
+    layers.gdf.loc[layers.gdf["class"] == "building", "geometry"] = box(-100, 4, 100, 60)  # 6 m too far south
+    built = rasterize_map(layers, 0.5)
+    first = built.walkable_first
+    assert built.walkable_first is first and first.walkable_first is first  # made once, shared
+    xs, ys = X0 + np.array([50.0, 0.0, 50.0, 50.0]), Y0 + np.array([8.0, 5.0, 5.0, 10.75])
+    assert (built.codes_at(xs, ys) >= BUILDING).all()
+    assert first.codes_at(xs, ys)[:2].tolist() == [SIDEWALK, CROSSWALK]
+    assert first.codes_at(xs, ys)[2] >= BUILDING  # a street under a building stays a building (a deck)
+    depth = building_depth_m(np.array([built.codes_at(xs, ys)[3], first.codes_at(xs, ys)[3]]), 0.5)
+    np.testing.assert_allclose(depth, [6.75, 0.75], atol=0.26)  # walls measured from the sidewalk's edge
+    load_or_build_raster(layers, 0.5)
+    cached = load_or_build_raster(layers, 0.5)  # read back from the disk cache
+    np.testing.assert_array_equal(cached.walkable_first.codes, first.codes)
 
 
 def test_nearest_free_cell_from_inside_a_building():

@@ -98,11 +98,13 @@ def _run(args: argparse.Namespace) -> int:
             "model new to the phone or the place (--unseen-velocity)"
         )
     configured = result.config.filter.map.wall_tolerance_m
-    if result.wall_tolerance_m is not None and result.wall_tolerance_m > configured:
+    softer = result.wall_tolerance_m is not None and result.wall_tolerance_m > configured
+    if softer or result.walkable_first:
+        sidewalks_win = "sidewalks and crosswalks over buildings, " if result.walkable_first else ""
         print(
             f"{args.output}: the map's buildings stand on part of its sidewalks (another source or year "
-            f"than its streets, or misaligned?): walls soft by {result.wall_tolerance_m:g} m "
-            "(filter.map.conflict_wall_tolerance_m)"
+            f"than its streets, or misaligned?): {sidewalks_win}walls soft by {result.wall_tolerance_m:g} m "
+            "(filter.map.conflict_*)"
         )
     if summary is not None:
         print(f"{args.output}: {format_waypoint_summary(summary)}")

@@ -127,8 +127,8 @@ def map_table(pooled: pd.DataFrame, w: float) -> Table | None:
         ["subset", "method", "CSA osm", "median osm", "p90 osm", "CSA datasf", "median datasf", "p90 datasf"],
         rows,
         "Scored against the OSM map's sidewalk segments in both cases. The DataSF buildings stand on part "
-        "of OSM's sidewalks, so curbside fused softens their walls (filter.map.conflict_wall_tolerance_m); "
-        "the paper's method keeps them hard.",
+        "of OSM's sidewalks, so curbside fused lets OSM's sidewalks and crosswalks win over them and softens "
+        "their walls (filter.map.conflict_*); the paper's method keeps the buildings, with hard walls.",
     )
 
 

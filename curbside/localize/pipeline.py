@@ -82,6 +82,9 @@ class TrackResult:
     wall_tolerance_m
         How soft the walls were (m; ``None`` without a map): ``filter.map.wall_tolerance_m``, or
         ``conflict_wall_tolerance_m`` on a map whose buildings cover its sidewalks.
+    walkable_first
+        Whether the map's sidewalks and crosswalks won over its buildings (``filter.map.conflict_*``;
+        ``None`` without a map).
     snapshots
         With ``save_particles``: ``t`` ``(K,)``, ``x``, ``y`` ``(K, N)`` float32 metres relative to
         ``origin``, ``theta`` and ``scale`` ``(K, N)`` float32, ``origin`` ``(2,)``, ``crs`` (WKT), and
@@ -98,6 +101,7 @@ class TrackResult:
     snapshots: dict[str, np.ndarray] | None = None
     unseen_velocity_from_s: float | None = None
     wall_tolerance_m: float | None = None
+    walkable_first: bool | None = None
 
     @property
     def mode(self) -> str:
@@ -383,6 +387,7 @@ def _result(
         snapshots,
         engine.unseen_velocity_from_s,
         None if tracker is None else tracker.wall_tolerance_m,
+        None if tracker is None else tracker.walkable_first,
     )
 
 

@@ -18,7 +18,9 @@ so that a map likelihood can soften the walls by a few metres of map error witho
 share of sidewalk cells a building covers (zero for a map ``osmseg`` built, whose classes are disjoint;
 more for a building layer from another source or year laid over the streets), or, if larger, the share
 of the mapped sidewalk ways' length inside a building that ``osmseg`` recorded in the map's metadata
-(``sidewalk_ways_in_buildings``: a building layer misaligned with the city's mapped footways).
+(``sidewalk_ways_in_buildings``: a building layer misaligned with the city's mapped footways). Where a
+building covers sidewalk or crosswalk cells, the raster also keeps those cells as they would be with the
+walkable classes on top (:meth:`MapRaster.walkable_first`), which the filter uses on such a map.
 
 Alongside the class codes, the same grid holds the index of the nearest sidewalk segment of every cell
 within the segment reach (25 m by default) of one (-1 farther away), with the ``segment_id``
@@ -37,7 +39,7 @@ from __future__ import annotations
 
 import hashlib
 import logging
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from functools import cached_property
 
 import numpy as np
@@ -63,7 +65,7 @@ CLASS_CODES: dict[str, int] = {
 }
 
 #: Bumped whenever the rasteriser's output changes, so stale cache files are not reused.
-RASTER_FORMAT_VERSION = 6
+RASTER_FORMAT_VERSION = 7
 
 
 @dataclass(frozen=True)
@@ -95,6 +97,10 @@ class MapRaster:
     sidewalk_under_buildings
         Share of the sidewalk cells that a building polygon also covers (0 without sidewalks), or the
         map metadata's ``sidewalk_ways_in_buildings`` if larger.
+    walkable_first_cells, walkable_first_codes
+        Flat indices into :attr:`codes` and the codes those cells take when sidewalks and crosswalks win
+        over buildings (the covered cells, and the building cells whose depth changes with them);
+        ``None`` where no building covers a sidewalk or crosswalk.
     """
 
     codes: np.ndarray
@@ -106,6 +112,8 @@ class MapRaster:
     segment_ids: np.ndarray | None = None
     segment_axes: np.ndarray | None = None
     sidewalk_under_buildings: float = 0.0
+    walkable_first_cells: np.ndarray | None = None
+    walkable_first_codes: np.ndarray | None = None
 
     @property
     def shape(self) -> tuple[int, int]:
@@ -122,6 +130,20 @@ class MapRaster:
         padded = np.pad(self.codes, 1, constant_values=FREE).ravel()
         padded.flags.writeable = False
         return padded
+
+    @cached_property
+    def walkable_first(self) -> MapRaster:
+        """This raster with the map's sidewalks and crosswalks over its buildings where they overlap.
+
+        For a map whose building layer disagrees with its streets (another source or year): the
+        walkable layers, drawn against the streets, are taken as right there. Made once and shared; the
+        raster itself where nothing overlaps.
+        """
+        if self.walkable_first_cells is None:
+            return self
+        codes = self.codes.copy()
+        codes.flat[self.walkable_first_cells] = self.walkable_first_codes
+        return replace(self, codes=codes, walkable_first_cells=None, walkable_first_codes=None)
 
     @cached_property
     def padded_segments(self) -> np.ndarray | None:
@@ -444,25 +466,37 @@ def rasterize_map(
     cols = int(np.ceil((maxx + margin_m - x0) / res))
     rows = int(np.ceil((maxy + margin_m - y0) / res))
     codes = np.zeros((rows, cols), dtype=np.uint8)
-    sidewalk = None
+    masks = {}
     for cls, code in tqdm(sorted(CLASS_CODES.items(), key=lambda kv: kv[1]), desc="rasterising map",
                           unit="class", leave=False, disable=None):
         geoms = layers.layer(cls).geometry.values
-        mask = rasterize_mask(np.asarray(geoms), x0, y0, res, (rows, cols))
-        codes[mask] = code
-        logger.debug("rasterised %d %s polygons: %d cells", len(geoms), cls, int(mask.sum()))
-        if code == SIDEWALK:
-            sidewalk = mask
-    n_sidewalk = int(sidewalk.sum())
-    under_buildings = int((codes[sidewalk] == BUILDING).sum()) / n_sidewalk if n_sidewalk else 0.0
+        masks[code] = rasterize_mask(np.asarray(geoms), x0, y0, res, (rows, cols))
+        codes[masks[code]] = code
+        logger.debug("rasterised %d %s polygons: %d cells", len(geoms), cls, int(masks[code].sum()))
+    n_sidewalk = int(masks[SIDEWALK].sum())
+    under_buildings = int(masks[BUILDING][masks[SIDEWALK]].sum()) / n_sidewalk if n_sidewalk else 0.0
     under_buildings = max(under_buildings, _recorded_ways_in_buildings(layers))
+    variant = _walkable_first(codes, masks)
     _encode_building_depth(codes)
+    cells = None if variant is None else np.flatnonzero(variant != codes)
     segments = rasterize_segments(layers, float(x0), float(y0), res, (rows, cols), segment_reach_m)
     segment_index, segment_ids, segment_axes = segments if segments is not None else (None, None, None)
     return MapRaster(
         codes, float(x0), float(y0), res, pyproj.CRS(layers.crs).to_wkt(), segment_index, segment_ids,
-        segment_axes, under_buildings,
+        segment_axes, under_buildings, cells, None if cells is None else variant.ravel()[cells],
     )
+
+
+def _walkable_first(codes: np.ndarray, masks: dict[int, np.ndarray]) -> np.ndarray | None:
+    """``codes`` (not yet depth-encoded) with sidewalks and crosswalks over buildings, depth-encoded, or
+    ``None`` where no building covers either."""
+    covered = masks[BUILDING] & (masks[SIDEWALK] | masks[CROSSWALK])
+    if not covered.any():
+        return None
+    variant = codes.copy()
+    variant[covered] = np.where(masks[CROSSWALK][covered], CROSSWALK, SIDEWALK)
+    _encode_building_depth(variant)
+    return variant
 
 
 def _recorded_ways_in_buildings(layers: MapLayers) -> float:
@@ -493,6 +527,9 @@ def _arrays(raster: MapRaster) -> dict[str, np.ndarray]:
     arrays = {"codes": raster.codes, "x0": np.float64(raster.x0), "y0": np.float64(raster.y0),
               "resolution_m": np.float64(raster.resolution_m), "crs": np.array(raster.crs),
               "sidewalk_under_buildings": np.float64(raster.sidewalk_under_buildings)}
+    if raster.walkable_first_cells is not None:
+        arrays |= {"walkable_first_cells": raster.walkable_first_cells,
+                   "walkable_first_codes": raster.walkable_first_codes}
     if raster.segment_index is not None:
         arrays |= {"segment_index": raster.segment_index, "segment_ids": raster.segment_ids,
                    "segment_axes": raster.segment_axes}
@@ -527,4 +564,5 @@ def load_or_build_raster(
     )
     return MapRaster(arrays["codes"], float(arrays["x0"]), float(arrays["y0"]), float(arrays["resolution_m"]),
                      str(arrays["crs"]), arrays.get("segment_index"), arrays.get("segment_ids"),
-                     arrays.get("segment_axes"), float(arrays["sidewalk_under_buildings"]))
+                     arrays.get("segment_axes"), float(arrays["sidewalk_under_buildings"]),
+                     arrays.get("walkable_first_cells"), arrays.get("walkable_first_codes"))

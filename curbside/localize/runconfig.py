@@ -24,6 +24,13 @@ STEP_SOURCES = ("auto", "file", "detect", "cadence")
 FIX_ASSOCIATIONS = ("interpolate", "once")
 UNSEEN_VELOCITY_MODES = ("off", "on", "auto")
 
+_MAP_KEYS_0_1 = frozenset({"jaywalk_weight", "wall_tolerance_m", "raster_resolution_m", "segment_reach_m"})
+#: ``filter.map`` blocks as earlier versions wrote them whole, and the values they ran with.
+_EARLIER_MAP_BLOCKS: tuple[tuple[frozenset[str], dict[str, Any]], ...] = (
+    (_MAP_KEYS_0_1, {"conflict_wall_tolerance_m": 0.0, "conflict_walkable_first": False}),
+    (_MAP_KEYS_0_1 | {"conflict_share_min", "conflict_wall_tolerance_m"}, {"conflict_walkable_first": False}),
+)
+
 
 def _check(condition: bool, message: str) -> None:
     if not condition:
@@ -259,16 +266,16 @@ class RunConfig:
         """Rebuild from :meth:`to_dict` output (unknown keys or bad values: one-line input error).
 
         A config written before the ``unseen_velocity`` block existed ran without it: it replays with
-        mode ``off``, not today's default; one whose ``filter.map`` holds exactly the four keys written
-        before ``conflict_*`` existed replays with hard walls on every map, as it ran (a partial block
-        written by hand keeps the defaults).
+        mode ``off``, not today's default. One whose ``filter.map`` holds exactly the keys an earlier
+        version wrote replays without the conflict rule's later parts, as it ran: hard walls on every
+        map before ``conflict_*`` existed, buildings over sidewalks before ``conflict_walkable_first``
+        (a partial block written by hand keeps the defaults).
         """
         if isinstance(data, dict) and "unseen_velocity" not in data:
             data = {**data, "unseen_velocity": {"mode": "off"}}
         filter_block = data.get("filter") if isinstance(data, dict) else None
         map_block = filter_block.get("map") if isinstance(filter_block, dict) else None
-        whole_before_rule = {"jaywalk_weight", "wall_tolerance_m", "raster_resolution_m", "segment_reach_m"}
-        if isinstance(map_block, dict) and set(map_block) == whole_before_rule:  # an older run.json's block
-            map_block = {**map_block, "conflict_wall_tolerance_m": 0.0}
-            data = {**data, "filter": {**filter_block, "map": map_block}}
+        for keys, as_it_ran in _EARLIER_MAP_BLOCKS:
+            if isinstance(map_block, dict) and set(map_block) == keys:  # an older run.json's whole block
+                data = {**data, "filter": {**filter_block, "map": {**map_block, **as_it_ran}}}
         return from_dict(cls, data, where)

@@ -112,6 +112,7 @@ def write_track(
         "injections": result.injections,
         "unseen_velocity_from_s": result.unseen_velocity_from_s,
         "wall_tolerance_m": result.wall_tolerance_m,
+        "walkable_first": result.walkable_first,
         "config": result.config.to_dict(),
     }
     with output_folder(out_dir, "localize run", overwrite=overwrite) as tmp:

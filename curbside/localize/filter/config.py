@@ -122,11 +122,13 @@ class MapConfig:
     wall_tolerance_m
         Soft building edges: a particle ``d`` metres inside a building weighs ``exp(-d^2 / (2 t^2))``
         instead of 0 (0: the paper's hard walls), and 0 beyond ``3 t``. Tolerates metre-scale map error.
-    conflict_share_min, conflict_wall_tolerance_m
+    conflict_share_min, conflict_wall_tolerance_m, conflict_walkable_first
         A map whose buildings cover at least ``conflict_share_min`` of its sidewalk area, or of its
         mapped sidewalk ways' length (:attr:`~curbside.localize.raster.MapRaster.sidewalk_under_buildings`:
         a building layer from another source or year than the streets, or misaligned with them), has
-        walls soft by at least ``conflict_wall_tolerance_m`` (0 m: every map keeps ``wall_tolerance_m``).
+        walls soft by at least ``conflict_wall_tolerance_m`` (0 m: every map keeps ``wall_tolerance_m``)
+        and, with ``conflict_walkable_first``, its sidewalks and crosswalks win over its buildings where
+        they overlap (:attr:`~curbside.localize.raster.MapRaster.walkable_first`).
     raster_resolution_m
         Cell size of the map raster.
     segment_reach_m
@@ -137,6 +139,7 @@ class MapConfig:
     wall_tolerance_m: float = 0.0
     conflict_share_min: float = 0.02
     conflict_wall_tolerance_m: float = 1.5
+    conflict_walkable_first: bool = True
     raster_resolution_m: float = 0.5
     segment_reach_m: float = 25.0
 
@@ -478,7 +481,7 @@ class FilterConfig:
                 ),
                 gnss=GnssConfig(sigma_factor=1.0, outlier_prob=0.0, correlation_time_s=0.0),
                 resample=ResampleConfig(policy="always"),
-                map=MapConfig(conflict_wall_tolerance_m=0.0),
+                map=MapConfig(conflict_wall_tolerance_m=0.0, conflict_walkable_first=False),
                 recovery=RecoveryConfig(max_fraction=0.0, stall_ratio=0.0),
                 scale_correction=ScaleCorrectionConfig(fraction=0.0),
                 street_heading=StreetHeadingConfig(strength_per_m=0.0),

@@ -6,7 +6,8 @@ a particle ``d`` metres past a wall weighs ``exp(-d^2 / (2 t^2))``, and 0 beyond
 metre or two off (an old footprint, a misplaced facade) no longer kills particles on a real sidewalk.
 A map whose buildings cover its own sidewalks (a building layer from another source or year than the
 streets) is such a map: its walls are soft by at least ``conflict_wall_tolerance_m``
-(:func:`wall_tolerance_for`).
+(:func:`wall_tolerance_for`), and its sidewalks and crosswalks, drawn against its streets, win over its
+buildings where they overlap (``conflict_walkable_first``; :func:`raster_for`).
 
 The lookup is one gather in the raster's ``uint8`` codes (building cells carry their depth, see
 :mod:`curbside.localize.raster`) and one in a 256-entry table of log-weights, compiled into one loop.
@@ -34,12 +35,23 @@ logger = logging.getLogger(__name__)
 BLOCKED_LOG_WEIGHT = math.log(0.01)
 
 
+def in_conflict(raster: MapRaster, config: MapConfig) -> bool:
+    """Whether the map's buildings cover at least ``conflict_share_min`` of its sidewalks."""
+    share = raster.sidewalk_under_buildings
+    return share > 0 and share >= config.conflict_share_min
+
+
 def wall_tolerance_for(raster: MapRaster, config: MapConfig) -> float:
     """The wall tolerance (m) on ``raster``: ``wall_tolerance_m``, or ``conflict_wall_tolerance_m`` if larger
-    where the map's buildings cover at least ``conflict_share_min`` of its sidewalks."""
-    share = raster.sidewalk_under_buildings
-    conflict = share > 0 and share >= config.conflict_share_min
-    return max(config.wall_tolerance_m, config.conflict_wall_tolerance_m if conflict else 0.0)
+    where the map's buildings and sidewalks are :func:`in_conflict`."""
+    conflict_tolerance_m = config.conflict_wall_tolerance_m if in_conflict(raster, config) else 0.0
+    return max(config.wall_tolerance_m, conflict_tolerance_m)
+
+
+def raster_for(raster: MapRaster, config: MapConfig) -> MapRaster:
+    """The raster the likelihood weighs with: :attr:`MapRaster.walkable_first` on a map :func:`in_conflict`
+    with ``conflict_walkable_first``, else ``raster``."""
+    return raster.walkable_first if config.conflict_walkable_first and in_conflict(raster, config) else raster
 
 
 def log_weight_table(config: MapConfig, resolution_m: float, wall_tolerance_m: float) -> np.ndarray:
@@ -61,23 +73,27 @@ class MapLikelihood:
     Parameters
     ----------
     raster
-        The map raster (:func:`curbside.localize.raster.load_or_build_raster`).
+        The map raster (:func:`curbside.localize.raster.load_or_build_raster`); on a map in conflict the
+        likelihood keeps :func:`raster_for`'s.
     config
-        Jaywalking weight and wall tolerance.
+        Jaywalking weight, wall tolerance and the conflict rule.
     """
 
     def __init__(self, raster: MapRaster, config: MapConfig) -> None:
-        self.raster = raster
+        self.raster = raster_for(raster, config)
         self.config = config
-        self.lookup = RasterLookup(raster)
+        self.lookup = RasterLookup(self.raster)
         #: The walls' softness on this map (m; :func:`wall_tolerance_for`).
         self.wall_tolerance_m = wall_tolerance_for(raster, config)
-        if self.wall_tolerance_m > config.wall_tolerance_m:
+        #: Whether the map's sidewalks and crosswalks win over its buildings (:func:`raster_for`).
+        self.walkable_first = self.raster is not raster
+        if self.wall_tolerance_m > config.wall_tolerance_m or self.walkable_first:
             logger.info(
                 "the map's buildings stand on %.1f %% of its sidewalks (another source or year than its "
-                "streets, or misaligned?): walls soft by %.2g m (filter.map.conflict_wall_tolerance_m)",
+                "streets, or misaligned?): walls soft by %.2g m%s (filter.map.conflict_*)",
                 100 * raster.sidewalk_under_buildings,
                 self.wall_tolerance_m,
+                ", sidewalks and crosswalks over buildings" if self.walkable_first else "",
             )
         self.log_table = log_weight_table(config, raster.resolution_m, self.wall_tolerance_m)
         #: Share of the particles that the last :meth:`weigh` found behind a wall (weight under 1 %).

@@ -212,6 +212,12 @@ class Tracker:
         map_lik = self.initiator.map_likelihood
         return None if map_lik is None else map_lik.wall_tolerance_m
 
+    @property
+    def walkable_first(self) -> bool | None:
+        """Whether the map's sidewalks and crosswalks win over its buildings (``None`` without a map)."""
+        map_lik = self.initiator.map_likelihood
+        return None if map_lik is None else map_lik.walkable_first
+
     def to_xy(self, *, lat: float, lon: float) -> tuple[float, float]:
         """Metres in this tracker's frame of a WGS84 position (sets the frame when there is none).
 
