@@ -197,9 +197,10 @@ def test_cli_softens_the_walls_of_a_map_whose_buildings_cover_its_sidewalks(tmp_
     )  # drawn 2 m south, over the north sidewalk the walker is on (y = 8 m)
     shifted = write_map(layers, tmp_path / "shifted.geojson")
     assert run_cli(session, "--map", map_file, "-o", tmp_path / "clean") == 0
-    assert "walls soft" not in capsys.readouterr().out
+    assert "walls are soft" not in capsys.readouterr().out
     assert run_cli(session, "--map", shifted, "-o", tmp_path / "shifted") == 0
-    assert "sidewalks and crosswalks over buildings, walls soft by 1.5 m" in capsys.readouterr().out
+    said = capsys.readouterr().out
+    assert "sidewalks and crosswalks count where they overlap, and walls are soft by 1.5 m" in said
     info = {name: json.loads((tmp_path / name / "run.json").read_text()) for name in ("clean", "shifted")}
     assert info["clean"]["wall_tolerance_m"] == 0.0 and info["shifted"]["wall_tolerance_m"] == 1.5
     assert info["clean"]["walkable_first"] is False and info["shifted"]["walkable_first"] is True

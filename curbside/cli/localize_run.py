@@ -100,11 +100,13 @@ def _run(args: argparse.Namespace) -> int:
     configured = result.config.filter.map.wall_tolerance_m
     softer = result.wall_tolerance_m is not None and result.wall_tolerance_m > configured
     if softer or result.walkable_first:
-        sidewalks_win = "sidewalks and crosswalks over buildings, " if result.walkable_first else ""
+        overlap = (
+            "its sidewalks and crosswalks count where they overlap, and " if result.walkable_first else ""
+        )
         print(
             f"{args.output}: the map's buildings stand on part of its sidewalks (another source or year "
-            f"than its streets, or misaligned?): {sidewalks_win}walls soft by {result.wall_tolerance_m:g} m "
-            "(filter.map.conflict_*)"
+            f"than its streets, or misaligned?): {overlap}walls are soft by "
+            f"{result.wall_tolerance_m:g} m (filter.map.conflict_*)"
         )
     if summary is not None:
         print(f"{args.output}: {format_waypoint_summary(summary)}")
