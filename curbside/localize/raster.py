@@ -20,7 +20,7 @@ more for a building layer from another source or year laid over the streets), or
 of the mapped sidewalk ways' length inside a building that ``osmseg`` recorded in the map's metadata
 (``sidewalk_ways_in_buildings``: a building layer misaligned with the city's mapped footways). Where a
 building covers sidewalk or crosswalk cells, the raster also keeps those cells as they would be with the
-walkable classes on top (:meth:`MapRaster.walkable_first`), which the filter uses on such a map.
+walkable classes on top (:attr:`MapRaster.walkable_first`), which the filter uses on such a map.
 
 Alongside the class codes, the same grid holds the index of the nearest sidewalk segment of every cell
 within the segment reach (25 m by default) of one (-1 farther away), with the ``segment_id``
