@@ -24,6 +24,7 @@ from curbside.localize.filter import (
     ResampleConfig,
     SegmentEstimator,
     SystematicResampler,
+    Tracker,
     Update,
     normalise_and_estimate,
 )
@@ -199,6 +200,15 @@ def test_sidewalks_win_and_walls_soften_on_a_map_whose_buildings_cover_its_sidew
     assert wall_tolerance_for(conflicted, FilterConfig.preset("paper").map) == 0.0  # the paper's hard walls
     assert wall_tolerance_for(conflicted, MapConfig(conflict_share_min=0.6)) == 0.0  # 0.5 covered
     assert wall_tolerance_for(conflicted, MapConfig(wall_tolerance_m=2.0)) == 2.0
+
+
+def test_filters_on_one_conflicted_map_share_one_walkable_first_raster():
+    conflicted = rasterize_map(shifted_building_map(), 0.5)  # as the live service holds it: one per map
+    first, second = (Tracker.from_config(conflicted, seed=seed) for seed in (0, 1))
+    assert first.map_raster is second.map_raster is conflicted.walkable_first is not conflicted
+    assert first.walkable_first and first.wall_tolerance_m == 1.5
+    paper = Tracker.from_config(conflicted, FilterConfig.preset("paper"))
+    assert paper.map_raster is conflicted and not paper.walkable_first
 
 
 # -- GNSS likelihood ------------------------------------------------------------------------------------
