@@ -86,7 +86,7 @@ class MapLikelihood:
         #: The walls' softness on this map (m; :func:`wall_tolerance_for`).
         self.wall_tolerance_m = wall_tolerance_for(raster, config)
         #: Whether the map's sidewalks and crosswalks win over its buildings (:func:`raster_for`).
-        self.walkable_first = self.raster is not raster
+        self.walkable_first = config.conflict_walkable_first and in_conflict(raster, config)
         if self.wall_tolerance_m > config.wall_tolerance_m or self.walkable_first:
             logger.info(
                 "the map's buildings stand on %.1f %% of its sidewalks (another source or year than its "
