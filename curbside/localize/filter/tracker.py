@@ -34,7 +34,7 @@ from curbside.errors import CurbsideInputError
 from curbside.localize.filter.config import FilterConfig, MotionConfig, ScaleCorrectionConfig
 from curbside.localize.filter.gnss import GnssLikelihood
 from curbside.localize.filter.initiate import Initiator
-from curbside.localize.filter.map_likelihood import MapLikelihood, raster_for
+from curbside.localize.filter.map_likelihood import MapLikelihood
 from curbside.localize.filter.particles import Estimate, ParticleSet, normalise_and_estimate
 from curbside.localize.filter.parts import GnssFix, Likelihood, Predictor, Resampler, Update
 from curbside.localize.filter.predict import InertialPredictor
@@ -160,9 +160,9 @@ class Tracker:
             raster = load_or_build_raster(
                 map_layers, config.map.raster_resolution_m, config.map.segment_reach_m
             )
-        if raster is not None:  # one raster for every part, so each padded grid is made once
-            raster = raster_for(raster, config.map)
         map_lik = None if raster is None else MapLikelihood(raster, config.map)
+        if map_lik is not None:  # the likelihood's raster for every part, so each padded grid is made once
+            raster = map_lik.raster
         if frame is None and raster is not None:
             frame = LocalFrame(pyproj.CRS.from_wkt(raster.crs))
         gnss = GnssLikelihood(config.gnss, n, rng, raster) if use_gnss else None
