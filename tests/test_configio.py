@@ -23,17 +23,25 @@ def test_every_parameter_round_trips_through_json():
     assert RunConfig.from_dict({"unseen_velocity": {}}) == RunConfig()
     before_auto = RunConfig().with_overrides({"unseen_velocity.mode": "off"})
     assert RunConfig.from_dict({}) == before_auto  # a run.json from before the block replays as it ran
-    stop27 = RunConfig().to_dict()
+    stop28 = RunConfig().to_dict()
+    for key in ("crossing_weight", "crossing_angle_deg"):
+        del stop28["filter"]["map"][key]
+    replayed = RunConfig.from_dict(stop28).filter.map  # one street weight, crossing or not, as it ran
+    assert (replayed.crossing_weight, replayed.conflict_walkable_first) == (None, True)
+    stop27 = json.loads(json.dumps(stop28))
     del stop27["filter"]["map"]["conflict_walkable_first"]
     replayed = RunConfig.from_dict(stop27).filter.map  # soft walls, buildings over sidewalks, as it ran
     assert (replayed.conflict_wall_tolerance_m, replayed.conflict_walkable_first) == (1.5, False)
-    older = RunConfig().to_dict()
-    for key in ("conflict_share_min", "conflict_wall_tolerance_m", "conflict_walkable_first"):
+    assert replayed.crossing_weight is None
+    older = json.loads(json.dumps(stop27))
+    for key in ("conflict_share_min", "conflict_wall_tolerance_m"):
         del older["filter"]["map"][key]
     replayed = RunConfig.from_dict(older).filter.map  # hard walls, as it ran
     assert (replayed.conflict_wall_tolerance_m, replayed.conflict_walkable_first) == (0.0, False)
+    assert replayed.crossing_weight is None
     partial = RunConfig.from_dict({"filter": {"map": {"jaywalk_weight": 0.2}}}).filter.map  # by hand
     assert (partial.conflict_wall_tolerance_m, partial.conflict_walkable_first) == (1.5, True)
+    assert partial.crossing_weight == FilterConfig().map.crossing_weight == 0.7
 
 
 def test_the_paper_preset_is_the_plain_filter():
@@ -41,7 +49,7 @@ def test_the_paper_preset_is_the_plain_filter():
     assert (paper.gnss.outlier_prob, paper.gnss.correlation_time_s, paper.recovery.max_fraction) == (0, 0, 0)
     assert paper.gnss.sigma_factor == 1.0 and paper.map.conflict_wall_tolerance_m == 0.0  # hard walls always
     assert paper.map == dataclasses.replace(
-        FilterConfig().map, conflict_wall_tolerance_m=0.0, conflict_walkable_first=False
+        FilterConfig().map, conflict_wall_tolerance_m=0.0, conflict_walkable_first=False, crossing_weight=None
     )
     assert (paper.n_particles, FilterConfig().n_particles) == (500, 2000)
     with pytest.raises(ValueError):

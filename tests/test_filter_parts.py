@@ -171,6 +171,31 @@ def test_map_likelihood_kills_building_particles_and_weighs_streets():
     assert lik.blocked_share == 0.2  # one particle of five behind a wall; the street's 0.4 is not one
 
 
+def test_a_step_across_the_street_weighs_the_crossing_weight_and_a_step_along_it_the_jaywalk_weight():
+    raster = rasterize_map(two_sidewalk_map(), 0.5)  # street along x (|y| < 6), sidewalks N and S
+    lik = MapLikelihood(raster, MapConfig(jaywalk_weight=0.4, crossing_weight=0.7, crossing_angle_deg=30.0))
+    p = ParticleSet(6)
+    p.state[0] = X0 + np.array([0.0, 10.0, 20.0, 30.0, 40.0, 50.0])
+    p.state[1] = Y0 + np.array([0.0, 0.0, 0.0, 0.0, 3.0, 8.0])  # five on the street, one on a sidewalk
+    p.set_heading(np.radians([0.0, 25.0, 40.0, 90.0, -170.0, 90.0]))  # the step north, turned by these
+    north = Update(1.0, 0.5, 0.0, 0.7)
+    want = np.log([0.7, 0.7, 0.4, 0.4, 0.7, 1.0])  # 0 and 25 deg off square: crossing; 40 and 90: along
+    np.testing.assert_allclose(lik.reference_log_likelihood(p, north), want)
+    p.log_weight[:] = 0.0
+    lik.weigh(p, north)
+    np.testing.assert_allclose(p.log_weight, want)
+    for update in (Update(1.0, 0.5, 0.0, 0.1), None):  # standing, or no step: the street weighs as it is
+        p.log_weight[:] = 0.0
+        lik.weigh(p, update)
+        np.testing.assert_allclose(p.log_weight, np.log([0.4] * 5 + [1.0]))
+    for config in (FilterConfig.preset("paper").map, MapConfig(crossing_weight=0.2)):  # off; below w
+        p.log_weight[:] = 0.0
+        MapLikelihood(raster, config).weigh(p, north)
+        np.testing.assert_allclose(p.log_weight, np.log([0.4] * 5 + [1.0]))
+    forbidden = MapLikelihood(raster, MapConfig(jaywalk_weight=0.0, crossing_weight=0.0))
+    assert np.isneginf(forbidden.reference_log_likelihood(p, north)[:5]).all()
+
+
 def test_soft_walls_tolerate_a_metre_of_map_error_but_not_ten():
     raster = rasterize_map(block_map(), 0.5)  # building from y = 10
     lik = MapLikelihood(raster, MapConfig(wall_tolerance_m=1.5))
@@ -373,6 +398,8 @@ def test_config_sections_reject_bad_values():
         lambda: GnssConfig(bias_time_s=0.0),
         lambda: MotionConfig(heading_jump_prob=2.0),
         lambda: MapConfig(wall_tolerance_m=-1.0),
+        lambda: MapConfig(crossing_weight=1.2),
+        lambda: MapConfig(crossing_angle_deg=0.0),
     ):
         with pytest.raises(ValueError):
             make()

@@ -162,7 +162,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "--jaywalk-weight",
         type=unit_interval,
         default=None,
-        help="particle weight on street surface outside crosswalks (default 0.4)",
+        help="particle weight on street surface outside crosswalks (default 0.4); a step across the "
+        "street weighs at least filter.map.crossing_weight (0.7; not with --mode paper)",
     )
     parser.add_argument(
         "--seed", type=int, default=None, help="random seed (default 0): same seed, same track"

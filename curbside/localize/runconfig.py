@@ -26,9 +26,14 @@ UNSEEN_VELOCITY_MODES = ("off", "on", "auto")
 
 _MAP_KEYS_0_1 = frozenset({"jaywalk_weight", "wall_tolerance_m", "raster_resolution_m", "segment_reach_m"})
 #: ``filter.map`` blocks as earlier versions wrote them whole, and the values they ran with.
+_MAP_KEYS_STOP_27 = _MAP_KEYS_0_1 | {"conflict_share_min", "conflict_wall_tolerance_m"}
 _EARLIER_MAP_BLOCKS: tuple[tuple[frozenset[str], dict[str, Any]], ...] = (
-    (_MAP_KEYS_0_1, {"conflict_wall_tolerance_m": 0.0, "conflict_walkable_first": False}),
-    (_MAP_KEYS_0_1 | {"conflict_share_min", "conflict_wall_tolerance_m"}, {"conflict_walkable_first": False}),
+    (
+        _MAP_KEYS_0_1,
+        {"conflict_wall_tolerance_m": 0.0, "conflict_walkable_first": False, "crossing_weight": None},
+    ),
+    (_MAP_KEYS_STOP_27, {"conflict_walkable_first": False, "crossing_weight": None}),
+    (_MAP_KEYS_STOP_27 | {"conflict_walkable_first"}, {"crossing_weight": None}),
 )
 
 

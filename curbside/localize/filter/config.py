@@ -119,6 +119,12 @@ class MapConfig:
     ----------
     jaywalk_weight
         Weight of a particle on street surface outside crosswalks, in [0, 1] (the paper: 0.4).
+    crossing_weight, crossing_angle_deg
+        A particle on the street whose step (its inertial step turned by its heading offset) runs within
+        ``crossing_angle_deg`` of square to the street (the axis of its nearest sidewalk segment) is
+        crossing it, and weighs ``max(jaywalk_weight, crossing_weight)`` instead: a walker crosses a
+        street outside a crosswalk now and then, but does not walk along it (``None``: the paper's
+        single weight; see ``docs/filter.md``, "Crossing the street outside a crosswalk").
     wall_tolerance_m
         Soft building edges: a particle ``d`` metres inside a building weighs ``exp(-d^2 / (2 t^2))``
         instead of 0 (0: the paper's hard walls), and 0 beyond ``3 t``. Tolerates metre-scale map error.
@@ -136,6 +142,8 @@ class MapConfig:
     """
 
     jaywalk_weight: float = 0.4
+    crossing_weight: float | None = 0.7
+    crossing_angle_deg: float = 30.0
     wall_tolerance_m: float = 0.0
     conflict_share_min: float = 0.02
     conflict_wall_tolerance_m: float = 1.5
@@ -146,6 +154,14 @@ class MapConfig:
     def __post_init__(self) -> None:
         _check(
             0.0 <= self.jaywalk_weight <= 1.0, f"jaywalk_weight must lie in [0, 1], got {self.jaywalk_weight}"
+        )
+        _check(
+            self.crossing_weight is None or 0.0 <= self.crossing_weight <= 1.0,
+            f"crossing_weight must lie in [0, 1] or be None, got {self.crossing_weight}",
+        )
+        _check(
+            0.0 < self.crossing_angle_deg <= 90.0,
+            f"crossing_angle_deg must lie in (0, 90], got {self.crossing_angle_deg}",
         )
         _check(
             min(self.wall_tolerance_m, self.conflict_wall_tolerance_m) >= 0,
@@ -462,7 +478,8 @@ class FilterConfig:
         """``"fused"``: curbside's filter (the defaults). ``"paper"``: the paper's plain filter.
 
         The paper's filter (Dubiner, Ren & Manduchi; Ren & Ke 2010 for the GNSS weighting): 500
-        particles, position and heading-drift noise, hard walls, a Gaussian GNSS likelihood with sigma
+        particles, position and heading-drift noise, hard walls, one weight for every particle on the
+        street (crossing it or not), a Gaussian GNSS likelihood with sigma
         equal to the reported accuracy for fixes under a threshold, every fix counted as independent,
         resampling at every update, no outlier model, no speed scale, no recovery beyond re-seeding a
         collapsed cloud.
@@ -481,7 +498,9 @@ class FilterConfig:
                 ),
                 gnss=GnssConfig(sigma_factor=1.0, outlier_prob=0.0, correlation_time_s=0.0),
                 resample=ResampleConfig(policy="always"),
-                map=MapConfig(conflict_wall_tolerance_m=0.0, conflict_walkable_first=False),
+                map=MapConfig(
+                    crossing_weight=None, conflict_wall_tolerance_m=0.0, conflict_walkable_first=False
+                ),
                 recovery=RecoveryConfig(max_fraction=0.0, stall_ratio=0.0),
                 scale_correction=ScaleCorrectionConfig(fraction=0.0),
                 street_heading=StreetHeadingConfig(strength_per_m=0.0),
