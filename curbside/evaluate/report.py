@@ -31,6 +31,7 @@ from curbside.evaluate.metrics import METRIC_NAMES, MetricsConfig
 from curbside.evaluate.runner import METHOD_LABELS, METHODS, MODE_SUFFIX, pool
 from curbside.evaluate.uncertainty import map_intervals, subset_intervals
 from curbside.io import atomic_path
+from curbside.localize.filter.config import MapConfig
 from curbside.osmseg.mapio import MapLayers
 
 #: The paper's Tables 2-4 (Dubiner, Ren, Manduchi), per method.
@@ -166,6 +167,12 @@ INTERVAL_NOTE = (
     "method on the same resampled {unit}; the percentage is the share of resamples in which curbside "
     "fused is better."
 )
+#: Why curbside's filter and the paper's method respond differently to the jaywalk weight (Table 2).
+CROSSING_NOTE = (
+    "w weighs a particle on the street. Curbside's filter (RoNIN+PF, curbside fused) weighs a step across "
+    f"the street outside a crosswalk at least {MapConfig().crossing_weight:g}, whatever w "
+    "(filter.map.crossing_weight); the paper's method weighs w at every footstep."
+)
 #: The note under the map-source intervals.
 MAP_INTERVAL_NOTE = (
     "Curbside fused on each map source, each figure with its 95 % percentile interval from 1,000 "
@@ -192,7 +199,7 @@ def paper_tables(pooled: pd.DataFrame, map_name: str, base: dict[str, Any]) -> l
             f"Table 2. Correct Sidewalk Assignment, map '{map_name}'",
             header,
             rows2,
-            "Pooled over all footsteps; GNSS does not depend on w.",
+            "Pooled over all footsteps; GNSS does not depend on w. " + CROSSING_NOTE,
         )
     ]
     w0 = base["jaywalk_weight"]

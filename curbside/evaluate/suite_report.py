@@ -28,6 +28,7 @@ from curbside.evaluate.figures import (
     save_png,
 )
 from curbside.evaluate.report import (
+    CROSSING_NOTE,
     INTERVAL_NOTE,
     MAP_INTERVAL_NOTE,
     Table,
@@ -103,7 +104,7 @@ def sweep_table(pooled: pd.DataFrame, subset: str) -> Table | None:
         f"Table 2. Correct Sidewalk Assignment by jaywalk weight, {subset}",
         ["", *(METHOD_LABELS[m] for m in methods)],
         rows,
-        "In parentheses: the paper's RoNIN+PF and GNSS+RoNIN+PF on its real walks.",
+        "In parentheses: the paper's RoNIN+PF and GNSS+RoNIN+PF on its real walks. " + CROSSING_NOTE,
     )
 
 
