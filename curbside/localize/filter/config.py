@@ -479,10 +479,9 @@ class FilterConfig:
 
         The paper's filter (Dubiner, Ren & Manduchi; Ren & Ke 2010 for the GNSS weighting): 500
         particles, position and heading-drift noise, hard walls, one weight for every particle on the
-        street (crossing it or not), a Gaussian GNSS likelihood with sigma
-        equal to the reported accuracy for fixes under a threshold, every fix counted as independent,
-        resampling at every update, no outlier model, no speed scale, no recovery beyond re-seeding a
-        collapsed cloud.
+        street (crossing it or not), a Gaussian GNSS likelihood with sigma equal to the reported
+        accuracy for fixes under a threshold, every fix counted as independent, resampling at every
+        update, no outlier model, no speed scale, no recovery beyond re-seeding a collapsed cloud.
         """
         if name == "fused":
             return cls()

@@ -4,8 +4,9 @@ Weights: 0 in a building, ``jaywalk_weight`` on street surface outside crosswalk
 sidewalks, free space and anywhere off the raster. A particle on the street whose step runs within
 ``crossing_angle_deg`` of square to the street (the axis of the sidewalk segment nearest to it) is
 crossing it, and weighs ``max(jaywalk_weight, crossing_weight)``: the paper's weight, applied at every
-footstep, makes a mid-block crossing of twenty steps cost 0.4^20, so the cloud would rather believe a
-heading jump than a walker who crosses; walking along the carriageway keeps the paper's weight.
+footstep, makes a mid-block crossing of twenty steps cost 0.4^20, so the cloud would rather believe any
+particle whose heading offset kept it on the kerb than a walker who crosses; walking along the
+carriageway keeps the paper's weight.
 
 With ``wall_tolerance_m = t > 0`` the walls are soft: a particle ``d`` metres past a wall weighs
 ``exp(-d^2 / (2 t^2))``, and 0 beyond ``3 t``, so a map a metre or two off (an old footprint, a
