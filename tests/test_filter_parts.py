@@ -40,6 +40,7 @@ from curbside.localize.filter.predict import reference_draws, reference_predict
 from curbside.localize.filter.resample import _systematic_gather, systematic_indices
 from curbside.localize.filter.segments import segment_posterior
 from curbside.localize.raster import RasterLookup, rasterize_map
+from curbside.osmseg.mapio import MapLayers
 
 QUIET = MotionConfig(
     step_noise_fraction=0.0, step_noise_floor_m=0.0, heading_noise_deg=0.0, scale_noise_per_step=0.0
@@ -194,6 +195,12 @@ def test_a_step_across_the_street_weighs_the_crossing_weight_and_a_step_along_it
         np.testing.assert_allclose(p.log_weight, np.log([0.4] * 5 + [1.0]))
     forbidden = MapLikelihood(raster, MapConfig(jaywalk_weight=0.0, crossing_weight=0.0))
     assert np.isneginf(forbidden.reference_log_likelihood(p, north)[:5]).all()
+    gdf = two_sidewalk_map().gdf  # without sidewalk segments there is no street axis: one street weight
+    no_segments = MapLikelihood(rasterize_map(MapLayers(gdf[gdf["class"] != "sidewalk"])), MapConfig())
+    assert no_segments.max_along < 0
+    p.log_weight[:] = 0.0
+    no_segments.weigh(p, north)
+    np.testing.assert_allclose(p.log_weight, np.log([0.4] * 5 + [1.0]))  # the last on free ground now
 
 
 def test_soft_walls_tolerate_a_metre_of_map_error_but_not_ten():
