@@ -39,6 +39,11 @@ def test_every_parameter_round_trips_through_json():
     replayed = RunConfig.from_dict(older).filter.map  # hard walls, as it ran
     assert (replayed.conflict_wall_tolerance_m, replayed.conflict_walkable_first) == (0.0, False)
     assert replayed.crossing_weight is None
+    before_accuracy = RunConfig().to_dict()
+    del before_accuracy["filter"]["gnss"]["correlation_accuracy_m"]
+    assert RunConfig.from_dict(before_accuracy).filter.gnss.correlation_accuracy_m == 0.0  # as it ran
+    by_hand = RunConfig.from_dict({"filter": {"gnss": {"sigma_factor": 1.0, "correlation_time_s": 5.0}}})
+    assert by_hand.filter.gnss.correlation_accuracy_m == 10.0
     partial = RunConfig.from_dict({"filter": {"map": {"jaywalk_weight": 0.2}}}).filter.map  # by hand
     assert (partial.conflict_wall_tolerance_m, partial.conflict_walkable_first) == (1.5, True)
     assert partial.crossing_weight == FilterConfig().map.crossing_weight == 0.7

@@ -120,6 +120,24 @@ def test_bias_state_absorbs_a_steady_gnss_offset_instead_of_moving_the_track():
     assert abs(with_bias.y) < 0.5 * abs(plain.y) and bias_y < -5.0
 
 
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_a_run_of_poorly_reported_offset_fixes_pulls_less_and_good_fixes_as_before(seed):
+    def track(correlation_accuracy_m, offset_fixes):
+        cfg = FilterConfig(n_particles=1000, gnss=GnssConfig(correlation_accuracy_m=correlation_accuracy_m))
+        tracker = Tracker.from_config(None, cfg, seed=seed)
+        tracker.start_at_pose(0.0, 0.0, 0.0)
+        for k in range(1, 121):  # 60 s east at 1.4 m/s; after 20 s, fixes 15 m north reporting 30 m
+            offset = offset_fixes and k > 40
+            fix = GnssFix(0.7 * k, 15.0 if offset else 0.0, 30.0 if offset else 5.0)
+            estimate = tracker.step(0.5 * k, displacement_en=(0.7, 0.0), gnss_fix=fix)
+        return estimate
+
+    assert track(10.0, offset_fixes=False) == track(0.0, offset_fixes=False)  # 5 m fixes: unchanged
+    by_accuracy, one_time_constant = track(10.0, offset_fixes=True), track(0.0, offset_fixes=True)
+    assert one_time_constant.y > 9.0  # 40 s of them drag one time constant's cloud most of the way
+    assert by_accuracy.y < 0.65 * one_time_constant.y
+
+
 def test_ten_thousand_tiny_likelihoods_keep_finite_weights():
     cfg = FilterConfig(
         n_particles=200,

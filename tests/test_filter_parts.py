@@ -291,6 +291,27 @@ def test_tempering_counts_correlated_fixes_by_their_effective_number():
     assert GnssLikelihood(GnssConfig(correlation_time_s=0.0), 1, None).exponent(0.5) == 1.0
 
 
+def test_a_fix_reporting_a_poor_accuracy_is_tempered_as_longer_correlated():
+    lik = GnssLikelihood(GnssConfig(correlation_time_s=3.0, correlation_accuracy_m=10.0), 3, None)
+    constant = GnssLikelihood(GnssConfig(correlation_time_s=3.0, correlation_accuracy_m=0.0), 3, None)
+    for accuracy_m in (3.0, 10.0):  # at or under the reference: one time constant
+        assert lik.exponent(1.0, accuracy_m) == constant.exponent(1.0, accuracy_m) == constant.exponent(1.0)
+    rho = math.exp(-1.0 / 7.5)  # 25 m: 2.5 times as long
+    assert lik.exponent(1.0, 25.0) == pytest.approx((1 - rho) / (1 + rho))
+    assert lik.exponent(1.0, 25.0) < lik.exponent(1.0, 10.0)
+    assert constant.exponent(1.0, 25.0) == lik.exponent(1.0)
+    assert lik.exponent(math.inf, 25.0) == 1.0  # the first fix counts whole
+    fix = GnssFix(10.0, -4.0, 25.0)
+    p = ParticleSet(3)
+    p.state[0], p.state[1] = [10.0, 14.0, 40.0], [-4.0, -1.0, 20.0]
+    lik.weigh(p, Update(5.0, 1.0, 0.0, 0.0, fix))
+    p.log_weight[:] = 0.0
+    lik.weigh(p, Update(6.0, 1.0, 0.0, 0.0, fix))  # the update reads the fix's accuracy
+    exponent = (1 - rho) / (1 + rho)
+    expected = reference_log_likelihood(p.state[0], p.state[1], fix, lik.coefficients(fix), exponent)
+    np.testing.assert_allclose(p.log_weight, expected, rtol=1e-12)
+
+
 def test_bias_state_update_matches_its_oracle_and_learns_a_steady_offset():
     cfg = GnssConfig(
         sigma_factor=0.3, bias_sigma_factor=2.0, bias_time_s=30.0, outlier_prob=0.05, correlation_time_s=0.0

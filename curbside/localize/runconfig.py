@@ -35,6 +35,24 @@ _EARLIER_MAP_BLOCKS: tuple[tuple[frozenset[str], dict[str, Any]], ...] = (
     (_MAP_KEYS_STOP_27, {"conflict_walkable_first": False, "crossing_weight": None}),
     (_MAP_KEYS_STOP_27 | {"conflict_walkable_first"}, {"crossing_weight": None}),
 )
+#: The keys of every whole ``filter.gnss`` block since 0.1; one without ``correlation_accuracy_m`` was
+#: written before it and ran with one correlation time for every fix.
+_GNSS_KEYS_0_1 = frozenset(
+    {"sigma_factor", "max_accuracy_m", "outlier_prob", "outlier_radius_m", "correlation_time_s",
+     "bias_time_s"}
+)
+
+
+def _as_it_ran(filter_block: dict[str, Any]) -> dict[str, Any]:
+    """``run.json``'s ``filter`` block with the values an earlier version's whole sub-blocks ran with."""
+    map_block, gnss_block = filter_block.get("map"), filter_block.get("gnss")
+    for keys, as_it_ran in _EARLIER_MAP_BLOCKS:
+        if isinstance(map_block, dict) and set(map_block) == keys:
+            filter_block = {**filter_block, "map": {**map_block, **as_it_ran}}
+    whole_gnss_block = isinstance(gnss_block, dict) and set(gnss_block) >= _GNSS_KEYS_0_1
+    if whole_gnss_block and "correlation_accuracy_m" not in gnss_block:
+        filter_block = {**filter_block, "gnss": {**gnss_block, "correlation_accuracy_m": 0.0}}
+    return filter_block
 
 
 def _check(condition: bool, message: str) -> None:
@@ -274,13 +292,12 @@ class RunConfig:
         mode ``off``, not today's default. One whose ``filter.map`` holds exactly the keys an earlier
         version wrote replays without the conflict rule's later parts, as it ran: hard walls on every
         map before ``conflict_*`` existed, buildings over sidewalks before ``conflict_walkable_first``
-        (a partial block written by hand keeps the defaults).
+        (a partial block written by hand keeps the defaults). A whole ``filter.gnss`` block without
+        ``correlation_accuracy_m`` replays with one correlation time for every fix.
         """
         if isinstance(data, dict) and "unseen_velocity" not in data:
             data = {**data, "unseen_velocity": {"mode": "off"}}
         filter_block = data.get("filter") if isinstance(data, dict) else None
-        map_block = filter_block.get("map") if isinstance(filter_block, dict) else None
-        for keys, as_it_ran in _EARLIER_MAP_BLOCKS:
-            if isinstance(map_block, dict) and set(map_block) == keys:  # an older run.json's whole block
-                data = {**data, "filter": {**filter_block, "map": {**map_block, **as_it_ran}}}
+        if isinstance(filter_block, dict):
+            data = {**data, "filter": _as_it_ran(filter_block)}
         return from_dict(cls, data, where)

@@ -238,6 +238,11 @@ class GnssConfig:
     correlation_time_s
         Time constant of the GNSS error; each fix's log-likelihood is tempered by the fraction of an
         independent fix it carries (0: independent fixes).
+    correlation_accuracy_m
+        A fix reporting an accuracy worse than this has a time constant longer in proportion:
+        ``correlation_time_s * accuracy_m / correlation_accuracy_m`` (0: one time constant for every
+        fix). A fix that reports tens of metres is off by multipath, whose error lasts as long as the
+        walker's geometry to the reflecting facades, so it carries less than its sigma alone says.
     bias_sigma_factor, bias_time_s
         A GNSS bias state (0: none): the slowly wandering error that successive fixes share, a
         first-order Gauss-Markov process with time constant ``bias_time_s`` and stationary sigma
@@ -254,6 +259,7 @@ class GnssConfig:
     across_factor: float = 1.0
     student_dof: float = 0.0
     correlation_time_s: float = 3.0
+    correlation_accuracy_m: float = 10.0
     bias_sigma_factor: float = 0.0
     bias_time_s: float = 30.0
 
@@ -265,8 +271,9 @@ class GnssConfig:
         _check(self.student_dof >= 0, f"student_dof must be non-negative, got {self.student_dof}")
         _check(self.across_factor >= 1, f"across_factor must be at least 1, got {self.across_factor}")
         _check(
-            self.correlation_time_s >= 0,
-            f"correlation_time_s must be non-negative, got {self.correlation_time_s}",
+            self.correlation_time_s >= 0 and self.correlation_accuracy_m >= 0,
+            "correlation_time_s and correlation_accuracy_m must be non-negative, got "
+            f"{self.correlation_time_s}, {self.correlation_accuracy_m}",
         )
         _check(
             self.bias_sigma_factor >= 0 and self.bias_time_s > 0,
@@ -495,7 +502,9 @@ class FilterConfig:
                     scale_init_sigma=0.0,
                     scale_noise_per_step=0.0,
                 ),
-                gnss=GnssConfig(sigma_factor=1.0, outlier_prob=0.0, correlation_time_s=0.0),
+                gnss=GnssConfig(
+                    sigma_factor=1.0, outlier_prob=0.0, correlation_time_s=0.0, correlation_accuracy_m=0.0
+                ),
                 resample=ResampleConfig(policy="always"),
                 map=MapConfig(
                     crossing_weight=None, conflict_wall_tolerance_m=0.0, conflict_walkable_first=False

@@ -13,6 +13,9 @@ each off in the paper preset:
   Gauss-Markov with time constant ``tau``, fixes ``dt`` apart have correlation ``rho = exp(-dt / tau)``
   and ``N`` of them carry the information of ``N (1 - rho) / (1 + rho)`` independent ones (the effective
   sample size of the mean of an AR(1) series); each fix's log-likelihood is multiplied by that exponent.
+  A fix reporting an accuracy ``a`` worse than ``correlation_accuracy_m`` has ``tau`` longer by
+  ``a / correlation_accuracy_m``: such a fix is off by multipath, which changes only as the walker's
+  geometry to the facades does, so a run of them carries less than their sigma alone would say.
 - **Bias state**: alternatively the error shared by successive fixes is modelled, not tempered: a
   first-order Gauss-Markov bias ``b`` (time constant ``tau``, stationary sigma ``k_b`` times the
   accuracy), with a fix measuring ``position + b + w`` (``w`` white, sigma ``k_w`` times the accuracy).
@@ -98,9 +101,17 @@ class GnssLikelihood:
             self.log_outlier_density,
         )
 
-    def exponent(self, dt_s: float) -> float:
-        """Tempering exponent of a fix ``dt_s`` seconds after the previous one (1 for the first)."""
-        tau = self.config.correlation_time_s
+    def correlation_time_s(self, accuracy_m: float) -> float:
+        """The GNSS error's time constant (s) for a fix reporting ``accuracy_m``."""
+        c = self.config
+        if c.correlation_accuracy_m <= 0:
+            return c.correlation_time_s
+        return c.correlation_time_s * max(1.0, accuracy_m / c.correlation_accuracy_m)
+
+    def exponent(self, dt_s: float, accuracy_m: float = 0.0) -> float:
+        """Tempering exponent of a fix reporting ``accuracy_m``, ``dt_s`` seconds after the previous one
+        (1 for the first)."""
+        tau = self.correlation_time_s(accuracy_m)
         if tau <= 0 or not math.isfinite(dt_s):
             return 1.0
         rho = math.exp(-max(dt_s, 0.0) / tau)
@@ -119,23 +130,23 @@ class GnssLikelihood:
             return
         dt_s = update.t - self.last_fix_t
         self.last_fix_t = update.t
+        exponent = self.exponent(dt_s, fix.accuracy_m)
         if self.config.student_dof > 0:
             nu, variance = self.config.student_dof, self.sigma_m(fix) ** 2
             log_norm = math.lgamma(nu / 2 + 1) - math.lgamma(nu / 2) - math.log(nu * math.pi * variance)
             _add_student_log_likelihood(particles.state, particles.log_weight, fix.x, fix.y,
-                                        1 / (nu * variance), -(nu + 2) / 2, log_norm, self.exponent(dt_s))
+                                        1 / (nu * variance), -(nu + 2) / 2, log_norm, exponent)
             return
         if self._streets is not None:
             a, b, c = self.coefficients(fix)
             f = self.config.across_factor
             _add_anisotropic_log_likelihood(particles.state, particles.log_weight, fix.x, fix.y, a,
-                                            a / (f * f), b, b - math.log(f), c, self.exponent(dt_s),
+                                            a / (f * f), b, b - math.log(f), c, exponent,
                                             *self._streets)
             return
         if self.config.bias_sigma_factor <= 0:
             a, b, c = self.coefficients(fix)
-            _add_gnss_log_likelihood(particles.state, particles.log_weight, fix.x, fix.y, a, b, c,
-                                     self.exponent(dt_s))
+            _add_gnss_log_likelihood(particles.state, particles.log_weight, fix.x, fix.y, a, b, c, exponent)
             return
         rho, prior = self._bias_prior(fix, dt_s)
         innovation = prior + self.sigma_m(fix) ** 2
