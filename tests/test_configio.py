@@ -47,6 +47,17 @@ def test_every_parameter_round_trips_through_json():
     partial = RunConfig.from_dict({"filter": {"map": {"jaywalk_weight": 0.2}}}).filter.map  # by hand
     assert (partial.conflict_wall_tolerance_m, partial.conflict_walkable_first) == (1.5, True)
     assert partial.crossing_weight == FilterConfig().map.crossing_weight == 0.7
+    before_street_heading = RunConfig().to_dict()  # 0.1 to stop 24: no street-heading part
+    del before_street_heading["filter"]["street_heading"]
+    assert RunConfig.from_dict(before_street_heading).filter.street_heading.strength_per_m == 0.0
+    before_gate = RunConfig().to_dict()  # stops 25-30: the part, off or opted in, without the turn gate
+    del before_gate["filter"]["street_heading"]["max_turn_deg"]
+    assert RunConfig.from_dict(before_gate).filter.street_heading.max_turn_deg == 90.0
+    hand_block = {"filter": {"street_heading": {"strength_per_m": 2.0}}}
+    by_hand = RunConfig.from_dict(hand_block).filter.street_heading
+    assert (by_hand.strength_per_m, by_hand.max_turn_deg) == (2.0, 30.0)
+    by_hand_filter = RunConfig.from_dict({"filter": {"n_particles": 500}}).filter
+    assert by_hand_filter.street_heading == FilterConfig().street_heading
 
 
 def test_the_paper_preset_is_the_plain_filter():
@@ -67,6 +78,7 @@ def test_the_paper_preset_is_the_plain_filter():
         ({"filter": {"gnss": {"sigma": 1.0}}}, ["unknown parameter", "sigma"]),
         ({"seed": "seven"}, ["seed", "integer"]),
         ({"filter": {"n_particles": 0}}, ["n_particles"]),
+        ({"filter": {"street_heading": {"max_turn_deg": 120}}}, ["max_turn_deg", "(0, 90]"]),
         ({"mode": "best"}, ["mode"]),
         ({"filter": {"map": {"jaywalk_weight": True}}}, ["jaywalk_weight", "number"]),
     ],

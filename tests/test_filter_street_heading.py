@@ -18,7 +18,7 @@ from curbside.localize.raster import rasterize_map
 from curbside.localize.runconfig import RunConfig
 from curbside.osmseg.mapio import MapLayers
 
-ON = StreetHeadingConfig(strength_per_m=2.0)
+ON = StreetHeadingConfig(strength_per_m=2.0, max_turn_deg=90.0)  # no turn gate: the kernel alone
 
 
 @pytest.fixture(scope="module")
@@ -98,16 +98,39 @@ def test_no_term_off_the_sidewalk_at_a_corner_or_standing_still(street_raster):
     assert corner.last_axis is None and np.all(split.log_weight == -math.log(200))
 
 
-def test_the_tracker_adds_the_part_only_when_asked(street_raster):
+def test_no_term_while_the_cloud_turns_off_the_street(street_raster):
+    # On the east-west sidewalk, offsets near 0: a step east is along the street, one north-east
+    # (45 deg) or north (a turn at the corner) is not, and with a 30 deg gate weighs nothing.
+    gated = StreetHeadingLikelihood(street_raster, StreetHeadingConfig(strength_per_m=2.0, max_turn_deg=30.0))
+    rng = np.random.default_rng(1)
+    theta = rng.normal(0.0, math.radians(5), 300)
+    for step, applies in [((0.7, 0.0), True), ((-0.7, 0.1), True), ((0.5, 0.5), False), ((0.0, 0.7), False)]:
+        particles = cloud(rng.uniform(-50, 50, 300), rng.uniform(6.5, 9.5, 300), theta)
+        gated.weigh(particles, Update(1.0, 0.5, *step))
+        assert (gated.last_axis is not None) == applies, step
+        assert np.all(particles.log_weight == -math.log(300)) != applies, step
+    # the offsets count: a cloud turned by -45 deg walks a north-east step along the street
+    turned = cloud(rng.uniform(-50, 50, 300), rng.uniform(6.5, 9.5, 300), theta - math.pi / 4)
+    gated.weigh(turned, Update(1.0, 0.5, 0.5, 0.5))
+    assert gated.last_axis is not None
+    # without the gate (90 deg) the turning step is weighed, as before
+    ungated = StreetHeadingLikelihood(street_raster, ON)
+    particles = cloud(rng.uniform(-50, 50, 300), rng.uniform(6.5, 9.5, 300), theta)
+    ungated.weigh(particles, Update(1.0, 0.5, 0.0, 0.7))
+    assert ungated.last_axis is not None
+
+
+def test_the_tracker_adds_the_part_unless_turned_off(street_raster):
     def parts(config: FilterConfig) -> list[type]:
         return [type(lik) for lik in Tracker.from_config(street_raster, config, seed=0).likelihoods]
 
-    assert StreetHeadingLikelihood not in parts(FilterConfig())
+    assert StreetHeadingLikelihood in parts(FilterConfig())  # on by default since stop 31
     assert StreetHeadingLikelihood not in parts(FilterConfig.preset("paper"))
-    assert StreetHeadingLikelihood in parts(FilterConfig(street_heading=ON))
+    off = StreetHeadingConfig(strength_per_m=0.0)
+    assert StreetHeadingLikelihood not in parts(FilterConfig(street_heading=off))
     # and from a run's settings, as --set gives them
-    run = RunConfig.for_mode("fused").with_overrides({"filter.street_heading.strength_per_m": 2.0})
-    assert StreetHeadingLikelihood in parts(run.filter)
+    run = RunConfig.for_mode("fused").with_overrides({"filter.street_heading.strength_per_m": 0.0})
+    assert StreetHeadingLikelihood not in parts(run.filter)
 
 
 def test_a_biased_heading_is_learned_along_a_sidewalk(street_raster):

@@ -41,6 +41,12 @@ _GNSS_KEYS_0_1 = frozenset(
     {"sigma_factor", "max_accuracy_m", "outlier_prob", "outlier_radius_m", "correlation_time_s",
      "bias_time_s"}
 )
+#: The keys of every whole ``filter.street_heading`` block since the part came (off by default); one
+#: without ``max_turn_deg`` ran without the turn gate. A whole ``filter`` block without the part
+#: (whole ``gnss`` block, no ``street_heading``) ran without it.
+_STREET_HEADING_KEYS_STOP_25 = frozenset(
+    {"strength_per_m", "floor", "min_step_m", "min_sidewalk_share", "min_axis_agreement"}
+)
 
 
 def _as_it_ran(filter_block: dict[str, Any]) -> dict[str, Any]:
@@ -52,6 +58,11 @@ def _as_it_ran(filter_block: dict[str, Any]) -> dict[str, Any]:
     whole_gnss_block = isinstance(gnss_block, dict) and set(gnss_block) >= _GNSS_KEYS_0_1
     if whole_gnss_block and "correlation_accuracy_m" not in gnss_block:
         filter_block = {**filter_block, "gnss": {**gnss_block, "correlation_accuracy_m": 0.0}}
+    heading_block = filter_block.get("street_heading")
+    if whole_gnss_block and heading_block is None:
+        filter_block = {**filter_block, "street_heading": {"strength_per_m": 0.0}}
+    elif isinstance(heading_block, dict) and set(heading_block) >= _STREET_HEADING_KEYS_STOP_25:
+        filter_block = {**filter_block, "street_heading": {"max_turn_deg": 90.0, **heading_block}}
     return filter_block
 
 

@@ -193,16 +193,22 @@ class StreetHeadingConfig:
     min_sidewalk_share
         The term applies only when at least this share of the weight is on sidewalk cells ...
     min_axis_agreement
-        ... and those cells' street axes agree (mean resultant length of the doubled angles, in [0, 1]).
+        ... and those cells' street axes agree (mean resultant length of the doubled angles, in [0, 1]) ...
+    max_turn_deg
+        ... and the cloud's mean step (the inertial step turned by each particle's heading offset) runs
+        within this angle of the axis, either way (degrees, in (0, 90]; 90: no such gate). A walker
+        turning off the street at a corner is not walking along it.
     """
 
-    strength_per_m: float = 0.0
+    strength_per_m: float = 4.0
     floor: float = 0.2
     min_step_m: float = 0.2
     min_sidewalk_share: float = 0.8
-    min_axis_agreement: float = 0.9
+    min_axis_agreement: float = 0.95
+    max_turn_deg: float = 30.0
 
     def __post_init__(self) -> None:
+        _check(0.0 < self.max_turn_deg <= 90.0, f"max_turn_deg must lie in (0, 90], got {self.max_turn_deg}")
         _check(self.strength_per_m >= 0, f"strength_per_m must be non-negative, got {self.strength_per_m}")
         _check(0.0 < self.floor < 1.0, f"floor must lie in (0, 1), got {self.floor}")
         _check(self.min_step_m >= 0, f"min_step_m must be non-negative, got {self.min_step_m}")

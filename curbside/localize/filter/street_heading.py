@@ -21,9 +21,12 @@ per-particle version (each particle against its own nearest sidewalk) was tried 
 weighs particles on a sidewalk and lets those on a street or in free space off, so the cloud drifts
 off the sidewalks while it is learning its heading. So ``a`` is the cloud's: the weighted axial mean of
 the axes of the sidewalk segments under the particles (:attr:`MapRaster.segment_axes`), used only when
-at least ``min_sidewalk_share`` of the weight is on sidewalk cells (not crossing, not at a plaza) and
-the axes agree (mean resultant length of the doubled angles at least ``min_axis_agreement``: not at a
-corner, where two directions meet).
+at least ``min_sidewalk_share`` of the weight is on sidewalk cells (not crossing, not at a plaza), the
+axes agree (mean resultant length of the doubled angles at least ``min_axis_agreement``: not at a
+corner, where two directions meet), and the cloud's mean step, turned by each particle's offset, runs
+within ``max_turn_deg`` of the axis. The last gate is for a walker turning off the street: the cloud is
+still on the old sidewalk for a few seconds, and without it the term would favour the particles whose
+offset turns the new direction back along the old street, and the cloud would walk on down it.
 
 This is heuristic drift elimination (Borenstein, Ojeda & Kwanmuang 2009; Jiménez et al. 2012, "iHDE"),
 which snaps a walker's heading to a building's dominant directions, put as a likelihood on the particle
@@ -68,15 +71,26 @@ class StreetHeadingLikelihood:
         #: The street axis (unit vector) used at the last update, ``None`` when a gate held it back.
         self.last_axis: tuple[float, float] | None = None
 
-    def street_axis(self, particles: ParticleSet) -> tuple[float, float] | None:
-        """The cloud's street axis ``(east, north)``, or ``None`` when it is not on one street's sidewalk."""
-        sums = _axis_sums(particles.state, particles.log_weight, *self._grid)
-        total, on_sidewalk, c2, s2 = sums
+    def street_axis(
+        self, particles: ParticleSet, step_east: float = 1.0, step_north: float = 0.0
+    ) -> tuple[float, float] | None:
+        """The cloud's street axis ``(east, north)``, or ``None`` when a gate holds (module doc).
+
+        ``step_east, step_north`` is the inertial step's direction (a unit vector): with
+        ``max_turn_deg`` under 90 the axis is withheld while the cloud's mean step, turned by each
+        particle's heading offset, runs farther than that from it.
+        """
+        sums = _axis_sums(particles.state, particles.log_weight, *self._grid, step_east, step_north)
+        total, on_sidewalk, c2, s2, step_c2, step_s2 = sums
         if total <= 0 or on_sidewalk < self.config.min_sidewalk_share * total:
             return None
         if math.hypot(c2, s2) < self.config.min_axis_agreement * on_sidewalk:
             return None
         angle = 0.5 * math.atan2(s2, c2)
+        if self.config.max_turn_deg < 90.0:
+            turn = 0.5 * abs(math.remainder(math.atan2(step_s2, step_c2) - 2.0 * angle, 2.0 * math.pi))
+            if math.degrees(turn) > self.config.max_turn_deg:
+                return None
         return math.cos(angle), math.sin(angle)
 
     def weigh(self, particles: ParticleSet, update: Update) -> None:
@@ -85,7 +99,7 @@ class StreetHeadingLikelihood:
         length = math.hypot(update.dx, update.dy)
         if length < self.config.min_step_m:
             return
-        axis = self.street_axis(particles)
+        axis = self.street_axis(particles, update.dx / length, update.dy / length)
         if axis is None:
             return
         self.last_axis = axis
@@ -101,14 +115,14 @@ def _log_i0(kappa: float) -> float:
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")
-def _axis_sums(state, log_weight, padded, padded_segments, grid, axes):  # pragma: no cover - compiled
+def _axis_sums(state, log_weight, padded, padded_segments, grid, axes, ux, uy):  # pragma: no cover - compiled
     # Weights relative to the largest, so the sums stay finite; dead particles (-inf) add nothing.
     peak = -np.inf
     for i in range(state.shape[1]):
         peak = max(peak, log_weight[i])
-    total = on_sidewalk = c2 = s2 = 0.0
+    total = on_sidewalk = c2 = s2 = step_c2 = step_s2 = 0.0
     if not np.isfinite(peak):
-        return total, on_sidewalk, c2, s2
+        return total, on_sidewalk, c2, s2, step_c2, step_s2
     for i in range(state.shape[1]):
         w = exp(log_weight[i] - peak)
         total += w
@@ -119,7 +133,11 @@ def _axis_sums(state, log_weight, padded, padded_segments, grid, axes):  # pragm
             ax, ay = axes[k, 0], axes[k, 1]
             c2 += w * (ax * ax - ay * ay)  # the doubled angle: a and -a are the same axis
             s2 += w * 2.0 * ax * ay
-    return total, on_sidewalk, c2, s2
+            c, s = state[COS, i], state[SIN, i]
+            dx, dy = c * ux - s * uy, s * ux + c * uy  # the step turned by the particle's offset
+            step_c2 += w * (dx * dx - dy * dy)
+            step_s2 += w * 2.0 * dx * dy
+    return total, on_sidewalk, c2, s2, step_c2, step_s2
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")
