@@ -134,8 +134,16 @@ def test_report_has_tables_checks_and_figures(sessions, tmp_path):
     assert "Simulation profile 'phone'" in md and "OpenStreetMap" in md
     assert "How sure: 95 % intervals" in md and "| open | curbside fused - GNSS |" in md
     assert "filter seeds 0-1 pooled" in md
+    assert f"N = 100 (curbside fused {config.particles_of('fused')})" in md
     fused_open = pooled.query("subset == 'open' and method == 'fused'")
     assert fused_open["n_runs"].iat[0] == 2  # both seeds of the one session pool into one row
+    # the figures show every method at its own particle count (fused runs with more than the paper's)
+    from curbside.evaluate.figures import is_base
+    from curbside.evaluate.suite_report import figure_base
+
+    shown = {r["spec"]["method"] for r in results if is_base(r, figure_base(config))}
+    assert shown == {"gnss", "inertial", "paper", "fused"}
+    assert config.particles_of("fused") != config.particles_of("paper")
     figures = {p.name for p in (tmp_path / "report" / "figures").iterdir()}
     assert {
         "fig1_tracks_paper6.png",

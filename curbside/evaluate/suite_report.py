@@ -11,7 +11,7 @@ import html
 import json
 import math
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import pandas as pd
 
@@ -38,11 +38,14 @@ from curbside.evaluate.report import (
     paper_value,
     records,
 )
-from curbside.evaluate.runner import METHOD_LABELS, SMOOTHED_METHOD, subset_of
+from curbside.evaluate.runner import METHOD_LABELS, METHODS, SMOOTHED_METHOD, subset_of
 from curbside.evaluate.uncertainty import map_intervals, subset_intervals
 from curbside.io import atomic_path
 from curbside.localize.runconfig import UnseenVelocityConfig
 from curbside.osmseg.mapio import MapLayers
+
+if TYPE_CHECKING:
+    from curbside.evaluate.suite import SuiteConfig
 
 _STYLE = (
     "body{font-family:sans-serif;max-width:1250px;margin:auto;padding:1em}"
@@ -280,13 +283,19 @@ def profile_table(simulation: dict[str, Any]) -> Table:
     )
 
 
-def _figures(results, layers, config, pooled_path, ratios, figdir) -> list[tuple[str, str, bytes]]:
-    base = {
+def figure_base(config: SuiteConfig) -> dict[str, Any]:
+    """The configuration the figures show: the OSM map, the base jaywalk weight, each method's own N."""
+    return {
         "map": "osm",
         "jaywalk_weight": config.jaywalk_weight,
-        "particles": config.particles,
+        "particles": {method: config.particles_of(method) for method in METHODS}
+        | {SMOOTHED_METHOD: config.particles_of("fused")},
         "gnss_sigma_factor": None,
     }
+
+
+def _figures(results, layers, config, pooled_path, ratios, figdir) -> list[tuple[str, str, bytes]]:
+    base = figure_base(config)
     by_subset = {s: [r for r in results if subset_of(r) == s] for s in config.subsets}
     out = []
     for subset, runs in by_subset.items():
@@ -358,7 +367,8 @@ def _intro(config, counts, pooled, n_runs, timings, workers, checks) -> str:
     stages = ", ".join(f"{k.removesuffix('_s')} {v:.0f} s" for k, v in timings.items())
     return (
         f"Profile '{config.profile}', split '{config.split}', {config.seeds} seed(s) per route: {subsets}. "
-        f"{n_runs} runs, N = {config.particles}, {_seeds(config)}, every method on the same "
+        f"{n_runs} runs, N = {config.particles} (curbside fused {config.particles_of('fused')}), "
+        f"{_seeds(config)}, every method on the same "
         f"sessions{_preset_note(config.unseen_velocity)}. "
         f"Time: {total_s / 60:.1f} min ({stages}) with {workers} worker(s). "
         f"Done when: {criteria.overall(checks)}."
