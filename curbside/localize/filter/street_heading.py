@@ -72,7 +72,7 @@ class StreetHeadingLikelihood:
         self.last_axis: tuple[float, float] | None = None
 
     def street_axis(
-        self, particles: ParticleSet, step_east: float = 1.0, step_north: float = 0.0
+        self, particles: ParticleSet, step_east: float, step_north: float
     ) -> tuple[float, float] | None:
         """The cloud's street axis ``(east, north)``, or ``None`` when a gate holds (module doc).
 
