@@ -304,7 +304,9 @@ class RunConfig:
         version wrote replays without the conflict rule's later parts, as it ran: hard walls on every
         map before ``conflict_*`` existed, buildings over sidewalks before ``conflict_walkable_first``
         (a partial block written by hand keeps the defaults). A whole ``filter.gnss`` block without
-        ``correlation_accuracy_m`` replays with one correlation time for every fix.
+        ``correlation_accuracy_m`` replays with one correlation time for every fix; a whole ``filter``
+        block without ``street_heading`` replays without that part, and a whole ``street_heading`` block
+        without ``max_turn_deg`` without its turn gate.
         """
         if isinstance(data, dict) and "unseen_velocity" not in data:
             data = {**data, "unseen_velocity": {"mode": "off"}}
