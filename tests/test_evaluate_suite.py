@@ -85,8 +85,9 @@ def test_unseen_velocity_runs_curbside_fused_with_the_preset_and_nothing_else(se
     assert sum(s.method == "fused" and s.map_name == "datasf" for s in preset) == 2
     runs = suite._ipin_runs(suite.SuiteConfig())
     judged = suite._ipin_runs(suite.SuiteConfig(unseen_velocity="on"))
-    assert set(runs) == {criteria.IPIN_BASELINE_RUN, suite.UNSEEN_VELOCITY_RUN}
-    assert set(judged) == {criteria.IPIN_BASELINE_RUN, "fused"}
+    assert set(runs) == {criteria.IPIN_BASELINE_RUN, suite.UNSEEN_VELOCITY_RUN, suite.FAMILIAR_VELOCITY_RUN}
+    assert set(judged) == {criteria.IPIN_BASELINE_RUN, suite.FAMILIAR_VELOCITY_RUN, "fused"}
+    assert runs[suite.FAMILIAR_VELOCITY_RUN].familiar_velocity.mode == "auto"
     assert judged["fused"] == runs[suite.UNSEEN_VELOCITY_RUN]
     assert judged[criteria.IPIN_BASELINE_RUN] == runs[criteria.IPIN_BASELINE_RUN]
     assert judged["fused"].unseen_velocity.mode == "on"

@@ -222,8 +222,8 @@ def test_cli_writes_track_files_and_same_seed_same_track(tmp_path, map_file, cap
     assert a != (tmp_path / "c" / "track.csv").read_bytes()
     track = pd.read_csv(tmp_path / "a" / "track.csv")
     assert list(track.columns) == ["t", "lat", "lon", "x_m", "y_m", "update", "gnss_used", "theta_drift_deg",
-                                   "speed_scale", "n_eff", "recovered", "injected", "sidewalk_segment_id",
-                                   "segment_prob", "mode_lat", "mode_lon"]
+                                   "speed_scale", "n_eff", "recovered", "injected", "motion",
+                                   "sidewalk_segment_id", "segment_prob", "mode_lat", "mode_lon"]
     assert (np.diff(track["t"]) > 0).all() and len(track) == len(np.arange(0, 40, 0.55))
     # the MAP segment and its posterior probability; the mode estimate lies on that sidewalk
     assert track["segment_prob"].between(0.0, 1.0 + 1e-9).all()

@@ -88,11 +88,16 @@ def set_overrides(pairs: list[str]) -> dict[str, str]:
 
 
 def add_config_options(parser: argparse.ArgumentParser, set_help: str) -> None:
-    """``--unseen-velocity`` and ``--set KEY=VALUE``: the run-configuration options (read back with
-    :func:`config_overrides`)."""
-    from curbside.localize.runconfig import UNSEEN_VELOCITY_MODES, UnseenVelocityConfig
+    """``--unseen-velocity``, ``--familiar-velocity`` and ``--set KEY=VALUE``: the run-configuration options
+    (read back with :func:`config_overrides`)."""
+    from curbside.localize.runconfig import (
+        FAMILIAR_VELOCITY_MODES,
+        UNSEEN_VELOCITY_MODES,
+        FamiliarVelocityConfig,
+        UnseenVelocityConfig,
+    )
 
-    u = UnseenVelocityConfig()
+    u, f = UnseenVelocityConfig(), FamiliarVelocityConfig()
     parser.add_argument(
         "--unseen-velocity",
         nargs="?",
@@ -106,13 +111,29 @@ def add_config_options(parser: argparse.ArgumentParser, set_help: str) -> None:
         f"(default: {u.mode} for --mode fused, off for the baselines; tune with --set "
         "unseen_velocity.KEY=VALUE)",
     )
+    parser.add_argument(
+        "--familiar-velocity",
+        nargs="?",
+        const="auto",
+        choices=FAMILIAR_VELOCITY_MODES,
+        help="the calm motion model for a velocity model fitted to this walker (heading noise "
+        f"{f.heading_noise_deg:g} deg, step noise {f.step_noise_fraction:g}, no speed-scale state): 'auto' "
+        "(the flag alone) while the velocity's speed changes by less than "
+        f"{100 * f.jitter_max:g} %% from one {f.window_s:g} s window to the next (a second filter runs "
+        f"beside the default one until {f.final_samples} such samples decide it), 'on' from the start, "
+        f"'off' never (default: {f.mode}; a smooth speed that is 10 %% or more off loses to good fixes; "
+        "tune with --set familiar_velocity.KEY=VALUE)",
+    )
     parser.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", help=set_help)
 
 
 def config_overrides(args: argparse.Namespace) -> dict[str, object]:
-    """The overrides :func:`add_config_options` asked for: ``--unseen-velocity``'s mode, then ``--set``."""
-    mode = {} if args.unseen_velocity is None else {"unseen_velocity.mode": args.unseen_velocity}
-    return {**mode, **set_overrides(args.set)}
+    """The overrides :func:`add_config_options` asked for: the ``--unseen-velocity`` and
+    ``--familiar-velocity`` modes, then ``--set``."""
+    modes = {f"{key}.mode": value for key, value in (("unseen_velocity", args.unseen_velocity),
+                                                       ("familiar_velocity", args.familiar_velocity))
+             if value is not None}
+    return {**modes, **set_overrides(args.set)}
 
 
 def make_parser(prog: str, description: str) -> argparse.ArgumentParser:

@@ -97,6 +97,15 @@ def _run(args: argparse.Namespace) -> int:
             f"{args.output}: from t = {result.unseen_velocity_from_s:.1f} s, the motion model for a velocity "
             "model new to the phone or the place (--unseen-velocity)"
         )
+    familiar = result.familiar_velocity
+    if familiar is not None and familiar["verdict"] != "not familiar":
+        share = float((track["motion"] == "familiar").mean()) if len(track) else 0.0
+        change = 100 * (familiar["median_speed_change"] or 0.0)
+        print(
+            f"{args.output}: the velocity's speed changes by {change:.1f} % "
+            f"from one window to the next ({familiar['samples']} samples, {familiar['verdict']}): "
+            f"{100 * share:.0f} % of the track follows the calm motion model (--familiar-velocity)"
+        )
     configured = result.config.filter.map.wall_tolerance_m
     softer = result.wall_tolerance_m is not None and result.wall_tolerance_m > configured
     if softer or result.walkable_first:

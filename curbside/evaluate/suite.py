@@ -243,14 +243,20 @@ def _git_commit() -> str | None:
 #: docs/filter.md), run beside the defaults on the IPIN trials: the preset for a velocity model that has
 #: not seen the place.
 UNSEEN_VELOCITY_RUN = "curbside fused, --unseen-velocity"
+#: curbside fused with ``--familiar-velocity auto`` (:class:`~curbside.localize.runconfig.
+#: FamiliarVelocityConfig`), run beside the defaults on the IPIN trials: the opt-in calm motion model for a
+#: velocity model fitted to the walker, where the walk's smooth speed says so.
+FAMILIAR_VELOCITY_RUN = "curbside fused, --familiar-velocity"
 
 
 def _ipin_runs(config: SuiteConfig) -> dict[str, RunConfig]:
-    """The IPIN runs beside the methods: version 0.1's fused filter, and ``--unseen-velocity on`` (as
-    curbside fused itself when the suite runs with it; curbside fused with another mode when asked)."""
+    """The IPIN runs beside the methods: version 0.1's fused filter, ``--familiar-velocity auto``, and
+    ``--unseen-velocity on`` (as curbside fused itself when the suite runs with it; curbside fused with
+    another mode when asked)."""
     fused = RunConfig.for_mode("fused")
     preset = fused.with_overrides({"unseen_velocity.mode": "on"})
-    runs = {criteria.IPIN_BASELINE_RUN: fused.with_overrides(criteria.FUSED_0_1_OVERRIDES)}
+    runs = {criteria.IPIN_BASELINE_RUN: fused.with_overrides(criteria.FUSED_0_1_OVERRIDES),
+            FAMILIAR_VELOCITY_RUN: fused.with_overrides({"familiar_velocity.mode": "auto"})}
     runs["fused" if config.unseen_velocity == "on" else UNSEEN_VELOCITY_RUN] = preset
     if config.unseen_velocity not in ("on", fused.unseen_velocity.mode):
         runs["fused"] = fused.with_overrides({"unseen_velocity.mode": config.unseen_velocity})

@@ -24,6 +24,14 @@ standing bound, ``settle_s`` or more after the last footstep, is at least ``stil
 update is decided from inputs before it, so a file and a live feed switch at the same update
 (:attr:`SessionEngine.unseen_since_t`).
 
+With ``familiar_velocity.mode = auto`` (opt-in) a second tracker, moving with the calm motion model of
+:class:`~curbside.localize.runconfig.FamiliarVelocityConfig`, takes the same updates from the start
+(:attr:`SessionEngine.shadow`); the track follows it while the velocity's speed reads smooth from one
+half-second window to the next (:class:`~curbside.localize.velocity_checks.SpeedJitterCheck`, fed with
+the velocity up to each update), and once the test's verdict is final the other tracker is dropped. A
+model caught reading motion at a standstill is not familiar: the unseen-velocity switch drops the calm
+tracker. Each row says which motion model its estimate came from (:attr:`Row.motion`).
+
 The first update is the start: the known start pose (``meta.json``) at its time, with the heading
 offset that turns the first ``heading_align_distance_m`` of inertial motion onto the start heading; or,
 without one, the first update time whose fix is usable. At each update the inertial displacement since
@@ -43,8 +51,9 @@ from curbside.errors import CurbsideInputError
 from curbside.localize.filter.particles import SCALE, THETA, X, Y
 from curbside.localize.filter.tracker import Tracker
 from curbside.localize.raster import MapRaster
-from curbside.localize.runconfig import RunConfig, UnseenVelocityConfig
+from curbside.localize.runconfig import RunConfig
 from curbside.localize.streams import DisplacementIntegrator, FixStore, StepTimes
+from curbside.localize.velocity_checks import SpeedJitterCheck, StillSpeedCheck
 from curbside.projection import LocalFrame
 
 logger = logging.getLogger(__name__)
@@ -60,6 +69,10 @@ class Row:
         ``start``, ``step`` (a footstep) or ``time`` (no footstep for ``max_update_interval_s``).
     fix_used
         Whether a GNSS fix weighed the particles at this update.
+    motion
+        The motion model of the filter whose estimate this is: ``default`` (the method's own),
+        ``familiar`` (the familiar-velocity calm model) or ``unseen`` (the unseen-velocity model); empty
+        in ``gnss`` mode.
     smooth_x, smooth_y
         The fixed-lag smoother's position (NaN without one, or until it is made).
     """
@@ -80,6 +93,7 @@ class Row:
     mode_y: float = math.nan
     smooth_x: float = math.nan
     smooth_y: float = math.nan
+    motion: str = ""
 
 
 @dataclass
@@ -101,30 +115,6 @@ class _State:
     clock: float = -math.inf
     smoothed_rows: int = 0
     last_step_t: float = -math.inf
-
-
-class _StillSpeedCheck:
-    """``unseen_velocity.mode = auto``: collects the inertial speed of time-grid updates (no footstep)
-    under the standing bound, and decides once whether the velocity model reads motion at a standstill."""
-
-    def __init__(self, config: UnseenVelocityConfig) -> None:
-        self.config = config
-        self.speeds: list[float] = []
-
-    def caught(self, speed_mps: float, since_step_s: float) -> bool:
-        """Add one time-grid update's speed (``since_step_s`` after the last footstep); ``True`` exactly
-        once, when the model is caught."""
-        c = self.config
-        counts = speed_mps < c.standing_speed_mps and since_step_s >= c.settle_s
-        if not counts or len(self.speeds) >= c.still_updates:
-            return False
-        self.speeds.append(speed_mps)
-        return len(self.speeds) == c.still_updates and self.median_mps >= c.still_speed_mps
-
-    @property
-    def median_mps(self) -> float:
-        """Median speed of the standstill updates collected so far."""
-        return float(np.median(self.speeds))
 
 
 class SessionEngine:
@@ -169,17 +159,26 @@ class SessionEngine:
         unseen = config.unseen_velocity.mode
         #: Time from which the unseen-velocity preset applies (``-inf``: from the start; ``None``: not).
         self.unseen_since_t: float | None = -math.inf if unseen == "on" else None
+        familiar = "off" if unseen == "on" else config.familiar_velocity.mode
         if unseen == "on":
             config = config.with_unseen_velocity()
         e = config.engine
-        self.tracker = None
+        #: The filter whose estimates make the track (``None`` in ``gnss`` mode) ...
+        self.tracker: Tracker | None = None
+        #: ... and, while the familiar-velocity test runs, the other one (both step at every update).
+        self.shadow: Tracker | None = None
+        #: Whether :attr:`tracker` moves with the familiar-velocity (calm) motion model.
+        self.familiar_output = familiar == "on"
+        #: The familiar-velocity test (``auto``; kept after its verdict for the record).
+        self.familiar_check: SpeedJitterCheck | None = None
         if config.mode != "gnss":
-            self.tracker = Tracker.from_config(
-                raster, config.filter, config.seed, frame, use_gnss=config.mode in ("paper", "fused")
-            )
+            self.tracker = self._new_tracker(config.with_familiar_velocity() if familiar == "on" else config,
+                                             raster)
+            if familiar == "auto" and not step_means_velocity:
+                self.shadow = self._new_tracker(config.with_familiar_velocity(), raster)
         self._still_check = None
         if unseen == "auto" and real_steps and self.tracker is not None:
-            self._still_check = _StillSpeedCheck(config.unseen_velocity)
+            self._still_check = StillSpeedCheck(config.unseen_velocity)
         self.start = start if config.use_start_pose else None
         self.t_begin = -math.inf if t_begin is None else float(t_begin)
         self.displacement = DisplacementIntegrator(e.velocity_max_gap_s, step_means_velocity)
@@ -190,6 +189,11 @@ class SessionEngine:
         self.rows: list[Row] = []
         self.snapshots: list[np.ndarray] | None = [] if save_particles else None
         self._s = _State()
+
+    def _new_tracker(self, config: RunConfig, raster: MapRaster | None) -> Tracker:
+        return Tracker.from_config(
+            raster, config.filter, config.seed, self.frame, use_gnss=config.mode in ("paper", "fused")
+        )
 
     # -- input ------------------------------------------------------------------------------------
 
@@ -245,6 +249,29 @@ class SessionEngine:
         if self.unseen_since_t is None or not self.rows:
             return None
         return max(self.unseen_since_t, self.rows[0].t)
+
+    @property
+    def motion(self) -> str:
+        """The motion model of :attr:`tracker` now (see :attr:`Row.motion`)."""
+        if self.familiar_output:
+            return "familiar"
+        return "default" if self.unseen_since_t is None else "unseen"
+
+    @property
+    def familiar_velocity(self) -> dict[str, object] | None:
+        """The familiar-velocity test's record (``None`` when it did not run): the median relative speed
+        change and the number of samples it saw, and its verdict (``familiar``, ``not familiar``, or
+        ``undecided`` when the walk ended first or the unseen-velocity test spoke first)."""
+        check = self.familiar_check
+        if check is None:
+            return None
+        verdict = {True: "familiar", False: "not familiar", None: "undecided"}[check.final]
+        median = check.median_jitter
+        return {
+            "median_speed_change": None if math.isnan(median) else round(median, 4),
+            "samples": len(check.samples),
+            "verdict": verdict,
+        }
 
     @property
     def data_end(self) -> float:
@@ -316,8 +343,11 @@ class SessionEngine:
         if self.tracker is None:
             self._record(Row(t, fix.x, fix.y, "start", True))
         else:
+            if self.shadow is not None:
+                self.shadow.start_at_fix(t, fix)
             self._record_estimate(self.tracker.start_at_fix(t, fix), "start", True)
             s.prev_d = self.displacement.at(t)
+            self._begin_familiar_test(t, s.prev_d)
         s.started = True
         return True
 
@@ -332,9 +362,16 @@ class SessionEngine:
             return False
         x, y = self.frame.to_xy(start.lon, start.lat)
         estimate = self.tracker.start_at_pose(t0, float(x), float(y), offset)
+        if self.shadow is not None:
+            self.shadow.start_at_pose(t0, float(x), float(y), offset)
         self._record_estimate(estimate, "start", False)
         s.prev_t, s.prev_d, s.started = t0, self.displacement.at(t0), True
+        self._begin_familiar_test(t0, s.prev_d)
         return True
+
+    def _begin_familiar_test(self, t0: float, d0: np.ndarray) -> None:
+        if self.shadow is not None:
+            self.familiar_check = SpeedJitterCheck(self.config.familiar_velocity, t0, d0)
 
     def _heading_offset(self, t0: float, heading_deg: float) -> float | None:
         """Offset turning the first motion after ``t0`` onto ``heading_deg``; ``None`` until decidable."""
@@ -375,6 +412,10 @@ class SessionEngine:
                 moved = np.zeros(2)  # no footstep and hardly any inertial speed: standing
             use = fix if self.config.mode in ("paper", "fused") else None
             estimate = self.tracker.step(t, displacement_en=moved, gnss_fix=use)
+            if self.shadow is not None:
+                other = self.shadow.step(t, displacement_en=moved, gnss_fix=use)
+                if self._follow_familiar(t):
+                    estimate = other
             self._record_estimate(estimate, kind, self.tracker.usable(use))
             s.prev_d = d
             if kind == "step":
@@ -386,7 +427,31 @@ class SessionEngine:
         self.steps.forget_before(t)
         self.fixes.forget_before(t - self.config.engine.max_fix_age_s)
 
+    def _follow_familiar(self, t: float) -> bool:
+        """Feed the familiar-velocity test with the velocity up to ``t``; make :attr:`tracker` the filter it
+        says (``True`` when that swapped the two), and drop the other once the verdict is final."""
+        check = self.familiar_check
+        check.observe(self.displacement.at, t)
+        swap = check.smooth != self.familiar_output
+        if swap:
+            self.tracker, self.shadow = self.shadow, self.tracker
+            self.familiar_output = not self.familiar_output
+            logger.info(
+                "t=%.1f s: the velocity's speed changes by %.1f %% from one %.1f s window to the next "
+                "(median of %d): the track follows the %s motion model (familiar_velocity.mode = auto)",
+                t, 100 * check.median_jitter, check.config.window_s, len(check.samples),
+                "calm" if self.familiar_output else "default",
+            )
+        if check.final is not None:
+            self.shadow = None  # the verdict: keep the filter that makes the track
+        return swap
+
     def _switch_to_unseen_velocity(self, t: float, still_speed_mps: float) -> None:
+        if self.shadow is not None:  # a model caught reading motion at a standstill is not familiar
+            if self.familiar_output:
+                self.tracker = self.shadow
+            self.shadow = None
+        self.familiar_output = False
         unseen = self.config.with_unseen_velocity()
         self.tracker.adopt_motion(unseen.filter.motion, unseen.filter.scale_correction)
         self.standing_speed = unseen.engine.standing_speed_mps
@@ -416,6 +481,7 @@ class SessionEngine:
                 prob,
                 e.mode_x,
                 e.mode_y,
+                motion=self.motion,
             )
         )
         if self.snapshots is not None:
@@ -423,6 +489,8 @@ class SessionEngine:
             self.snapshots.append(np.vstack([particles.state[[X, Y, THETA, SCALE]], particles.weights]))
         if self.tracker.smoother is not None:
             self._fill_smoothed(self.tracker.take_smoothed())
+        if self.shadow is not None and self.shadow.smoother is not None:
+            self.shadow.take_smoothed()  # kept in step, so that a swap hands over the next update's
 
     def _fill_smoothed(self, smoothed: np.ndarray) -> None:
         """Give the rows, in order, the fixed-lag smoother's positions (one per tracker update)."""

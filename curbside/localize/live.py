@@ -377,6 +377,7 @@ class LiveSession:
         return TrackResult(
             track, self.config, self.velocity_source, self.step_source, self.recoveries, injections,
             unseen_velocity_from_s=self.engine.unseen_velocity_from_s,
+            familiar_velocity=self.engine.familiar_velocity,
         )
 
 

@@ -56,6 +56,7 @@ TRACK_COLUMNS = (
     "n_eff",
     "recovered",
     "injected",
+    "motion",
 )
 
 #: Columns added with a map that has sidewalk segments: the filter's MAP segment (the polygon under the
@@ -79,6 +80,9 @@ class TrackResult:
         Collapses re-seeded; particles injected by the divergence recovery.
     unseen_velocity_from_s
         Time from which the filter moved with the unseen-velocity motion model (``None``: never).
+    familiar_velocity
+        The familiar-velocity test's record (``None`` when it did not run; see
+        :attr:`~curbside.localize.engine.SessionEngine.familiar_velocity`).
     wall_tolerance_m
         How soft the walls were (m; ``None`` without a map): ``filter.map.wall_tolerance_m``, or
         ``conflict_wall_tolerance_m`` on a map whose buildings cover its sidewalks.
@@ -102,6 +106,7 @@ class TrackResult:
     unseen_velocity_from_s: float | None = None
     wall_tolerance_m: float | None = None
     walkable_first: bool | None = None
+    familiar_velocity: dict[str, object] | None = None
 
     @property
     def mode(self) -> str:
@@ -388,6 +393,7 @@ def _result(
         engine.unseen_velocity_from_s,
         None if tracker is None else tracker.wall_tolerance_m,
         None if tracker is None else tracker.walkable_first,
+        engine.familiar_velocity,
     )
 
 
@@ -412,6 +418,7 @@ def track_table(
             "n_eff": [r.n_eff for r in rows],
             "recovered": np.array([r.recovered for r in rows], dtype=int),
             "injected": np.array([r.injected for r in rows], dtype=int),
+            "motion": [r.motion for r in rows],
         }
     )
     if smoothed:

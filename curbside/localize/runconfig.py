@@ -23,6 +23,7 @@ VELOCITY_SOURCES = ("auto", "file", "ronin", "pdr")
 STEP_SOURCES = ("auto", "file", "detect", "cadence")
 FIX_ASSOCIATIONS = ("interpolate", "once")
 UNSEEN_VELOCITY_MODES = ("off", "on", "auto")
+FAMILIAR_VELOCITY_MODES = ("off", "on", "auto")
 
 _MAP_KEYS_0_1 = frozenset({"jaywalk_weight", "wall_tolerance_m", "raster_resolution_m", "segment_reach_m"})
 #: ``filter.map`` blocks as earlier versions wrote them whole, and the values they ran with.
@@ -222,6 +223,74 @@ class UnseenVelocityConfig:
 
 
 @dataclass(frozen=True)
+class FamiliarVelocityConfig:
+    """The calm motion model for a velocity model that knows this phone, its carrier and the place.
+
+    A learned velocity model on ground it knows reads a smooth speed from one half-second to the next;
+    one new to the phone, the gait or the place jitters (docs/filter.md, "A velocity model that knows
+    the walker"). On the IPIN trials the bundled RoNIN, trained on the other repetitions of the same
+    routes, changes its speed by 3.6 % at the median from one half-second to the next, a RoNIN that
+    never saw the venue by 9.6 %, and the simulator's ``phone`` profile by 8.5 %. Where the model knows
+    the walker, its speed scale is right and its heading drifts slowly, and a calm motion model beats
+    the default one, which is made for phones the model has not seen.
+
+    Attributes
+    ----------
+    mode
+        ``off`` (the default); ``auto`` (``--familiar-velocity``): a second filter with the calm motion
+        runs beside the default one from the start, and the track follows it while the speed reads
+        smooth (below); the decision is final after ``final_samples``, and the filter that lost is then
+        dropped; ``on``: the calm motion from the start. Opt-in: a velocity that is smooth but whose
+        scale is off by 10 % or more loses to good fixes under the calm motion (docs/filter.md), so
+        use it where the velocity model is known to be fitted to the walker (a model trained on their
+        own walks).
+    window_s, min_speed_mps
+        The speed is sampled over consecutive windows of ``window_s`` seconds; a pair of windows both at
+        least ``min_speed_mps`` (walking) gives one sample of the relative change
+        ``|v2 - v1| / mean(v1, v2)``.
+    jitter_max, min_samples, final_samples
+        The velocity reads smooth while the median of the samples so far is under ``jitter_max``, once
+        there are ``min_samples`` of them; at ``final_samples`` the decision is final (0: never).
+        Needs sampled velocity (RoNIN or a velocity file), not PDR, whose speed is smooth by
+        construction.
+    heading_noise_deg, step_noise_fraction
+        The calm motion: ``filter.motion.heading_noise_deg`` and ``step_noise_fraction`` (isotropic),
+        and no speed-scale state (``scale_init_sigma`` and ``scale_noise_per_step`` 0).
+    """
+
+    mode: str = "off"
+    window_s: float = 0.5
+    min_speed_mps: float = 0.6
+    jitter_max: float = 0.05
+    min_samples: int = 40
+    final_samples: int = 120
+    heading_noise_deg: float = 0.75
+    step_noise_fraction: float = 0.15
+    scale_init_sigma: float = 0.0
+    scale_correction_fraction: float = 0.0
+
+    def __post_init__(self) -> None:
+        _check(
+            self.mode in FAMILIAR_VELOCITY_MODES,
+            f"mode must be one of {FAMILIAR_VELOCITY_MODES}, got {self.mode!r}",
+        )
+        _check(
+            self.window_s > 0 and self.min_speed_mps > 0 and self.jitter_max > 0,
+            f"window_s, min_speed_mps and jitter_max must be positive, got {self.window_s}, "
+            f"{self.min_speed_mps}, {self.jitter_max}",
+        )
+        _check(
+            self.min_samples >= 1 and self.final_samples >= 0,
+            f"need min_samples >= 1 and final_samples >= 0, got {self.min_samples}, {self.final_samples}",
+        )
+        _check(
+            self.heading_noise_deg >= 0 and self.step_noise_fraction >= 0,
+            f"heading_noise_deg and step_noise_fraction must be non-negative, got {self.heading_noise_deg}, "
+            f"{self.step_noise_fraction}",
+        )
+
+
+@dataclass(frozen=True)
 class RunConfig:
     """One tracking run: method, seed, whether to use the known start pose, and every parameter.
 
@@ -240,6 +309,8 @@ class RunConfig:
         How the session's streams become updates.
     unseen_velocity
         When to switch to the motion model for a velocity model new to the phone or the place.
+    familiar_velocity
+        When to follow the calm motion model for a velocity model that knows the walker.
     """
 
     mode: str = "fused"
@@ -248,6 +319,7 @@ class RunConfig:
     filter: FilterConfig = field(default_factory=FilterConfig)
     engine: EngineConfig = field(default_factory=EngineConfig)
     unseen_velocity: UnseenVelocityConfig = field(default_factory=UnseenVelocityConfig)
+    familiar_velocity: FamiliarVelocityConfig = field(default_factory=FamiliarVelocityConfig)
 
     def __post_init__(self) -> None:
         _check(self.mode in MODES, f"mode must be one of {MODES}, got {self.mode!r}")
@@ -290,6 +362,21 @@ class RunConfig:
             ),
             engine=replace(self.engine, standing_speed_mps=u.standing_speed_mps),
         )
+
+    def with_familiar_velocity(self) -> RunConfig:
+        """A copy whose filter moves with the :class:`FamiliarVelocityConfig` calm motion (no speed-scale
+        state)."""
+        c = self.familiar_velocity
+        motion = replace(
+            self.filter.motion,
+            heading_noise_deg=c.heading_noise_deg,
+            step_noise_fraction=c.step_noise_fraction,
+            step_noise_across_fraction=None,
+            scale_init_sigma=c.scale_init_sigma,
+            scale_noise_per_step=0.0,
+        )
+        correction = replace(self.filter.scale_correction, fraction=c.scale_correction_fraction)
+        return replace(self, filter=replace(self.filter, motion=motion, scale_correction=correction))
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready (the ``config`` member of ``run.json``)."""

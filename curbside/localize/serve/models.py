@@ -137,6 +137,11 @@ class Estimate(BaseModel):
         description="since when the filter moves with the motion model for a velocity model new to the "
         "phone or the place (--unseen-velocity; null: not so far)",
     )
+    motion: str | None = Field(
+        None,
+        description="the motion model of the filter the estimate comes from: default, familiar (a velocity "
+        "model that knows the walker: --familiar-velocity) or unseen (--unseen-velocity)",
+    )
     update: str | None = Field(None, description="start, step (a footstep) or time (no footstep for 1 s)")
     gnss_used: bool | None = None
     updates: int = Field(0, description="filter updates so far")
