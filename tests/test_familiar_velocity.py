@@ -174,7 +174,8 @@ def test_the_flag_the_record_and_replay(tmp_path, monkeypatch):
 
 
 @pytest.mark.parametrize("value", ["familiar_velocity.jitter_max=0", "familiar_velocity.mode=sometimes",
-                                   "familiar_velocity.min_samples=0"])
+                                   "familiar_velocity.min_samples=0",
+                                   "familiar_velocity.scale_correction_fraction=2"])
 def test_bad_values_are_one_line_errors(tmp_path, monkeypatch, capsys, value):
     monkeypatch.setattr(settings, "cache_dir", tmp_path / "cache")
     folder = write_walk(tmp_path / "walk", duration_s=5.0)

@@ -254,8 +254,11 @@ class FamiliarVelocityConfig:
         Needs sampled velocity (RoNIN or a velocity file), not PDR, whose speed is smooth by
         construction.
     heading_noise_deg, step_noise_fraction
-        The calm motion: ``filter.motion.heading_noise_deg`` and ``step_noise_fraction`` (isotropic),
-        and no speed-scale state (``scale_init_sigma`` and ``scale_noise_per_step`` 0).
+        The calm motion: ``filter.motion.heading_noise_deg`` and ``step_noise_fraction`` (isotropic) ...
+    scale_init_sigma, scale_correction_fraction
+        ... and its speed scale: ``filter.motion.scale_init_sigma`` (no random walk) and
+        ``filter.scale_correction.fraction``; by default 0 and 0, no speed-scale state, since a scale
+        learnt from phones' fixes comes out too small (docs/filter.md).
     """
 
     mode: str = "off"
@@ -284,9 +287,11 @@ class FamiliarVelocityConfig:
             f"need min_samples >= 1 and final_samples >= 0, got {self.min_samples}, {self.final_samples}",
         )
         _check(
-            self.heading_noise_deg >= 0 and self.step_noise_fraction >= 0,
-            f"heading_noise_deg and step_noise_fraction must be non-negative, got {self.heading_noise_deg}, "
-            f"{self.step_noise_fraction}",
+            min(self.heading_noise_deg, self.step_noise_fraction, self.scale_init_sigma) >= 0
+            and 0.0 <= self.scale_correction_fraction <= 1.0,
+            "heading_noise_deg, step_noise_fraction and scale_init_sigma must be non-negative, "
+            f"scale_correction_fraction in [0, 1]; got {self.heading_noise_deg}, {self.step_noise_fraction}, "
+            f"{self.scale_init_sigma}, {self.scale_correction_fraction}",
         )
 
 
