@@ -101,9 +101,10 @@ def _run(args: argparse.Namespace) -> int:
     if familiar is not None and familiar["verdict"] != "not familiar":
         share = float((track["motion"] == "familiar").mean()) if len(track) else 0.0
         change = 100 * (familiar["median_speed_change"] or 0.0)
+        window = result.config.familiar_velocity.window_s
         print(
-            f"{args.output}: the velocity's speed changes by {change:.1f} % "
-            f"from one window to the next ({familiar['samples']} samples, {familiar['verdict']}): "
+            f"{args.output}: the velocity's speed changes by {change:.1f} % from one {window:g} s window to "
+            f"the next ({familiar['samples']} samples, {familiar['verdict']}): "
             f"{100 * share:.0f} % of the track follows the calm motion model (--familiar-velocity)"
         )
     configured = result.config.filter.map.wall_tolerance_m
