@@ -227,10 +227,10 @@ class FamiliarVelocityConfig:
     """The calm motion model for a velocity model that knows this phone, its carrier and the place.
 
     A learned velocity model on ground it knows reads a smooth speed from one half-second to the next;
-    one new to the phone, the gait or the place jitters (docs/filter.md, "A velocity model that knows
+    one new to the phone, the gait or the place jitters (docs/filter.md, "A velocity model fitted to
     the walker"). On the IPIN trials the bundled RoNIN, trained on the other repetitions of the same
-    routes, changes its speed by 3.6 % at the median from one half-second to the next, a RoNIN that
-    never saw the venue by 9.6 %, and the simulator's ``phone`` profile by 8.5 %. Where the model knows
+    routes, changes its speed by 3.4 % at the median from one half-second to the next, a RoNIN that
+    never saw the venue by 8.9 %, and the simulator's ``phone`` profile by 8.3 %. Where the model knows
     the walker, its speed scale is right and its heading drifts slowly, and a calm motion model beats
     the default one, which is made for phones the model has not seen.
 
