@@ -25,6 +25,7 @@ import math
 from pathlib import Path
 
 import numpy as np
+from scipy.signal import lfilter
 
 from curbside.evaluate.groundtruth import waypoints_xy
 from curbside.localize.runconfig import FamiliarVelocityConfig
@@ -75,12 +76,10 @@ def fix_motion(
     px, py = np.interp(grid, wt, wx), np.interp(grid, wt, wy)
     smoothed = {}
     for tau in (0.0, 2.0, 4.0, 6.0, 8.0):
-        sx, sy = px.copy(), py.copy()
-        if tau > 0:
+        sx, sy = px, py
+        if tau > 0:  # s[k] = s[k-1] + a (p[k] - s[k-1]), started at p[0]
             a = 0.1 / tau
-            for k in range(1, len(grid)):
-                sx[k] = sx[k - 1] + a * (px[k] - sx[k - 1])
-                sy[k] = sy[k - 1] + a * (py[k] - sy[k - 1])
+            sx, sy = (lfilter([a], [1.0, a - 1.0], p - p[0]) + p[0] for p in (px, py))
         late = gt > wt[0] + 20.0
         err = np.hypot(gx[late] - np.interp(gt[late], grid, sx), gy[late] - np.interp(gt[late], grid, sy))
         smoothed[tau] = float(np.median(err)) if len(err) else math.nan
