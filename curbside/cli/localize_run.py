@@ -107,6 +107,13 @@ def _run(args: argparse.Namespace) -> int:
             f"the next ({familiar['samples']} samples, {familiar['verdict']}): "
             f"{100 * share:.0f} % of the track follows the calm motion model (--familiar-velocity)"
         )
+    lag = result.fix_lag
+    if lag is not None and lag["lag_s"] > 0:
+        how = "estimated from the recording" if lag["mode"] == "auto" else "fix_lag.lag_s"
+        print(
+            f"{args.output}: the fixes trail the walker by a {lag['lag_s']:g} s lag ({how}): each fix "
+            "is moved forward by the inertial motion that lag holds back (fix_lag.*)"
+        )
     configured = result.config.filter.map.wall_tolerance_m
     softer = result.wall_tolerance_m is not None and result.wall_tolerance_m > configured
     if softer or result.walkable_first:

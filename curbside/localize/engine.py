@@ -32,6 +32,10 @@ the velocity up to each update), and once the test's verdict is final the other 
 model caught reading motion at a standstill is not familiar: the unseen-velocity switch drops the calm
 tracker. Each row says which motion model its estimate came from (:attr:`Row.motion`).
 
+With a fix lag (``fix_lag``, opt-in; a batch run under ``auto`` estimates it from the recording), each
+fix is moved forward by the inertial motion that lag holds back before it reaches the filter
+(:class:`~curbside.localize.fix_lag.LagCompensator`).
+
 The first update is the start: the known start pose (``meta.json``) at its time, with the heading
 offset that turns the first ``heading_align_distance_m`` of inertial motion onto the start heading; or,
 without one, the first update time whose fix is usable. At each update the inertial displacement since
@@ -50,6 +54,7 @@ import pandas as pd
 from curbside.errors import CurbsideInputError
 from curbside.localize.filter.particles import SCALE, THETA, X, Y
 from curbside.localize.filter.tracker import Tracker
+from curbside.localize.fix_lag import LagCompensator
 from curbside.localize.raster import MapRaster
 from curbside.localize.runconfig import RunConfig
 from curbside.localize.streams import DisplacementIntegrator, FixStore, StepTimes
@@ -139,6 +144,9 @@ class SessionEngine:
     step_means_velocity
         The velocity rows are per-step means (PDR), not samples (see
         :class:`~curbside.localize.streams.DisplacementIntegrator`).
+    fix_lag_s
+        The fixes' lag to compensate (s; see :mod:`curbside.localize.fix_lag`); ``None``: ``fix_lag.lag_s``
+        unless ``fix_lag.mode`` is ``off`` (a batch run passes its estimate).
     """
 
     def __init__(
@@ -152,6 +160,7 @@ class SessionEngine:
         cadence: bool = False,
         save_particles: bool = False,
         step_means_velocity: bool = False,
+        fix_lag_s: float | None = None,
     ) -> None:
         self.config = config
         self.frame = frame
@@ -186,6 +195,10 @@ class SessionEngine:
         self.standing_speed = e.standing_speed_mps if real_steps else 0.0
         self.steps = StepTimes(e.cadence_s if cadence else None)
         self.fixes = FixStore(e.fix_association, e.interp_max_gap_s, e.max_fix_age_s)
+        if fix_lag_s is None:
+            fix_lag_s = 0.0 if config.fix_lag.mode == "off" else config.fix_lag.lag_s
+        #: Moves each fix forward by the inertial motion its lag holds back (``None``: no lag).
+        self.lag = LagCompensator(fix_lag_s) if fix_lag_s > 0 and self.tracker is not None else None
         self.rows: list[Row] = []
         self.snapshots: list[np.ndarray] | None = [] if save_particles else None
         self._s = _State()
@@ -406,6 +419,10 @@ class SessionEngine:
                 self._record(Row(t, fix.x, fix.y, kind, True))
         else:
             d = self.displacement.at(t)
+            if self.lag is not None:
+                ahead = self.lag.offset(t, d)
+                if fix is not None:
+                    fix = fix._replace(x=fix.x + ahead[0], y=fix.y + ahead[1])
             moved = d - s.prev_d
             speed = math.hypot(*moved) / max(t - s.prev_t, 1e-9)
             if kind == "time" and speed < self.standing_speed:

@@ -378,6 +378,8 @@ class LiveSession:
             track, self.config, self.velocity_source, self.step_source, self.recoveries, injections,
             unseen_velocity_from_s=self.engine.unseen_velocity_from_s,
             familiar_velocity=self.engine.familiar_velocity,
+            fix_lag=None if self.engine.lag is None else {"mode": self.config.fix_lag.mode,
+                                                          "lag_s": self.engine.lag.lag_s},
         )
 
 

@@ -32,6 +32,7 @@ import shapely
 
 from curbside.errors import CurbsideInputError
 from curbside.localize.engine import Row, SessionEngine, StartPose, require_rows
+from curbside.localize.fix_lag import estimate_fix_lag
 from curbside.localize.raster import MapRaster, load_or_build_raster
 from curbside.localize.runconfig import MODES, VELOCITY_SOURCES, RunConfig
 from curbside.localize.session import Session
@@ -83,6 +84,9 @@ class TrackResult:
     familiar_velocity
         The familiar-velocity test's record (``None`` when it did not run; see
         :attr:`~curbside.localize.engine.SessionEngine.familiar_velocity`).
+    fix_lag
+        The fixes' lag compensated: ``mode`` and ``lag_s``, and under ``auto`` the estimate's blocks and
+        residual per candidate (``None`` with ``fix_lag.mode = off`` or without fixes to compensate).
     wall_tolerance_m
         How soft the walls were (m; ``None`` without a map): ``filter.map.wall_tolerance_m``, or
         ``conflict_wall_tolerance_m`` on a map whose buildings cover its sidewalks.
@@ -107,6 +111,7 @@ class TrackResult:
     wall_tolerance_m: float | None = None
     walkable_first: bool | None = None
     familiar_velocity: dict[str, object] | None = None
+    fix_lag: dict[str, object] | None = None
 
     @property
     def mode(self) -> str:
@@ -331,6 +336,7 @@ def track_session(
             raise CurbsideInputError(
                 session.name, f"the {velocity_source} velocity has fewer than two samples"
             )
+    fix_lag = _fix_lag(session, config, frame, velocity)
     engine = SessionEngine(
         config,
         frame,
@@ -340,6 +346,7 @@ def track_session(
         cadence=steps is None,
         save_particles=save_particles,
         step_means_velocity=velocity_source == "pdr",
+        fix_lag_s=None if fix_lag is None else float(fix_lag["lag_s"]),
     )
     if velocity is not None:
         engine.push_velocity(velocity["t"].to_numpy(float), velocity[["ve", "vn"]].to_numpy(float))
@@ -350,7 +357,39 @@ def track_session(
     require_rows(engine.rows, session.name)
     if config.mode == "gnss":
         _report_gnss_holds(session, config)
-    return _result(session.name, engine, frame, map_layers, (velocity_source, step_source), save_particles)
+    result = _result(session.name, engine, frame, map_layers, (velocity_source, step_source), save_particles)
+    result.fix_lag = fix_lag
+    return result
+
+
+def _fix_lag(
+    session: Session, config: RunConfig, frame: LocalFrame, velocity: pd.DataFrame | None
+) -> dict[str, object] | None:
+    """The fixes' lag this run compensates (``run.json``'s ``fix_lag``): under ``auto``, estimated from
+    the whole recording (:func:`~curbside.localize.fix_lag.estimate_fix_lag`)."""
+    c = config.fix_lag
+    if c.mode == "off" or config.mode not in ("paper", "fused") or velocity is None or session.gnss is None:
+        return None
+    if c.mode == "fixed":
+        return {"mode": "fixed", "lag_s": c.lag_s}
+    gnss = session.gnss
+    x, y = frame.to_xy(gnss["lon"].to_numpy(float), gnss["lat"].to_numpy(float))
+    estimate = estimate_fix_lag(
+        gnss["t"].to_numpy(float),
+        np.column_stack([x, y]),
+        gnss["accuracy_m"].to_numpy(float),
+        velocity["t"].to_numpy(float),
+        velocity[["ve", "vn"]].to_numpy(float),
+        c,
+        config.engine.velocity_max_gap_s,
+    )
+    if estimate.lag_s > 0:
+        logger.info(
+            "%s: the fixes trail the inertial track by a %.0f s lag (residual %.2f m against %.2f m "
+            "without): each fix is moved forward by the motion that lag holds back (fix_lag.mode = auto)",
+            session.name, estimate.lag_s, estimate.residual_m[estimate.lag_s], estimate.residual_m[0.0],
+        )
+    return estimate.to_dict()
 
 
 def _raster_for(map_layers: MapLayers | None, config: RunConfig) -> MapRaster | None:

@@ -24,6 +24,7 @@ STEP_SOURCES = ("auto", "file", "detect", "cadence")
 FIX_ASSOCIATIONS = ("interpolate", "once")
 UNSEEN_VELOCITY_MODES = ("off", "on", "auto")
 FAMILIAR_VELOCITY_MODES = ("off", "on", "auto")
+FIX_LAG_MODES = ("off", "fixed", "auto")
 
 _MAP_KEYS_0_1 = frozenset({"jaywalk_weight", "wall_tolerance_m", "raster_resolution_m", "segment_reach_m"})
 #: ``filter.map`` blocks as earlier versions wrote them whole, and the values they ran with.
@@ -296,6 +297,67 @@ class FamiliarVelocityConfig:
 
 
 @dataclass(frozen=True)
+class FixLagConfig:
+    """The GNSS receiver's lag: a phone's fixes trail its walker.
+
+    A phone's location comes out of the receiver's own smoothing filter, so the fixes trail the walk:
+    on the IPIN trials by 2.0 m along the walking direction at the median (docs/filter.md, "Fixes that
+    trail the walker"). The engine moves each fix forward by the inertial motion that a first-order lag
+    of ``lag_s`` seconds holds back: ``D(t) - EMA(D)(t)``, ``D`` the inertial displacement.
+
+    Attributes
+    ----------
+    mode
+        ``off`` (the default): the fixes as they are; ``fixed``: ``lag_s`` everywhere, for a receiver
+        whose lag is known; ``auto``: a batch run estimates the lag from the whole recording before it
+        tracks (:func:`curbside.localize.fix_lag.estimate_fix_lag`), a stream, which cannot look ahead,
+        uses ``lag_s``. Opt-in: on the IPIN trials a 2 s lag takes 0.2 m off the median error, but the
+        estimate gains nothing on the held-out trials and reads a lag into 2 of the simulated open-sky
+        walks, whose fixes have none (docs/filter.md, "Fixes that trail the walker").
+    lag_s
+        The lag compensated by ``fixed`` and by a stream under ``auto`` (s; 0: none).
+    candidates_s
+        The lags the estimate chooses from (besides 0).
+    block_s, hop_s, min_fixes
+        The recording is cut into blocks of ``block_s`` seconds every ``hop_s``; a block with at least
+        ``min_fixes`` usable fixes is scored.
+    ratio_max, min_block_share
+        A lag is chosen only if its mean residual is under ``ratio_max`` times the residual of no lag,
+        and it beats no lag in at least ``min_block_share`` of the blocks.
+    accuracy_max_m
+        Fixes reporting a worse accuracy are not used by the estimate.
+    """
+
+    mode: str = "off"
+    lag_s: float = 0.0
+    candidates_s: tuple[float, ...] = (1.0, 2.0, 3.0, 4.0)
+    block_s: float = 60.0
+    hop_s: float = 30.0
+    min_fixes: int = 20
+    ratio_max: float = 0.92
+    min_block_share: float = 0.7
+    accuracy_max_m: float = 50.0
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "candidates_s", tuple(float(c) for c in self.candidates_s))
+        _check(self.mode in FIX_LAG_MODES, f"mode must be one of {FIX_LAG_MODES}, got {self.mode!r}")
+        _check(
+            self.lag_s >= 0 and all(c > 0 for c in self.candidates_s),
+            f"lag_s must be non-negative and candidates_s positive, got {self.lag_s}, {self.candidates_s}",
+        )
+        _check(
+            self.block_s > 0 and 0 < self.hop_s <= self.block_s and self.min_fixes >= 3,
+            f"need block_s > 0, 0 < hop_s <= block_s and min_fixes >= 3, got {self.block_s}, "
+            f"{self.hop_s}, {self.min_fixes}",
+        )
+        _check(
+            0 < self.ratio_max <= 1 and 0 <= self.min_block_share <= 1 and self.accuracy_max_m > 0,
+            f"need 0 < ratio_max <= 1, min_block_share in [0, 1] and accuracy_max_m > 0, got "
+            f"{self.ratio_max}, {self.min_block_share}, {self.accuracy_max_m}",
+        )
+
+
+@dataclass(frozen=True)
 class RunConfig:
     """One tracking run: method, seed, whether to use the known start pose, and every parameter.
 
@@ -316,6 +378,8 @@ class RunConfig:
         When to switch to the motion model for a velocity model new to the phone or the place.
     familiar_velocity
         When to follow the calm motion model for a velocity model that knows the walker.
+    fix_lag
+        How far the GNSS fixes trail the walker, and whether to estimate it.
     """
 
     mode: str = "fused"
@@ -325,6 +389,7 @@ class RunConfig:
     engine: EngineConfig = field(default_factory=EngineConfig)
     unseen_velocity: UnseenVelocityConfig = field(default_factory=UnseenVelocityConfig)
     familiar_velocity: FamiliarVelocityConfig = field(default_factory=FamiliarVelocityConfig)
+    fix_lag: FixLagConfig = field(default_factory=FixLagConfig)
 
     def __post_init__(self) -> None:
         _check(self.mode in MODES, f"mode must be one of {MODES}, got {self.mode!r}")
@@ -334,7 +399,7 @@ class RunConfig:
         """The default run of ``mode`` (the paper preset for ``paper``); ``kwargs`` set other fields.
 
         Only curbside fused switches to the unseen-velocity motion model (``auto``); the baselines
-        (``inertial``, ``paper``) keep their own motion model.
+        (``inertial``, ``paper``) keep their own motion model and take the fixes as they come.
         """
         _check(mode in MODES, f"mode must be one of {MODES}, got {mode!r}")
         preset = FilterConfig.preset("paper" if mode == "paper" else "fused")
