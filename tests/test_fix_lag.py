@@ -141,8 +141,7 @@ def test_a_batch_run_compensates_the_lag_it_estimates(tmp_path):
 def test_run_json_records_the_estimate_and_replays(tmp_path, monkeypatch, capsys):
     monkeypatch.setattr(settings, "cache_dir", tmp_path / "cache")
     _session(tmp_path / "walk", 2.0)
-    assert localize_main(["run", str(tmp_path / "walk"), "--set", "fix_lag.mode=auto", "-o",
-                          str(tmp_path / "a")]) == 0
+    assert localize_main(["run", str(tmp_path / "walk"), "--fix-lag", "auto", "-o", str(tmp_path / "a")]) == 0
     assert "2 s lag (estimated from the recording)" in capsys.readouterr().out
     info = json.loads((tmp_path / "a" / "run.json").read_text())
     assert info["fix_lag"]["lag_s"] == 2.0 and set(info["fix_lag"]["residual_m"]) == {"0", "1", "2", "3", "4"}
@@ -153,15 +152,24 @@ def test_run_json_records_the_estimate_and_replays(tmp_path, monkeypatch, capsys
     del older["fix_lag"]  # written before the block existed: replays as it ran, without it
     assert RunConfig.from_dict(older).fix_lag.mode == "off"
     assert localize_main(["run", str(tmp_path / "walk"), "-o", str(tmp_path / "c")]) == 0
-    assert json.loads((tmp_path / "c" / "run.json").read_text())["fix_lag"] is None
+    assert json.loads((tmp_path / "c" / "run.json").read_text())["fix_lag"] is None  # opt-in
+    assert localize_main(["run", str(tmp_path / "walk"), "--fix-lag", "1.5", "-o", str(tmp_path / "d")]) == 0
+    assert json.loads((tmp_path / "d" / "run.json").read_text())["fix_lag"] == {"mode": "fixed", "lag_s": 1.5}
+    assert "1.5 s lag (fix_lag.lag_s)" in capsys.readouterr().out
 
 
-@pytest.mark.parametrize("value", ["fix_lag.mode=always", "fix_lag.ratio_max=1.5", "fix_lag.lag_s=-1",
-                                   "fix_lag.candidates_s=[0]", "fix_lag.min_block_share=2"])
-def test_bad_values_are_one_line_errors(tmp_path, monkeypatch, capsys, value):
+@pytest.mark.parametrize("options", [["--set", "fix_lag.mode=always"], ["--set", "fix_lag.ratio_max=1.5"],
+                                     ["--set", "fix_lag.lag_s=-1"], ["--set", "fix_lag.candidates_s=[0]"],
+                                     ["--set", "fix_lag.min_block_share=2"], ["--fix-lag", "soon"],
+                                     ["--fix-lag", "-2"], ["--fix-lag", "nan"]])
+def test_bad_values_are_one_line_errors(tmp_path, monkeypatch, capsys, options):
     monkeypatch.setattr(settings, "cache_dir", tmp_path / "cache")
     folder = write_walk(tmp_path / "walk", duration_s=5.0)
-    assert localize_main(["run", str(folder), "--set", value, "-o", str(tmp_path / "out")]) == 2
+    try:
+        status = localize_main(["run", str(folder), *options, "-o", str(tmp_path / "out")])
+    except SystemExit as exc:  # a flag's value: the argument parser's one-line usage error
+        status = exc.code
+    assert status == 2
     err = capsys.readouterr().err.strip()
-    assert len(err.splitlines()) == 1 and "fix_lag" in err
+    assert len(err.splitlines()) == 1 and ("fix_lag" in err or "--fix-lag" in err)
     assert not (tmp_path / "out").exists()

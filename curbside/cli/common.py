@@ -87,9 +87,22 @@ def set_overrides(pairs: list[str]) -> dict[str, str]:
     return out
 
 
+def _fix_lag(value: str) -> dict[str, object]:
+    """``--fix-lag``: ``auto``, ``off`` or a lag in seconds (``fixed``)."""
+    if value in ("auto", "off"):
+        return {"fix_lag.mode": value}
+    try:
+        seconds = float(value)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected auto, off or seconds, got {value!r}") from None
+    if not math.isfinite(seconds) or seconds < 0:
+        raise argparse.ArgumentTypeError(f"the lag must be a non-negative number of seconds, got {value!r}")
+    return {"fix_lag.mode": "fixed", "fix_lag.lag_s": seconds}
+
+
 def add_config_options(parser: argparse.ArgumentParser, set_help: str) -> None:
-    """``--unseen-velocity``, ``--familiar-velocity`` and ``--set KEY=VALUE``: the run-configuration options
-    (read back with :func:`config_overrides`)."""
+    """``--unseen-velocity``, ``--familiar-velocity``, ``--fix-lag`` and ``--set KEY=VALUE``: the
+    run-configuration options (read back with :func:`config_overrides`)."""
     from curbside.localize.runconfig import (
         FAMILIAR_VELOCITY_MODES,
         UNSEEN_VELOCITY_MODES,
@@ -124,16 +137,25 @@ def add_config_options(parser: argparse.ArgumentParser, set_help: str) -> None:
         f"'off' never (default: {f.mode}; a smooth speed that is 10 %% or more off loses to good fixes; "
         "tune with --set familiar_velocity.KEY=VALUE)",
     )
+    parser.add_argument(
+        "--fix-lag",
+        type=_fix_lag,
+        metavar="auto|off|SECONDS",
+        help="move each GNSS fix forward by the inertial motion a receiver lag holds back (phones' fixes "
+        "trail the walker): SECONDS for a known lag, 'auto' to estimate it from the whole recording "
+        "before a batch run (a stream, which cannot look ahead, takes fix_lag.lag_s), 'off' (default; "
+        "tune with --set fix_lag.KEY=VALUE)",
+    )
     parser.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", help=set_help)
 
 
 def config_overrides(args: argparse.Namespace) -> dict[str, object]:
     """The overrides :func:`add_config_options` asked for: the ``--unseen-velocity`` and
-    ``--familiar-velocity`` modes, then ``--set``."""
+    ``--familiar-velocity`` modes, ``--fix-lag``, then ``--set``."""
     modes = {f"{key}.mode": value for key, value in (("unseen_velocity", args.unseen_velocity),
                                                        ("familiar_velocity", args.familiar_velocity))
              if value is not None}
-    return {**modes, **set_overrides(args.set)}
+    return {**modes, **(args.fix_lag or {}), **set_overrides(args.set)}
 
 
 def make_parser(prog: str, description: str) -> argparse.ArgumentParser:
