@@ -16,6 +16,7 @@ from curbside.localize.fix_lag import GRID_S, LagCompensator, estimate_fix_lag, 
 from curbside.localize.pipeline import track_session
 from curbside.localize.runconfig import FixLagConfig, RunConfig
 from curbside.localize.session import read_session
+from curbside.localize.streams import DisplacementIntegrator
 from curbside.projection import LocalFrame
 
 LON0, LAT0 = -122.40, 37.79
@@ -55,11 +56,17 @@ def _inertial(v: np.ndarray, seed: int) -> np.ndarray:
     return 1.08 * v @ np.array([[c, s], [-s, c]]) + rng.normal(0, 0.1, v.shape)
 
 
+def _displacement(t: np.ndarray, velocity_en: np.ndarray) -> DisplacementIntegrator:
+    d = DisplacementIntegrator(1.0)
+    d.push(t, velocity_en)
+    return d
+
+
 def _estimate(lag_s: float, seed: int) -> float:
     t, xy, v = _truth()
     tf, fixes = _fixes(t, xy, lag_s, seed)
-    est = estimate_fix_lag(tf, fixes, np.full(len(tf), 6.0), t, _inertial(v, seed), FixLagConfig(), 1.0)
-    return est.lag_s
+    velocity = _displacement(t, _inertial(v, seed))
+    return estimate_fix_lag(tf, fixes, np.full(len(tf), 6.0), velocity, FixLagConfig()).lag_s
 
 
 @pytest.mark.parametrize("seed", [0, 1, 2])
@@ -76,7 +83,7 @@ def test_fixes_that_do_not_lag_get_no_compensation(seed):
 def test_too_few_fixes_estimate_no_lag():
     t, xy, v = _truth(60.0)
     tf, fixes = _fixes(t, xy, 2.0, 0)
-    est = estimate_fix_lag(tf[:10], fixes[:10], np.full(10, 5.0), t, v, FixLagConfig(), 1.0)
+    est = estimate_fix_lag(tf[:10], fixes[:10], np.full(10, 5.0), _displacement(t, v), FixLagConfig())
     assert est.lag_s == 0.0 and est.blocks == 0 and est.to_dict()["residual_m"] == {}
 
 

@@ -24,6 +24,7 @@ import numpy as np
 from scipy.signal import lfilter
 
 from curbside.localize.runconfig import FixLagConfig
+from curbside.localize.streams import DisplacementIntegrator
 
 #: Time step of the grid the estimate resamples the inertial displacement on (s).
 GRID_S = 0.1
@@ -62,15 +63,6 @@ class FixLagEstimate:
         }
 
 
-def inertial_displacement(t_s: np.ndarray, velocity_en: np.ndarray, max_gap_s: float) -> np.ndarray:
-    """``D`` at the velocity samples ``(n, 2)``: each sample's velocity held to the next, none across a
-    gap longer than ``max_gap_s``."""
-    dt = np.diff(t_s)
-    dt = np.where(dt <= max_gap_s, dt, 0.0)
-    steps = velocity_en[:-1] * dt[:, None]
-    return np.vstack([np.zeros((1, 2)), np.cumsum(steps, axis=0)])
-
-
 def lagged(d: np.ndarray, lag_s: float, dt_s: float) -> np.ndarray:
     """``EMA_T(D)`` of a displacement sampled every ``dt_s`` (starting at rest at ``D[0]``)."""
     if lag_s == 0:
@@ -93,10 +85,8 @@ def estimate_fix_lag(
     fix_t_s: np.ndarray,
     fix_xy_m: np.ndarray,
     accuracy_m: np.ndarray,
-    velocity_t_s: np.ndarray,
-    velocity_en: np.ndarray,
+    displacement: DisplacementIntegrator,
     config: FixLagConfig,
-    max_gap_s: float,
 ) -> FixLagEstimate:
     """Choose the fixes' lag from a whole recording.
 
@@ -104,12 +94,10 @@ def estimate_fix_lag(
     ----------
     fix_t_s, fix_xy_m, accuracy_m
         The fixes: times, local metric positions ``(n, 2)`` and reported accuracies (m).
-    velocity_t_s, velocity_en
-        The inertial velocity (m/s east, north) the filter moves with.
+    displacement
+        The inertial displacement the filter moves with, every velocity row pushed.
     config
         Candidates, blocks and the acceptance ratio.
-    max_gap_s
-        Velocity samples further apart are a gap (``engine.velocity_max_gap_s``).
 
     Returns
     -------
@@ -119,13 +107,13 @@ def estimate_fix_lag(
         all walk; a run of correlated canyon error that happens to look like one is not).
     """
     usable = np.isfinite(accuracy_m) & (accuracy_m > 0) & (accuracy_m <= config.accuracy_max_m)
-    usable &= (fix_t_s >= velocity_t_s[0]) & (fix_t_s <= velocity_t_s[-1])
+    t_first, t_last = displacement.first_t, displacement.complete_until
+    usable &= (fix_t_s >= t_first) & (fix_t_s <= t_last)
     t, xy, acc = fix_t_s[usable], fix_xy_m[usable], accuracy_m[usable]
-    if len(t) < config.min_fixes or len(velocity_t_s) < 2:
+    if len(t) < config.min_fixes:
         return FixLagEstimate(0.0, {}, 0, 0.0)
-    grid = np.arange(velocity_t_s[0], velocity_t_s[-1] + GRID_S, GRID_S)
-    d = inertial_displacement(velocity_t_s, velocity_en, max_gap_s)
-    d_grid = np.column_stack([np.interp(grid, velocity_t_s, d[:, k]) for k in range(2)])
+    grid = np.arange(t_first, t_last + GRID_S, GRID_S)
+    d_grid = displacement.at(grid).T
     weight = 1.0 / np.maximum(acc, 3.0) ** 2  # a 3 m floor: a fix reporting 1 m does not own the fit
     lags = (0.0, *config.candidates_s)
     at_fixes = []

@@ -36,6 +36,7 @@ from curbside.localize.fix_lag import estimate_fix_lag
 from curbside.localize.raster import MapRaster, load_or_build_raster
 from curbside.localize.runconfig import MODES, VELOCITY_SOURCES, RunConfig
 from curbside.localize.session import Session
+from curbside.localize.streams import DisplacementIntegrator
 from curbside.osmseg.mapio import MapLayers
 from curbside.projection import LocalFrame
 
@@ -336,7 +337,7 @@ def track_session(
             raise CurbsideInputError(
                 session.name, f"the {velocity_source} velocity has fewer than two samples"
             )
-    fix_lag = _fix_lag(session, config, frame, velocity)
+    fix_lag = _fix_lag(session, config, frame, velocity, velocity_source == "pdr")
     engine = SessionEngine(
         config,
         frame,
@@ -363,7 +364,7 @@ def track_session(
 
 
 def _fix_lag(
-    session: Session, config: RunConfig, frame: LocalFrame, velocity: pd.DataFrame | None
+    session: Session, config: RunConfig, frame: LocalFrame, velocity: pd.DataFrame | None, step_means: bool
 ) -> dict[str, object] | None:
     """The fixes' lag this run compensates (``run.json``'s ``fix_lag``): under ``auto``, estimated from
     the whole recording (:func:`~curbside.localize.fix_lag.estimate_fix_lag`)."""
@@ -374,15 +375,11 @@ def _fix_lag(
         return {"mode": "fixed", "lag_s": c.lag_s}
     gnss = session.gnss
     x, y = frame.to_xy(gnss["lon"].to_numpy(float), gnss["lat"].to_numpy(float))
-    estimate = estimate_fix_lag(
-        gnss["t"].to_numpy(float),
-        np.column_stack([x, y]),
-        gnss["accuracy_m"].to_numpy(float),
-        velocity["t"].to_numpy(float),
-        velocity[["ve", "vn"]].to_numpy(float),
-        c,
-        config.engine.velocity_max_gap_s,
-    )
+    displacement = DisplacementIntegrator(config.engine.velocity_max_gap_s, step_means)
+    displacement.push(velocity["t"].to_numpy(float), velocity[["ve", "vn"]].to_numpy(float))
+    fixes_xy = np.column_stack([x, y])
+    estimate = estimate_fix_lag(gnss["t"].to_numpy(float), fixes_xy, gnss["accuracy_m"].to_numpy(float),
+                                displacement, c)
     if estimate.lag_s > 0:
         logger.info(
             "%s: the fixes trail the inertial track by a %.0f s lag (residual %.2f m against %.2f m "
