@@ -10,6 +10,10 @@ Two questions that pooled CSA and medians do not answer, measured on the benchma
   the share of its fixes nearer the truth than the estimate. A high share means the fixes were right
   and the filter did not follow them (a recovery question). A low one means the fixes led it there
   (a GNSS-model question).
+- **Where the wrong footsteps stand.** The map class under the estimate at each wrong footstep
+  (``wrong_on_sidewalk``, ``wrong_on_street``, ``wrong_on_crosswalk``, ``wrong_in_building``,
+  ``wrong_in_free``: shares of the wrong footsteps). On the wrong sidewalk, the cloud chose a side;
+  on the street surface, it sits between the two (its mean, or all of it, in the carriageway).
 
 Usage::
 
@@ -27,6 +31,7 @@ import argparse
 import json
 from pathlib import Path
 
+import geopandas as gpd
 import numpy as np
 import pandas as pd
 import pyproj
@@ -34,6 +39,7 @@ import shapely
 
 from curbside.evaluate.runner import RunSpec, run_all
 from curbside.evaluate.subsets import SUBSETS, benchmark_sessions, load_world
+from curbside.evaluate.suite import SuiteConfig
 from curbside.localize.session import read_session
 from curbside.osmseg.mapio import read_map
 from curbside.projection import LocalFrame
@@ -105,14 +111,28 @@ def crosswalks_and_frame(map_path: str) -> tuple[shapely.Geometry, LocalFrame]:
     return crosswalks, LocalFrame(pyproj.CRS(layers.crs))
 
 
+def map_class_at(classes: gpd.GeoDataFrame, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """The map class under each point (``free`` where no polygon covers it)."""
+    out = np.full(len(x), "free", dtype=object)
+    hit, poly = classes.sindex.query(shapely.points(x, y), predicate="within")
+    out[hit] = classes["class"].to_numpy()[poly]
+    return out
+
+
 def summarise(
-    method: str, subset: str, results: list[dict], sessions: list[Path], crosswalks, frame: LocalFrame
+    method: str, subset: str, results: list[dict], sessions: list[Path], crosswalks, frame: LocalFrame,
+    classes: gpd.GeoDataFrame,
 ) -> tuple[dict, list[dict]]:
-    """The along-track bias and the episode statistics of one method on one subset."""
-    along, rows, n_steps = [], [], 0
+    """The along-track bias, the episode statistics and the wrong footsteps' map classes of one method
+    on one subset."""
+    along, rows, n_steps, wrong_classes = [], [], 0, []
     for result, session in zip(results, sessions, strict=True):
         correct = result["errors"]["correct"].astype(bool).to_numpy()
-        along.append(signed_along_m(result["track"].reset_index(drop=True))[correct])
+        track = result["track"].reset_index(drop=True)
+        along.append(signed_along_m(track)[correct])
+        wrong = ~correct & ~result["errors"]["missing"].to_numpy()
+        x, y = track["x_m"].to_numpy()[wrong], track["y_m"].to_numpy()[wrong]
+        wrong_classes.append(map_class_at(classes, x, y))
         n_steps += len(correct)
         found = session_episodes(result, session, crosswalks, frame, with_fixes=method != "gnss")
         rows += [dict(row, method=method, subset=subset) for row in found]
@@ -130,6 +150,10 @@ def summarise(
             "long_fixes_nearer_truth": np.average(scored["fixes_nearer_truth"], weights=scored["steps"])
             if len(scored) else np.nan,
         }
+    wrong_classes = pd.Series(np.concatenate(wrong_classes))
+    for cls in ("sidewalk", "street", "crosswalk", "building", "free"):
+        summary[f"wrong_{'in' if cls in ('building', 'free') else 'on'}_{cls}"] = (
+            float((wrong_classes == cls).mean()) if len(wrong_classes) else np.nan)
     return summary, rows
 
 
@@ -153,17 +177,20 @@ def main(argv: list[str] | None = None) -> int:
     overrides = tuple(sorted((k, json.loads(v)) for k, v in (item.split("=", 1) for item in args.set)))
     world = load_world()
     crosswalks, frame = crosswalks_and_frame(args.map)
+    classes = read_map(args.map).gdf[["class", "geometry"]].reset_index(drop=True)
+    suite = SuiteConfig()  # each method at the benchmark's N (curbside fused 2000, the others 500)
     summaries, all_rows = [], []
     for subset in args.subsets:
         sessions = benchmark_sessions(Path(args.out) / args.split / subset, subset, split=args.split,
                                       profile="phone", world=world)
         for method in args.methods:
             filter_map = args.map if method != "gnss" else None
-            specs = [RunSpec(str(s), method, filter_map, "osm", args.map, 0.4, 500, None, seed,
+            n = suite.particles_of(method)
+            specs = [RunSpec(str(s), method, filter_map, "osm", args.map, 0.4, n, None, seed,
                              overrides=overrides if method == "fused" else ())
                      for seed in args.seeds for s in sessions]
             summary, rows = summarise(method, subset, run_all(specs, workers=args.workers),
-                                      sessions * len(args.seeds), crosswalks, frame)
+                                      sessions * len(args.seeds), crosswalks, frame, classes)
             summaries.append(summary)
             all_rows += rows
     pd.set_option("display.width", 200)

@@ -5,11 +5,13 @@ from __future__ import annotations
 import sys
 from pathlib import Path
 
+import geopandas as gpd
 import numpy as np
 import pandas as pd
+import shapely
 
 sys.path.insert(0, str(Path(__file__).parents[1] / "benchmarks"))
-from diagnose_fusion import episodes, signed_along_m  # noqa: E402
+from diagnose_fusion import episodes, map_class_at, signed_along_m  # noqa: E402
 
 
 def test_episodes_are_the_runs_of_wrong_footsteps():
@@ -25,3 +27,14 @@ def test_along_is_negative_behind_the_walker_and_undefined_while_standing():
     along = signed_along_m(track)
     np.testing.assert_allclose(along[1:18], -2.0)  # 2 m behind; the 3 m across does not count
     assert np.isnan(along[22:]).all()
+
+
+def test_map_class_is_the_polygon_under_each_point_and_free_elsewhere():
+    classes = gpd.GeoDataFrame(
+        {"class": ["sidewalk", "street", "building"]},
+        geometry=[shapely.box(0, 0, 10, 3), shapely.box(0, 3, 10, 15), shapely.box(0, -10, 10, 0)],
+    )
+    x = np.array([5.0, 5.0, 5.0, 20.0])
+    y = np.array([1.5, 9.0, -5.0, 1.0])
+    assert map_class_at(classes, x, y).tolist() == ["sidewalk", "street", "building", "free"]
+    assert map_class_at(classes, np.empty(0), np.empty(0)).tolist() == []
