@@ -41,7 +41,7 @@ from curbside.evaluate.runner import RunSpec, run_all
 from curbside.evaluate.subsets import SUBSETS, benchmark_sessions, load_world
 from curbside.evaluate.suite import SuiteConfig
 from curbside.localize.session import read_session
-from curbside.osmseg.mapio import read_map
+from curbside.osmseg.mapio import MapLayers, read_map
 from curbside.projection import LocalFrame
 
 #: Episodes at least this long (footsteps) count as long.
@@ -103,9 +103,8 @@ def session_episodes(
     return rows
 
 
-def crosswalks_and_frame(map_path: str) -> tuple[shapely.Geometry, LocalFrame]:
+def crosswalks_and_frame(layers: MapLayers) -> tuple[shapely.Geometry, LocalFrame]:
     """The map's crosswalks as one geometry, and its metric frame."""
-    layers = read_map(map_path)
     gdf = layers.gdf
     crosswalks = shapely.union_all(gdf.loc[gdf["class"] == "crosswalk"].geometry.to_numpy())
     return crosswalks, LocalFrame(pyproj.CRS(layers.crs))
@@ -176,8 +175,9 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     overrides = tuple(sorted((k, json.loads(v)) for k, v in (item.split("=", 1) for item in args.set)))
     world = load_world()
-    crosswalks, frame = crosswalks_and_frame(args.map)
-    classes = read_map(args.map).gdf[["class", "geometry"]].reset_index(drop=True)
+    layers = read_map(args.map)
+    crosswalks, frame = crosswalks_and_frame(layers)
+    classes = layers.gdf[["class", "geometry"]].reset_index(drop=True)
     suite = SuiteConfig()  # each method at the benchmark's N (curbside fused 2000, the others 500)
     summaries, all_rows = [], []
     for subset in args.subsets:
