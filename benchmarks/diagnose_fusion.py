@@ -14,6 +14,11 @@ Two questions that pooled CSA and medians do not answer, measured on the benchma
   (``wrong_on_sidewalk``, ``wrong_on_street``, ``wrong_on_crosswalk``, ``wrong_in_building``,
   ``wrong_in_free``: shares of the wrong footsteps). On the wrong sidewalk, the cloud chose a side;
   on the street surface, it sits between the two (its mean, or all of it, in the carriageway).
+- **Left behind or flickering.** A wrong footstep whose estimate still stands on the segment the
+  walker last left (``wrong_left_behind``: a lag at a corner or a crossing; with the median signed
+  along-track error of those footsteps, ``left_behind_along_median_m``), and the wrong footsteps of
+  short episodes during which the walker stayed on one segment (``wrong_in_flickers``: what a
+  hysteresis on the reported side could remove).
 
 Usage::
 
@@ -65,6 +70,29 @@ def episodes(wrong: np.ndarray) -> list[tuple[int, int]]:
     """``(start, stop)`` of each run of ``True`` in ``wrong`` (stop exclusive)."""
     edges = np.flatnonzero(np.diff(np.concatenate([[0], wrong.astype(np.int8), [0]])))
     return list(zip(edges[::2].tolist(), edges[1::2].tolist(), strict=True))
+
+
+def segment_left(gt_segment: pd.Series) -> pd.Series:
+    """At each footstep, the segment the walker was on before the one it is on (NaN before any change)."""
+    on = gt_segment.ffill()
+    changed = on.ne(on.shift()) & on.shift().notna()
+    return on.shift().where(changed).ffill()
+
+
+def wrong_kinds(errors: pd.DataFrame) -> tuple[np.ndarray, np.ndarray]:
+    """Two masks over the footsteps of one run: wrong with the estimate on the segment the walker last
+    left, and wrong within a short episode (under :data:`LONG_EPISODE_STEPS`) during and around which
+    the walker stayed on one segment."""
+    errors = errors.reset_index(drop=True)
+    wrong = ~errors["correct"].astype(bool).to_numpy() & ~errors["missing"].to_numpy()
+    left = segment_left(errors["gt_segment"])
+    left_behind = wrong & (errors["est_segment"] == left).to_numpy()
+    flicker = np.zeros(len(wrong), bool)
+    gt = errors["gt_segment"].to_numpy()
+    for start, stop in episodes(wrong):
+        if stop - start < LONG_EPISODE_STEPS and start > 0 and stop < len(wrong):
+            flicker[start:stop] = pd.Series(gt[start - 1 : stop + 1]).nunique(dropna=False) == 1
+    return left_behind, flicker
 
 
 def fixes_nearer_truth(
@@ -124,12 +152,17 @@ def summarise(
 ) -> tuple[dict, list[dict]]:
     """The along-track bias, the episode statistics and the wrong footsteps' map classes of one method
     on one subset."""
-    along, rows, n_steps, wrong_classes = [], [], 0, []
+    along, rows, n_steps, wrong_classes, behind_along = [], [], 0, [], []
+    n_left_behind = n_flicker = 0
     for result, session in zip(results, sessions, strict=True):
         correct = result["errors"]["correct"].astype(bool).to_numpy()
         track = result["track"].reset_index(drop=True)
-        along.append(signed_along_m(track)[correct])
+        signed = signed_along_m(track)
+        along.append(signed[correct])
         wrong = ~correct & ~result["errors"]["missing"].to_numpy()
+        left_behind, flicker = wrong_kinds(result["errors"])
+        behind_along.append(signed[left_behind])
+        n_left_behind, n_flicker = n_left_behind + left_behind.sum(), n_flicker + flicker.sum()
         x, y = track["x_m"].to_numpy()[wrong], track["y_m"].to_numpy()[wrong]
         wrong_classes.append(map_class_at(classes, x, y))
         n_steps += len(correct)
@@ -148,6 +181,10 @@ def summarise(
             "long_start_near_crosswalk": long["near_crosswalk"].mean() if len(long) else np.nan,
             "long_fixes_nearer_truth": np.average(scored["fixes_nearer_truth"], weights=scored["steps"])
             if len(scored) else np.nan,
+            "wrong_left_behind": n_left_behind / eps["steps"].sum(),
+            "left_behind_along_median_m": np.nanmedian(np.concatenate(behind_along))
+            if n_left_behind else np.nan,
+            "wrong_in_flickers": n_flicker / eps["steps"].sum(),
         }
     wrong_classes = pd.Series(np.concatenate(wrong_classes))
     for cls in ("sidewalk", "street", "crosswalk", "building", "free"):

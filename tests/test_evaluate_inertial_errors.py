@@ -38,6 +38,27 @@ def test_leg_errors_recover_a_known_heading_error_and_scale():
     assert summary["distance_ratio"] == pytest.approx(1.1, abs=0.01)
 
 
+def test_window_speed_ratios_read_a_scale_and_the_noise_a_window_adds():
+    velocity, waypoints = _walk(5.0, 1.1)
+    ratios = ie.window_speed_ratios(velocity, waypoints, window_s=5.0)
+    assert len(ratios) == 5 * 6  # five legs of 32 s, six whole 5 s windows each
+    np.testing.assert_allclose(ratios, 1.1, atol=0.01)  # a heading error changes no path length
+    # Speed noise of 20 % correlated over 1 s (an AR(1) at 20 Hz): over 5 s windows its spread shrinks
+    # to about 0.2 * sqrt(2 * 1 / 5) = 0.13, and over 10 s windows to about 0.09.
+    rng = np.random.default_rng(1)
+    noisy = []
+    for _ in range(40):
+        phi, n = np.exp(-0.05), np.zeros(len(velocity))
+        for i in range(1, len(n)):
+            n[i] = phi * n[i - 1] + np.sqrt(1 - phi**2) * 0.2 * rng.standard_normal()
+        noisy.append(velocity.assign(ve=velocity["ve"] * (1 + n), vn=velocity["vn"] * (1 + n)))
+    sd5 = np.std(np.concatenate([ie.window_speed_ratios(v, waypoints, 5.0) for v in noisy]))
+    sd10 = np.std(np.concatenate([ie.window_speed_ratios(v, waypoints, 10.0) for v in noisy]))
+    assert 0.10 < sd5 < 0.16 and 0.065 < sd10 < 0.115 and sd10 < sd5
+    standing = waypoints.assign(t=waypoints["t"] * 10)  # the same legs walked at 0.125 m/s
+    assert len(ie.window_speed_ratios(velocity, standing, 5.0)) == 0
+
+
 def test_trial_summary_finds_a_linear_drift():
     velocity, waypoints = _walk(0.0, 1.0, drift_deg_per_min=6.0)
     summary = ie.trial_summary(ie.leg_errors(velocity, waypoints, ie.MeasureConfig()))

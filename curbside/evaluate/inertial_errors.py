@@ -17,6 +17,12 @@ surveyed waypoints at every turn):
   all pairs up to ``max_lag_min``).
 - **Speed scale.** The velocity's path length over the walk divided by the surveyed path length,
   and the spread of the same ratio leg by leg within a trial (short-term speed noise).
+- **Speed noise over a window.** Inside each leg of ``window_s`` or more at walking pace, the path
+  length the velocity integrates to over consecutive ``window_s`` windows divided by the surveyed
+  one (:func:`window_speed_ratios`); the spread of that ratio around the walk's median is the
+  along-track error the velocity adds in ``window_s``, with the per-walk scale taken out. The same
+  function reads a simulated session (``velocity.csv`` and its exact ``waypoints.csv``), so the
+  simulator's speed noise can be set beside a real model's (``benchmarks/speed_noise_check.py``).
 - **Standing.** Each trial starts with about 30 s of vigorous handling (a calibration routine) and
   about 30 s of standing still before the first waypoint. Both are found from the accelerometer
   (1 s moving standard deviation of the magnitude below / above ``still_acc_sd``); the velocity's
@@ -99,6 +105,48 @@ def leg_errors(velocity: pd.DataFrame, waypoints: pd.DataFrame, config: MeasureC
             "speed_ratio": (np.hypot(de, dn) / np.maximum(length, 1e-9))[keep],
         }
     )
+
+
+def window_speed_ratios(
+    velocity: pd.DataFrame, waypoints: pd.DataFrame, window_s: float, min_speed_mps: float = 0.8
+) -> np.ndarray:
+    """Integrated over surveyed speed, window by window, inside the straight legs of a walk.
+
+    Parameters
+    ----------
+    velocity
+        ``t, ve, vn`` (m/s, true-north frame).
+    waypoints
+        ``t, lat, lon`` taps; between two the walker went straight at a steady pace.
+    window_s
+        Window length (s); each leg of at least ``window_s`` at ``min_speed_mps`` or faster gives
+        ``floor(duration / window_s)`` windows from its start.
+    min_speed_mps
+        Legs slower than this (standing, waiting) give none.
+
+    Returns
+    -------
+    numpy.ndarray
+        The velocity's path length over each window divided by the leg's pace times ``window_s``.
+    """
+    x, y = _plane(waypoints)
+    wt = waypoints["t"].to_numpy(float)
+    t = velocity["t"].to_numpy(float)
+    dt = np.diff(t, append=t[-1])
+    cum_e = np.concatenate([[0.0], np.cumsum(velocity["ve"].to_numpy() * dt)[:-1]])
+    cum_n = np.concatenate([[0.0], np.cumsum(velocity["vn"].to_numpy() * dt)[:-1]])
+    pace = np.hypot(np.diff(x), np.diff(y)) / np.maximum(np.diff(wt), 1e-9)
+    count = (np.diff(wt) // window_s).astype(int)
+    keep = (pace >= min_speed_mps) & (count > 0) & (wt[:-1] >= t[0]) & (wt[1:] <= t[-1])
+    leg = np.repeat(np.flatnonzero(keep), count[keep])
+    if not len(leg):
+        return np.empty(0)
+    k = np.concatenate([np.arange(c) for c in count[keep]])
+    start = wt[leg] + k * window_s
+    end = start + window_s
+    de = np.interp(end, t, cum_e) - np.interp(start, t, cum_e)
+    dn = np.interp(end, t, cum_n) - np.interp(start, t, cum_n)
+    return np.hypot(de, dn) / (pace[leg] * window_s)
 
 
 def trial_summary(legs: pd.DataFrame) -> dict[str, float]:
