@@ -67,6 +67,16 @@ def _plane(waypoints: pd.DataFrame) -> tuple[np.ndarray, np.ndarray]:
     return np.asarray(x), np.asarray(y)
 
 
+def _displacement_at(velocity: pd.DataFrame, times: np.ndarray) -> np.ndarray:
+    """East and north displacement (2, n) the velocity integrates to from its first row to ``times``."""
+    t = velocity["t"].to_numpy(float)
+    dt = np.diff(t, append=t[-1])
+    return np.stack([
+        np.interp(times, t, np.concatenate([[0.0], np.cumsum(velocity[c].to_numpy() * dt)[:-1]]))
+        for c in ("ve", "vn")
+    ])
+
+
 def leg_errors(velocity: pd.DataFrame, waypoints: pd.DataFrame, config: MeasureConfig) -> pd.DataFrame:
     """Heading error and speed ratio of a velocity table on each surveyed leg.
 
@@ -87,11 +97,7 @@ def leg_errors(velocity: pd.DataFrame, waypoints: pd.DataFrame, config: MeasureC
     x, y = _plane(waypoints)
     wt = waypoints["t"].to_numpy(float)
     t = velocity["t"].to_numpy(float)
-    dt = np.diff(t, append=t[-1])
-    # displacement integrated between consecutive waypoint times (cumulative sum, interpolated)
-    cum_e = np.interp(wt, t, np.concatenate([[0.0], np.cumsum(velocity["ve"].to_numpy() * dt)[:-1]]))
-    cum_n = np.interp(wt, t, np.concatenate([[0.0], np.cumsum(velocity["vn"].to_numpy() * dt)[:-1]]))
-    de, dn = np.diff(cum_e), np.diff(cum_n)
+    de, dn = np.diff(_displacement_at(velocity, wt), axis=1)
     tx, ty = np.diff(x), np.diff(y)
     length = np.hypot(tx, ty)
     err = np.degrees(np.arctan2(de, dn) - np.arctan2(tx, ty))
@@ -132,9 +138,6 @@ def window_speed_ratios(
     x, y = _plane(waypoints)
     wt = waypoints["t"].to_numpy(float)
     t = velocity["t"].to_numpy(float)
-    dt = np.diff(t, append=t[-1])
-    cum_e = np.concatenate([[0.0], np.cumsum(velocity["ve"].to_numpy() * dt)[:-1]])
-    cum_n = np.concatenate([[0.0], np.cumsum(velocity["vn"].to_numpy() * dt)[:-1]])
     pace = np.hypot(np.diff(x), np.diff(y)) / np.maximum(np.diff(wt), 1e-9)
     count = (np.diff(wt) // window_s).astype(int)
     keep = (pace >= min_speed_mps) & (count > 0) & (wt[:-1] >= t[0]) & (wt[1:] <= t[-1])
@@ -144,8 +147,7 @@ def window_speed_ratios(
     k = np.concatenate([np.arange(c) for c in count[keep]])
     start = wt[leg] + k * window_s
     end = start + window_s
-    de = np.interp(end, t, cum_e) - np.interp(start, t, cum_e)
-    dn = np.interp(end, t, cum_n) - np.interp(start, t, cum_n)
+    de, dn = _displacement_at(velocity, end) - _displacement_at(velocity, start)
     return np.hypot(de, dn) / (pace[leg] * window_s)
 
 
