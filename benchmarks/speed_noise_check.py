@@ -47,30 +47,24 @@ def summary_row(source: str, spreads: list[float], window_s: float) -> dict:
             "spread_p10": q10, "spread_p90": q90}
 
 
-def simulated_spreads(folder: Path, window_s: float) -> list[float]:
-    """One spread per simulated session under ``folder``."""
-    spreads = []
-    for session_dir in sorted(p for p in folder.iterdir() if (p / "velocity.csv").exists()):
-        session = read_session(session_dir)
-        velocity = pd.read_csv(session_dir / "velocity.csv")
-        spreads.append(walk_spread(window_speed_ratios(velocity, session.waypoints, window_s)))
-    return spreads
+Walk = tuple[pd.DataFrame, pd.DataFrame]  # velocity (t, ve, vn) and waypoints (t, lat, lon)
 
 
-def ipin_spreads(h5: str, window_s: float, weights: str | None) -> list[float]:
-    """One spread per IPIN trial: the bundled RoNIN on the held-out trials, or ``weights`` on all."""
+def simulated_walks(folder: Path) -> list[Walk]:
+    """The velocity and waypoints of each simulated session under ``folder``."""
+    sessions = (read_session(p) for p in sorted(folder.iterdir()) if (p / "velocity.csv").exists())
+    return [(s.velocity, s.waypoints) for s in sessions]
+
+
+def ipin_walks(h5: str, weights: str | None) -> list[Walk]:
+    """RoNIN's velocity and the waypoints of each IPIN trial: the bundled model on the held-out trials,
+    or ``weights`` on all."""
     from curbside.localize.readers.ipin import list_trials, read_trial
     from curbside.localize.ronin.infer import load_model, ronin_velocity
 
     model = load_model(weights)
-    spreads = []
-    for name in list_trials(h5):
-        if weights is None and "repetition04" not in name:
-            continue
-        trial = read_trial(h5, name)
-        velocity = ronin_velocity(trial.imu, model)
-        spreads.append(walk_spread(window_speed_ratios(velocity, trial.waypoints, window_s)))
-    return spreads
+    trials = (read_trial(h5, n) for n in list_trials(h5) if weights is not None or "repetition04" in n)
+    return [(ronin_velocity(trial.imu, model), trial.waypoints) for trial in trials]
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -85,17 +79,16 @@ def main(argv: list[str] | None = None) -> int:
     for path in [*args.sessions, args.ipin or "."]:
         if not Path(path).exists():
             parser.error(f"{path}: no such file or folder")
-    rows = []
-    for window_s in args.window_s:
-        for folder in args.sessions:
-            spreads = simulated_spreads(Path(folder), window_s)
-            rows.append(summary_row(f"simulated {Path(folder).name}", spreads, window_s))
-        if args.ipin:
-            rows.append(summary_row("IPIN, bundled RoNIN (held-out)", ipin_spreads(args.ipin, window_s, None),
-                                    window_s))
-            if args.ronin:
-                rows.append(summary_row(f"IPIN, {Path(args.ronin).name} (all trials)",
-                                        ipin_spreads(args.ipin, window_s, args.ronin), window_s))
+    sources = {f"simulated {Path(folder).name}": simulated_walks(Path(folder)) for folder in args.sessions}
+    if args.ipin:
+        sources["IPIN, bundled RoNIN (held-out)"] = ipin_walks(args.ipin, None)
+        if args.ronin:
+            sources[f"IPIN, {Path(args.ronin).name} (all trials)"] = ipin_walks(args.ipin, args.ronin)
+    rows = [
+        summary_row(source, [walk_spread(window_speed_ratios(v, wp, window_s)) for v, wp in walks], window_s)
+        for window_s in args.window_s
+        for source, walks in sources.items()
+    ]
     print(pd.DataFrame(rows).round(3).to_string(index=False))
     return 0
 
