@@ -4,14 +4,18 @@ Every algorithm parameter of curbside lives in a frozen dataclass (:mod:`curbsid
 :mod:`curbside.localize.engine` ...). :func:`to_dict` writes one whole, nested configs included;
 :func:`from_dict` rebuilds it, rejecting unknown keys and wrong types with a one-line
 :class:`~curbside.errors.CurbsideInputError`, so a hand-edited ``run.json`` fails clearly.
-:func:`with_overrides` applies ``"section.field": value`` overrides (the CLI's ``--set``).
+:func:`with_overrides` applies ``"section.field": value`` overrides (the CLI's ``--set``), and
+:func:`parameters` lists every key it accepts with its default and the description that the
+dataclass's numpydoc ``Attributes`` section gives it (``localize parameters``, ``docs/parameters.md``).
 """
 
 from __future__ import annotations
 
 import contextlib
 import dataclasses
+import inspect
 import json
+import re
 import types
 import typing
 from typing import Any, TypeVar
@@ -126,3 +130,86 @@ def with_overrides(config: T, overrides: dict[str, Any]) -> T:
             raise CurbsideInputError(f"--set {path}", f"no parameter {leaf!r}; known: {sorted(node)}")
         node[leaf] = value
     return from_dict(type(config), data)
+
+
+@dataclasses.dataclass(frozen=True)
+class Parameter:
+    """One parameter of a config: its ``--set`` key, value in the config listed, type and description."""
+
+    key: str
+    value: Any
+    kind: str
+    description: str
+
+
+_ROLE = re.compile(r":\w+:`(~?)([^`]+)`")
+
+
+def _plain(text: str) -> str:
+    """Docstring markup as plain text with Markdown code spans (``:class:`~a.B``` -> ```B```)."""
+    text = _ROLE.sub(lambda m: "`" + (m[2].rsplit(".", 1)[-1] if m[1] else m[2]) + "`", text)
+    return text.replace("``", "`")
+
+
+def field_docs(cls: type) -> dict[str, str]:
+    """Each field's description from the numpydoc ``Attributes`` section of ``cls``'s docstring.
+
+    An entry that names several fields (``a, b``) gives each of them its text; a field the section
+    does not name is absent.
+    """
+    lines = (inspect.getdoc(cls) or "").splitlines()
+    heads = [i for i, line in enumerate(lines[:-1]) if line == "Attributes" and set(lines[i + 1]) == {"-"}]
+    docs: dict[str, str] = {}
+    if not heads:
+        return docs
+    names: list[str] = []
+    text: list[str] = []
+    for i in range(heads[0] + 2, len(lines) + 1):
+        line = lines[i] if i < len(lines) else ""
+        next_is_rule = i + 1 < len(lines) and lines[i + 1] != "" and set(lines[i + 1]) == {"-"}
+        if i == len(lines) or next_is_rule or (line and not line.startswith(" ")):
+            docs.update({name: _plain(" ".join(text)) for name in names})
+            if i == len(lines) or next_is_rule:
+                break
+            names, text = [n.strip() for n in line.split(" : ")[0].split(",")], []
+        elif line.strip():
+            text.append(line.strip())
+    return docs
+
+
+def _kind_name(kind: Any) -> str:
+    return kind.__name__ if isinstance(kind, type) else str(kind).replace("typing.", "")
+
+
+def parameters(config: Any, prefix: str = "") -> list[Parameter]:
+    """Every leaf parameter of the (nested) config dataclass ``config``, in field order, depth first.
+
+    A nested dataclass is a section (its fields are listed under ``section.``); any other value, a
+    dict of widths included, is one parameter. ``value`` is the JSON value ``config`` holds.
+    """
+    cls = type(config)
+    hints = typing.get_type_hints(cls)
+    docs = field_docs(cls)
+    out: list[Parameter] = []
+    for f in dataclasses.fields(config):
+        if not f.init:
+            continue
+        value = getattr(config, f.name)
+        key = f"{prefix}{f.name}"
+        if dataclasses.is_dataclass(value):
+            out.extend(parameters(value, f"{key}."))
+        else:
+            plain = json.loads(json.dumps(value, default=str))
+            out.append(Parameter(key, plain, _kind_name(hints[f.name]), docs.get(f.name, "")))
+    return out
+
+
+def sections(config: Any, prefix: str = "") -> dict[str, str]:
+    """``{section key: its class docstring's summary}`` for ``config`` and its nested sections."""
+    summary = (inspect.getdoc(type(config)) or "").split("\n\n", 1)[0]
+    out = {prefix.rstrip("."): _plain(" ".join(summary.split()))}
+    for f in dataclasses.fields(config):
+        value = getattr(config, f.name)
+        if f.init and dataclasses.is_dataclass(value):
+            out.update(sections(value, f"{prefix}{f.name}."))
+    return out

@@ -1,6 +1,7 @@
 """``localize``: sessions, inertial odometry, the particle filter, simulation and evaluation.
 
-Sub-commands live one per module; each exposes ``register(subparsers)``.
+Sub-commands live one per module; each exposes ``register(subparsers)`` (``parameters``, shared with
+``osmseg``, exposes ``register_localize``).
 """
 
 from __future__ import annotations
@@ -14,6 +15,7 @@ from curbside.cli import (
     localize_run,
     localize_serve,
     localize_view,
+    parameters,
 )
 from curbside.cli.common import make_parser, run_cli
 
@@ -28,6 +30,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     for module in (localize_run, localize_view, localize_convert, localize_ronin, localize_evaluate,
                    localize_serve):
         module.register(sub)
+    parameters.register_localize(sub)
     return run_cli("localize", parser, argv)
 
 

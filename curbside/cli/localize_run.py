@@ -188,7 +188,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     add_config_options(
         parser,
         "set any parameter of run.json's config, e.g. filter.gnss.sigma_factor=1.0 or "
-        "engine.fix_association=once (repeatable)",
+        "engine.fix_association=once (repeatable; `localize parameters` lists them all)",
     )
     parser.add_argument("--save-particles", action="store_true", help="also write OUT/particles.npz")
     parser.add_argument(

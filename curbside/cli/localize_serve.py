@@ -124,7 +124,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "--mode", choices=MODES, default="fused", help="every session's method (default fused)"
     )
     add_config_options(
-        parser, "a run.json config parameter for every session, e.g. filter.n_particles=300 (repeatable)"
+        parser, "a run.json config parameter for every session, e.g. filter.n_particles=300 (repeatable; "
+        "`localize parameters` lists them all)"
     )
     parser.add_argument(
         "--idle-timeout",

@@ -49,7 +49,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         default=[],
         metavar="KEY=VALUE",
         help="set any parameter of the build (SegmentationConfig; recorded in the map's params), e.g. "
-        "crosswalk_width_m=4 or default_carriageway_width_m.residential=9 (repeatable)",
+        "crosswalk_width_m=4 or default_carriageway_width_m.residential=9 (repeatable; `osmseg parameters` "
+        "lists them all)",
     )
     p.set_defaults(func=run)
 

@@ -290,8 +290,16 @@ class GnssConfig:
 
 @dataclass(frozen=True)
 class ResampleConfig:
-    """When to resample: ``"ess"`` (when the effective sample size falls below ``ess_fraction * N``,
-    the default) or ``"always"`` (every update, the paper)."""
+    """When to resample (:class:`~curbside.localize.filter.resample.SystematicResampler`).
+
+    Attributes
+    ----------
+    policy
+        ``ess`` (the default): when the effective sample size falls below ``ess_fraction * N``, which
+        keeps the diversity the speed-scale state needs; ``always``: at every update (the paper).
+    ess_fraction
+        The threshold of ``ess``, as a share of N.
+    """
 
     policy: str = "ess"
     ess_fraction: float = 0.5
