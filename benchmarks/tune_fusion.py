@@ -15,7 +15,7 @@ Usage::
         [--workers 2] [--subsets paper6 downtown open] [--map MAP] [--no-map-likelihood]
 
 ``variants.json`` maps names to ``[method, {"filter.motion.heading_noise_deg": 1.5, ...}]``; ``gnss``
-is always added. ``docs/filter.md`` ("Choosing the fused filter's parameters") lists the rounds that
+is always added. ``docs/tuning.md`` ("Choosing the fused filter's parameters") lists the rounds that
 chose the defaults.
 """
 

@@ -471,7 +471,7 @@ class FilterConfig:
     ----------
     n_particles
         Number of particles N: 2000 (the paper and its preset: 500). On the tune split's 180 walks
-        2000 beat 500 on every subset (docs/filter.md, "Number of particles").
+        2000 beat 500 on every subset (docs/tuning.md, "Number of particles").
     motion, start, map, gnss, resample, recovery, scale_correction, smoother
         One section per part.
     segment_estimate
