@@ -58,11 +58,16 @@ def test_every_parameter_round_trips_through_json():
     assert (by_hand.strength_per_m, by_hand.max_turn_deg) == (2.0, 30.0)
     by_hand_filter = RunConfig.from_dict({"filter": {"n_particles": 500}}).filter
     assert by_hand_filter.street_heading == FilterConfig().street_heading
+    before_turn = RunConfig().to_dict()  # 0.1 to stop 35: no heading correction from the fixes
+    del before_turn["filter"]["heading_correction"]
+    assert RunConfig.from_dict(before_turn).filter.heading_correction.fraction == 0.0
+    assert by_hand_filter.heading_correction == FilterConfig().heading_correction
 
 
 def test_the_paper_preset_is_the_plain_filter():
     paper = FilterConfig.preset("paper")
     assert (paper.gnss.outlier_prob, paper.gnss.correlation_time_s, paper.recovery.max_fraction) == (0, 0, 0)
+    assert paper.heading_correction.fraction == 0.0
     assert paper.gnss.sigma_factor == 1.0 and paper.map.conflict_wall_tolerance_m == 0.0  # hard walls always
     assert paper.map == dataclasses.replace(
         FilterConfig().map, conflict_wall_tolerance_m=0.0, conflict_walkable_first=False, crossing_weight=None

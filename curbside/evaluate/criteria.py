@@ -22,9 +22,9 @@ import pandas as pd
 #: The run the IPIN criterion must not regress from: version 0.1's fused filter, i.e. today's fused
 #: defaults with 0.1's particle count (500), motion and resampling (no speed-scale state or correction,
 #: heading noise 0.5 deg, step noise 15 %, resampling at every update, injection without heading
-#: jitter, no stall trigger, no switch to the unseen-velocity or the familiar-velocity motion model,
-#: no street-heading likelihood, no compensation of the fixes' lag) and 0.1's GNSS tempering (one
-#: correlation time for every fix, whatever its accuracy).
+#: jitter, no stall trigger, no heading correction from the fixes, no switch to the unseen-velocity or
+#: the familiar-velocity motion model, no street-heading likelihood, no compensation of the fixes' lag)
+#: and 0.1's GNSS tempering (one correlation time for every fix, whatever its accuracy).
 #: The benchmark runs it on the same held-out trials and waypoints as the fused filter it judges (a
 #: figure from an older run would have been measured on another set of waypoints).
 IPIN_BASELINE_RUN = "curbside fused 0.1"
@@ -38,6 +38,7 @@ FUSED_0_1_OVERRIDES: dict[str, object] = {
     "filter.recovery.inject_heading_sigma_deg": 0.0,
     "filter.recovery.stall_ratio": 0.0,
     "filter.scale_correction.fraction": 0.0,
+    "filter.heading_correction.fraction": 0.0,
     "filter.gnss.correlation_accuracy_m": 0.0,
     "filter.street_heading.strength_per_m": 0.0,
     "unseen_velocity.mode": "off",

@@ -60,6 +60,8 @@ def _as_it_ran(filter_block: dict[str, Any]) -> dict[str, Any]:
     whole_gnss_block = isinstance(gnss_block, dict) and set(gnss_block) >= _GNSS_KEYS_0_1
     if whole_gnss_block and "correlation_accuracy_m" not in gnss_block:
         filter_block = {**filter_block, "gnss": {**gnss_block, "correlation_accuracy_m": 0.0}}
+    if whole_gnss_block and "heading_correction" not in filter_block:
+        filter_block = {**filter_block, "heading_correction": {"fraction": 0.0}}
     heading_block = filter_block.get("street_heading")
     if whole_gnss_block and heading_block is None:
         filter_block = {**filter_block, "street_heading": {"strength_per_m": 0.0}}
@@ -463,7 +465,8 @@ class RunConfig:
         (a partial block written by hand keeps the defaults). A whole ``filter.gnss`` block without
         ``correlation_accuracy_m`` replays with one correlation time for every fix; a whole ``filter``
         block without ``street_heading`` replays without that part, and a whole ``street_heading`` block
-        without ``max_turn_deg`` without its turn gate.
+        without ``max_turn_deg`` without its turn gate; a whole ``filter`` block without
+        ``heading_correction`` replays without the heading correction.
         """
         if isinstance(data, dict) and "unseen_velocity" not in data:
             data = {**data, "unseen_velocity": {"mode": "off"}}

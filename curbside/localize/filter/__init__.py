@@ -12,7 +12,9 @@ module                     part
 :mod:`.street_heading`     :class:`StreetHeadingLikelihood`: opt-in heading from the street's axis
 :mod:`.resample`           :class:`SystematicResampler`
 :mod:`.recovery`           :class:`CollapseRecovery`, :class:`DivergenceRecovery`
+:mod:`.pathfit`            the cloud's inertial path beside the recent fixes, and their fit
 :mod:`.scale`              :class:`ScaleCorrection`: opt-in GNSS-driven speed-scale re-draws
+:mod:`.heading_correction` :class:`HeadingCorrection`: re-draws when good fixes say the velocity turned
 :mod:`.segments`           :class:`SegmentEstimator`: which sidewalk segment
 :mod:`.initiate`           :class:`Initiator`: start at a pose or a fix
 :mod:`.smoother`           :class:`FixedLagSmoother`: opt-in positions from the genealogy, later
@@ -27,6 +29,7 @@ See ``docs/filter.md`` for a drawing of the parts and how to write a new one.
 from curbside.localize.filter.config import (
     FilterConfig,
     GnssConfig,
+    HeadingCorrectionConfig,
     MapConfig,
     MotionConfig,
     RecoveryConfig,
@@ -36,6 +39,7 @@ from curbside.localize.filter.config import (
     StreetHeadingConfig,
 )
 from curbside.localize.filter.gnss import GnssLikelihood
+from curbside.localize.filter.heading_correction import HeadingCorrection
 from curbside.localize.filter.initiate import Initiator
 from curbside.localize.filter.map_likelihood import MapLikelihood
 from curbside.localize.filter.particles import Estimate, ParticleSet, normalise_and_estimate
@@ -58,6 +62,8 @@ __all__ = [
     "GnssConfig",
     "GnssFix",
     "GnssLikelihood",
+    "HeadingCorrection",
+    "HeadingCorrectionConfig",
     "InertialPredictor",
     "Initiator",
     "Likelihood",

@@ -447,6 +447,68 @@ class ScaleCorrectionConfig:
 
 
 @dataclass(frozen=True)
+class HeadingCorrectionConfig:
+    """GNSS-driven correction of a velocity that turned (:mod:`~curbside.localize.filter.heading_correction`).
+
+    Attributes
+    ----------
+    fraction
+        Share of the particles re-drawn, after resampling, where the fit puts the walker, with the
+        fitted turn and speed scale, when the gates below pass (0: off; the paper's preset).
+    window_s
+        The accepted fixes of the last this many seconds are fitted on the cloud's inertial path and on
+        its estimated track; a fit is made at most every quarter window, once three quarters are in.
+    max_accuracy_m
+        The fixes' median reported accuracy must be at most this: only fixes good enough to steer by.
+    max_residual_ratio
+        The fixes must lie this close to the fitted path: root mean square distance at most this times
+        their median accuracy (fixes that wander with multipath do not fit a turned walk).
+    min_rotation_deg
+        The fit must turn the inertial path by at least this ...
+    min_estimate_rotation_deg
+        ... and the filter's own track by at least this: the cloud really walks off the fixes.
+    min_scale, max_scale
+        The fitted speed scale must lie in this range (a fit outside it describes no walk).
+    min_path_m, min_fix_span_m
+        The window's inertial path must span at least ``min_path_m`` and its fixes
+        ``max(min_fix_span_m, 3 sqrt(2) median accuracy)``.
+    heading_sigma_deg, scale_sigma, position_sigma_factor
+        Spread of the re-drawn particles: heading offset (degrees) around the cloud's own plus the
+        fitted turn, log-normal speed scale around the fitted one, position around where the fit puts
+        the walker (times the median accuracy).
+    """
+
+    fraction: float = 0.1
+    window_s: float = 30.0
+    max_accuracy_m: float = 6.0
+    max_residual_ratio: float = 0.5
+    min_rotation_deg: float = 30.0
+    min_estimate_rotation_deg: float = 20.0
+    min_scale: float = 0.5
+    max_scale: float = 2.2
+    min_path_m: float = 5.0
+    min_fix_span_m: float = 10.0
+    heading_sigma_deg: float = 10.0
+    scale_sigma: float = 0.05
+    position_sigma_factor: float = 0.66
+
+    def __post_init__(self) -> None:
+        _check(0.0 <= self.fraction <= 1.0, f"fraction must lie in [0, 1], got {self.fraction}")
+        _check(
+            0.0 < self.min_scale < self.max_scale,
+            f"need 0 < min_scale < max_scale, got {self.min_scale}, {self.max_scale}",
+        )
+        _check(
+            min(self.window_s, self.max_accuracy_m, self.max_residual_ratio) > 0
+            and min(self.min_rotation_deg, self.min_estimate_rotation_deg, self.min_path_m,
+                    self.min_fix_span_m, self.heading_sigma_deg, self.scale_sigma,
+                    self.position_sigma_factor) >= 0,
+            "window_s, max_accuracy_m and max_residual_ratio must be positive, the other gates and "
+            "spreads non-negative",
+        )
+
+
+@dataclass(frozen=True)
 class SmootherConfig:
     """The fixed-lag smoother, an opt-in output for offline analysis (:mod:`.smoother`).
 
@@ -472,7 +534,9 @@ class FilterConfig:
     n_particles
         Number of particles N: 2000 (the paper and its preset: 500). On the tune split's 180 walks
         2000 beat 500 on every subset (docs/tuning.md, "Number of particles").
-    motion, start, map, gnss, resample, recovery, scale_correction, smoother
+    motion, start, map, gnss, resample, recovery
+        One section per part.
+    scale_correction, heading_correction, street_heading, smoother
         One section per part.
     segment_estimate
         Compute the posterior over sidewalk segments and its mode at each update (needs a map with
@@ -487,6 +551,7 @@ class FilterConfig:
     resample: ResampleConfig = field(default_factory=ResampleConfig)
     recovery: RecoveryConfig = field(default_factory=RecoveryConfig)
     scale_correction: ScaleCorrectionConfig = field(default_factory=ScaleCorrectionConfig)
+    heading_correction: HeadingCorrectionConfig = field(default_factory=HeadingCorrectionConfig)
     street_heading: StreetHeadingConfig = field(default_factory=StreetHeadingConfig)
     smoother: SmootherConfig = field(default_factory=SmootherConfig)
     segment_estimate: bool = True
@@ -525,6 +590,7 @@ class FilterConfig:
                 ),
                 recovery=RecoveryConfig(max_fraction=0.0, stall_ratio=0.0),
                 scale_correction=ScaleCorrectionConfig(fraction=0.0),
+                heading_correction=HeadingCorrectionConfig(fraction=0.0),
                 street_heading=StreetHeadingConfig(strength_per_m=0.0),
                 start=StartConfig(fix_sigma_factor=1.0),
             )

@@ -4,18 +4,12 @@ The speed-scale state (row ``scale``) starts around 1 and walks slowly, so a wal
 reads 30 % low (the filter needs a scale near 1.4) is out of reach of selection and diffusion: the
 cloud lags along the street. This part compares the fixes with the cloud's own inertial path.
 
-At every update it integrates the *unscaled* inertial displacement turned by the latest estimate's
-heading offset, ``P(t) = sum R(theta) (dx, dy)``, and keeps, for the last ``window_s`` seconds, each
-accepted fix ``g_j`` (weight ``1 / accuracy^2``) with the path point ``P_j`` of its update. The speed
-scale and a rotation that best map the path onto the fixes come from a weighted least-squares
-similarity fit (complex numbers, both centred on their weighted means)::
-
-    z = sum_j w_j conj(P_j) g_j / sum_j w_j |P_j|^2,   scale = |z|
-
-(a rotation leaves ``|z|`` unchanged, so a heading error does not bias it; a bias the fixes share over
-the window cancels in the centring). The fit is repeated once without the share ``trim_share`` of the
-fixes farthest from it (urban-canyon fixes off by tens of metres), and is used only when the window's
-path is long compared with the fixes' accuracy (span > ``max(min_path_m, 3 sqrt(2) median accuracy)``).
+It keeps the cloud's inertial path and the accepted fixes of the last ``window_s`` seconds and fits the
+fixes on the path by a similarity transform (:mod:`curbside.localize.filter.pathfit`; the fitted scale
+is unbiased by a heading error or a bias the fixes share over the window). The fit is repeated once
+without the share ``trim_share`` of the fixes farthest from it (urban-canyon fixes off by tens of
+metres), and is used only when the window's path is long compared with the fixes' accuracy (span >
+``max(min_path_m, 3 sqrt(2) median accuracy)``).
 Its standard error comes from its residuals, counting one independent fix per ``correlation_s``
 seconds. When the fitted scale differs from the cloud's mean by more than ``trigger`` (relative) and
 by more than ``significance`` standard errors, and the fitted rotation is under ``max_rotation_deg``
@@ -27,7 +21,6 @@ every quarter window. Parameters: :class:`~curbside.localize.filter.config.Scale
 
 from __future__ import annotations
 
-import collections
 import logging
 import math
 
@@ -37,6 +30,7 @@ from curbside.localize.filter.config import ScaleCorrectionConfig
 from curbside.localize.filter.gnss import GnssLikelihood
 from curbside.localize.filter.particles import SCALE, Estimate, ParticleSet
 from curbside.localize.filter.parts import Update
+from curbside.localize.filter.pathfit import FixPathWindow, fit_similarity, span_m
 
 logger = logging.getLogger(__name__)
 
@@ -50,15 +44,13 @@ def fit_scale(
     independent fix per ``correlation_s`` seconds' worth of fixes (at 1 Hz; successive fixes share most
     of their error).
     """
+    fit = fit_similarity(path, fixes, accuracy)
     w = 1.0 / accuracy**2
-    p = path - np.sum(w * path) / np.sum(w)
-    g = fixes - np.sum(w * fixes) / np.sum(w)
-    spread = np.sum(w * np.abs(p) ** 2)
-    z = np.sum(w * np.conj(p) * g) / spread
-    r = g - z * p
+    spread = np.sum(w * np.abs(path - fit.path_centre) ** 2)
+    r = fit.residuals
     var = np.sum(w * np.abs(r) ** 2) / max(1, len(r) - 3) / 2.0  # per axis
     se = math.sqrt(var / spread * max(1.0, len(r) / max(1.0, len(r) / correlation_s)))
-    return float(abs(z)), float(np.angle(z)), se
+    return fit.scale, fit.rotation, se
 
 
 def robust_fit(
@@ -93,9 +85,7 @@ class ScaleCorrection:
         self.config = config
         self.gnss = gnss
         self.rng = rng
-        self.path = 0j
-        self.window: collections.deque[tuple[float, complex, complex, float]] = collections.deque()
-        self.next_fit_t = -math.inf
+        self.window = FixPathWindow()
         self.target = math.nan  # a scale to re-draw around at the next :meth:`correct`
         self.corrections = 0
 
@@ -106,20 +96,14 @@ class ScaleCorrection:
         """
         if self.config.fraction <= 0:
             return
-        turn = complex(math.cos(last.theta), math.sin(last.theta))
-        self.path += turn * complex(update.dx, update.dy)
+        self.window.advance(update, last.theta)
         fix, t = update.fix, update.t
         if fix is None or not self.gnss.accepts(fix):
             return
-        window = self.window
-        window.append((t, self.path, complex(fix.x, fix.y), fix.accuracy_m))
-        while window and window[0][0] < t - self.config.window_s:
-            window.popleft()
-        if t < self.next_fit_t or window[-1][0] - window[0][0] < 0.75 * self.config.window_s:
+        if not self.window.add(t, fix, complex(last.x, last.y), self.config.window_s):
             return
-        self.next_fit_t = t + 0.25 * self.config.window_s
-        _, path, fixes, accuracy = (np.array(v) for v in zip(*window, strict=True))
-        span = float(np.ptp(path.real) ** 2 + np.ptp(path.imag) ** 2) ** 0.5
+        path, fixes, accuracy, _ = self.window.arrays()
+        span = span_m(path)
         if span < max(self.config.min_path_m, 3.0 * math.sqrt(2.0) * float(np.median(accuracy))):
             return
         scale, rot, se = robust_fit(path, fixes, accuracy, self.config)

@@ -7,6 +7,7 @@ every update::
     divergence.observe         (optional) measure the cloud's agreement with this update's fix, and
                                whether the map holds it still while the phone walks (a stall)
     scale.observe              (optional) fit the recent fixes against the cloud's inertial path
+    turn.observe               (optional) the same for a velocity that turned, with its gates
     for each likelihood:       map, GNSS, or any part you add
         likelihood.weigh       add log-likelihoods to the particles' log-weights
     normalise_and_estimate     log-sum-exp normalisation; weighted mean, heading, speed scale, n_eff
@@ -15,6 +16,7 @@ every update::
     resampler.resample         every update (the paper) or below an ESS threshold
     divergence.inject          (optional) re-draw a fraction of the particles around the fix
     scale.correct              (optional) re-draw a fraction of the speed scales around the fitted one
+    turn.correct               (optional) re-draw a fraction of the particles where the fit puts them
     smoother.record            (optional) follow the genealogy; smooth the updates ``lag_s`` old
 
 :meth:`Tracker.from_config` builds the default parts from a :class:`FilterConfig`; the constructor takes
@@ -33,6 +35,7 @@ import pyproj
 from curbside.errors import CurbsideInputError
 from curbside.localize.filter.config import FilterConfig, MotionConfig, ScaleCorrectionConfig
 from curbside.localize.filter.gnss import GnssLikelihood
+from curbside.localize.filter.heading_correction import HeadingCorrection
 from curbside.localize.filter.initiate import Initiator
 from curbside.localize.filter.map_likelihood import MapLikelihood
 from curbside.localize.filter.particles import Estimate, ParticleSet, normalise_and_estimate
@@ -86,6 +89,8 @@ class Tracker:
         Optional GNSS-driven speed-scale correction.
     smoother
         Optional fixed-lag smoother (its output: :meth:`take_smoothed`).
+    turn
+        Optional GNSS-driven correction of a velocity that turned (heading, scale and position).
 
     Attributes
     ----------
@@ -109,6 +114,7 @@ class Tracker:
         gnss: GnssLikelihood | None = None,
         scale: ScaleCorrection | None = None,
         smoother: FixedLagSmoother | None = None,
+        turn: HeadingCorrection | None = None,
     ) -> None:
         self.particles = particles
         self.predictor = predictor
@@ -122,6 +128,7 @@ class Tracker:
         self.gnss = gnss
         self.scale = scale
         self.smoother = smoother
+        self.turn = turn
         self._smoothed: list[np.ndarray] = []
         self.recoveries = 0
         self.last_estimate: Estimate | None = None
@@ -180,6 +187,9 @@ class Tracker:
         if config.segment_estimate and raster is not None and raster.segment_index is not None:
             segments = SegmentEstimator(raster, n)
         smoother = FixedLagSmoother(config.smoother, n) if config.smoother.lag_s > 0 else None
+        turn = None
+        if gnss is not None and config.heading_correction.fraction > 0:
+            turn = HeadingCorrection(config.heading_correction, gnss, rng)
         return cls(
             ParticleSet(n),
             InertialPredictor(config.motion, n, rng),
@@ -193,6 +203,7 @@ class Tracker:
             gnss,
             scale,
             smoother,
+            turn,
         )
 
     # -- starting -----------------------------------------------------------------------------------
@@ -327,6 +338,8 @@ class Tracker:
         inject = 0.0 if divergence is None else divergence.observe(particles, update, last)
         if self.scale is not None:
             self.scale.observe(update, last)
+        if self.turn is not None:
+            self.turn.observe(update, last)
         for likelihood in self.likelihoods:
             likelihood.weigh(particles, update)
         if gnss_fix is not None and self.usable(gnss_fix):
@@ -376,6 +389,8 @@ class Tracker:
             injected = self.divergence.inject(p, self.last_fix, inject_fraction)
         if self.scale is not None:
             self.scale.correct(p)
+        if self.turn is not None:
+            self.turn.correct(p)
         if self.smoother is not None:
             self._smoothed.append(self.smoother.record(t, p, resampled))
         self.last_estimate = estimate = _new_tuple(
