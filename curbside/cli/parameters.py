@@ -36,10 +36,10 @@ localize parameters gnss            # the same listing in the terminal, filtered
 ```
 
 The defaults are curbside fused's; the column *paper* gives the value of `--mode paper` (the paper's
-plain filter) where it differs. Why each value was chosen: [filter.md](filter.md) for the filter,
-[osmseg.md](osmseg.md) for the map. This page is generated from the code
-(`python -m curbside.cli.parameters > docs/parameters.md`); `tests/test_parameters.py` fails when it
-falls out of step.
+plain filter) where it differs. Why each value was chosen: [filter.md](filter.md) and
+[tuning.md](tuning.md) for the filter, [osmseg.md](osmseg.md) for the map. This page is generated
+from the code (`python -m curbside.cli.parameters > docs/parameters.md`); `tests/test_parameters.py`
+fails when it falls out of step.
 """
 
 
@@ -107,16 +107,10 @@ def reference_markdown() -> str:
     )
 
 
-def _list_run(args: argparse.Namespace) -> int:
-    config = RunConfig.for_mode(args.mode)
-    params = _matching(parameters(config), args.pattern, "localize parameters")
-    print(format_markdown(params, sections(config)) if args.markdown else format_text(params))
-    return 0
-
-
-def _list_map(args: argparse.Namespace) -> int:
-    config = SegmentationConfig()
-    params = _matching(parameters(config), args.pattern, "osmseg parameters")
+def _list(args: argparse.Namespace) -> int:
+    """Print the parameters of ``args.config(args)``, those whose key contains ``args.pattern``."""
+    config = args.config(args)
+    params = _matching(parameters(config), args.pattern, f"{args.prog} parameters")
     print(format_markdown(params, sections(config)) if args.markdown else format_text(params))
     return 0
 
@@ -140,13 +134,13 @@ def register_localize(subparsers: argparse._SubParsersAction) -> None:
                          "localize parameters filter.gnss")
     parser.add_argument("--mode", choices=MODES, default="fused",
                         help="list the values of this method's defaults (default: fused)")
-    parser.set_defaults(func=_list_run)
+    parser.set_defaults(func=_list, prog="localize", config=lambda args: RunConfig.for_mode(args.mode))
 
 
 def register_osmseg(subparsers: argparse._SubParsersAction) -> None:
     """Add ``parameters`` to the ``osmseg`` sub-commands."""
     parser = _add_parser(subparsers, "the map build (osmseg build)", "osmseg parameters width")
-    parser.set_defaults(func=_list_map)
+    parser.set_defaults(func=_list, prog="osmseg", config=lambda args: SegmentationConfig())
 
 
 if __name__ == "__main__":
