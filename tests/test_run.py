@@ -243,6 +243,8 @@ def test_cli_writes_track_files_and_same_seed_same_track(tmp_path, map_file, cap
     assert info["velocity_source"] == "file" and info["step_source"] == "file" and info["config"]["seed"] == 3
     assert info["config"]["filter"]["n_particles"] == 2000
     assert info["config"]["filter"]["map"]["jaywalk_weight"] == 0.4
+    assert info["heading_corrections"] == 0  # good fixes and a right velocity: never needed
+    assert info["config"]["filter"]["heading_correction"]["fraction"] == 0.1
     assert not (tmp_path / "b" / "particles.npz").exists()
     assert "updates" in capsys.readouterr().out
 

@@ -91,6 +91,7 @@ def _run(args: argparse.Namespace) -> int:
         f"{args.output}: {len(track)} updates over {span:.1f} s, mode {result.mode}, "
         f"velocity {result.velocity_source or '-'}, steps {result.step_source}, "
         f"{result.recoveries} recoveries"
+        + (f", {result.heading_corrections} heading corrections" if result.heading_corrections else "")
     )
     if result.unseen_velocity_from_s is not None:
         print(

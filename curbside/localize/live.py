@@ -41,7 +41,7 @@ from curbside.localize.live_input import (
     check_gnss,
     check_imu,
 )
-from curbside.localize.pipeline import TrackResult, track_table
+from curbside.localize.pipeline import TrackResult, track_table, tracker_counts
 from curbside.localize.raster import MapRaster, load_or_build_raster
 from curbside.localize.ronin.stream import RoninStream, RoninStreamConfig
 from curbside.localize.runconfig import RunConfig
@@ -373,9 +373,8 @@ class LiveSession:
         tracker = self.engine.tracker
         segments = tracker is not None and tracker.segments is not None
         track = track_table(self.rows, self.frame, self.map_layers, segments=segments)
-        injections = 0 if tracker is None or tracker.divergence is None else tracker.divergence.injections
         return TrackResult(
-            track, self.config, self.velocity_source, self.step_source, self.recoveries, injections,
+            track, self.config, self.velocity_source, self.step_source, **tracker_counts(tracker),
             unseen_velocity_from_s=self.engine.unseen_velocity_from_s,
             familiar_velocity=self.engine.familiar_velocity,
             fix_lag=None if self.engine.lag is None else {"mode": self.config.fix_lag.mode,

@@ -32,6 +32,7 @@ import shapely
 
 from curbside.errors import CurbsideInputError
 from curbside.localize.engine import Row, SessionEngine, StartPose, require_rows
+from curbside.localize.filter.tracker import Tracker
 from curbside.localize.fix_lag import estimate_fix_lag
 from curbside.localize.raster import MapRaster, load_or_build_raster
 from curbside.localize.runconfig import MODES, VELOCITY_SOURCES, RunConfig
@@ -78,8 +79,9 @@ class TrackResult:
         The whole run configuration (``run.json``'s ``config``).
     velocity_source, step_source
         Where the velocity and the footsteps came from (``None`` for velocity in ``gnss`` mode).
-    recoveries, injections
-        Collapses re-seeded; particles injected by the divergence recovery.
+    recoveries, injections, heading_corrections
+        Collapses re-seeded; particles injected by the divergence recovery; re-draws of the heading
+        correction (:func:`tracker_counts`).
     unseen_velocity_from_s
         Time from which the filter moved with the unseen-velocity motion model (``None``: never).
     familiar_velocity
@@ -113,6 +115,7 @@ class TrackResult:
     walkable_first: bool | None = None
     familiar_velocity: dict[str, object] | None = None
     fix_lag: dict[str, object] | None = None
+    heading_corrections: int = 0
 
     @property
     def mode(self) -> str:
@@ -398,6 +401,17 @@ def _raster_for(map_layers: MapLayers | None, config: RunConfig) -> MapRaster | 
     )
 
 
+def tracker_counts(tracker: Tracker | None) -> dict[str, int]:
+    """``recoveries``, ``injections`` and ``heading_corrections`` of a finished tracker (0 without one)."""
+    if tracker is None:
+        return {"recoveries": 0, "injections": 0, "heading_corrections": 0}
+    return {
+        "recoveries": tracker.recoveries,
+        "injections": 0 if tracker.divergence is None else tracker.divergence.injections,
+        "heading_corrections": 0 if tracker.turn is None else tracker.turn.corrections,
+    }
+
+
 def _result(
     name: str,
     engine: SessionEngine,
@@ -418,18 +432,16 @@ def _result(
         smoothed=tracker is not None and tracker.smoother is not None,
     )
     snapshots = _stack_snapshots(engine, track, frame) if save_particles and tracker is not None else None
-    injections = 0 if tracker is None or tracker.divergence is None else tracker.divergence.injections
     return TrackResult(
         track,
         engine.config,
         *sources,
-        0 if tracker is None else tracker.recoveries,
-        injections,
-        snapshots,
-        engine.unseen_velocity_from_s,
-        None if tracker is None else tracker.wall_tolerance_m,
-        None if tracker is None else tracker.walkable_first,
-        engine.familiar_velocity,
+        snapshots=snapshots,
+        unseen_velocity_from_s=engine.unseen_velocity_from_s,
+        wall_tolerance_m=None if tracker is None else tracker.wall_tolerance_m,
+        walkable_first=None if tracker is None else tracker.walkable_first,
+        familiar_velocity=engine.familiar_velocity,
+        **tracker_counts(tracker),
     )
 
 

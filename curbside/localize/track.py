@@ -110,6 +110,7 @@ def write_track(
         "rows": len(result.track),
         "recoveries": result.recoveries,
         "injections": result.injections,
+        "heading_corrections": result.heading_corrections,
         "unseen_velocity_from_s": result.unseen_velocity_from_s,
         "familiar_velocity": result.familiar_velocity,
         "fix_lag": result.fix_lag,
