@@ -158,10 +158,20 @@ def field_docs(cls: type) -> dict[str, str]:
     does not name is absent.
     """
     lines = (inspect.getdoc(cls) or "").splitlines()
-    heads = [i for i, line in enumerate(lines[:-1]) if line == "Attributes" and set(lines[i + 1]) == {"-"}]
-    docs: dict[str, str] = {}
+    rules = [i for i in range(1, len(lines)) if lines[i] and set(lines[i]) == {"-"}]  # under a heading
+    heads = [i - 1 for i in rules if lines[i - 1] == "Attributes"]
     if not heads:
-        return docs
+        return {}
+    end = min([i - 1 for i in rules if i - 1 > heads[0]], default=len(lines))
+    docs: dict[str, str] = {}
+    names: list[str] = []
+    for line in lines[heads[0] + 2 : end]:
+        if line and not line.startswith(" "):  # an entry: "a, b" or "a : type"
+            names = [n.strip() for n in line.split(" : ")[0].split(",")]
+            docs.update({name: "" for name in names})
+        elif line.strip():
+            docs.update({name: f"{docs[name]} {line.strip()}".strip() for name in names})
+    return {name: _plain(text) for name, text in docs.items()}
     names: list[str] = []
     text: list[str] = []
     for i in range(heads[0] + 2, len(lines) + 1):
