@@ -13,6 +13,7 @@ Usage::
 
     python benchmarks/tune_fusion.py OUT --variants variants.json [--seeds 0 1] [--session-seeds 9]
         [--workers 2] [--subsets paper6 downtown open] [--map MAP] [--no-map-likelihood]
+        [--gnss canyon|persistent]
 
 ``variants.json`` maps names to ``[method, {"filter.motion.heading_noise_deg": 1.5, ...}]``; ``gnss``
 is always added. ``docs/tuning.md`` ("Choosing the fused filter's parameters") lists the rounds that
@@ -30,17 +31,22 @@ import numpy as np
 import pandas as pd
 
 from curbside.evaluate import metrics
+from curbside.evaluate.gnss_model import GNSS_MODELS, GnssErrorModel
 from curbside.evaluate.runner import RunSpec, run_all
+from curbside.evaluate.simulate import SimulationConfig
 from curbside.evaluate.subsets import SUBSETS, benchmark_sessions, load_world
 from curbside.evaluate.suite import SuiteConfig
 from curbside.evaluate.uncertainty import bootstrap_intervals
 
 
-def sessions(out: Path, subsets: tuple[str, ...], seeds: int) -> dict[str, list[Path]]:
-    """The tune split's session folders per subset (simulated on first use, then reused)."""
+def sessions(out: Path, subsets: tuple[str, ...], seeds: int, gnss: str = "canyon") -> dict[str, list[Path]]:
+    """The tune split's session folders per subset (simulated on first use, then reused); with another
+    GNSS model than ``canyon``, in ``tune-<gnss>/`` (the same walks and velocities, other fixes)."""
     world = load_world()
-    return {sub: benchmark_sessions(out / "tune" / sub, sub, split="tune", profile="phone", seeds=seeds,
-                                    world=world) for sub in subsets}
+    config = SimulationConfig(profile="phone", gnss=GnssErrorModel.named(gnss))
+    folder = out / ("tune" if gnss == "canyon" else f"tune-{gnss}")
+    return {sub: benchmark_sessions(folder / sub, sub, split="tune", seeds=seeds, world=world, config=config)
+            for sub in subsets}
 
 
 def run(folders: dict[str, list[Path]], map_path: str, variants: dict, seeds: tuple[int, ...], workers: int,
@@ -127,6 +133,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--score-map", metavar="MAP",
                         help="score against this map's sidewalks (the true one) while the filters use --map "
                              "(e.g. one whose buildings were moved on purpose); default: --map")
+    parser.add_argument("--gnss", choices=GNSS_MODELS, default="canyon",
+                        help="GNSS error model of the tune sessions (default canyon, the benchmark's; "
+                             "persistent: errors that last as long as real phones')")
     parser.add_argument("--workers", type=int, default=2)
     parser.add_argument("--no-map-likelihood", action="store_true",
                         help="run the filters without the map (as on the IPIN trials); the map still scores")
@@ -143,9 +152,9 @@ def main(argv: list[str] | None = None) -> int:
             write_map(build_map(), map_path)
     variants = {"gnss": ["gnss", {}], **json.loads(Path(args.variants).read_text(encoding="utf-8"))}
     t0 = time.perf_counter()
-    pooled, runs, gains = run(sessions(out, tuple(args.subsets), args.session_seeds), map_path, variants,
-                              tuple(args.seeds), args.workers, filter_map=not args.no_map_likelihood,
-                              score_map=args.score_map)
+    folders = sessions(out, tuple(args.subsets), args.session_seeds, args.gnss)
+    pooled, runs, gains = run(folders, map_path, variants, tuple(args.seeds), args.workers,
+                              filter_map=not args.no_map_likelihood, score_map=args.score_map)
     pd.set_option("display.width", 200)
     wide = pooled.pivot(index="variant", columns="subset").loc[list(dict.fromkeys(pooled["variant"]))]
     print(wide.round(3).to_string())
@@ -154,8 +163,8 @@ def main(argv: list[str] | None = None) -> int:
         print("paired 95 % session-bootstrap intervals, each variant minus the first "
               "(share of resamples better):")
         print_gains(gains)
-    print(f"({len(runs)} runs in {time.perf_counter() - t0:.0f} s; tune split, phone profile, filter seeds "
-          f"{args.seeds})")
+    print(f"({len(runs)} runs in {time.perf_counter() - t0:.0f} s; tune split, phone profile, "
+          f"GNSS {args.gnss}, filter seeds {args.seeds})")
     return 0
 
 

@@ -364,6 +364,15 @@ def test_simulate_a_custom_route(tmp_path):
     assert (sim["route"], sim["jaywalks"], sim["crosswalk_crossings"]) == ("custom", 1, 0)
     assert sim["length_m"] == pytest.approx(150, abs=0.5)
     assert main(["simulate", "--route", "custom", "-o", str(tmp_path / "x")]) == 2
+    # --gnss persistent: the same walk and velocity, fixes from the persistent model
+    assert main([*argv[:-1], str(tmp_path / "persistent"), "--gnss", "persistent"]) == 0
+    persistent = read_session(tmp_path / "persistent")
+    gnss = persistent.meta["simulation"]["config"]["gnss"]
+    assert gnss["tau_s"] == 300 and gnss["continuous_axes"] is True
+    assert session.meta["simulation"]["config"]["gnss"]["continuous_axes"] is False
+    pd.testing.assert_frame_equal(persistent.velocity, session.velocity)
+    moved_deg = np.abs(persistent.gnss["lat"].to_numpy()[:50] - session.gnss["lat"].to_numpy()[:50])
+    assert moved_deg.max() > 1e-5  # about a metre
 
 
 def test_snapshot_moments_are_a_bad_fix_and_a_turn(sessions):

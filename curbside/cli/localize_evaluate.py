@@ -49,16 +49,18 @@ _OVERWRITE_HELP = "write into a non-empty folder curbside did not write (its oth
 def _simulate(args: argparse.Namespace) -> int:
     check_output_folder(args.output, args.overwrite)  # before the slow imports and the OSM load
     from curbside.evaluate import routes as routes_mod
+    from curbside.evaluate.gnss_model import GnssErrorModel
     from curbside.evaluate.simulate import SimulationConfig, sf6_routes, simulate_benchmark, simulate_session
     from curbside.localize.session import write_session
 
-    config = SimulationConfig(profile=args.profile, write_velocity=not args.no_velocity, write_imu=args.imu)
+    config = SimulationConfig(profile=args.profile, gnss=GnssErrorModel.named(args.gnss),
+                              write_velocity=not args.no_velocity, write_imu=args.imu)
     if args.benchmark:
         with output_folder(args.output, "localize simulate --benchmark", overwrite=args.overwrite) as tmp:
             written = simulate_benchmark(tmp, args.seeds, config, args.osm)
         print(
             f"{args.output}: {len(written)} sessions of the sf6 benchmark ({args.seeds} seed(s) per route, "
-            f"profile {args.profile})"
+            f"profile {args.profile}, GNSS {args.gnss})"
         )
         return 0
     from curbside.evaluate.osmsource import load_osm
@@ -250,6 +252,13 @@ def _register_simulate(subparsers: argparse._SubParsersAction) -> None:
         default="nominal",
         help="inertial error model: nominal (RoNIN's published levels) or phone (a phone in a hand: "
         "heading jumps, drift, speed scale, stops at kerbs); default nominal",
+    )
+    sim.add_argument(
+        "--gnss",
+        choices=("canyon", "persistent"),
+        default="canyon",
+        help="GNSS error model: canyon (the benchmark's, calibrated to the paper's GNSS column) or "
+        "persistent (the same error sizes, with errors that last as long as real phones' do); default canyon",
     )
     sim.add_argument("-o", "--output", required=True, help="session folder (or folder of sessions)")
     sim.add_argument("--overwrite", action="store_true", help=_OVERWRITE_HELP)

@@ -1,0 +1,83 @@
+"""Do the simulated fixes' errors last as long as a real phone's? Window by window, walk by walk.
+
+Each fix's error against the surveyed (or simulated) waypoints, cut into windows of ``--window-s``
+seconds (:mod:`curbside.evaluate.gnss_persistence`): the share of the error still there 5, 10, 20
+and 30 s later, and the share a single offset per window explains. The script prints the median
+over the windows, with the number of windows, for:
+
+- the IPIN 2023 trials (``--ipin``: two Android phones, surveyed waypoints, no model involved, so
+  every trial is read);
+- simulated sessions (``--sessions``: folders of ``gnss.csv`` and ``waypoints.csv``, e.g. the tune
+  split that ``benchmarks/tune_fusion.py`` writes);
+- Gauss-Markov references at the time constants of ``--tau-s`` (what a pure AR(1) error reads over
+  the same windows).
+
+Usage::
+
+    python benchmarks/gnss_persistence.py --ipin ../shared/data/ipin2023/ipin2023-t3.h5 \\
+        --sessions TUNE/tune/paper6 TUNE/tune/downtown TUNE/tune/open
+"""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+import pandas as pd
+
+from curbside.evaluate.gnss_persistence import ar1_reference, fix_errors, window_persistence
+from curbside.localize.session import read_session
+
+
+def summary_row(source: str, windows: list[pd.DataFrame]) -> dict:
+    """Median of every column over the windows of all walks of ``source``."""
+    table = pd.concat([w for w in windows if len(w)], ignore_index=True) if windows else pd.DataFrame()
+    medians = table.drop(columns="t0").median().to_dict() if len(table) else {}
+    return {"source": source, "windows": len(table), **medians}
+
+
+def simulated_windows(folder: Path, window_s: float) -> list[pd.DataFrame]:
+    """The windows of every simulated session under ``folder``."""
+    sessions = (read_session(p) for p in sorted(folder.iterdir()) if (p / "gnss.csv").exists())
+    return [window_persistence(fix_errors(s.gnss, s.waypoints), window_s) for s in sessions]
+
+
+def ipin_windows(h5: str, window_s: float) -> list[pd.DataFrame]:
+    """The windows of every IPIN trial with at least two waypoints."""
+    from curbside.localize.readers.ipin import list_trials, read_trial
+
+    trials = (read_trial(h5, name) for name in list_trials(h5))
+    return [window_persistence(fix_errors(trial.gnss, trial.waypoints), window_s)
+            for trial in trials if trial.waypoints is not None and len(trial.waypoints) >= 2]
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--sessions", nargs="*", default=[], help="folders of simulated sessions")
+    parser.add_argument("--ipin", help="ipin2023-t3.h5")
+    parser.add_argument("--window-s", type=float, default=90.0,
+                        help="window length (s; default 90: most IPIN trials hold one or two)")
+    parser.add_argument("--tau-s", type=float, nargs="*", default=[3.0, 10.0, 30.0],
+                        help="Gauss-Markov references (default: 3 10 30)")
+    args = parser.parse_args(argv)
+    if not args.sessions and not args.ipin:
+        parser.error("nothing to measure: give --sessions, --ipin or both")
+    if args.window_s <= 30:
+        parser.error(f"--window-s must be longer than the longest lag (30 s), got {args.window_s:g}")
+    for path in [*args.sessions, args.ipin or "."]:
+        if not Path(path).exists():
+            parser.error(f"{path}: no such file or folder")
+    rows = []
+    if args.ipin:
+        rows.append(summary_row("IPIN 2023, real phones", ipin_windows(args.ipin, args.window_s)))
+    for folder in map(Path, args.sessions):
+        label = f"simulated {folder.parent.name}/{folder.name}"
+        rows.append(summary_row(label, simulated_windows(folder, args.window_s)))
+    rows += [{"source": f"AR(1), tau {tau:g} s", "windows": 400, **ar1_reference(tau, args.window_s)}
+             for tau in args.tau_s]
+    print(pd.DataFrame(rows).round(2).to_string(index=False))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
