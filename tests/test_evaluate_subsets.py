@@ -9,7 +9,7 @@ import pytest
 
 from curbside.cli import localize_evaluate
 from curbside.errors import CurbsideInputError
-from curbside.evaluate import simulate, subsets
+from curbside.evaluate import gnss_model, simulate, subsets
 
 
 @pytest.fixture(scope="module")
@@ -36,6 +36,7 @@ def test_splits_have_disjoint_seeds_and_distinct_simulator_seeds():
 
 def test_cli_choices_match_the_library():
     assert tuple(simulate.PROFILES) == localize_evaluate.PROFILES
+    assert tuple(gnss_model.GNSS_MODELS) == localize_evaluate.GNSS_MODELS
     assert localize_evaluate.SUBSETS == subsets.SUBSETS and localize_evaluate.SPLITS == subsets.SPLITS
     assert {
         k: v for k, v in subsets.DEFAULT_ROUTES.items() if k != "paper6"

@@ -37,6 +37,7 @@ from curbside.io import check_output_folder, output_folder
 # The choices of the simulator and benchmark options, kept here so that ``localize --help`` need not
 # import the simulator (tests check them against curbside.evaluate.simulate / .subsets).
 PROFILES = ("nominal", "phone")
+GNSS_MODELS = ("canyon", "persistent")
 SUBSETS = ("paper6", "downtown", "open")
 SPLITS = ("test", "tune")
 DEFAULT_ROUTES = {"downtown": 8, "open": 6}
@@ -255,7 +256,7 @@ def _register_simulate(subparsers: argparse._SubParsersAction) -> None:
     )
     sim.add_argument(
         "--gnss",
-        choices=("canyon", "persistent"),
+        choices=GNSS_MODELS,
         default="canyon",
         help="GNSS error model: canyon (the benchmark's, calibrated to the paper's GNSS column) or "
         "persistent (the same error sizes, with errors that last as long as real phones' do); default canyon",

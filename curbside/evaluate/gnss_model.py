@@ -221,7 +221,7 @@ def _axis_severity(w: np.ndarray, u: np.ndarray, axis: np.ndarray) -> np.ndarray
     return np.clip(np.sum(w * weight, axis=1) / np.sum(weight, axis=1), 0, 1)
 
 
-def _gauss_markov(n: int, dt: float, tau: np.ndarray | float, rng: np.random.Generator) -> np.ndarray:
+def gauss_markov(n: int, dt: float, tau: np.ndarray | float, rng: np.random.Generator) -> np.ndarray:
     """Unit-variance first-order Gauss-Markov sequence (AR(1)) of length ``n``."""
     phi = np.exp(-dt / np.broadcast_to(np.asarray(tau, float), (n,)))
     noise = rng.standard_normal(n)
@@ -288,8 +288,8 @@ def simulate_gnss(
     sig_a = np.where(covered, model.sigma_covered_m, sig_a)
     sig_b = np.where(covered, model.sigma_covered_m, sig_b)
     tau = np.where(covered, model.tau_covered_s, model.tau_s)
-    za = _gauss_markov(n, dt, tau, rng)
-    zb = _gauss_markov(n, dt, tau, rng)
+    za = gauss_markov(n, dt, tau, rng)
+    zb = gauss_markov(n, dt, tau, rng)
     err = across * (sig_a * za)[:, None] + along * (sig_b * zb)[:, None]
 
     ws_prob = model.wrong_side_rate_per_s * dt * sev_a
