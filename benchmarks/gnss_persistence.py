@@ -15,7 +15,7 @@ over the windows, with the number of windows, for:
 Usage::
 
     python benchmarks/gnss_persistence.py --ipin ../shared/data/ipin2023/ipin2023-t3.h5 \\
-        --sessions TUNE/tune/paper6 TUNE/tune/downtown TUNE/tune/open
+        --sessions TUNE/tune/paper6 TUNE/tune/downtown TUNE/tune/open [--plot FIG.png]
 """
 
 from __future__ import annotations
@@ -59,6 +59,7 @@ def main(argv: list[str] | None = None) -> int:
                         help="window length (s; default 90: most IPIN trials hold one or two)")
     parser.add_argument("--tau-s", type=float, nargs="*", default=[3.0, 10.0, 30.0],
                         help="Gauss-Markov references (default: 3 10 30)")
+    parser.add_argument("--plot", metavar="PNG", help="also draw the persistence against the lag")
     args = parser.parse_args(argv)
     if not args.sessions and not args.ipin:
         parser.error("nothing to measure: give --sessions, --ipin or both")
@@ -75,8 +76,39 @@ def main(argv: list[str] | None = None) -> int:
         rows.append(summary_row(label, simulated_windows(folder, args.window_s)))
     rows += [{"source": f"AR(1), tau {tau:g} s", "windows": 400, **ar1_reference(tau, args.window_s)}
              for tau in args.tau_s]
-    print(pd.DataFrame(rows).round(2).to_string(index=False))
+    table = pd.DataFrame(rows)
+    print(table.round(2).to_string(index=False))
+    if args.plot:
+        plot(table, args.plot, args.window_s)
+        print(f"{args.plot}: the figure")
     return 0
+
+
+def plot(table: pd.DataFrame, path: str, window_s: float) -> None:
+    """Each source's median persistence against the lag; references dashed (written atomically)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from curbside.io import atomic_path
+
+    lags = [c for c in table.columns if c.startswith("lag_")]
+    x = [0.0] + [float(c[4:-1]) for c in lags]
+    fig, ax = plt.subplots(figsize=(9.5, 4.2))
+    dashes = iter([":", "--", "-.", (0, (5, 1, 1, 1, 1, 1))] * len(table))
+    for _, row in table.iterrows():
+        reference = str(row["source"]).startswith("AR(1)")
+        style = {"ls": next(dashes), "lw": 1.2, "color": "0.45"} if reference else {"marker": "o", "lw": 2}
+        ax.plot(x, [1.0] + [row[c] for c in lags], label=row["source"], **style)
+    ax.set(xlabel="lag (s)", ylabel="share of a fix's error still there",
+           title=f"How long a GNSS fix's error lasts ({window_s:g} s windows, medians)", ylim=(-0.05, 1.02))
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=8, loc="center left", bbox_to_anchor=(1.01, 0.5))
+    fig.tight_layout()
+    with atomic_path(Path(path)) as tmp:
+        fig.savefig(tmp, dpi=110, format="png")
+    plt.close(fig)
 
 
 if __name__ == "__main__":

@@ -111,7 +111,9 @@ def test_the_script_summarises_simulated_sessions(tmp_path, capsys):
     for seed in (1, 2):
         session = sim.simulate_session(route_list[0], osm, frame, seed)
         sim.write_session(session, folder / session.name)
-    assert main(["--sessions", str(folder), "--tau-s", "30"]) == 0
+    figure = tmp_path / "persistence.png"
+    assert main(["--sessions", str(folder), "--tau-s", "30", "--plot", str(figure)]) == 0
+    assert figure.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     out = capsys.readouterr().out
     assert f"simulated {tmp_path.name}/sessions" in out and "AR(1), tau 30 s" in out
     assert summary_row("none", [])["windows"] == 0
