@@ -194,3 +194,22 @@ def test_benchmark_cli_bad_input(tmp_path, capsys):
     err = capsys.readouterr().err.strip().splitlines()
     assert err[-1] == f"localize: error: {tmp_path / 'missing.topojson'}: no such file"
     assert not out.exists()
+
+
+def test_the_persistent_gnss_model_is_recorded_and_its_sessions_are_filed_apart(tmp_path, monkeypatch):
+    from curbside.evaluate.gnss_model import GnssErrorModel
+
+    config = suite.SuiteConfig(gnss="persistent", subsets=("open",))
+    assert config.simulation().gnss == GnssErrorModel.named("persistent")
+    assert suite.SuiteConfig().simulation().gnss == GnssErrorModel()  # the scored model by default
+    with pytest.raises(CurbsideInputError, match="unknown GNSS model 'foggy'"):
+        suite.SuiteConfig(gnss="foggy")
+    calls = []
+    monkeypatch.setattr(suite, "load_world", lambda osm_file=None: None)
+    monkeypatch.setattr(suite, "benchmark_sessions",
+                        lambda out, subset, split, **kw: calls.append((out, kw["config"])) or [])
+    suite.simulate_suite(tmp_path, config)
+    suite.simulate_suite(tmp_path, suite.SuiteConfig(subsets=("open",)))
+    assert [c[0] for c in calls] == [tmp_path / "sessions" / "phone-persistent" / "test" / "open",
+                                     tmp_path / "sessions" / "phone" / "test" / "open"]
+    assert calls[0][1].gnss.continuous_axes and not calls[1][1].gnss.continuous_axes

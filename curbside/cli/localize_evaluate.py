@@ -198,6 +198,7 @@ def _benchmark(args: argparse.Namespace) -> int:
         filter_seeds=args.filter_seeds,
         smoothing_lag_s=args.lag_s,
         unseen_velocity=args.unseen_velocity,
+        gnss=args.gnss,
     )
     paths = run_suite(
         args.output,
@@ -323,6 +324,9 @@ def _register_benchmark(subparsers: argparse._SubParsersAction) -> None:
     )
     bench.add_argument("--profile", choices=PROFILES, default="phone",
                        help="inertial error profile of the simulated walks (default: phone)")
+    bench.add_argument("--gnss", choices=GNSS_MODELS, default="canyon",
+                       help="GNSS error model of the simulated walks: canyon (the default, the scored "
+                       "one) or persistent (errors that last as long as a phone's)")
     bench.add_argument("--split", choices=SPLITS, default="test", help="test (scored) or tune (default test)")
     bench.add_argument("--subsets", nargs="+", choices=SUBSETS, default=list(SUBSETS),
                        help="which subsets to run (default: all three)")

@@ -28,6 +28,7 @@ import curbside
 from curbside.errors import CurbsideInputError
 from curbside.evaluate import criteria
 from curbside.evaluate.benchmark import IpinScores, datasf_osm_map, snapshot_times
+from curbside.evaluate.gnss_model import GnssErrorModel
 from curbside.evaluate.runner import SMOOTHED_METHOD, RunSpec, pool, run_all, smoothed_results, subset_of
 from curbside.evaluate.simulate import PROFILES, SimulationConfig
 from curbside.evaluate.subsets import DEFAULT_ROUTES, SPLITS, SUBSETS, benchmark_sessions, load_world
@@ -84,6 +85,10 @@ class SuiteConfig:
         Curbside fused's ``unseen_velocity.mode`` everywhere (:class:`~curbside.localize.runconfig.
         UnseenVelocityConfig`; default ``auto``, its own), the checks judging it; version 0.1's fused
         filter, the IPIN baseline, stays as it was.
+    gnss
+        The simulated walks' GNSS error model (:data:`~curbside.evaluate.gnss_model.GNSS_MODELS`):
+        ``canyon`` (the default, the one issue 9 is scored on) or ``persistent`` (the same error sizes,
+        errors that last as long as a phone's; the same walks and velocities).
     """
 
     profile: str = "phone"
@@ -104,8 +109,10 @@ class SuiteConfig:
     write_imu: bool = False
     smoothing_lag_s: float = 0.0
     unseen_velocity: str = UnseenVelocityConfig().mode
+    gnss: str = "canyon"
 
     def __post_init__(self) -> None:
+        GnssErrorModel.named(self.gnss)  # an unknown name is a one-line input error
         if self.profile not in PROFILES:
             raise CurbsideInputError(
                 "--profile", f"unknown profile {self.profile!r}; one of {list(PROFILES)}"
@@ -132,6 +139,11 @@ class SuiteConfig:
         if smooth:
             overrides["filter.smoother.lag_s"] = self.smoothing_lag_s
         return tuple(sorted(overrides.items()))
+
+    def simulation(self) -> SimulationConfig:
+        """The simulator's configuration of the suite's walks."""
+        return SimulationConfig(profile=self.profile, gnss=GnssErrorModel.named(self.gnss),
+                                write_imu=self.write_imu)
 
     def particles_of(self, method: str) -> int:
         """``method``'s particle count."""
@@ -349,7 +361,7 @@ def _run_info(
         "generator": f"curbside {curbside.__version__}",
         "git_commit": _git_commit(),
         "suite": asdict(config),
-        "simulation": SimulationConfig(profile=config.profile).as_dict(),
+        "simulation": config.simulation().as_dict(),
         "maps": maps,
         "machine": {
             "cpus": os.cpu_count(),
@@ -364,7 +376,8 @@ def _run_info(
 def simulate_suite(
     out_dir: str | Path, config: SuiteConfig, osm_file: str | Path | None = None
 ) -> dict[str, list[Path]]:
-    """Simulate (or reuse) every session of a benchmark into ``out_dir/sessions/<profile>/<split>/``.
+    """Simulate (or reuse) every session of a benchmark into ``out_dir/sessions/<profile>/<split>/``
+    (``<profile>-<gnss>`` for another GNSS model than ``canyon``).
 
     Returns
     -------
@@ -372,17 +385,17 @@ def simulate_suite(
         Session folders per subset.
     """
     world = load_world(str(osm_file) if osm_file else None)
-    root = Path(out_dir) / "sessions" / config.profile / config.split
+    models = config.profile if config.gnss == "canyon" else f"{config.profile}-{config.gnss}"
+    root = Path(out_dir) / "sessions" / models / config.split
     return {
         subset: benchmark_sessions(
             root / subset,
             subset,
             config.split,
-            config.profile,
-            config.seeds,
-            config.routes_of(subset),
-            world,
-            config.write_imu,
+            seeds=config.seeds,
+            n_routes=config.routes_of(subset),
+            world=world,
+            config=config.simulation(),
         )
         for subset in config.subsets
     }
@@ -489,7 +502,8 @@ def suite_summary(report_dir: str | Path) -> str:
     doc = json.loads((Path(report_dir) / "metrics.json").read_text(encoding="utf-8"))
     suite = doc["suite"]
     lines = [
-        f"benchmark: profile {suite['profile']}, split {suite['split']}, w = {suite['jaywalk_weight']:g}"
+        f"benchmark: profile {suite['profile']}, GNSS {suite.get('gnss', 'canyon')}, split {suite['split']}, "
+        f"w = {suite['jaywalk_weight']:g}"
     ]
     pooled = pd.DataFrame(doc["pooled"])
     base = pooled[

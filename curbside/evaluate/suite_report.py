@@ -245,8 +245,9 @@ def checks_table(checks: list[criteria.Check]) -> Table:
     )
 
 
-def profile_table(simulation: dict[str, Any]) -> Table:
-    """The simulation profile's error magnitudes (sources: docs/evaluate.md)."""
+def profile_table(simulation: dict[str, Any], gnss: str = "canyon") -> Table:
+    """The simulation profile's error magnitudes (sources: docs/evaluate.md); ``gnss``: the name of
+    the GNSS model."""
     v, w = simulation["velocity"], simulation["walker"]
     rows = [
         ["heading bias per walk (1-sigma)", f"{v['heading_bias_deg']:g} deg"],
@@ -279,7 +280,7 @@ def profile_table(simulation: dict[str, Any]) -> Table:
         f"Simulation profile '{simulation['profile']}'",
         ["component", "magnitude"],
         rows,
-        "GNSS: the urban-canyon model of docs/evaluate.md in every profile.",
+        f"GNSS: the '{gnss}' model of docs/evaluate.md.",
     )
 
 
@@ -340,7 +341,7 @@ def _tables(
             tables.append(sweep)
     tables += [t for t in (sure["subsets"], map_table(pooled, w), sure["maps"]) if t is not None]
     tables += [t for scores in ipin_scores for t in scores.tables()]
-    tables.append(profile_table(run_info["simulation"]))
+    tables.append(profile_table(run_info["simulation"], config.gnss))
     tables += [session_table(per_session, s, w, events, limit) for s in config.subsets]
     return tables
 
@@ -366,7 +367,8 @@ def _intro(config, counts, pooled, n_runs, timings, workers, checks) -> str:
     )
     stages = ", ".join(f"{k.removesuffix('_s')} {v:.0f} s" for k, v in timings.items())
     return (
-        f"Profile '{config.profile}', split '{config.split}', {config.seeds} seed(s) per route: {subsets}. "
+        f"Profile '{config.profile}', GNSS '{config.gnss}', split '{config.split}', "
+        f"{config.seeds} seed(s) per route: {subsets}. "
         f"{n_runs} runs, N = {config.particles} (curbside fused {config.particles_of('fused')}), "
         f"{_seeds(config)}, every method on the same "
         f"sessions{_preset_note(config.unseen_velocity)}. "
