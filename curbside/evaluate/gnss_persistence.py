@@ -19,7 +19,7 @@ module measures it the same way on any recording with fixes and waypoints:
   for the whole window explains.
 
 ``python benchmarks/gnss_persistence.py`` prints the table for the IPIN 2023 trials and for simulated
-sessions side by side (docs/evaluate.md, "Known limits").
+sessions side by side (docs/evaluate.md, "How long a fix's error lasts").
 """
 
 from __future__ import annotations
