@@ -22,8 +22,9 @@ import pandas as pd
 #: The run the IPIN criterion must not regress from: version 0.1's fused filter, i.e. today's fused
 #: defaults with 0.1's particle count (500), motion and resampling (no speed-scale state or correction,
 #: heading noise 0.5 deg, step noise 15 %, resampling at every update, injection without heading
-#: jitter, no stall trigger, no heading correction from the fixes, no switch to the unseen-velocity or
-#: the familiar-velocity motion model, no street-heading likelihood, no compensation of the fixes' lag)
+#: jitter and at 0.1's trigger ratio, no stall trigger, no heading correction from the fixes, no switch
+#: to the unseen-velocity or the familiar-velocity motion model, no street-heading likelihood, no
+#: compensation of the fixes' lag)
 #: and 0.1's GNSS tempering (one correlation time for every fix, whatever its accuracy).
 #: The benchmark runs it on the same held-out trials and waypoints as the fused filter it judges (a
 #: figure from an older run would have been measured on another set of waypoints).
@@ -36,6 +37,7 @@ FUSED_0_1_OVERRIDES: dict[str, object] = {
     "filter.motion.heading_noise_deg": 0.5,
     "filter.motion.step_noise_fraction": 0.15,
     "filter.recovery.inject_heading_sigma_deg": 0.0,
+    "filter.recovery.trigger_ratio": 0.5,
     "filter.recovery.stall_ratio": 0.0,
     "filter.scale_correction.fraction": 0.0,
     "filter.heading_correction.fraction": 0.0,

@@ -325,6 +325,8 @@ class RecoveryConfig:
         MCL, Thrun et al. 2005, table 8.3).
     trigger_ratio
         Particles are injected once the short-term average falls below this fraction of the long one.
+        0.4 (version 0.1: 0.5): a phone's fixes can be off the same way for a minute, and at 0.5 such
+        an episode read as a divergence and re-drew the cloud around the wrong fixes.
     kernel_scale
         The agreement kernel's sigma as a multiple of the GNSS likelihood's sigma.
     max_fraction
@@ -351,7 +353,7 @@ class RecoveryConfig:
     collapse_sigma_m: float = 5.0
     alpha_fast: float = 0.02
     alpha_slow: float = 0.002
-    trigger_ratio: float = 0.5
+    trigger_ratio: float = 0.4
     kernel_scale: float = 5.0
     max_fraction: float = 0.25
     inject_heading_sigma_deg: float = 30.0
