@@ -334,3 +334,39 @@ def save_png(fig: plt.Figure, path: Path, dpi: int = 110) -> bytes:
     fig.savefig(path, dpi=dpi)
     plt.close(fig)
     return path.read_bytes()
+
+
+def fig_reliability(rows: list[dict[str, Any]], base: dict[str, Any]) -> plt.Figure | None:
+    """``segment_prob`` against the share of footsteps on the right sidewalk, bin by bin: one panel per
+    group (a benchmark subset), one line per filter, marker area by the bin's share of the footsteps.
+
+    ``rows`` are :func:`curbside.evaluate.confidence.reliability_rows` (``None`` without any). On the
+    diagonal the probability is a frequency; below it the filter is over-confident.
+    """
+    if not rows:
+        return None
+    groups = list(dict.fromkeys(r["subset"] for r in rows))
+    width = max(6.0, 4.3 * len(groups) + 0.4)
+    fig, axes = plt.subplots(1, len(groups), figsize=(width, 5.3), sharey=True, squeeze=False)
+    for ax, group in zip(axes[0], groups, strict=True):
+        for r in (r for r in rows if r["subset"] == group):
+            bins = pd.DataFrame(r["bins"])
+            color = METHOD_COLORS[r["method"]]
+            ax.plot(bins["mean_prob"], bins["share_right"], "-", color=color, lw=1.2, alpha=0.8)
+            area = 15 + 400 * bins["footsteps"] / r["footsteps"]
+            ax.scatter(bins["mean_prob"], bins["share_right"], s=area, color=color,
+                       edgecolor="k", linewidth=0.4, alpha=0.85, zorder=3,
+                       label=f"{METHOD_LABELS[r['method']]} (error {r['calibration_error']:.3f})")
+        ax.plot([0, 1], [0, 1], ":", color="0.4", lw=1, label="probability = share right")
+        ax.set_xlim(0, 1.02)
+        ax.set_ylim(0, 1.02)
+        ax.set_aspect("equal")
+        ax.set_xlabel("segment_prob (mean over the bin)")
+        ax.set_title(group if group is not None else "all walks")
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize=7, loc="upper left")
+    axes[0][0].set_ylabel("share of those footsteps on the right sidewalk")
+    title = f"How far to trust segment_prob ({config_label(base)})"
+    fig.suptitle(f"{title}\nmarker area: the bin's share of the footsteps", fontsize=11)
+    fig.tight_layout()
+    return fig

@@ -20,10 +20,12 @@ import pandas as pd
 
 import curbside
 from curbside import settings
+from curbside.evaluate.confidence import THRESHOLDS, reliability_rows
 from curbside.evaluate.figures import (
     fig_cdf,
     fig_particles,
     fig_per_path,
+    fig_reliability,
     fig_tracks,
     save_png,
 )
@@ -392,7 +394,10 @@ def write_report(
         tables.append(map_table(pooled, base))
     tables += sweep_tables(pooled, base)
     sure, sure_rows = _interval_tables(results, base)
-    tables += sure + (extra_tables or [])
+    trust_rows = reliability_rows(results, base)
+    trust = confidence_table(trust_rows, f"How far to trust segment_prob, w = {base['jaywalk_weight']:g}, "
+                                         f"map '{base['map']}'")
+    tables += sure + ([trust] if trust is not None else []) + (extra_tables or [])
     doc = {
         "generator": f"curbside {curbside.__version__}",
         "metric_names": list(METRIC_NAMES),
@@ -404,11 +409,12 @@ def write_report(
         "per_path": records(per_path),
         "per_session": records(per_session),
         **sure_rows,
+        "segment_prob_reliability": trust_rows,
         "definitions": _definitions(MetricsConfig()),  # run_one scores with the defaults
     }
     doc.update(extra_json or {})
     with atomic_path(out_dir) as tmp:
-        figures = _write_figures(results, layers, base, base_path, tmp / "figures")
+        figures = _write_figures(results, layers, base, base_path, tmp / "figures", trust_rows)
         (tmp / "metrics.json").write_text(json.dumps(json_ready(doc), indent=1), encoding="utf-8")
         from curbside.localize.view import write_session_views
 
@@ -420,6 +426,34 @@ def write_report(
         (tmp / "report.md").write_text("\n".join(md), encoding="utf-8")
         (tmp / "report.html").write_text(_html_page(intro, tables, figures, views), encoding="utf-8")
     return {name: out_dir / name for name in ("metrics.json", "report.md", "report.html")}
+
+
+#: The note under the segment_prob tables (:mod:`curbside.evaluate.confidence`).
+CONFIDENCE_NOTE = (
+    "segment_prob is the posterior probability of the sidewalk the filter names (track.csv, the "
+    "service). Per threshold p: the share of footsteps at which it is at least p, and the CSA of the "
+    "posterior-mode estimate over those footsteps, as an app that announces a side only above p would "
+    "see it. Calibration error: the footstep-weighted mean gap between the probability and the share "
+    "right over bins (0 when a footstep at 0.9 is right 90 % of the time). Footsteps on crossings are "
+    "left out; every filter seed pools."
+)
+
+
+def confidence_table(rows: list[dict[str, Any]], title: str) -> Table | None:
+    """:func:`curbside.evaluate.confidence.reliability_rows` as a table (``None`` without rows); the
+    subset column only where the rows have groups."""
+    if not rows:
+        return None
+    grouped = any(r["subset"] is not None for r in rows)
+    header = ["subset"] * grouped + ["method", "footsteps", "calibration error"]
+    header += [f"p >= {p:g}: share / CSA" for p in THRESHOLDS]
+    body = []
+    for r in rows:
+        cells = [f"{fmt_value(r[f'coverage_{p:g}'], 2)} / {fmt_value(r[f'csa_{p:g}'], 3)}"
+                 for p in THRESHOLDS]
+        body.append([r["subset"]] * grouped + [METHOD_LABELS[r["method"]], str(r["footsteps"]),
+                                               fmt_value(r["calibration_error"], 3), *cells])
+    return Table(title, header, body, CONFIDENCE_NOTE)
 
 
 def _interval_tables(results: list[dict], base: dict[str, Any]) -> tuple[list[Table], dict[str, Any]]:
@@ -450,15 +484,22 @@ def _at_base(per_path: pd.DataFrame, base: dict[str, Any]) -> pd.DataFrame:
 
 
 def _write_figures(
-    results: list[dict], layers: MapLayers | None, base: dict[str, Any], base_path: pd.DataFrame, figdir: Path
+    results: list[dict],
+    layers: MapLayers | None,
+    base: dict[str, Any],
+    base_path: pd.DataFrame,
+    figdir: Path,
+    trust_rows: list[dict[str, Any]] | None = None,
 ) -> list[tuple[str, str, bytes]]:
-    """Figures 1, 3 (when a run kept its particles), 4 and 5 as PNGs: ``(file name, alt text, bytes)``."""
+    """Figures 1, 3 (when a run kept its particles), 4, 5 and ``segment_prob``'s reliability (from
+    ``trust_rows``) as PNGs: ``(file name, alt text, bytes)``."""
     figdir.mkdir(parents=True)
     figs = [
         ("fig1_tracks.png", "Fig. 1 tracks", fig_tracks(results, layers, base)),
         ("fig3_particles.png", "Fig. 3 particles", fig_particles(results, layers, base)),
         ("fig4_cdf.png", "Fig. 4 CDF", fig_cdf(results, base)),
         ("fig5_per_path.png", "Fig. 5 per path", fig_per_path(base_path, base)),
+        ("fig_reliability.png", "segment_prob reliability", fig_reliability(trust_rows or [], base)),
     ]
     return [(name, alt, save_png(fig, figdir / name)) for name, alt, fig in figs if fig is not None]
 

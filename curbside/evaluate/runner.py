@@ -125,9 +125,9 @@ def run_one(spec: RunSpec) -> dict[str, Any]:
     dict
         ``spec`` (dict), ``path`` (route name), ``metrics`` (SPEC names), ``ate_m``, ``rte_m``,
         ``errors`` (per-footstep DataFrame), ``metrics_mode`` and ``errors_mode`` (the same for the
-        posterior-mode estimate), ``metrics_smoothed`` and ``errors_smoothed`` (the same for the
-        fixed-lag smoother's positions; ``None`` without ``filter.smoother.lag_s``), ``track``
-        (``t, x_m, y_m, gt_x_m, gt_y_m``),
+        posterior-mode estimate, with the run's ``segment_prob`` beside each footstep),
+        ``metrics_smoothed`` and ``errors_smoothed`` (the same for the fixed-lag smoother's positions;
+        ``None`` without ``filter.smoother.lag_s``), ``track`` (``t, x_m, y_m, gt_x_m, gt_y_m``),
         ``snapshots`` (list of ``{"t", "x", "y"}`` clouds), ``recoveries``, ``velocity_source``.
     """
     from curbside.localize.pipeline import resolve_config, track_session
@@ -157,7 +157,10 @@ def run_one(spec: RunSpec) -> dict[str, Any]:
     gt = np.column_stack([gx, gy])
     index = _index(spec.metrics_map) if spec.metrics_map else None
     errors = metrics.step_errors(est, gt, index)
-    errors_mode = _errors_at(track, "mode", frame, gt, index) if "mode_lat" in track else errors
+    errors_mode = errors
+    if "mode_lat" in track:
+        errors_mode = _errors_at(track, "mode", frame, gt, index)
+        errors_mode["segment_prob"] = track["segment_prob"].to_numpy(float)  # see evaluate.confidence
     errors_smoothed = _errors_at(track, "smooth", frame, gt, index) if "smooth_lat" in track else None
     snapshots = []
     if result.snapshots is not None and spec.snapshot_times:

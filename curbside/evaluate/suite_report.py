@@ -19,10 +19,12 @@ import curbside
 from curbside import settings
 from curbside.evaluate import criteria
 from curbside.evaluate.benchmark import IpinScores
+from curbside.evaluate.confidence import reliability_rows
 from curbside.evaluate.figures import (
     fig_cdf,
     fig_particles,
     fig_per_path,
+    fig_reliability,
     fig_session_medians,
     fig_tracks,
     save_png,
@@ -32,6 +34,7 @@ from curbside.evaluate.report import (
     INTERVAL_NOTE,
     MAP_INTERVAL_NOTE,
     Table,
+    confidence_table,
     fmt_value,
     interval_table,
     json_ready,
@@ -295,7 +298,9 @@ def figure_base(config: SuiteConfig) -> dict[str, Any]:
     }
 
 
-def _figures(results, layers, config, pooled_path, ratios, figdir) -> list[tuple[str, str, bytes]]:
+def _figures(
+    results, layers, config, pooled_path, ratios, figdir, trust_rows
+) -> list[tuple[str, str, bytes]]:
     base = figure_base(config)
     by_subset = {s: [r for r in results if subset_of(r) == s] for s in config.subsets}
     out = []
@@ -316,6 +321,10 @@ def _figures(results, layers, config, pooled_path, ratios, figdir) -> list[tuple
         out.append((name, f"Fig. 5 per route {subset}", save_png(fig, figdir / name)))
     fig6 = fig_session_medians(ratios, base, criteria.DoneWhen().session_ratio_max)
     out.append(("fig6_sessions.png", "Per-session medians", save_png(fig6, figdir / "fig6_sessions.png")))
+    fig7 = fig_reliability(trust_rows, base)
+    if fig7 is not None:
+        name = "fig7_reliability.png"
+        out.append((name, "segment_prob reliability", save_png(fig7, figdir / name)))
     return out
 
 
@@ -339,7 +348,8 @@ def _tables(
         sweep = sweep_table(pooled, subset)
         if sweep is not None:
             tables.append(sweep)
-    tables += [t for t in (sure["subsets"], map_table(pooled, w), sure["maps"]) if t is not None]
+    tables += [t for t in (sure["subsets"], map_table(pooled, w), sure["maps"], sure["confidence"])
+               if t is not None]
     tables += [t for scores in ipin_scores for t in scores.tables()]
     tables.append(profile_table(run_info["simulation"], config.gnss))
     tables += [session_table(per_session, s, w, events, limit) for s in config.subsets]
@@ -409,6 +419,10 @@ def write_suite_report(
     pooled_path = _base(pooled_by_subset(results, ("path",)), w)
     ipin_scores = ipin_scores or []
     sure, sure_rows = interval_tables(results, config)
+    trust_rows = reliability_rows(results, figure_base(config), subset_of)
+    sure["confidence"] = confidence_table(
+        trust_rows, f"How far to trust segment_prob, w = {config.jaywalk_weight:g}, map 'osm'")
+    sure_rows["segment_prob_reliability"] = trust_rows
     tables = _tables(pooled, per_session, checks, config, counts, events, run_info, ipin_scores, sure)
     intro = _intro(config, counts, pooled, len(results), timings, run_info["workers"], checks)
     doc = {
@@ -434,7 +448,7 @@ def write_suite_report(
         # figures: the filters' own tracks, first filter seed only
         filtered = [r for r in results
                     if r["spec"]["method"] != SMOOTHED_METHOD and r["spec"]["seed"] == config.filter_seed]
-        figures = _figures(filtered, layers, config, pooled_path, ratios, figdir)
+        figures = _figures(filtered, layers, config, pooled_path, ratios, figdir, trust_rows)
         (tmp / "metrics.json").write_text(json.dumps(json_ready(doc), indent=1), encoding="utf-8")
         (tmp / "run.json").write_text(
             json.dumps(json_ready({**run_info, "timings_s": timings}), indent=1), encoding="utf-8"

@@ -1,0 +1,151 @@
+"""How far to trust the filter's confidence in its sidewalk: ``segment_prob`` against the truth.
+
+At every footstep the filter reports the sidewalk segment holding most of the posterior mass and that
+mass (``segment_prob`` in ``track.csv`` and in the service's estimates; docs/filter.md, "Sidewalk
+assignment"). An app for blind travellers would announce "you are on the north side" only above a
+threshold, so what it needs to know is, for each threshold, how many footsteps reach it (coverage)
+and how often the sidewalk is then right (the CSA of the posterior-mode estimate over those
+footsteps). The calibration error says how far the probability is from a frequency: the footstep-
+weighted mean gap between the mean probability and the share right over :data:`RELIABILITY_BINS`
+(0 when a footstep at 0.9 is right 90 % of the time).
+
+Footsteps on a crossing are left out: there the metric accepts either sidewalk the crossing joins, and
+the filter's confidence is not a claim about a side of the street.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from typing import Any
+
+import numpy as np
+import pandas as pd
+
+from curbside.evaluate.figures import is_base
+
+#: The methods that name a sidewalk with a probability (GNSS alone names none).
+FILTERS = ("inertial", "paper", "fused")
+#: Thresholds an app might announce a side at.
+THRESHOLDS = (0.5, 0.9, 0.99)
+#: Bin edges of the calibration error (the last bin holds probabilities from 0.999 to 1).
+RELIABILITY_BINS = (0.0, 0.5, 0.7, 0.8, 0.9, 0.95, 0.99, 0.999, 1.0)
+
+
+def scored_footsteps(errors: pd.DataFrame) -> pd.DataFrame:
+    """The footsteps whose confidence can be scored: ``segment_prob`` finite, an estimate, off crossings.
+
+    Parameters
+    ----------
+    errors
+        Per-footstep errors of the posterior-mode estimate (:func:`curbside.evaluate.metrics.step_errors`)
+        with the run's ``segment_prob`` beside them.
+
+    Returns
+    -------
+    pandas.DataFrame
+        ``prob`` and ``correct`` (bool), one row per scored footstep.
+    """
+    if "segment_prob" not in errors or "correct" not in errors:
+        return pd.DataFrame({"prob": pd.Series(dtype=float), "correct": pd.Series(dtype=bool)})
+    prob = errors["segment_prob"].to_numpy(float)
+    keep = np.isfinite(prob) & ~errors["missing"].to_numpy(bool)
+    if "on_crossing" in errors:
+        keep &= ~errors["on_crossing"].to_numpy(bool)
+    return pd.DataFrame({"prob": prob[keep], "correct": errors["correct"].to_numpy(bool)[keep]})
+
+
+def reliability_curve(prob: np.ndarray, correct: np.ndarray) -> pd.DataFrame:
+    """Per non-empty bin of :data:`RELIABILITY_BINS`: ``lo, hi, footsteps, mean_prob, share_right``."""
+    prob, correct = np.asarray(prob, float), np.asarray(correct, float)
+    edges = np.asarray(RELIABILITY_BINS)
+    k = len(edges) - 1
+    which = np.clip(np.searchsorted(edges, prob, side="right") - 1, 0, k - 1)
+    count = np.bincount(which, minlength=k)
+    keep = count > 0
+    return pd.DataFrame({
+        "lo": edges[:-1][keep],
+        "hi": edges[1:][keep],
+        "footsteps": count[keep],
+        "mean_prob": np.bincount(which, prob, minlength=k)[keep] / count[keep],
+        "share_right": np.bincount(which, correct, minlength=k)[keep] / count[keep],
+    })
+
+
+def calibration_error(prob: np.ndarray, correct: np.ndarray) -> float:
+    """Footstep-weighted mean ``|mean probability - share right|`` over :data:`RELIABILITY_BINS` (NaN
+    without footsteps)."""
+    if len(prob) == 0:
+        return float("nan")
+    curve = reliability_curve(prob, correct)
+    gap = np.abs(curve["mean_prob"] - curve["share_right"])
+    return float(np.sum(curve["footsteps"] * gap) / len(prob))
+
+
+def confidence_summary(errors: pd.DataFrame, thresholds: tuple[float, ...] = THRESHOLDS) -> dict[str, float]:
+    """Coverage and CSA at each threshold, the calibration error and the footstep count.
+
+    Parameters
+    ----------
+    errors
+        As for :func:`scored_footsteps` (several runs concatenated pool their footsteps).
+    thresholds
+        Probabilities an app might announce a side at.
+
+    Returns
+    -------
+    dict
+        ``footsteps``, ``calibration_error``, ``brier`` (mean squared gap between probability and
+        outcome), per threshold ``p`` ``coverage_p`` (share of the footsteps at or above it) and
+        ``csa_p`` (share of those on the right sidewalk; NaN where none reaches it), and ``bins``
+        (:func:`reliability_curve` as a list of dicts).
+    """
+    scored = scored_footsteps(errors)
+    prob, correct = scored["prob"].to_numpy(), scored["correct"].to_numpy(bool)
+    n = len(prob)
+    out = {
+        "footsteps": n,
+        "calibration_error": calibration_error(prob, correct),
+        "brier": float(np.mean((prob - correct) ** 2)) if n else float("nan"),
+    }
+    for p in thresholds:
+        above = prob >= p
+        out[f"coverage_{p:g}"] = float(above.mean()) if n else float("nan")
+        out[f"csa_{p:g}"] = float(correct[above].mean()) if above.any() else float("nan")
+    out["bins"] = reliability_curve(prob, correct).to_dict("records")
+    return out
+
+
+def reliability_rows(
+    results: list[dict[str, Any]], base: dict[str, Any], group_of: Callable[[dict], str] | None = None
+) -> list[dict[str, Any]]:
+    """:func:`confidence_summary` of each filter's runs at the base configuration, every seed pooled.
+
+    Parameters
+    ----------
+    results
+        :func:`curbside.evaluate.runner.run_one` outputs (their ``errors_mode`` carry ``segment_prob``).
+    base
+        The base configuration (:func:`curbside.evaluate.figures.is_base`).
+    group_of
+        A run's group (a benchmark subset); ``None``: every run in one group.
+
+    Returns
+    -------
+    list of dict
+        One row per group and filter, groups in the order of their first run, filters in
+        :data:`FILTERS` order: ``subset`` (the group, ``None`` without ``group_of``), ``method``
+        and the summary; groups and filters without a scored footstep are left out.
+    """
+    pooled: dict[tuple[str | None, str], list[pd.DataFrame]] = {}
+    for r in results:
+        method = r["spec"]["method"]
+        if method in FILTERS and is_base(r, base) and "segment_prob" in r["errors_mode"]:
+            key = (group_of(r) if group_of else None, method)
+            pooled.setdefault(key, []).append(r["errors_mode"])
+    groups = list(dict.fromkeys(group for group, _ in pooled))
+    rows = []
+    for group, method in sorted(pooled, key=lambda k: (groups.index(k[0]), FILTERS.index(k[1]))):
+        summary = confidence_summary(pd.concat(pooled[group, method], ignore_index=True))
+        if summary["footsteps"]:
+            rows.append({"subset": group, "method": method, **summary})
+    return rows
