@@ -81,7 +81,7 @@ def calibration_error(prob: np.ndarray, correct: np.ndarray) -> float:
     return float(np.sum(curve["footsteps"] * gap) / len(prob))
 
 
-def confidence_summary(errors: pd.DataFrame, thresholds: tuple[float, ...] = THRESHOLDS) -> dict[str, float]:
+def confidence_summary(errors: pd.DataFrame, thresholds: tuple[float, ...] = THRESHOLDS) -> dict[str, Any]:
     """Coverage and CSA at each threshold, the calibration error and the footstep count.
 
     Parameters
@@ -102,7 +102,7 @@ def confidence_summary(errors: pd.DataFrame, thresholds: tuple[float, ...] = THR
     scored = scored_footsteps(errors)
     prob, correct = scored["prob"].to_numpy(), scored["correct"].to_numpy(bool)
     n = len(prob)
-    out = {
+    out: dict[str, Any] = {
         "footsteps": n,
         "calibration_error": calibration_error(prob, correct),
         "brier": float(np.mean((prob - correct) ** 2)) if n else float("nan"),

@@ -395,8 +395,7 @@ def write_report(
     tables += sweep_tables(pooled, base)
     sure, sure_rows = _interval_tables(results, base)
     trust_rows = reliability_rows(results, base)
-    trust = confidence_table(trust_rows, f"How far to trust segment_prob, w = {base['jaywalk_weight']:g}, "
-                                         f"map '{base['map']}'")
+    trust = confidence_table(trust_rows, base["jaywalk_weight"], base["map"])
     tables += sure + ([trust] if trust is not None else []) + (extra_tables or [])
     doc = {
         "generator": f"curbside {curbside.__version__}",
@@ -439,9 +438,9 @@ CONFIDENCE_NOTE = (
 )
 
 
-def confidence_table(rows: list[dict[str, Any]], title: str) -> Table | None:
-    """:func:`curbside.evaluate.confidence.reliability_rows` as a table (``None`` without rows); the
-    subset column only where the rows have groups."""
+def confidence_table(rows: list[dict[str, Any]], jaywalk_weight: float, map_name: str) -> Table | None:
+    """:func:`curbside.evaluate.confidence.reliability_rows` of the runs at ``jaywalk_weight`` on
+    ``map_name`` as a table (``None`` without rows); the subset column only where the rows have groups."""
     if not rows:
         return None
     grouped = any(r["subset"] is not None for r in rows)
@@ -453,6 +452,7 @@ def confidence_table(rows: list[dict[str, Any]], title: str) -> Table | None:
                  for p in THRESHOLDS]
         body.append([r["subset"]] * grouped + [METHOD_LABELS[r["method"]], str(r["footsteps"]),
                                                fmt_value(r["calibration_error"], 3), *cells])
+    title = f"How far to trust segment_prob, w = {jaywalk_weight:g}, map '{map_name}'"
     return Table(title, header, body, CONFIDENCE_NOTE)
 
 

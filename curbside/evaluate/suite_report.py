@@ -420,8 +420,7 @@ def write_suite_report(
     ipin_scores = ipin_scores or []
     sure, sure_rows = interval_tables(results, config)
     trust_rows = reliability_rows(results, figure_base(config), subset_of)
-    sure["confidence"] = confidence_table(
-        trust_rows, f"How far to trust segment_prob, w = {config.jaywalk_weight:g}, map 'osm'")
+    sure["confidence"] = confidence_table(trust_rows, config.jaywalk_weight, "osm")
     sure_rows["segment_prob_reliability"] = trust_rows
     tables = _tables(pooled, per_session, checks, config, counts, events, run_info, ipin_scores, sure)
     intro = _intro(config, counts, pooled, len(results), timings, run_info["workers"], checks)
