@@ -104,7 +104,8 @@ def benchmark_stage(ctx: DemoContext) -> dict[str, Path]:
 
 def benchmark_headline(report_dir: Path) -> str:
     """A few lines from a report's ``metrics.json``: each method's CSA and error at the base parameters,
-    and curbside fused minus each baseline with its 95 % interval."""
+    curbside fused minus each baseline with its 95 % interval, and how often a side named at
+    ``segment_prob`` 0.9 or more was right."""
     from curbside.evaluate.runner import METHOD_LABELS
 
     doc = json.loads((report_dir / "metrics.json").read_text(encoding="utf-8"))
@@ -135,6 +136,11 @@ def benchmark_headline(report_dir: Path) -> str:
             f"  {label}: CSA {csa['value']:+.2f} [{csa['lo']:+.2f}, {csa['hi']:+.2f}], "
             f"p90 {p90['value']:+.1f} m [{p90['lo']:+.1f}, {p90['hi']:+.1f}] (95 % session bootstrap)"
         )
+    trust = {r["method"]: r for r in doc.get("segment_prob_reliability") or [] if r["csa_0.9"] is not None}
+    named = [f"{METHOD_LABELS[m]} on {100 * trust[m]['coverage_0.9']:.0f} % of footsteps, right "
+             f"{100 * trust[m]['csa_0.9']:.0f} % of the time" for m in ("fused", "paper") if m in trust]
+    if named:
+        lines.append("  a side named at segment_prob >= 0.9: " + "; ".join(named))
     lines.append(f"  full report: {report_dir / 'report.html'} (one replay page per session in view/)")
     return "\n".join(lines)
 
