@@ -209,12 +209,13 @@ def session_table(
 
 
 def interval_tables(results: list[dict], config) -> tuple[dict[str, Table | None], dict[str, Any]]:
-    """The "how sure" tables of the walks (``subsets``, ``maps``; ``None`` where not run) and their
-    rows for ``metrics.json``."""
+    """The "how sure" tables of the walks (``subsets``, ``maps``) and how far to trust ``segment_prob``
+    (``confidence``), ``None`` where not run, and their rows for ``metrics.json``."""
     w = config.jaywalk_weight
     base = {"map": "osm", "jaywalk_weight": w}
     intervals = subset_intervals(results, base, seed=config.filter_seed)
     maps = map_intervals(results, base, seed=config.filter_seed)
+    trust = reliability_rows(results, figure_base(config), subset_of)
     note = INTERVAL_NOTE.format(unit="subset's sessions", points="footsteps", one="session") + (
         " The three sessions of a route are resampled as independent, so the intervals are, if "
         "anything, too narrow for the routes themselves.")
@@ -223,8 +224,10 @@ def interval_tables(results: list[dict], config) -> tuple[dict[str, Table | None
             intervals, f"How sure: 95 % intervals, w = {w:g}, map 'osm'", note),
         "maps": None if maps.empty else interval_table(
             maps, f"How sure: map sources, curbside fused, w = {w:g}", MAP_INTERVAL_NOTE),
+        "confidence": confidence_table(trust, w, "osm"),
     }
-    return tables, {"intervals_95": records(intervals), "map_intervals_95": records(maps)}
+    return tables, {"intervals_95": records(intervals), "map_intervals_95": records(maps),
+                    "segment_prob_reliability": trust}
 
 
 def ipin_json(ipin_scores: list[IpinScores]) -> dict[str, Any]:
@@ -419,9 +422,6 @@ def write_suite_report(
     pooled_path = _base(pooled_by_subset(results, ("path",)), w)
     ipin_scores = ipin_scores or []
     sure, sure_rows = interval_tables(results, config)
-    trust_rows = reliability_rows(results, figure_base(config), subset_of)
-    sure["confidence"] = confidence_table(trust_rows, config.jaywalk_weight, "osm")
-    sure_rows["segment_prob_reliability"] = trust_rows
     tables = _tables(pooled, per_session, checks, config, counts, events, run_info, ipin_scores, sure)
     intro = _intro(config, counts, pooled, len(results), timings, run_info["workers"], checks)
     doc = {
@@ -447,7 +447,8 @@ def write_suite_report(
         # figures: the filters' own tracks, first filter seed only
         filtered = [r for r in results
                     if r["spec"]["method"] != SMOOTHED_METHOD and r["spec"]["seed"] == config.filter_seed]
-        figures = _figures(filtered, layers, config, pooled_path, ratios, figdir, trust_rows)
+        figures = _figures(filtered, layers, config, pooled_path, ratios, figdir,
+                           sure_rows["segment_prob_reliability"])
         (tmp / "metrics.json").write_text(json.dumps(json_ready(doc), indent=1), encoding="utf-8")
         (tmp / "run.json").write_text(
             json.dumps(json_ready({**run_info, "timings_s": timings}), indent=1), encoding="utf-8"
