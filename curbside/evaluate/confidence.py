@@ -74,11 +74,15 @@ def reliability_curve(prob: np.ndarray, correct: np.ndarray) -> pd.DataFrame:
 def calibration_error(prob: np.ndarray, correct: np.ndarray) -> float:
     """Footstep-weighted mean ``|mean probability - share right|`` over :data:`RELIABILITY_BINS` (NaN
     without footsteps)."""
-    if len(prob) == 0:
+    return _error_of(reliability_curve(prob, correct))
+
+
+def _error_of(curve: pd.DataFrame) -> float:
+    """The calibration error of a :func:`reliability_curve` (NaN for an empty one)."""
+    n = int(curve["footsteps"].sum())
+    if n == 0:
         return float("nan")
-    curve = reliability_curve(prob, correct)
-    gap = np.abs(curve["mean_prob"] - curve["share_right"])
-    return float(np.sum(curve["footsteps"] * gap) / len(prob))
+    return float(np.sum(curve["footsteps"] * np.abs(curve["mean_prob"] - curve["share_right"])) / n)
 
 
 def confidence_summary(errors: pd.DataFrame, thresholds: tuple[float, ...] = THRESHOLDS) -> dict[str, Any]:
@@ -102,16 +106,17 @@ def confidence_summary(errors: pd.DataFrame, thresholds: tuple[float, ...] = THR
     scored = scored_footsteps(errors)
     prob, correct = scored["prob"].to_numpy(), scored["correct"].to_numpy(bool)
     n = len(prob)
+    curve = reliability_curve(prob, correct)
     out: dict[str, Any] = {
         "footsteps": n,
-        "calibration_error": calibration_error(prob, correct),
+        "calibration_error": _error_of(curve),
         "brier": float(np.mean((prob - correct) ** 2)) if n else float("nan"),
     }
     for p in thresholds:
         above = prob >= p
         out[f"coverage_{p:g}"] = float(above.mean()) if n else float("nan")
         out[f"csa_{p:g}"] = float(correct[above].mean()) if above.any() else float("nan")
-    out["bins"] = reliability_curve(prob, correct).to_dict("records")
+    out["bins"] = curve.to_dict("records")
     return out
 
 
