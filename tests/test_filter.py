@@ -13,6 +13,7 @@ from filter_maps import UTM10, X0, Y0, block_map, box, two_sidewalk_map
 from curbside import settings
 from curbside.errors import CurbsideInputError
 from curbside.localize.filter import (
+    CalibrationConfig,
     FilterConfig,
     GnssConfig,
     GnssFix,
@@ -240,7 +241,8 @@ def test_fix_starts_an_unstarted_tracker_with_theta_over_the_full_circle():
 
 
 def test_bimodal_cloud_mode_is_on_the_heavier_sidewalk_while_the_mean_is_mid_street():
-    tracker = Tracker.from_config(two_sidewalk_map(), quiet(), seed=0)
+    raw_mass = CalibrationConfig(temperature=1.0, temperature_per_persistence=0.0)
+    tracker = Tracker.from_config(two_sidewalk_map(), quiet(calibration=raw_mass), seed=0)
     tracker.start_at_pose(0.0, X0, Y0 + 8.0)
     p = tracker.particles
     rng = np.random.default_rng(1)

@@ -245,6 +245,9 @@ def test_cli_writes_track_files_and_same_seed_same_track(tmp_path, map_file, cap
     assert info["config"]["filter"]["map"]["jaywalk_weight"] == 0.4
     assert info["heading_corrections"] == 0  # good fixes and a right velocity: never needed
     assert info["config"]["filter"]["heading_correction"]["fraction"] == 0.1
+    calibration = info["segment_prob_calibration"]  # segment_prob tempered by the fixes' persistence
+    assert calibration["fix_pairs"] > 0 and 0.0 <= calibration["fix_persistence"] <= 1.0
+    assert calibration["temperature"] == pytest.approx(1.5 + 2.0 * calibration["fix_persistence"])
     assert not (tmp_path / "b" / "particles.npz").exists()
     assert "updates" in capsys.readouterr().out
 

@@ -429,12 +429,13 @@ def write_report(
 
 #: The note under the segment_prob tables (:mod:`curbside.evaluate.confidence`).
 CONFIDENCE_NOTE = (
-    "segment_prob is the posterior probability of the sidewalk the filter names (track.csv, the "
-    "service). Per threshold p: the share of footsteps at which it is at least p, and the CSA of the "
-    "posterior-mode estimate over those footsteps, as an app that announces a side only above p would "
-    "see it. Calibration error: the footstep-weighted mean gap between the probability and the share "
-    "right over bins (0 when a footstep at 0.9 is right 90 % of the time). Footsteps on crossings are "
-    "left out; every filter seed pools."
+    "segment_prob is the probability of the sidewalk the filter names (track.csv, the service): for "
+    "curbside fused the posterior mass tempered by how long the walk's fixes stay off (docs/filter.md),"
+    " for the other filters the mass as it is. Per threshold p: the share of footsteps at which it is "
+    "at least p, and the CSA of the posterior-mode estimate over those footsteps, as an app that "
+    "announces a side only above p would see it. Calibration error: the footstep-weighted mean gap "
+    "between the probability and the share right over bins (0 when a footstep at 0.9 is right 90 % of "
+    "the time). Footsteps on crossings are left out; every filter seed pools."
 )
 
 

@@ -41,7 +41,7 @@ from curbside.localize.live_input import (
     check_gnss,
     check_imu,
 )
-from curbside.localize.pipeline import TrackResult, track_table, tracker_counts
+from curbside.localize.pipeline import TrackResult, track_table, tracker_record
 from curbside.localize.raster import MapRaster, load_or_build_raster
 from curbside.localize.ronin.stream import RoninStream, RoninStreamConfig
 from curbside.localize.runconfig import RunConfig
@@ -374,7 +374,7 @@ class LiveSession:
         segments = tracker is not None and tracker.segments is not None
         track = track_table(self.rows, self.frame, self.map_layers, segments=segments)
         return TrackResult(
-            track, self.config, self.velocity_source, self.step_source, **tracker_counts(tracker),
+            track, self.config, self.velocity_source, self.step_source, **tracker_record(tracker),
             unseen_velocity_from_s=self.engine.unseen_velocity_from_s,
             familiar_velocity=self.engine.familiar_velocity,
             fix_lag=None if self.engine.lag is None else {"mode": self.config.fix_lag.mode,

@@ -81,7 +81,10 @@ class TrackResult:
         Where the velocity and the footsteps came from (``None`` for velocity in ``gnss`` mode).
     recoveries, injections, heading_corrections
         Collapses re-seeded; particles injected by the divergence recovery; re-draws of the heading
-        correction (:func:`tracker_counts`).
+        correction (:func:`tracker_record`).
+    segment_calibration
+        The ``segment_prob`` calibration at the end of the walk: the fixes' persistence, the temperature
+        and the pairs it was read from (``None`` when the probability is the posterior mass as it is).
     unseen_velocity_from_s
         Time from which the filter moved with the unseen-velocity motion model (``None``: never).
     familiar_velocity
@@ -116,6 +119,7 @@ class TrackResult:
     familiar_velocity: dict[str, object] | None = None
     fix_lag: dict[str, object] | None = None
     heading_corrections: int = 0
+    segment_calibration: dict[str, float] | None = None
 
     @property
     def mode(self) -> str:
@@ -401,14 +405,16 @@ def _raster_for(map_layers: MapLayers | None, config: RunConfig) -> MapRaster | 
     )
 
 
-def tracker_counts(tracker: Tracker | None) -> dict[str, int]:
-    """``recoveries``, ``injections`` and ``heading_corrections`` of a finished tracker (0 without one)."""
+def tracker_record(tracker: Tracker | None) -> dict[str, object]:
+    """``recoveries``, ``injections`` and ``heading_corrections`` of a finished tracker (0 without one),
+    and its ``segment_calibration`` record (``None`` without one)."""
     if tracker is None:
-        return {"recoveries": 0, "injections": 0, "heading_corrections": 0}
+        return {"recoveries": 0, "injections": 0, "heading_corrections": 0, "segment_calibration": None}
     return {
         "recoveries": tracker.recoveries,
         "injections": 0 if tracker.divergence is None else tracker.divergence.injections,
         "heading_corrections": 0 if tracker.turn is None else tracker.turn.corrections,
+        "segment_calibration": None if tracker.calibration is None else tracker.calibration.record(),
     }
 
 
@@ -441,7 +447,7 @@ def _result(
         wall_tolerance_m=None if tracker is None else tracker.wall_tolerance_m,
         walkable_first=None if tracker is None else tracker.walkable_first,
         familiar_velocity=engine.familiar_velocity,
-        **tracker_counts(tracker),
+        **tracker_record(tracker),
     )
 
 

@@ -16,6 +16,7 @@ module                     part
 :mod:`.scale`              :class:`ScaleCorrection`: opt-in GNSS-driven speed-scale re-draws
 :mod:`.heading_correction` :class:`HeadingCorrection`: re-draws when good fixes say the velocity turned
 :mod:`.segments`           :class:`SegmentEstimator`: which sidewalk segment
+:mod:`.calibration`        :class:`SegmentCalibration`: how far to trust it, from the fixes
 :mod:`.initiate`           :class:`Initiator`: start at a pose or a fix
 :mod:`.smoother`           :class:`FixedLagSmoother`: opt-in positions from the genealogy, later
 :mod:`.tracker`            :class:`Tracker`: the streaming filter that runs them
@@ -26,6 +27,7 @@ module                     part
 See ``docs/filter.md`` for a drawing of the parts and how to write a new one.
 """
 
+from curbside.localize.filter.calibration import CalibrationConfig, SegmentCalibration
 from curbside.localize.filter.config import (
     FilterConfig,
     GnssConfig,
@@ -54,6 +56,7 @@ from curbside.localize.filter.street_heading import StreetHeadingLikelihood
 from curbside.localize.filter.tracker import Tracker
 
 __all__ = [
+    "CalibrationConfig",
     "CollapseRecovery",
     "DivergenceRecovery",
     "Estimate",
@@ -76,6 +79,7 @@ __all__ = [
     "ResampleConfig",
     "Resampler",
     "ScaleCorrection",
+    "SegmentCalibration",
     "SegmentEstimator",
     "SegmentMode",
     "SmootherConfig",

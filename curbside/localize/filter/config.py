@@ -1,7 +1,7 @@
 """Every parameter of the particle filter: one frozen dataclass per part, gathered in :class:`FilterConfig`.
 
 Each part of the filter (:mod:`~curbside.localize.filter.predict`, ``map_likelihood``, ``gnss``,
-``resample``, ``recovery``, ``scale``, ``initiate``, ``smoother``) takes its own section;
+``resample``, ``recovery``, ``scale``, ``initiate``, ``smoother``, ``calibration``) takes its own section;
 :class:`FilterConfig` holds them all and is written whole to ``run.json``
 (:func:`curbside.configio.to_dict`), so a run is reproducible from that file alone. Defaults are
 curbside's fused filter; :meth:`FilterConfig.preset` gives the paper's plain filter for comparison.
@@ -11,6 +11,8 @@ curbside's fused filter; :meth:`FilterConfig.preset` gives the paper's plain fil
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+
+from curbside.localize.filter.calibration import CalibrationConfig
 
 PRESETS = ("fused", "paper")
 RESAMPLE_POLICIES = ("always", "ess")
@@ -71,12 +73,9 @@ class MotionConfig:
             f"step_noise_across_fraction must be non-negative, got {self.step_noise_across_fraction}",
         )
         _check(
-            0.0 <= self.heading_jump_prob <= 1.0,
-            f"heading_jump_prob must lie in [0, 1], got {self.heading_jump_prob}",
-        )
-        _check(
-            self.heading_jump_sigma_deg > 0,
-            f"heading_jump_sigma_deg must be positive, got {self.heading_jump_sigma_deg}",
+            0.0 <= self.heading_jump_prob <= 1.0 and self.heading_jump_sigma_deg > 0,
+            "need heading_jump_prob in [0, 1] and heading_jump_sigma_deg > 0, got "
+            f"{self.heading_jump_prob}, {self.heading_jump_sigma_deg}",
         )
 
 
@@ -172,10 +171,7 @@ class MapConfig:
             0.0 <= self.conflict_share_min <= 1.0,
             f"conflict_share_min must lie in [0, 1], got {self.conflict_share_min}",
         )
-        _check(
-            self.raster_resolution_m > 0 and self.segment_reach_m > 0,
-            "raster_resolution_m and segment_reach_m must be positive",
-        )
+        _check(min(self.raster_resolution_m, self.segment_reach_m) > 0, "raster sizes must be positive")
 
 
 @dataclass(frozen=True)
@@ -538,11 +534,11 @@ class FilterConfig:
         2000 beat 500 on every subset (docs/tuning.md, "Number of particles").
     motion, start, map, gnss, resample, recovery
         One section per part.
-    scale_correction, heading_correction, street_heading, smoother
+    scale_correction, heading_correction, street_heading, smoother, calibration
         One section per part.
     segment_estimate
         Compute the posterior over sidewalk segments and its mode at each update (needs a map with
-        sidewalk segments).
+        sidewalk segments); ``calibration`` says how far its probability is trusted.
     """
 
     n_particles: int = 2000
@@ -556,6 +552,7 @@ class FilterConfig:
     heading_correction: HeadingCorrectionConfig = field(default_factory=HeadingCorrectionConfig)
     street_heading: StreetHeadingConfig = field(default_factory=StreetHeadingConfig)
     smoother: SmootherConfig = field(default_factory=SmootherConfig)
+    calibration: CalibrationConfig = field(default_factory=CalibrationConfig)
     segment_estimate: bool = True
 
     def __post_init__(self) -> None:
@@ -569,7 +566,8 @@ class FilterConfig:
         particles, position and heading-drift noise, hard walls, one weight for every particle on the
         street (crossing it or not), a Gaussian GNSS likelihood with sigma equal to the reported
         accuracy for fixes under a threshold, every fix counted as independent, resampling at every
-        update, no outlier model, no speed scale, no recovery beyond re-seeding a collapsed cloud.
+        update, no outlier model, no speed scale, no recovery beyond re-seeding a collapsed cloud, and the
+        segment's posterior mass reported as it is.
         """
         if name == "fused":
             return cls()
@@ -595,5 +593,6 @@ class FilterConfig:
                 heading_correction=HeadingCorrectionConfig(fraction=0.0),
                 street_heading=StreetHeadingConfig(strength_per_m=0.0),
                 start=StartConfig(fix_sigma_factor=1.0),
+                calibration=CalibrationConfig(temperature=1.0, temperature_per_persistence=0.0),
             )
         raise ValueError(f"unknown preset {name!r}; one of {PRESETS}")

@@ -202,7 +202,8 @@ class Estimate(NamedTuple):
         ``segment_id`` of the sidewalk segment of largest posterior probability; ``None`` without a
         segment raster or with no weight near a sidewalk.
     segment_prob
-        Its posterior probability (0 without one).
+        Its probability (0 without one): the posterior mass, calibrated when the tracker has a
+        :class:`~curbside.localize.filter.calibration.SegmentCalibration`.
     mode_x, mode_y
         Weighted mean of the particles on that segment (``x, y`` when there is none).
     injected

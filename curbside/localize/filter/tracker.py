@@ -13,6 +13,7 @@ every update::
     normalise_and_estimate     log-sum-exp normalisation; weighted mean, heading, speed scale, n_eff
     collapse.reseed            only when every weight is zero
     segments.mode              (optional) the MAP sidewalk segment
+    calibration.calibrate      (optional) its probability, tempered by how long the fixes' errors last
     resampler.resample         every update (the paper) or below an ESS threshold
     divergence.inject          (optional) re-draw a fraction of the particles around the fix
     scale.correct              (optional) re-draw a fraction of the speed scales around the fitted one
@@ -33,6 +34,7 @@ import numpy as np
 import pyproj
 
 from curbside.errors import CurbsideInputError
+from curbside.localize.filter.calibration import SegmentCalibration
 from curbside.localize.filter.config import FilterConfig, MotionConfig, ScaleCorrectionConfig
 from curbside.localize.filter.gnss import GnssLikelihood
 from curbside.localize.filter.heading_correction import HeadingCorrection
@@ -91,6 +93,8 @@ class Tracker:
         Optional fixed-lag smoother (its output: :meth:`take_smoothed`).
     turn
         Optional GNSS-driven correction of a velocity that turned (heading, scale and position).
+    calibration
+        Optional calibration of the MAP segment's probability from the accepted fixes' innovations.
 
     Attributes
     ----------
@@ -115,6 +119,7 @@ class Tracker:
         scale: ScaleCorrection | None = None,
         smoother: FixedLagSmoother | None = None,
         turn: HeadingCorrection | None = None,
+        calibration: SegmentCalibration | None = None,
     ) -> None:
         self.particles = particles
         self.predictor = predictor
@@ -129,6 +134,7 @@ class Tracker:
         self.scale = scale
         self.smoother = smoother
         self.turn = turn
+        self.calibration = calibration
         self._smoothed: list[np.ndarray] = []
         self.recoveries = 0
         self.last_estimate: Estimate | None = None
@@ -190,6 +196,9 @@ class Tracker:
         turn = None
         if gnss is not None and config.heading_correction.fraction > 0:
             turn = HeadingCorrection(config.heading_correction, gnss, rng)
+        calibration = None
+        if segments is not None and gnss is not None and not config.calibration.identity:
+            calibration = SegmentCalibration(config.calibration, n)
         return cls(
             ParticleSet(n),
             InertialPredictor(config.motion, n, rng),
@@ -204,6 +213,7 @@ class Tracker:
             scale,
             smoother,
             turn,
+            calibration,
         )
 
     # -- starting -----------------------------------------------------------------------------------
@@ -344,6 +354,8 @@ class Tracker:
             likelihood.weigh(particles, update)
         if gnss_fix is not None and self.usable(gnss_fix):
             self.last_fix = gnss_fix
+            if self.calibration is not None:
+                self.calibration.observe(t, gnss_fix.x - last.x, gnss_fix.y - last.y)
         return self._conclude(t, inject)
 
     def take_smoothed(self, final: bool = False) -> np.ndarray:
@@ -382,6 +394,8 @@ class Tracker:
             mode = segments.mode(p)
             if mode.segment >= 0:
                 segment_id, prob = segments.segment_id(mode.segment), mode.prob
+                if self.calibration is not None:
+                    prob = self.calibration.calibrate(prob)
                 mode_x, mode_y = mode.x, mode.y
         resampled = self.resampler.resample(p, m.n_eff)
         injected = 0

@@ -126,7 +126,7 @@ class Estimate(BaseModel):
     lat: float | None = None
     lon: float | None = None
     segment_id: str | None = Field(None, description="most probable sidewalk segment (map segment_id)")
-    segment_prob: float | None = Field(None, description="its posterior probability")
+    segment_prob: float | None = Field(None, description="its probability, calibrated (docs/filter.md)")
     street: str | None = None
     side: str | None = Field(None, description="compass side of the street: north, northeast, ...")
     place: str | None = Field(None, description='e.g. "Market Street, north side"')

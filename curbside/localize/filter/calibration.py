@@ -1,0 +1,138 @@
+"""How far to trust the MAP segment: its probability tempered by how long the fixes' errors last.
+
+The posterior mass of the MAP sidewalk segment (:mod:`.segments`) is what an app would announce a side
+at, but the filter counts every fix as news. Where a fix's error lasts (the receiver's smoothing, a
+reflection that stays while the walker passes a tower), ten fixes that agree are closer to one, and the
+mass comes out more certain than the sidewalk is right. Weighing the fixes less would cost the track
+(docs/tuning.md); this part leaves the track alone and calibrates the reported number only, by
+temperature scaling: ``logit(p') = logit(p) / T``.
+
+``T`` grows with the persistence of the fixes' error, read from the walk itself without ground truth:
+the innovation ``e`` (an accepted fix minus the filter's previous estimate) and its variogram at a lag,
+
+    rho = 1 - mean |e(t) - e(t - lag)|^2 / (2 mean |e|^2),
+
+about the share of a fix's error still there ``lag`` seconds later (0 for white fixes, near 1 for an
+error that lasts). Until enough pairs are in, ``rho`` is shrunk towards a prior. Then
+``T = temperature + temperature_per_persistence * clip(rho, 0, 1)``. A probability read from N particles
+cannot resolve less than half a particle, so ``p`` is first held within ``[0.5 / N, 1 - 0.5 / N]``.
+docs/filter.md, "How far to trust segment_prob", says how the values were chosen and what they do.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import deque
+from dataclasses import dataclass
+
+
+@dataclass(frozen=True)
+class CalibrationConfig:
+    """How the MAP segment's probability is calibrated (the ``filter.calibration`` section).
+
+    Attributes
+    ----------
+    temperature
+        The temperature for fixes whose error does not last (1 and a zero slope: the posterior mass as
+        it is; the paper's preset).
+    temperature_per_persistence
+        How much the temperature grows from fixes whose error is gone a lag later (persistence 0) to
+        fixes whose error is all still there (1).
+    persistence_lag_s, pair_tolerance_s
+        The lag of the innovation's variogram, and how much shorter a pair's separation may be.
+    prior_persistence, prior_pairs
+        The persistence assumed before any pair, and how many pairs it counts as.
+    """
+
+    temperature: float = 1.5
+    temperature_per_persistence: float = 2.0
+    persistence_lag_s: float = 10.0
+    pair_tolerance_s: float = 1.0
+    prior_persistence: float = 0.3
+    prior_pairs: float = 20.0
+
+    def __post_init__(self) -> None:
+        if not (self.temperature > 0 and self.temperature_per_persistence >= 0 and self.prior_pairs >= 0):
+            raise ValueError(
+                "need temperature > 0, temperature_per_persistence >= 0 and prior_pairs >= 0, got "
+                f"{self.temperature}, {self.temperature_per_persistence}, {self.prior_pairs}"
+            )
+        if not (0 < self.pair_tolerance_s <= self.persistence_lag_s < math.inf):
+            raise ValueError(
+                "need 0 < pair_tolerance_s <= persistence_lag_s (finite), got "
+                f"{self.pair_tolerance_s}, {self.persistence_lag_s}"
+            )
+        if not 0 <= self.prior_persistence <= 1:
+            raise ValueError(f"prior_persistence must lie in [0, 1], got {self.prior_persistence}")
+
+    @property
+    def identity(self) -> bool:
+        """Whether the probability is reported as the posterior mass (temperature 1, no slope)."""
+        return self.temperature == 1 and self.temperature_per_persistence == 0
+
+
+class SegmentCalibration:
+    """The calibrated probability of the MAP segment (see the module docstring).
+
+    Parameters
+    ----------
+    config
+        Temperature, its slope in the persistence, the lag and the prior.
+    n
+        Number of particles (the resolution of the probability).
+
+    Attributes
+    ----------
+    pairs
+        Innovation pairs ``lag`` apart seen so far.
+    """
+
+    def __init__(self, config: CalibrationConfig, n: int) -> None:
+        self.config = config
+        self._floor = 0.5 / n
+        self._recent: deque[tuple[float, float, float]] = deque()
+        self._sum_sq = 0.0
+        self._fixes = 0
+        self._sum_sq_change = 0.0
+        self.pairs = 0
+
+    def observe(self, t: float, innovation_x_m: float, innovation_y_m: float) -> None:
+        """Take the innovation of an accepted fix at time ``t`` (fix minus the previous estimate, m)."""
+        c, recent = self.config, self._recent
+        while recent and recent[0][0] < t - c.persistence_lag_s:
+            recent.popleft()
+        # The earliest innovation at most `lag` old, if it is nearly `lag` old (the variogram's pair).
+        if recent and t - recent[0][0] > c.persistence_lag_s - c.pair_tolerance_s:
+            _, x0, y0 = recent[0]
+            self._sum_sq_change += (innovation_x_m - x0) ** 2 + (innovation_y_m - y0) ** 2
+            self.pairs += 1
+        recent.append((t, innovation_x_m, innovation_y_m))
+        self._sum_sq += innovation_x_m**2 + innovation_y_m**2
+        self._fixes += 1
+
+    @property
+    def persistence(self) -> float:
+        """The share of a fix's error left ``persistence_lag_s`` later, shrunk towards the prior."""
+        c = self.config
+        if self.pairs == 0 or self._sum_sq <= 0:
+            return c.prior_persistence
+        rho = 1.0 - (self._sum_sq_change / self.pairs) / (2.0 * self._sum_sq / self._fixes)
+        w = self.pairs / (self.pairs + c.prior_pairs)
+        return w * rho + (1.0 - w) * c.prior_persistence
+
+    @property
+    def temperature(self) -> float:
+        """The temperature the next probability is divided by (in logit)."""
+        c = self.config
+        return c.temperature + c.temperature_per_persistence * min(max(self.persistence, 0.0), 1.0)
+
+    def calibrate(self, prob: float) -> float:
+        """The tempered probability of a MAP segment of posterior mass ``prob`` (0 stays 0: no segment)."""
+        if not prob > 0:
+            return 0.0
+        p = min(max(prob, self._floor), 1.0 - self._floor)
+        return 1.0 / (1.0 + math.exp(-math.log(p / (1.0 - p)) / self.temperature))
+
+    def record(self) -> dict[str, float]:
+        """``fix_persistence``, ``temperature`` and ``fix_pairs`` so far (for ``run.json``)."""
+        return {"fix_persistence": self.persistence, "temperature": self.temperature, "fix_pairs": self.pairs}
