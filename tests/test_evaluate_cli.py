@@ -170,11 +170,12 @@ def test_evaluate_writes_the_report(tmp_path, sessions):
     same = maps[maps["method"] == "copy - osm"]
     assert (same[["value", "lo", "hi"]] == 0).all().all() and "How sure: map sources" in md
     # segment_prob's reliability: the base map's filters, one group, no subset column
-    assert "How far to trust segment_prob, w = 0.4, map 'osm'" in md
+    assert "How far to trust segment_prob and accuracy_m, w = 0.4, map 'osm'" in md
     assert "| method | footsteps | calibration error | p >= 0.5: share / CSA |" in md
     trust = pd.DataFrame(doc["segment_prob_reliability"])
     assert trust["method"].tolist() == ["inertial", "paper", "fused"] and trust["subset"].isna().all()
     assert ((trust["calibration_error"] >= 0) & (trust["calibration_error"] <= 1)).all()
+    assert trust["accuracy_coverage"].between(0, 1).all() and (trust["accuracy_median_m"] > 0).all()
     html = (out / "report.html").read_text()
     assert html.count("data:image/png;base64,") >= 4
     assert not (out / "figures" / "missing.png").exists()

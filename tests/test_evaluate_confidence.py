@@ -10,6 +10,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from curbside.evaluate.confidence import (
+    accuracy_coverage,
     calibration_error,
     confidence_summary,
     reliability_curve,
@@ -106,3 +107,19 @@ def test_reliability_rows_pool_each_filters_base_runs_per_group_and_leave_the_re
         ("open", "fused", 2), ("paper6", "paper", 1), ("paper6", "fused", 4)]
     assert rows[2]["csa_0.9"] == pytest.approx(0.75) and rows[1]["csa_0.99"] == 0.0
     assert [r["subset"] for r in reliability_rows(results, BASE)] == [None, None]  # one group
+
+
+def test_accuracy_coverage_counts_the_footsteps_inside_the_radius_and_leaves_the_rest_out():
+    errors = pd.DataFrame({
+        "euclid_m": [1.0, 2.0, 5.0, 9.0, 0.5, np.nan],
+        "accuracy_m": [2.0, 2.0, 4.0, 6.0, np.nan, 3.0],  # the fifth has no radius (GNSS gap)
+        "missing": [False, False, False, False, False, True],  # the last has no estimate
+    })
+    held, median = accuracy_coverage(errors)
+    assert held == pytest.approx(0.5) and median == pytest.approx(3.0)  # 2 of the 4 scored: on and inside
+    assert all(np.isnan(accuracy_coverage(errors.drop(columns="accuracy_m"))))
+    rng = np.random.default_rng(3)  # a radius that is what it claims holds the walker 68 % of the time
+    radius = rng.uniform(1, 10, 100_000)
+    gaussian = pd.DataFrame({"accuracy_m": radius, "missing": False,
+                             "euclid_m": radius / 1.0674 * np.sqrt(rng.exponential(1.0, len(radius)))})
+    assert accuracy_coverage(gaussian)[0] == pytest.approx(0.68, abs=0.01)

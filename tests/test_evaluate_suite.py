@@ -165,13 +165,14 @@ def test_report_has_tables_checks_and_figures(sessions, tmp_path):
     fused_csa = intervals.query("subset == 'open' and method == 'fused' and metric == 'csa'").iloc[0]
     assert 0.0 <= fused_csa["lo"] <= fused_csa["hi"] <= 1.0
     assert fused_csa["value"] == pytest.approx(fused_open["csa"].iat[0])  # the pooled table's figure
-    assert "How far to trust segment_prob, w = 0.4" in md and "| open | curbside fused |" in md
+    assert "How far to trust segment_prob and accuracy_m, w = 0.4" in md and "| open | curbside fused |" in md
     trust = pd.DataFrame(doc["segment_prob_reliability"])
     assert set(trust["method"]) == {"inertial", "paper", "fused"}  # GNSS alone names no sidewalk
     fused_trust = trust.query("subset == 'open' and method == 'fused'").iloc[0]
     assert 0 < fused_trust["footsteps"] <= fused_open["n_steps"].iat[0]  # both seeds pooled, off crossings
     assert 1.0 >= fused_trust["coverage_0.5"] >= fused_trust["coverage_0.9"] >= fused_trust["coverage_0.99"]
     assert sum(b["footsteps"] for b in fused_trust["bins"]) == fused_trust["footsteps"]  # fig7's points
+    assert 0.0 <= fused_trust["accuracy_coverage"] <= 1.0 and fused_trust["accuracy_median_m"] > 0
     ratios = pd.DataFrame(doc["session_ratios"])
     assert set(ratios["session"]) == {"path3-s1", "path3-s2"} and (ratios["ratio"] > 0).all()
     assert doc["session_events"]["path3-s1"]["jumps"] >= 0

@@ -19,6 +19,7 @@ from curbside.localize.filter import (
     SegmentCalibration,
     Tracker,
 )
+from curbside.localize.filter.calibration import accuracy_radius_m
 
 LAG_S = 10.0
 
@@ -121,7 +122,7 @@ def test_a_bad_calibration_is_refused(bad):
         CalibrationConfig(**bad)
 
 
-def test_fused_calibrates_with_fixes_and_a_map_the_paper_and_the_inertial_filter_do_not():
+def test_fused_calibrates_with_fixes_the_paper_and_the_inertial_filter_do_not():
     fused = Tracker.from_config(two_sidewalk_map(), FilterConfig(n_particles=200))
     assert fused.calibration is not None
     assert Tracker.from_config(two_sidewalk_map(), FilterConfig.preset("paper")).calibration is None
@@ -129,7 +130,7 @@ def test_fused_calibrates_with_fixes_and_a_map_the_paper_and_the_inertial_filter
         Tracker.from_config(two_sidewalk_map(), FilterConfig(n_particles=200), use_gnss=False).calibration
         is None
     )
-    assert Tracker.from_config(None, FilterConfig(n_particles=200)).calibration is None  # no segments
+    assert Tracker.from_config(None, FilterConfig(n_particles=200)).calibration is not None  # the radius
 
 
 def test_the_tracker_reports_the_tempered_mass_and_reads_the_fixes_innovations():
@@ -158,5 +159,16 @@ def test_the_tracker_reports_the_tempered_mass_and_reads_the_fixes_innovations()
         b = tempered.step(0.5 * k, displacement_en=(0.7, 0.0), gnss_fix=fix)
         assert (a.x, a.y, a.segment_id) == (b.x, b.y, b.segment_id)  # the track does not change
         assert b.segment_prob == pytest.approx(tempered.calibration.calibrate(a.segment_prob))
+        # the same cloud, its 68 % radius widened by the square root of the temperature
+        assert b.accuracy_m == pytest.approx(a.accuracy_m * math.sqrt(tempered.calibration.temperature))
     assert tempered.calibration.pairs > 0
     assert tempered.calibration.persistence > 0.6  # an offset that lasts reads as one
+
+
+@pytest.mark.parametrize("sigma_m", [0.5, 3.0, 20.0])
+def test_the_68_percent_radius_of_a_gaussian_cloud_holds_68_percent_of_it(sigma_m):
+    xy = np.random.default_rng(7).normal(0, sigma_m, (200_000, 2)) + [551_000.0, 4_182_000.0]
+    spread = math.sqrt(np.mean(np.sum((xy - xy.mean(axis=0)) ** 2, axis=1)))
+    inside = np.hypot(*(xy - xy.mean(axis=0)).T) <= accuracy_radius_m(spread)
+    assert inside.mean() == pytest.approx(0.68, abs=0.005)
+    assert accuracy_radius_m(spread, 4.0) == pytest.approx(2 * accuracy_radius_m(spread))

@@ -221,9 +221,9 @@ def test_cli_writes_track_files_and_same_seed_same_track(tmp_path, map_file, cap
     assert a == (tmp_path / "b" / "track.csv").read_bytes()
     assert a != (tmp_path / "c" / "track.csv").read_bytes()
     track = pd.read_csv(tmp_path / "a" / "track.csv")
-    assert list(track.columns) == ["t", "lat", "lon", "x_m", "y_m", "update", "gnss_used", "theta_drift_deg",
-                                   "speed_scale", "n_eff", "recovered", "injected", "motion",
-                                   "sidewalk_segment_id", "segment_prob", "mode_lat", "mode_lon"]
+    assert list(track.columns) == ["t", "lat", "lon", "x_m", "y_m", "accuracy_m", "update", "gnss_used",
+                                   "theta_drift_deg", "speed_scale", "n_eff", "recovered", "injected",
+                                   "motion", "sidewalk_segment_id", "segment_prob", "mode_lat", "mode_lon"]
     assert (np.diff(track["t"]) > 0).all() and len(track) == len(np.arange(0, 40, 0.55))
     # the MAP segment and its posterior probability; the mode estimate lies on that sidewalk
     assert track["segment_prob"].between(0.0, 1.0 + 1e-9).all()
@@ -245,7 +245,7 @@ def test_cli_writes_track_files_and_same_seed_same_track(tmp_path, map_file, cap
     assert info["config"]["filter"]["map"]["jaywalk_weight"] == 0.4
     assert info["heading_corrections"] == 0  # good fixes and a right velocity: never needed
     assert info["config"]["filter"]["heading_correction"]["fraction"] == 0.1
-    calibration = info["segment_prob_calibration"]  # segment_prob tempered by the fixes' persistence
+    calibration = info["calibration"]  # segment_prob tempered by the fixes' persistence
     assert calibration["fix_pairs"] > 0 and 0.0 <= calibration["fix_persistence"] <= 1.0
     assert calibration["temperature"] == pytest.approx(1.5 + 2.0 * calibration["fix_persistence"])
     assert not (tmp_path / "b" / "particles.npz").exists()

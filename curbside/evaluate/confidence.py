@@ -11,10 +11,14 @@ weighted mean gap between the mean probability and the share right over :data:`R
 
 Footsteps on a crossing are left out: there the metric accepts either sidewalk the crossing joins, and
 the filter's confidence is not a claim about a side of the street.
+
+The filter's other claim is ``accuracy_m``, the radius around its position that should hold the walker
+68 % of the time (as a phone reports a fix's accuracy): :func:`accuracy_coverage` says how often it did.
 """
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable
 from typing import Any
 
@@ -120,6 +124,31 @@ def confidence_summary(errors: pd.DataFrame, thresholds: tuple[float, ...] = THR
     return out
 
 
+def accuracy_coverage(errors: pd.DataFrame) -> tuple[float, float]:
+    """How often ``accuracy_m`` held the walker, and its median (NaN, NaN without it).
+
+    Parameters
+    ----------
+    errors
+        Per-footstep errors of the estimate that ``accuracy_m`` is centred on (the weighted mean,
+        :func:`curbside.evaluate.metrics.step_errors`) with the run's ``accuracy_m`` beside them.
+
+    Returns
+    -------
+    tuple of float
+        The share of footsteps with an estimate and a finite ``accuracy_m`` whose error is at most
+        ``accuracy_m`` (0.68 when the radius is what it claims), and the median ``accuracy_m``.
+    """
+    if "accuracy_m" not in errors:
+        return float("nan"), float("nan")
+    radius = errors["accuracy_m"].to_numpy(float)
+    keep = np.isfinite(radius) & ~errors["missing"].to_numpy(bool)
+    if not keep.any():
+        return float("nan"), float("nan")
+    held = errors["euclid_m"].to_numpy(float)[keep] <= radius[keep]
+    return float(held.mean()), float(np.median(radius[keep]))
+
+
 def reliability_rows(
     results: list[dict[str, Any]], base: dict[str, Any], group_of: Callable[[dict], str] | None = None
 ) -> list[dict[str, Any]]:
@@ -128,7 +157,8 @@ def reliability_rows(
     Parameters
     ----------
     results
-        :func:`curbside.evaluate.runner.run_one` outputs (their ``errors_mode`` carry ``segment_prob``).
+        :func:`curbside.evaluate.runner.run_one` outputs (their ``errors_mode`` carry ``segment_prob``,
+        their ``errors`` ``accuracy_m``).
     base
         The base configuration (:func:`curbside.evaluate.figures.is_base`).
     group_of
@@ -138,19 +168,23 @@ def reliability_rows(
     -------
     list of dict
         One row per group and filter, groups in the order of their first run, filters in
-        :data:`FILTERS` order: ``subset`` (the group, ``None`` without ``group_of``), ``method``
-        and the summary; groups and filters without a scored footstep are left out.
+        :data:`FILTERS` order: ``subset`` (the group, ``None`` without ``group_of``), ``method``,
+        the summary, and ``accuracy_coverage`` and ``accuracy_median_m`` (:func:`accuracy_coverage`);
+        groups and filters without a scored footstep are left out.
     """
-    pooled: dict[tuple[str | None, str], list[pd.DataFrame]] = {}
+    pooled: dict[tuple[str | None, str], list[dict[str, Any]]] = {}
     for r in results:
         method = r["spec"]["method"]
         if method in FILTERS and is_base(r, base) and "segment_prob" in r["errors_mode"]:
-            key = (group_of(r) if group_of else None, method)
-            pooled.setdefault(key, []).append(r["errors_mode"])
+            pooled.setdefault((group_of(r) if group_of else None, method), []).append(r)
     groups = list(dict.fromkeys(group for group, _ in pooled))
     rows = []
     for group, method in sorted(pooled, key=lambda k: (groups.index(k[0]), FILTERS.index(k[1]))):
-        summary = confidence_summary(pd.concat(pooled[group, method], ignore_index=True))
+        runs = pooled[group, method]
+        summary = confidence_summary(pd.concat([r["errors_mode"] for r in runs], ignore_index=True))
         if summary["footsteps"]:
-            rows.append({"subset": group, "method": method, **summary})
+            errors = [r["errors"] for r in runs if "errors" in r]
+            held, median = accuracy_coverage(pd.concat(errors)) if errors else (math.nan, math.nan)
+            rows.append({"subset": group, "method": method, **summary,
+                         "accuracy_coverage": held, "accuracy_median_m": median})
     return rows

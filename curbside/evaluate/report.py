@@ -435,7 +435,10 @@ CONFIDENCE_NOTE = (
     "at least p, and the CSA of the posterior-mode estimate over those footsteps, as an app that "
     "announces a side only above p would see it. Calibration error: the footstep-weighted mean gap "
     "between the probability and the share right over bins (0 when a footstep at 0.9 is right 90 % of "
-    "the time). Footsteps on crossings are left out; every filter seed pools."
+    "the time). Footsteps on crossings are left out; every filter seed pools. accuracy_m is the radius "
+    "around the estimate that should hold the walker 68 % of the time (as a phone reports a fix's "
+    "accuracy; curbside fused widens it by the same temperature): the share of footsteps it held the "
+    "walker, 0.68 when it is what it claims, and its median."
 )
 
 
@@ -447,13 +450,15 @@ def confidence_table(rows: list[dict[str, Any]], jaywalk_weight: float, map_name
     grouped = any(r["subset"] is not None for r in rows)
     header = ["subset"] * grouped + ["method", "footsteps", "calibration error"]
     header += [f"p >= {p:g}: share / CSA" for p in THRESHOLDS]
+    header += ["accuracy_m holds the walker (median m)"]
     body = []
     for r in rows:
         cells = [f"{fmt_value(r[f'coverage_{p:g}'], 2)} / {fmt_value(r[f'csa_{p:g}'], 3)}"
                  for p in THRESHOLDS]
+        held = f"{fmt_value(r.get('accuracy_coverage'), 2)} ({fmt_value(r.get('accuracy_median_m'), 1)})"
         body.append([r["subset"]] * grouped + [METHOD_LABELS[r["method"]], str(r["footsteps"]),
-                                               fmt_value(r["calibration_error"], 3), *cells])
-    title = f"How far to trust segment_prob, w = {jaywalk_weight:g}, map '{map_name}'"
+                                               fmt_value(r["calibration_error"], 3), *cells, held])
+    title = f"How far to trust segment_prob and accuracy_m, w = {jaywalk_weight:g}, map '{map_name}'"
     return Table(title, header, body, CONFIDENCE_NOTE)
 
 

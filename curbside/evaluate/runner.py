@@ -157,6 +157,8 @@ def run_one(spec: RunSpec) -> dict[str, Any]:
     gt = np.column_stack([gx, gy])
     index = _index(spec.metrics_map) if spec.metrics_map else None
     errors = metrics.step_errors(est, gt, index)
+    if "accuracy_m" in track:
+        errors["accuracy_m"] = track["accuracy_m"].to_numpy(float)  # see evaluate.confidence
     errors_mode = errors
     if "mode_lat" in track:
         errors_mode = _errors_at(track, "mode", frame, gt, index)

@@ -80,6 +80,9 @@ class Row:
         in ``gnss`` mode.
     smooth_x, smooth_y
         The fixed-lag smoother's position (NaN without one, or until it is made).
+    accuracy_m
+        Radius around ``x, y`` that holds the walker 68 % of the time (the fix's reported accuracy in
+        ``gnss`` mode), metres.
     """
 
     t: float
@@ -99,6 +102,7 @@ class Row:
     smooth_x: float = math.nan
     smooth_y: float = math.nan
     motion: str = ""
+    accuracy_m: float = math.nan
 
 
 @dataclass
@@ -354,7 +358,7 @@ class SessionEngine:
         if fix is None or fix.accuracy_m >= self.config.filter.gnss.max_accuracy_m:
             return True  # no usable fix here: try the next candidate
         if self.tracker is None:
-            self._record(Row(t, fix.x, fix.y, "start", True))
+            self._record(Row(t, fix.x, fix.y, "start", True, accuracy_m=fix.accuracy_m))
         else:
             if self.shadow is not None:
                 self.shadow.start_at_fix(t, fix)
@@ -416,7 +420,7 @@ class SessionEngine:
         fix = self.fixes.at(t, hold_forever=hold)
         if self.tracker is None:
             if fix is not None:
-                self._record(Row(t, fix.x, fix.y, kind, True))
+                self._record(Row(t, fix.x, fix.y, kind, True, accuracy_m=fix.accuracy_m))
         else:
             d = self.displacement.at(t)
             if self.lag is not None:
@@ -499,6 +503,7 @@ class SessionEngine:
                 e.mode_x,
                 e.mode_y,
                 motion=self.motion,
+                accuracy_m=e.accuracy_m,
             )
         )
         if self.snapshots is not None:

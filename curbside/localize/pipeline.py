@@ -52,6 +52,7 @@ TRACK_COLUMNS = (
     "lon",
     "x_m",
     "y_m",
+    "accuracy_m",
     "update",
     "gnss_used",
     "theta_drift_deg",
@@ -82,9 +83,9 @@ class TrackResult:
     recoveries, injections, heading_corrections
         Collapses re-seeded; particles injected by the divergence recovery; re-draws of the heading
         correction (:func:`tracker_record`).
-    segment_calibration
-        The ``segment_prob`` calibration at the end of the walk: the fixes' persistence, the temperature
-        and the pairs it was read from (``None`` when the probability is the posterior mass as it is).
+    calibration
+        The calibration of ``segment_prob`` and ``accuracy_m`` at the end of the walk: the fixes'
+        persistence, the temperature and the pairs it was read from (``None`` without one).
     unseen_velocity_from_s
         Time from which the filter moved with the unseen-velocity motion model (``None``: never).
     familiar_velocity
@@ -119,7 +120,7 @@ class TrackResult:
     familiar_velocity: dict[str, object] | None = None
     fix_lag: dict[str, object] | None = None
     heading_corrections: int = 0
-    segment_calibration: dict[str, float] | None = None
+    calibration: dict[str, float] | None = None
 
     @property
     def mode(self) -> str:
@@ -407,14 +408,14 @@ def _raster_for(map_layers: MapLayers | None, config: RunConfig) -> MapRaster | 
 
 def tracker_record(tracker: Tracker | None) -> dict[str, object]:
     """``recoveries``, ``injections`` and ``heading_corrections`` of a finished tracker (0 without one),
-    and its ``segment_calibration`` record (``None`` without one)."""
+    and its ``calibration`` record (``None`` without one)."""
     if tracker is None:
-        return {"recoveries": 0, "injections": 0, "heading_corrections": 0, "segment_calibration": None}
+        return {"recoveries": 0, "injections": 0, "heading_corrections": 0, "calibration": None}
     return {
         "recoveries": tracker.recoveries,
         "injections": 0 if tracker.divergence is None else tracker.divergence.injections,
         "heading_corrections": 0 if tracker.turn is None else tracker.turn.corrections,
-        "segment_calibration": None if tracker.calibration is None else tracker.calibration.record(),
+        "calibration": None if tracker.calibration is None else tracker.calibration.record(),
     }
 
 
@@ -465,6 +466,7 @@ def track_table(
             "lon": np.atleast_1d(lon),
             "x_m": x,
             "y_m": y,
+            "accuracy_m": [r.accuracy_m for r in rows],
             "update": [r.kind for r in rows],
             "gnss_used": np.array([r.fix_used for r in rows], dtype=int),
             "theta_drift_deg": np.degrees([r.theta for r in rows]),

@@ -111,7 +111,7 @@ def write_track(
         "recoveries": result.recoveries,
         "injections": result.injections,
         "heading_corrections": result.heading_corrections,
-        "segment_prob_calibration": result.segment_calibration,
+        "calibration": result.calibration,
         "unseen_velocity_from_s": result.unseen_velocity_from_s,
         "familiar_velocity": result.familiar_velocity,
         "fix_lag": result.fix_lag,

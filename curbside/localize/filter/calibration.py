@@ -16,6 +16,10 @@ about the share of a fix's error still there ``lag`` seconds later (0 for white 
 error that lasts). Until enough pairs are in, ``rho`` is shrunk towards a prior. Then
 ``T = temperature + temperature_per_persistence * clip(rho, 0, 1)``. A probability read from N particles
 cannot resolve less than half a particle, so ``p`` is first held within ``[0.5 / N, 1 - 0.5 / N]``.
+
+The same temperature widens the position's uncertainty: a likelihood raised to ``1 / T`` widens a
+Gaussian posterior by ``sqrt(T)``. :func:`accuracy_radius_m` turns the cloud's spread into the radius
+that holds the walker 68 % of the time, as a phone reports a fix's accuracy.
 docs/filter.md, "How far to trust segment_prob", says how the values were chosen and what they do.
 """
 
@@ -24,6 +28,15 @@ from __future__ import annotations
 import math
 from collections import deque
 from dataclasses import dataclass
+
+#: The 68 % radius of a circular 2-D Gaussian over its root mean square radius: ``sqrt(-ln 0.32)``.
+RADIUS_68_PER_RMS = math.sqrt(-math.log(0.32))
+
+
+def accuracy_radius_m(spread_m: float, temperature: float = 1.0) -> float:
+    """The radius that holds the walker 68 % of the time, from the cloud's root mean square distance from
+    its mean (``spread_m``) widened by ``sqrt(temperature)``."""
+    return RADIUS_68_PER_RMS * spread_m * math.sqrt(temperature)
 
 
 @dataclass(frozen=True)

@@ -113,6 +113,8 @@ class Moments(NamedTuple):
         Weighted mean speed scale.
     n_eff
         Kish's effective sample size ``1 / sum(w^2)``.
+    spread_m
+        Root mean square distance of the weighted particles from ``x, y``, metres.
     """
 
     ok: bool
@@ -121,6 +123,7 @@ class Moments(NamedTuple):
     theta: float
     scale: float
     n_eff: float
+    spread_m: float
 
 
 def normalise_and_estimate(particles: ParticleSet) -> Moments:
@@ -139,14 +142,16 @@ def _normalise_and_estimate(state, log_weight, weights):  # pragma: no cover - c
         has_nan |= lw != lw
         peak = max(peak, lw)
     if has_nan or peak == -math.inf:
-        return False, 0.0, 0.0, 0.0, 0.0, 0.0
+        return False, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0
     for i in range(n):
         weights[i] = exp(log_weight[i] - peak)
     total = 0.0
     for i in range(n):
         total += weights[i]
     log_total = math.log(total)
-    ex = ey = esc = ec = es = sq = 0.0
+    # The spread from moments about the first particle: metres about UTM coordinates keep their precision.
+    x0, y0 = state[0, 0], state[1, 0]
+    ex = ey = esc = ec = es = sq = dx_mean = dy_mean = d2_mean = 0.0
     for i in range(n):
         w = weights[i] / total
         weights[i] = w
@@ -157,7 +162,13 @@ def _normalise_and_estimate(state, log_weight, weights):  # pragma: no cover - c
         es += w * state[4, i]
         esc += w * state[5, i]
         sq += w * w
-    return True, ex, ey, math.atan2(es, ec), esc, 1.0 / sq
+        dx = state[0, i] - x0
+        dy = state[1, i] - y0
+        dx_mean += w * dx
+        dy_mean += w * dy
+        d2_mean += w * (dx * dx + dy * dy)
+    spread = math.sqrt(max(d2_mean - dx_mean * dx_mean - dy_mean * dy_mean, 0.0))
+    return True, ex, ey, math.atan2(es, ec), esc, 1.0 / sq, spread
 
 
 def reference_moments(particles: ParticleSet) -> Moments:
@@ -166,16 +177,18 @@ def reference_moments(particles: ParticleSet) -> Moments:
 
     lw = particles.log_weight
     if np.isnan(lw).any() or not np.isfinite(lw.max()):
-        return Moments(False, 0.0, 0.0, 0.0, 0.0, 0.0)
+        return Moments(False, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
     w = np.exp(lw - logsumexp(lw))
     s = particles.state
+    mx, my = float(w @ s[X]), float(w @ s[Y])
     return Moments(
         True,
-        float(w @ s[X]),
-        float(w @ s[Y]),
+        mx,
+        my,
         math.atan2(float(w @ s[SIN]), float(w @ s[COS])),
         float(w @ s[SCALE]),
         1.0 / float(w @ w),
+        math.sqrt(float(w @ ((s[X] - mx) ** 2 + (s[Y] - my) ** 2))),
     )
 
 
@@ -208,6 +221,10 @@ class Estimate(NamedTuple):
         Weighted mean of the particles on that segment (``x, y`` when there is none).
     injected
         Particles re-drawn around the latest fix by the divergence recovery at this update.
+    accuracy_m
+        Radius around ``x, y`` that holds the walker 68 % of the time, metres (as a phone reports a
+        fix's accuracy): from the cloud's spread, widened like ``segment_prob`` is tempered
+        (:func:`~curbside.localize.filter.calibration.accuracy_radius_m`).
     """
 
     t: float
@@ -223,6 +240,7 @@ class Estimate(NamedTuple):
     mode_x: float = 0.0
     mode_y: float = 0.0
     injected: int = 0
+    accuracy_m: float = math.nan
 
     @property
     def lat(self) -> float:

@@ -14,6 +14,7 @@ every update::
     collapse.reseed            only when every weight is zero
     segments.mode              (optional) the MAP sidewalk segment
     calibration.calibrate      (optional) its probability, tempered by how long the fixes' errors last
+                               (and the position's 68 % radius widened alike)
     resampler.resample         every update (the paper) or below an ESS threshold
     divergence.inject          (optional) re-draw a fraction of the particles around the fix
     scale.correct              (optional) re-draw a fraction of the speed scales around the fitted one
@@ -34,7 +35,7 @@ import numpy as np
 import pyproj
 
 from curbside.errors import CurbsideInputError
-from curbside.localize.filter.calibration import SegmentCalibration
+from curbside.localize.filter.calibration import SegmentCalibration, accuracy_radius_m
 from curbside.localize.filter.config import FilterConfig, MotionConfig, ScaleCorrectionConfig
 from curbside.localize.filter.gnss import GnssLikelihood
 from curbside.localize.filter.heading_correction import HeadingCorrection
@@ -94,7 +95,8 @@ class Tracker:
     turn
         Optional GNSS-driven correction of a velocity that turned (heading, scale and position).
     calibration
-        Optional calibration of the MAP segment's probability from the accepted fixes' innovations.
+        Optional calibration of the MAP segment's probability and of the position's 68 % radius from the
+        accepted fixes' innovations.
 
     Attributes
     ----------
@@ -197,7 +199,7 @@ class Tracker:
         if gnss is not None and config.heading_correction.fraction > 0:
             turn = HeadingCorrection(config.heading_correction, gnss, rng)
         calibration = None
-        if segments is not None and gnss is not None and not config.calibration.identity:
+        if gnss is not None and not config.calibration.identity:
             calibration = SegmentCalibration(config.calibration, n)
         return cls(
             ParticleSet(n),
@@ -397,6 +399,7 @@ class Tracker:
                 if self.calibration is not None:
                     prob = self.calibration.calibrate(prob)
                 mode_x, mode_y = mode.x, mode.y
+        temperature = 1.0 if self.calibration is None else self.calibration.temperature
         resampled = self.resampler.resample(p, m.n_eff)
         injected = 0
         if inject_fraction > 0:
@@ -410,6 +413,6 @@ class Tracker:
         self.last_estimate = estimate = _new_tuple(
             Estimate,
             (t, m.x, m.y, m.theta, m.scale, m.n_eff, collapsed, self.frame, segment_id, prob, mode_x, mode_y,
-             injected),
+             injected, accuracy_radius_m(m.spread_m, temperature)),
         )
         return estimate

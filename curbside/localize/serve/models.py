@@ -125,6 +125,9 @@ class Estimate(BaseModel):
     t: float | None = Field(None, description="time of the estimate, s (session clock)")
     lat: float | None = None
     lon: float | None = None
+    accuracy_m: float | None = Field(
+        None, description="radius around lat/lon holding the walker 68 % of the time, m (calibrated)"
+    )
     segment_id: str | None = Field(None, description="most probable sidewalk segment (map segment_id)")
     segment_prob: float | None = Field(None, description="its probability, calibrated (docs/filter.md)")
     street: str | None = None
