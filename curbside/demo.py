@@ -104,8 +104,8 @@ def benchmark_stage(ctx: DemoContext) -> dict[str, Path]:
 
 def benchmark_headline(report_dir: Path) -> str:
     """A few lines from a report's ``metrics.json``: each method's CSA and error at the base parameters,
-    curbside fused minus each baseline with its 95 % interval, and how often a side named at
-    ``segment_prob`` 0.9 or more was right."""
+    curbside fused minus each baseline with its 95 % interval, how often a side named at
+    ``segment_prob`` 0.9 or more was right, and how often ``accuracy_m`` held the walker."""
     from curbside.evaluate.runner import METHOD_LABELS
 
     doc = json.loads((report_dir / "metrics.json").read_text(encoding="utf-8"))
@@ -141,6 +141,10 @@ def benchmark_headline(report_dir: Path) -> str:
              f"{100 * trust[m]['csa_0.9']:.0f} % of the time" for m in ("fused", "paper") if m in trust]
     if named:
         lines.append("  a side named at segment_prob >= 0.9: " + "; ".join(named))
+    held = [f"{METHOD_LABELS[m]} {100 * trust[m]['accuracy_coverage']:.0f} %" for m in ("fused", "paper")
+            if m in trust and trust[m].get("accuracy_coverage") is not None]
+    if held:
+        lines.append("  accuracy_m (68 % claimed) held the walker: " + ", ".join(held) + " of footsteps")
     lines.append(f"  full report: {report_dir / 'report.html'} (one replay page per session in view/)")
     return "\n".join(lines)
 

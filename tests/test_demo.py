@@ -72,6 +72,8 @@ def test_demo_end_to_end_on_the_bundled_default_area(tmp_path, capsys):
     assert "How far to trust segment_prob" in html and metrics["segment_prob_reliability"]
     named = r"curbside fused on \d+ % of footsteps, right \d+ % of the time; paper PF on \d+ % "
     assert re.search(rf"^  a side named at segment_prob >= 0.9: {named}", out, re.M)
+    held = r"curbside fused \d+ %, paper PF \d+ % of footsteps"
+    assert re.search(rf"^  accuracy_m \(68 % claimed\) held the walker: {held}", out, re.M)
     # a short summary, not the report; each file listed once; the replay of one walk with its clouds
     assert "# curbside evaluation report" not in out and "Table 2" not in out
     assert re.search(r"^  curbside fused +CSA \d\.\d\d +error median", out, re.M)

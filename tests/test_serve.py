@@ -241,6 +241,8 @@ def test_a_live_session_on_a_map_equals_localize_run_and_names_the_sidewalk(tmp_
         live, pd.read_csv(io.StringIO(batch.to_csv(index=False, float_format="%.10g")))
     )
     assert last["segment_id"] == "s0" and last["segment_prob"] > 0.9
+    row = batch.iloc[(batch["t"] - last["t"]).abs().argmin()]  # the service says what track.csv says
+    assert last["accuracy_m"] == pytest.approx(row["accuracy_m"]) and 0 < last["accuracy_m"] < 20
     assert (last["street"], last["side"], last["place"]) == (
         "Market Street",
         "north",
