@@ -82,6 +82,9 @@ def test_the_slider_moves_the_cloud_and_the_panel(driver, page):
     k = int((track["t"] <= t + 1e-9).sum()) - 1
     fused_row = driver.find_elements("css selector", "#run-table tbody tr")[1]
     assert track["sidewalk_segment_id"].iat[k] in fused_row.text
+    assert f"/ {track['accuracy_m'].iat[k]:.1f} m" in fused_row.text  # the estimate's 68 % radius
+    radius = "return curbsideView.runs[1].radius.getRadius()"
+    assert driver.execute_script(radius) == pytest.approx(track["accuracy_m"].iat[k], abs=0.051)
     assert console_errors(driver) == []
 
 

@@ -274,6 +274,7 @@ def _run_data(run: ViewRun, colour: str, cloud_every: int = 1) -> dict:
         "recoveries": int(max(run.recoveries, int((recovered > 0).sum()))),
         "segment": segments,
         "segment_prob": _round(track["segment_prob"], 3) if "segment_prob" in track else None,
+        "accuracy_m": _round(track["accuracy_m"], 1) if "accuracy_m" in track else None,
         "error_m": errors,
         "waypoint_summary": summary,
         "cloud": _cloud_data(run.particles, cloud_every) if run.particles is not None else None,

@@ -131,8 +131,13 @@ const runViews = VIEW.runs.map((r) => {
     { color: r.colour, weight: 2, opacity: 0.75, interactive: false });
   const marker = L.circleMarker([r.lat[0], r.lon[0]],
     { ...now, radius: 6, color: "#fff", weight: 2, fillColor: r.colour, fillOpacity: 1 });
-  layers.addOverlay(L.layerGroup([path, marker]).addTo(map), swatch(r.colour, `${r.label}: track and estimate`));
-  const view = { data: r, marker, cloud: null, row: ui.rows.insertRow(), session: sessionIndex.get(r.session) };
+  // The radius that should hold the walker 68 % of the time (accuracy_m), around the estimate.
+  const radius = L.circle([r.lat[0], r.lon[0]], { radius: 0, color: r.colour, weight: 1.5, dashArray: "4 3",
+    fillOpacity: 0.06, interactive: false });
+  layers.addOverlay(L.layerGroup([path, radius, marker]).addTo(map),
+    swatch(r.colour, `${r.label}: track, estimate and its 68 % radius`));
+  const view = { data: r, marker, radius, cloud: null, row: ui.rows.insertRow(),
+    session: sessionIndex.get(r.session) };
   view.row.insertCell().innerHTML = swatch(r.colour, r.label);
   view.cells = ["segment", "prob", "error", "neff", "recoveries"].map((name) => {
     const cell = view.row.insertCell();
@@ -209,15 +214,19 @@ function updateRun(view, t) {
   const r = view.data;
   const k = lastAtOrBefore(r.t, t);
   const [segment, prob, error, neff, recoveries] = view.cells;
+  const accuracy = r.accuracy_m && k >= 0 ? r.accuracy_m[k] : null;
+  view.radius.setStyle(accuracy === null || r.lat[k] === null ? { opacity: 0, fillOpacity: 0 }
+    : { opacity: 1, fillOpacity: 0.06 });
   if (k < 0 || r.lat[k] === null) {
     view.marker.setStyle({ opacity: 0, fillOpacity: 0 });
     for (const cell of view.cells) cell.textContent = "\u2014";
     return;
   }
   view.marker.setLatLng([r.lat[k], r.lon[k]]).setStyle({ opacity: 1, fillOpacity: 1 });
+  if (accuracy !== null) view.radius.setLatLng([r.lat[k], r.lon[k]]).setRadius(accuracy);
   segment.textContent = r.segment ? (r.segment[k] ?? "\u2014") : "\u2014";
   prob.textContent = r.segment_prob ? fmt(r.segment_prob[k], 2) : "\u2014";
-  error.textContent = r.error_m ? fmt(r.error_m[k], 1, " m") : "\u2014";
+  error.textContent = `${r.error_m ? fmt(r.error_m[k], 1, " m") : "\u2014"} / ${fmt(accuracy, 1, " m")}`;
   neff.textContent = r.n_eff ? fmt(r.n_eff[k], 0) : "\u2014";
   recoveries.textContent = `${r.recoveries_so_far[k]} / ${r.recoveries}`;
   view.row.classList.toggle("recovered", k > 0 && r.recoveries_so_far[k] > r.recoveries_so_far[k - 1]);
@@ -302,4 +311,4 @@ requestAnimationFrame(() => {
   ui.play.disabled = false;
   performance.mark("curbside:slider-ready");
 });
-window.curbsideView = { timeline, state, setIndex };
+window.curbsideView = { timeline, state, setIndex, runs: runViews };
