@@ -282,13 +282,28 @@ def test_ipin_table_scores_methods_at_the_same_waypoints():
     assert (counts == 1).all()  # every method at the same waypoints of a trial
     assert [r[0] for r in table.rows] == ["GNSS", "RoNIN+PF", "paper PF", "curbside fused"]
     n_trials = frame["trial"].nunique()
-    assert table.header[-1] == "trials above GNSS" and table.rows[0][-1] == "–"
-    assert all(r[-1].endswith(f" of {n_trials}") for r in table.rows[1:])
+    assert table.header[-2:] == ["trials above GNSS", "accuracy_m held"] and table.rows[0][-2] == "–"
+    assert all(r[-2].endswith(f" of {n_trials}") for r in table.rows[1:])
+    # how often each track's accuracy_m held the walker at those waypoints (the phone's own for GNSS)
+    assert ((frame["held"] >= 0) & (frame["held"] <= frame["n_waypoints"])).all()
+    assert all(0.0 <= float(r[-1]) <= 1.0 for r in table.rows)
     # held out: only the repetition04 trials RoNIN never saw (none in this cut)
     assert [r[0] for r in how_sure.rows] == [
         "curbside fused", "curbside fused - paper PF", "curbside fused - GNSS"]
     (held_out,), _ = ipin_table(h5, held_out=True)  # no trial scored: no intervals
     assert "0 held-out trials" in held_out.title
+
+
+def test_accuracy_held_pools_the_waypoints_of_every_trial_run():
+    from curbside.evaluate.benchmark import accuracy_held
+
+    rows = [{"trial": "a", "method": "fused", "n_waypoints": 4, "median_m": 1.0, "held": 3},
+            {"trial": "b", "method": "fused", "n_waypoints": 6, "median_m": 1.0, "held": 2},
+            {"trial": "a", "method": "gnss", "n_waypoints": 4, "median_m": 1.0, "held": 4},
+            {"trial": "c", "method": "gnss", "n_waypoints": 0, "median_m": None, "held": 0},
+            {"trial": "a", "method": "old", "n_waypoints": 4, "median_m": 1.0}]  # a row without the count
+    assert accuracy_held(rows) == {"fused": pytest.approx(0.5), "gnss": 1.0}
+    assert accuracy_held([]) == {}
 
 
 def test_trials_above_gnss_pairs_each_trial_run_with_gnss_on_the_same_run():

@@ -378,7 +378,8 @@ def ipin_errors(
     -------
     (dict, list of dict, int)
         Errors (m) pooled per method; one row per trial and method (``trial, method, n_waypoints,
-        median_m``); the number of trials read.
+        median_m``, and ``held``: the waypoints whose error is at most the track's ``accuracy_m``
+        there); the number of trials read.
     """
     from curbside.localize.readers.ipin import list_trials, read_trial
     from curbside.localize.ronin.data import IPIN_TEST_MARK
@@ -402,17 +403,20 @@ def ipin_errors(
         tracks = _track_every_run(session, runs, seed, name)
         if len(tracks) < len(runs):
             continue
-        for method, e in _waypoint_errors(session.waypoints, tracks).items():
+        for method, (e, radius) in _waypoint_errors(session.waypoints, tracks).items():
             errors[method].append(e)
             median = float(np.median(e)) if len(e) else None
-            rows.append({"trial": name, "method": method, "n_waypoints": len(e), "median_m": median})
+            rows.append({"trial": name, "method": method, "n_waypoints": len(e), "median_m": median,
+                         "held": int(np.sum(e <= radius))})
     pooled = {m: np.concatenate(v) if v else np.array([]) for m, v in errors.items()}
     return pooled, rows, len(names)
 
 
-def _waypoint_errors(waypoints: pd.DataFrame, tracks: dict[str, Any]) -> dict[str, np.ndarray]:
-    """Each track's error (m) at the same surveyed waypoints: those inside every track's span, the
-    start one excluded."""
+def _waypoint_errors(
+    waypoints: pd.DataFrame, tracks: dict[str, Any]
+) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+    """Each track's error (m) at the same surveyed waypoints, those inside every track's span, the start
+    one excluded, and its ``accuracy_m`` there (NaN where the track has none)."""
     frame = LocalFrame.around(float(waypoints["lon"].iat[0]), float(waypoints["lat"].iat[0]))
     wt, wx, wy = waypoints_xy(waypoints, frame)
     common = np.arange(len(wt)) > 0
@@ -423,7 +427,8 @@ def _waypoint_errors(waypoints: pd.DataFrame, tracks: dict[str, Any]) -> dict[st
         x, y = frame.to_xy(track["lon"].to_numpy(), track["lat"].to_numpy())
         t = track["t"].to_numpy()
         dx, dy = np.interp(wt[common], t, x) - wx[common], np.interp(wt[common], t, y) - wy[common]
-        errors[method] = np.hypot(dx, dy)
+        radius = track["accuracy_m"].to_numpy(float) if "accuracy_m" in track else np.full(len(t), np.nan)
+        errors[method] = np.hypot(dx, dy), np.interp(wt[common], t, radius)
     return errors
 
 
@@ -507,6 +512,16 @@ def ipin_interval_table(intervals: pd.DataFrame, title: str) -> Table:
     return interval_table(fused, title, INTERVAL_NOTE.format(unit="trials", points="waypoints", one="trial"))
 
 
+def accuracy_held(rows: list[dict]) -> dict[str, float]:
+    """Per method, the share of scored waypoints within the track's ``accuracy_m`` (:func:`ipin_errors`'
+    rows; methods without a ``held`` count or a waypoint are left out)."""
+    frame = pd.DataFrame([r for r in rows if r.get("held") is not None and r["n_waypoints"]])
+    if frame.empty:
+        return {}
+    sums = frame.groupby("method", sort=False)[["held", "n_waypoints"]].sum()
+    return (sums["held"] / sums["n_waypoints"]).to_dict()
+
+
 def trials_above_gnss(rows: list[dict]) -> dict[str, tuple[int, int]]:
     """Per method of :func:`ipin_errors`' ``rows`` (one filter seed's, or several seeds' in turn): in how
     many trial runs its median error exceeds GNSS alone's on the same run, and how many it was scored
@@ -538,6 +553,7 @@ def ipin_errors_table(
     (``seeds``: how many filter seeds the errors pool, each scoring every waypoint once;
     ``ronin_weights``: the RoNIN model the methods tracked with, when not the bundled one)."""
     above = trials_above_gnss(rows or [])
+    held = accuracy_held(rows or [])
     table_rows = []
     for m, e in errors.items():
         worse, scored = above.get(m, (0, 0))
@@ -549,6 +565,7 @@ def ipin_errors_table(
                 f"{np.percentile(e, 90):.1f}" if len(e) else "n/a",
                 f"{e.mean():.1f}" if len(e) else "n/a",
                 f"{worse} of {scored}" if scored else "–",
+                f"{held[m]:.2f}" if m in held else "n/a",
             ]
         )
     which = "held-out " if held_out else ""
@@ -557,6 +574,9 @@ def ipin_errors_table(
     if above:
         note = ("Trials above GNSS: trial runs (a trial at one filter seed) whose median error exceeds "
                 "GNSS alone's on the same run, of those scored. ")
+    if held:
+        note += ("accuracy_m held: the share of waypoints within the track's accuracy_m, the radius that "
+                 "should hold the walker 68 % of the time (for GNSS alone the phone's reported accuracy). ")
     if ronin_weights:
         model = f", RoNIN {Path(ronin_weights).name}"
         note += (f"Every method tracks with the velocity of {Path(ronin_weights).name}, a RoNIN model that "
@@ -565,7 +585,7 @@ def ipin_errors_table(
     return Table(
         f"IPIN 2023 Track 3 ({n_trials} {which}trials{pooled}, no map{model}): "
         "error at surveyed waypoints (m)",
-        ["method", "waypoints", "median", "p90", "mean", "trials above GNSS"],
+        ["method", "waypoints", "median", "p90", "mean", "trials above GNSS", "accuracy_m held"],
         table_rows,
         note,
     )

@@ -282,7 +282,7 @@ def _ipin_summary(
     pooled over the filter ``seeds``: pooled figures, their table, and trial-bootstrap intervals (fused
     against 0.1 and the baselines). With the bundled RoNIN, the held-out trials; with ``ronin_weights``
     (a model that never saw the venue), every trial."""
-    from curbside.evaluate.benchmark import ipin_errors, ipin_errors_table, trials_above_gnss
+    from curbside.evaluate.benchmark import accuracy_held, ipin_errors, ipin_errors_table, trials_above_gnss
     from curbside.evaluate.uncertainty import waypoint_intervals
 
     errors: dict[str, list[np.ndarray]] = {}
@@ -303,6 +303,9 @@ def _ipin_summary(
     for m, (above, scored) in trials_above_gnss(rows).items():
         if m in summary:
             summary[m] |= {"trials_above_gnss": above, "trials_scored": scored}
+    for m, share in accuracy_held(rows).items():
+        if m in summary:
+            summary[m]["accuracy_held"] = share
     baselines = (criteria.IPIN_BASELINE_RUN, "paper", "gnss")
     intervals = waypoint_intervals(errors, rows, "fused", baselines, seed=seeds[0])
     table = ipin_errors_table(errors, n_trials, ronin_weights is None, len(seeds), ronin_weights, rows)
