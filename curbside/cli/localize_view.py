@@ -46,10 +46,12 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         help="replay one or more runs in an offline HTML page (time slider, particle clouds)",
         description=(
             "Write one self-contained HTML page (no network needed) replaying runs of `localize run`: "
-            "each run's estimate track and particle cloud at each footstep (with --save-particles), "
+            "each run's estimate track, its 68 % radius (accuracy_m) and particle cloud at each footstep "
+            "(clouds with --save-particles), "
             "the session's GNSS fixes with their accuracy circles and the ground truth when it has "
             "waypoints, over the map layers. A time slider with play/pause steps through the walk; a "
-            "panel shows the sidewalk segment and its probability, the error against the ground truth, "
+            "panel shows the sidewalk segment and its probability, the error against the ground truth "
+            "beside the 68 % radius, "
             "n_eff and the recoveries."
         ),
     )
