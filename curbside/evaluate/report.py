@@ -450,7 +450,7 @@ def confidence_table(rows: list[dict[str, Any]], jaywalk_weight: float, map_name
     grouped = any(r["subset"] is not None for r in rows)
     header = ["subset"] * grouped + ["method", "footsteps", "calibration error"]
     header += [f"p >= {p:g}: share / CSA" for p in THRESHOLDS]
-    header += ["accuracy_m holds the walker (median m)"]
+    header += ["accuracy_m held (median m)"]
     body = []
     for r in rows:
         cells = [f"{fmt_value(r[f'coverage_{p:g}'], 2)} / {fmt_value(r[f'csa_{p:g}'], 3)}"
