@@ -98,6 +98,10 @@ class SegmentCalibration:
     ----------
     pairs
         Innovation pairs ``lag`` apart seen so far.
+    persistence
+        The share of a fix's error left ``persistence_lag_s`` later, shrunk towards the prior.
+    temperature
+        The temperature the next probability is divided by (in logit).
     """
 
     def __init__(self, config: CalibrationConfig, n: int) -> None:
@@ -108,6 +112,8 @@ class SegmentCalibration:
         self._fixes = 0
         self._sum_sq_change = 0.0
         self.pairs = 0
+        self.persistence = config.prior_persistence
+        self.temperature = self._temperature_at(self.persistence)
 
     def observe(self, t: float, innovation_x_m: float, innovation_y_m: float) -> None:
         """Take the innovation of an accepted fix at time ``t`` (fix minus the previous estimate, m)."""
@@ -122,22 +128,16 @@ class SegmentCalibration:
         recent.append((t, innovation_x_m, innovation_y_m))
         self._sum_sq += innovation_x_m**2 + innovation_y_m**2
         self._fixes += 1
+        # Updated here, once per fix, rather than read at every update.
+        if self.pairs and self._sum_sq > 0:
+            rho = 1.0 - (self._sum_sq_change / self.pairs) / (2.0 * self._sum_sq / self._fixes)
+            w = self.pairs / (self.pairs + c.prior_pairs)
+            self.persistence = w * rho + (1.0 - w) * c.prior_persistence
+            self.temperature = self._temperature_at(self.persistence)
 
-    @property
-    def persistence(self) -> float:
-        """The share of a fix's error left ``persistence_lag_s`` later, shrunk towards the prior."""
+    def _temperature_at(self, persistence: float) -> float:
         c = self.config
-        if self.pairs == 0 or self._sum_sq <= 0:
-            return c.prior_persistence
-        rho = 1.0 - (self._sum_sq_change / self.pairs) / (2.0 * self._sum_sq / self._fixes)
-        w = self.pairs / (self.pairs + c.prior_pairs)
-        return w * rho + (1.0 - w) * c.prior_persistence
-
-    @property
-    def temperature(self) -> float:
-        """The temperature the next probability is divided by (in logit)."""
-        c = self.config
-        return c.temperature + c.temperature_per_persistence * min(max(self.persistence, 0.0), 1.0)
+        return c.temperature + c.temperature_per_persistence * min(max(persistence, 0.0), 1.0)
 
     def calibrate(self, prob: float) -> float:
         """The tempered probability of a MAP segment of posterior mass ``prob`` (0 stays 0: no segment)."""
