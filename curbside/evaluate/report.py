@@ -418,14 +418,19 @@ def write_report(
         from curbside.localize.view import write_session_views
 
         views = {name: f"view/{name}.html" for name in write_session_views(results, base, tmp / "view")}
-        md = ["# curbside evaluation report", "", intro, ""]
-        md += [t.markdown() for t in tables]
-        md += [f"![{alt}](figures/{name})\n" for name, alt, _ in figures]
-        md += ["## Replay each session\n\n" + "".join(f"- [{n}]({h})\n" for n, h in sorted(views.items()))]
-        (tmp / "report.md").write_text("\n".join(md), encoding="utf-8")
+        (tmp / "report.md").write_text(_markdown_page(intro, tables, figures, views), encoding="utf-8")
         (tmp / "report.html").write_text(_html_page(intro, tables, figures, views), encoding="utf-8")
     return {name: out_dir / name for name in ("metrics.json", "report.md", "report.html")}
 
+
+
+def _markdown_page(intro: str, tables: list[Table], figures: list, views: dict[str, str]) -> str:
+    """``report.md``: the intro, the tables, the figures and a link to each session's replay page."""
+    md = ["# curbside evaluation report", "", intro, ""]
+    md += [t.markdown() for t in tables]
+    md += [f"![{alt}](figures/{name})\n" for name, alt, _ in figures]
+    md += ["## Replay each session\n\n" + "".join(f"- [{n}]({h})\n" for n, h in sorted(views.items()))]
+    return "\n".join(md)
 
 #: The note under the segment_prob tables (:mod:`curbside.evaluate.confidence`).
 CONFIDENCE_NOTE = (

@@ -164,24 +164,7 @@ def run_one(spec: RunSpec) -> dict[str, Any]:
         errors_mode = _errors_at(track, "mode", frame, gt, index)
         errors_mode["segment_prob"] = track["segment_prob"].to_numpy(float)  # see evaluate.confidence
     errors_smoothed = _errors_at(track, "smooth", frame, gt, index) if "smooth_lat" in track else None
-    snapshots = []
-    if result.snapshots is not None and spec.snapshot_times:
-        snap = result.snapshots
-        ox, oy = snap["origin"]
-        for want in spec.snapshot_times:
-            k = int(np.argmin(np.abs(snap["t"] - want)))
-            px, py = snap["x"][k] + ox, snap["y"][k] + oy
-            if layers is not None and spec.metrics_map and _map(spec.metrics_map).crs != layers.crs:
-                lon, lat = LocalFrame(pyproj.CRS(layers.crs)).to_lonlat(px, py)
-                px, py = frame.to_xy(lon, lat)
-            snapshots.append(
-                {
-                    "t": float(snap["t"][k]),
-                    "x": np.asarray(px, np.float32),
-                    "y": np.asarray(py, np.float32),
-                    "fix": _fix_at(session.gnss, float(snap["t"][k]), frame),
-                }
-            )
+    snapshots = _clouds_at(spec, result.snapshots, session, layers, frame) if spec.snapshot_times else []
     sim = session.meta.get("simulation", {}) if isinstance(session.meta, dict) else {}
     return {
         "spec": asdict(spec),
@@ -200,6 +183,24 @@ def run_one(spec: RunSpec) -> dict[str, Any]:
         "recoveries": int(result.recoveries),
         "velocity_source": result.velocity_source,
     }
+
+
+def _clouds_at(spec: RunSpec, snap: dict | None, session, layers, frame: LocalFrame) -> list[dict[str, Any]]:
+    """The particle clouds nearest ``spec.snapshot_times``, in the metrics frame, with the fix then."""
+    if snap is None:
+        return []
+    ox, oy = snap["origin"]
+    clouds = []
+    for want in spec.snapshot_times:
+        k = int(np.argmin(np.abs(snap["t"] - want)))
+        px, py = snap["x"][k] + ox, snap["y"][k] + oy
+        if layers is not None and spec.metrics_map and _map(spec.metrics_map).crs != layers.crs:
+            lon, lat = LocalFrame(pyproj.CRS(layers.crs)).to_lonlat(px, py)
+            px, py = frame.to_xy(lon, lat)
+        t = float(snap["t"][k])
+        clouds.append({"t": t, "x": np.asarray(px, np.float32), "y": np.asarray(py, np.float32),
+                       "fix": _fix_at(session.gnss, t, frame)})
+    return clouds
 
 
 def smoothed_results(results: list[dict[str, Any]]) -> list[dict[str, Any]]:
