@@ -21,12 +21,15 @@ import contextlib
 import datetime
 import json
 import logging
+import math
 import os
 import shutil
 import tempfile
 from collections.abc import Iterator
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
 
 from curbside.errors import CurbsideInputError
 
@@ -39,6 +42,20 @@ logger = logging.getLogger(__name__)
 MARKER = ".curbside-output"
 
 _STAGING_PREFIX = ".curbside-staging-"
+
+
+def json_ready(value: Any) -> Any:
+    """``value`` with numpy scalars unwrapped, keys as strings and non-finite floats as ``None`` (strict
+    JSON has no NaN)."""
+    if isinstance(value, dict):
+        return {str(k): json_ready(v) for k, v in value.items()}
+    if isinstance(value, list | tuple):
+        return [json_ready(v) for v in value]
+    if isinstance(value, np.generic):
+        value = value.item()
+    if isinstance(value, float) and not math.isfinite(value):
+        return None
+    return value
 
 
 def _absolute(path: str | os.PathLike[str]) -> Path:

@@ -410,11 +410,21 @@ def imu_session():
     return read_any(f"{IPIN_CUT}::TrainingTrial01_repetition01")
 
 
+def _no_nan(constant: str):
+    raise AssertionError(f"run.json holds {constant}: not strict JSON")
+
+
 def test_real_imu_session_runs_with_pdr_and_detected_steps(tmp_path, capsys):
     src = f"{IPIN_CUT}::TrainingTrial01_repetition01"
     assert run_cli(src, "--velocity-source", "pdr", "-o", tmp_path / "out") == 0
-    info = json.loads((tmp_path / "out" / "run.json").read_text())
+    info = json.loads((tmp_path / "out" / "run.json").read_text(), parse_constant=_no_nan)  # strict JSON
     assert info["velocity_source"] == "pdr" and info["step_source"] == "detected"
+    # the trial has surveyed waypoints: the track's error there, and how often its 68 % radius held
+    scored = info["waypoint_error"]
+    assert scored["n_waypoints"] >= 2 and 0.0 <= scored["waypoint_accuracy_held"] <= 1.0
+    assert f"accuracy_m held {round(scored['waypoint_accuracy_held'] * scored['n_waypoints'])} of" in (
+        capsys.readouterr().out
+    )
     track = pd.read_csv(tmp_path / "out" / "track.csv")
     assert len(track) > 15 and track["recovered"].sum() == 0
     # 20 s of walking from the first POSI: the track moves, at walking pace.

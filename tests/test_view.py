@@ -211,7 +211,16 @@ def test_waypoint_error_interpolates_the_track_at_each_waypoint():
     summary = waypoint_summary(errors)
     assert summary["n_waypoints"] == 2 and summary["waypoint_max_m"] == pytest.approx(4.0, abs=0.01)
     assert format_waypoint_summary(summary) == "error at 2 waypoints: median 3.5 m, p90 3.9 m, max 4.0 m"
+    assert np.isnan(summary["waypoint_accuracy_held"])  # the track claims no radius
     assert waypoint_summary(errors.iloc[:0])["n_waypoints"] == 0
+    # a 68 % radius interpolated like the position: 3.95 m at the first waypoint (3 m off: held) and
+    # 3.475 m at the second (4 m off: not held)
+    waypoints = pd.DataFrame({"t": wt, "lat": wlat, "lon": wlon})
+    claimed = waypoint_errors(track.assign(accuracy_m=4.5 - 0.1 * t), waypoints)
+    np.testing.assert_allclose(claimed["accuracy_m"], [3.95, 3.475])
+    held = waypoint_summary(claimed)
+    assert held["waypoint_accuracy_held"] == 0.5
+    assert format_waypoint_summary(held).endswith("max 4.0 m; accuracy_m held 1 of 2")
     with pytest.raises(CurbsideInputError, match="at least two"):
         waypoint_errors(track, pd.DataFrame({"t": [1.0], "lat": [37.79], "lon": [-122.4]}))
 

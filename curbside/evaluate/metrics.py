@@ -256,7 +256,7 @@ def rte_m(
 
 #: Names of :func:`waypoint_summary`'s figures, in print order.
 WAYPOINT_METRIC_NAMES: tuple[str, ...] = (
-    "waypoint_median_m", "waypoint_p90_m", "waypoint_max_m", "n_waypoints"
+    "waypoint_median_m", "waypoint_p90_m", "waypoint_max_m", "n_waypoints", "waypoint_accuracy_held"
 )
 
 
@@ -271,7 +271,8 @@ def waypoint_errors(track: pd.DataFrame, waypoints: pd.DataFrame, exclude_first:
     Parameters
     ----------
     track
-        ``t, lat, lon`` per footstep (``track.csv``); rows without an estimate (NaN) are skipped.
+        ``t, lat, lon`` per footstep (``track.csv``), and ``accuracy_m`` where the track has it; rows
+        without an estimate (NaN) are skipped.
     waypoints
         ``t, lat, lon`` (``waypoints.csv``).
     exclude_first
@@ -280,7 +281,8 @@ def waypoint_errors(track: pd.DataFrame, waypoints: pd.DataFrame, exclude_first:
     Returns
     -------
     pandas.DataFrame
-        One row per scored waypoint: ``t, lat, lon`` (surveyed), ``est_lat, est_lon`` and ``error_m``.
+        One row per scored waypoint: ``t, lat, lon`` (surveyed), ``est_lat, est_lon`` and ``error_m``;
+        ``accuracy_m`` too (interpolated like the position) when the track has it.
 
     Raises
     ------
@@ -291,7 +293,7 @@ def waypoint_errors(track: pd.DataFrame, waypoints: pd.DataFrame, exclude_first:
 
     if waypoints is None or len(waypoints) < 2:
         raise CurbsideInputError("waypoints.csv", "scoring at waypoints needs at least two of them")
-    est = track[["t", "lat", "lon"]].dropna()
+    est = track.dropna(subset=["t", "lat", "lon"])
     if len(est) < 2:
         raise CurbsideInputError("track", "scoring at waypoints needs at least two estimates")
     t = est["t"].to_numpy(float)
@@ -309,34 +311,44 @@ def waypoint_errors(track: pd.DataFrame, waypoints: pd.DataFrame, exclude_first:
     scored["est_lat"] = np.atleast_1d(est_lat)
     scored["est_lon"] = np.atleast_1d(est_lon)
     scored["error_m"] = np.hypot(ix - wx, iy - wy)
+    if "accuracy_m" in est:
+        scored["accuracy_m"] = np.interp(at, t, est["accuracy_m"].to_numpy(float))
     return scored
 
 
 def waypoint_summary(errors: pd.DataFrame) -> dict[str, float]:
-    """Median, 90th percentile and largest error of :func:`waypoint_errors`, and how many waypoints.
+    """Median, 90th percentile and largest error of :func:`waypoint_errors`, how many waypoints, and the
+    share of them that the track's ``accuracy_m`` (its 68 % radius) held.
 
     Returns
     -------
     dict
-        :data:`WAYPOINT_METRIC_NAMES`; NaN figures when no waypoint was scored.
+        :data:`WAYPOINT_METRIC_NAMES`; NaN figures when no waypoint was scored, and a NaN share when the
+        track has no ``accuracy_m``.
     """
     e = errors["error_m"].to_numpy(float)
     if len(e) == 0:
         return {name: (0 if name == "n_waypoints" else float("nan")) for name in WAYPOINT_METRIC_NAMES}
+    radius = errors["accuracy_m"].to_numpy(float) if "accuracy_m" in errors else np.full(len(e), np.nan)
+    held = float(np.mean(e <= radius)) if np.isfinite(radius).all() else float("nan")
     return {
         "waypoint_median_m": float(np.median(e)),
         "waypoint_p90_m": float(np.percentile(e, 90)),
         "waypoint_max_m": float(e.max()),
         "n_waypoints": len(e),
+        "waypoint_accuracy_held": held,
     }
 
 
 def format_waypoint_summary(summary: dict[str, float]) -> str:
-    """One line for a command's output, e.g. ``error at 12 waypoints: median 3.1 m, p90 7.9 m, max 9.4 m``."""
+    """One line for a command's output, e.g. ``error at 12 waypoints: median 3.1 m, p90 7.9 m, max 9.4 m;
+    accuracy_m held 8 of 12``."""
     n = int(summary["n_waypoints"])
     if n == 0:
         return "error at waypoints: no waypoint inside the track's time span"
-    return (
+    line = (
         f"error at {n} waypoint{'s' if n != 1 else ''}: median {summary['waypoint_median_m']:.1f} m, "
         f"p90 {summary['waypoint_p90_m']:.1f} m, max {summary['waypoint_max_m']:.1f} m"
     )
+    held = summary.get("waypoint_accuracy_held", float("nan"))
+    return line if not np.isfinite(held) else f"{line}; accuracy_m held {round(held * n)} of {n}"

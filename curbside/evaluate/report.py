@@ -15,7 +15,6 @@ import math
 from pathlib import Path
 from typing import Any
 
-import numpy as np
 import pandas as pd
 
 import curbside
@@ -32,7 +31,7 @@ from curbside.evaluate.figures import (
 from curbside.evaluate.metrics import METRIC_NAMES, MetricsConfig
 from curbside.evaluate.runner import METHOD_LABELS, METHODS, MODE_SUFFIX, pool
 from curbside.evaluate.uncertainty import map_intervals, subset_intervals
-from curbside.io import atomic_path
+from curbside.io import atomic_path, json_ready
 from curbside.localize.filter.config import MapConfig
 from curbside.osmseg.mapio import MapLayers
 
@@ -70,19 +69,6 @@ def fmt_value(value: Any, digits: int = 2) -> str:
     if isinstance(value, float):
         return f"{value:.{digits}f}"
     return str(value)
-
-
-def json_ready(value: Any) -> Any:
-    """``value`` with numpy scalars unwrapped, keys as strings and non-finite floats as ``None``."""
-    if isinstance(value, dict):
-        return {str(k): json_ready(v) for k, v in value.items()}
-    if isinstance(value, list | tuple):
-        return [json_ready(v) for v in value]
-    if isinstance(value, np.generic):
-        value = value.item()
-    if isinstance(value, float) and not math.isfinite(value):
-        return None
-    return value
 
 
 def records(frame: pd.DataFrame) -> list[dict[str, Any]]:

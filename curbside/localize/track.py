@@ -14,20 +14,12 @@ import numpy as np
 import pandas as pd
 
 from curbside import __version__
-from curbside.io import output_folder
+from curbside.io import json_ready, output_folder
 from curbside.localize.particle_store import pack_snapshots, write_particles
 from curbside.localize.pipeline import TrackResult
 
 #: Decimal places of lon/lat in ``track.geojson`` (1e-7 degree is about 1 cm).
 COORD_DECIMALS = 7
-
-
-def _json_value(value: Any) -> Any:
-    if isinstance(value, np.generic):
-        value = value.item()
-    if isinstance(value, float) and not np.isfinite(value):
-        return None
-    return value
 
 
 def track_geojson(track: pd.DataFrame, properties: dict[str, Any] | None = None) -> dict[str, Any]:
@@ -63,7 +55,7 @@ def track_geojson(track: pd.DataFrame, properties: dict[str, Any] | None = None)
         features.append(
             {
                 "type": "Feature",
-                "properties": {"kind": "footstep", **{k: _json_value(v) for k, v in record.items()}},
+                "properties": {"kind": "footstep", **json_ready(record)},
                 "geometry": {"type": "Point", "coordinates": point},
             }
         )
@@ -123,7 +115,7 @@ def write_track(
         result.track.to_csv(tmp / "track.csv", index=False, float_format="%.10g")
         doc = track_geojson(result.track, {"mode": result.mode})
         (tmp / "track.geojson").write_text(json.dumps(doc, separators=(",", ":")), encoding="utf-8")
-        (tmp / "run.json").write_text(json.dumps(info, indent=2, default=_json_value), encoding="utf-8")
+        (tmp / "run.json").write_text(json.dumps(json_ready(info), indent=2), encoding="utf-8")
         if result.snapshots is not None:
             track = result.track
             packed = pack_snapshots(result.snapshots, track["x_m"].to_numpy(), track["y_m"].to_numpy())
