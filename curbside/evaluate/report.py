@@ -409,7 +409,6 @@ def write_report(
     return {name: out_dir / name for name in ("metrics.json", "report.md", "report.html")}
 
 
-
 def _markdown_page(intro: str, tables: list[Table], figures: list, views: dict[str, str]) -> str:
     """``report.md``: the intro, the tables, the figures and a link to each session's replay page."""
     md = ["# curbside evaluation report", "", intro, ""]
@@ -417,6 +416,7 @@ def _markdown_page(intro: str, tables: list[Table], figures: list, views: dict[s
     md += [f"![{alt}](figures/{name})\n" for name, alt, _ in figures]
     md += ["## Replay each session\n\n" + "".join(f"- [{n}]({h})\n" for n, h in sorted(views.items()))]
     return "\n".join(md)
+
 
 #: The note under the segment_prob tables (:mod:`curbside.evaluate.confidence`).
 CONFIDENCE_NOTE = (

@@ -93,7 +93,9 @@ def write_track(
         ``out_dir``.
     """
     out_dir = Path(out_dir)
-    info = {
+    # What the run measured has no NaN (a figure that does not exist is null); the config is written as
+    # it is, so that a parameter set to inf (a disabled gate) replays as inf.
+    info = json_ready({
         "generator": f"curbside {__version__}",
         **(run_info or {}),
         "mode": result.mode,
@@ -109,13 +111,12 @@ def write_track(
         "fix_lag": result.fix_lag,
         "wall_tolerance_m": result.wall_tolerance_m,
         "walkable_first": result.walkable_first,
-        "config": result.config.to_dict(),
-    }
+    }) | {"config": result.config.to_dict()}
     with output_folder(out_dir, "localize run", overwrite=overwrite) as tmp:
         result.track.to_csv(tmp / "track.csv", index=False, float_format="%.10g")
         doc = track_geojson(result.track, {"mode": result.mode})
         (tmp / "track.geojson").write_text(json.dumps(doc, separators=(",", ":")), encoding="utf-8")
-        (tmp / "run.json").write_text(json.dumps(json_ready(info), indent=2), encoding="utf-8")
+        (tmp / "run.json").write_text(json.dumps(info, indent=2), encoding="utf-8")
         if result.snapshots is not None:
             track = result.track
             packed = pack_snapshots(result.snapshots, track["x_m"].to_numpy(), track["y_m"].to_numpy())
