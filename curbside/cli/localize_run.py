@@ -144,7 +144,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         help="track one session (GNSS only, inertial + map, the paper's filter, or fused)",
         description="Track one session with the map-aware particle filter; writes OUT/track.csv, "
         "OUT/track.geojson, OUT/run.json (every parameter: replay with --config) and, with "
-        "--save-particles, OUT/particles.npz.",
+        "--save-particles, OUT/particles.npz. A session with surveyed waypoints (waypoints.csv, an IPIN "
+        "trial) also gets the track's error at them and how many of them its 68 % radius (accuracy_m) "
+        "held, printed and in run.json.",
         epilog="examples:\n  localize run walk/ --map map.geojson -o out/track\n"
         "  localize run walk/ --map map.geojson --set filter.gnss.sigma_factor=1.0 -o out/t2\n"
         "  localize run walk/ --map map.geojson --lag-s 30 -o out/smooth   # adds smooth_lat, smooth_lon\n"
