@@ -176,6 +176,11 @@ def test_evaluate_writes_the_report(tmp_path, sessions):
     assert trust["method"].tolist() == ["inertial", "paper", "fused"] and trust["subset"].isna().all()
     assert ((trust["calibration_error"] >= 0) & (trust["calibration_error"] <= 1)).all()
     assert trust["accuracy_coverage"].between(0, 1).all() and (trust["accuracy_median_m"] > 0).all()
+    for row in doc["segment_prob_reliability"]:  # the radius scaled to other shares: held more often
+        curve = pd.DataFrame(row["accuracy_curve"])
+        assert curve["claimed"].tolist() == [0.5, 0.68, 0.8, 0.9, 0.95]
+        assert curve["held"].is_monotonic_increasing
+        assert curve.loc[curve["claimed"] == 0.68, "held"].item() == row["accuracy_coverage"]
     html = (out / "report.html").read_text()
     assert html.count("data:image/png;base64,") >= 4
     assert not (out / "figures" / "missing.png").exists()

@@ -10,7 +10,9 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from curbside.evaluate.confidence import (
+    RADIUS_SHARES,
     accuracy_coverage,
+    accuracy_curve,
     calibration_error,
     confidence_summary,
     reliability_curve,
@@ -123,3 +125,21 @@ def test_accuracy_coverage_counts_the_footsteps_inside_the_radius_and_leaves_the
     gaussian = pd.DataFrame({"accuracy_m": radius, "missing": False,
                              "euclid_m": radius / 1.0674 * np.sqrt(rng.exponential(1.0, len(radius)))})
     assert accuracy_coverage(gaussian)[0] == pytest.approx(0.68, abs=0.01)
+
+
+def test_accuracy_curve_is_the_diagonal_for_gaussian_errors_and_falls_below_it_for_a_heavy_tail():
+    rng = np.random.default_rng(4)
+    radius = rng.uniform(1, 10, 100_000)
+    sigma = radius / 1.5096  # the 68 % radius of a circular Gaussian is 1.5096 sigma
+    gaussian = pd.DataFrame({"accuracy_m": radius, "missing": False,
+                             "euclid_m": np.hypot(*(sigma * rng.standard_normal((2, len(radius)))))})
+    curve = accuracy_curve(gaussian)
+    assert [c["claimed"] for c in curve] == list(RADIUS_SHARES)
+    np.testing.assert_allclose([c["held"] for c in curve], RADIUS_SHARES, atol=0.01)
+    # most footsteps a little nearer, 15 % of them 5 times as far off: above the claim near the middle,
+    # short of it far out
+    tail = rng.random(len(radius)) < 0.15
+    heavy = gaussian.assign(euclid_m=np.where(tail, 5.0, 0.8) * gaussian["euclid_m"])
+    held = {c["claimed"]: c["held"] for c in accuracy_curve(heavy)}
+    assert held[0.5] > 0.53 and held[0.95] < 0.88
+    assert accuracy_curve(gaussian.drop(columns="accuracy_m")) == []

@@ -19,7 +19,7 @@ from curbside.localize.filter import (
     SegmentCalibration,
     Tracker,
 )
-from curbside.localize.filter.calibration import accuracy_radius_m
+from curbside.localize.filter.calibration import accuracy_radius_m, radius_at_share_m
 
 LAG_S = 10.0
 
@@ -172,3 +172,12 @@ def test_the_68_percent_radius_of_a_gaussian_cloud_holds_68_percent_of_it(sigma_
     inside = np.hypot(*(xy - xy.mean(axis=0)).T) <= accuracy_radius_m(spread)
     assert inside.mean() == pytest.approx(0.68, abs=0.005)
     assert accuracy_radius_m(spread, 4.0) == pytest.approx(2 * accuracy_radius_m(spread))
+
+
+def test_radius_at_share_scales_the_68_percent_radius_as_for_a_gaussian():
+    assert radius_at_share_m(4.0, 0.68) == pytest.approx(4.0)
+    assert radius_at_share_m(4.0, 0.95) == pytest.approx(4.0 * 1.62146, rel=1e-5)  # sqrt(ln 0.05 / ln 0.32)
+    np.testing.assert_allclose(radius_at_share_m(np.array([1.0, 2.0]), 0.5), [0.77995, 1.55990], rtol=1e-4)
+    for share in (0.0, 1.0, 1.5):
+        with pytest.raises(ValueError, match="share"):
+            radius_at_share_m(4.0, share)

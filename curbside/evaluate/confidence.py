@@ -13,12 +13,12 @@ Footsteps on a crossing are left out: there the metric accepts either sidewalk t
 the filter's confidence is not a claim about a side of the street.
 
 The filter's other claim is ``accuracy_m``, the radius around its position that should hold the walker
-68 % of the time (as a phone reports a fix's accuracy): :func:`accuracy_coverage` says how often it did.
+68 % of the time (as a phone reports a fix's accuracy): :func:`accuracy_coverage` says how often it did,
+and :func:`accuracy_curve` how often the radius scaled to other shares as for a Gaussian did.
 """
 
 from __future__ import annotations
 
-import math
 from collections.abc import Callable
 from typing import Any
 
@@ -26,6 +26,7 @@ import numpy as np
 import pandas as pd
 
 from curbside.evaluate.figures import is_base
+from curbside.localize.filter.calibration import radius_at_share_m
 
 #: The methods that name a sidewalk with a probability (GNSS alone names none).
 FILTERS = ("inertial", "paper", "fused")
@@ -33,6 +34,8 @@ FILTERS = ("inertial", "paper", "fused")
 THRESHOLDS = (0.5, 0.9, 0.99)
 #: Bin edges of the calibration error (the last bin holds probabilities from 0.999 to 1).
 RELIABILITY_BINS = (0.0, 0.5, 0.7, 0.8, 0.9, 0.95, 0.99, 0.999, 1.0)
+#: Shares an app might want a radius for (``accuracy_m`` is the 68 % one).
+RADIUS_SHARES = (0.5, 0.68, 0.8, 0.9, 0.95)
 
 
 def scored_footsteps(errors: pd.DataFrame) -> pd.DataFrame:
@@ -124,6 +127,15 @@ def confidence_summary(errors: pd.DataFrame, thresholds: tuple[float, ...] = THR
     return out
 
 
+def _errors_and_radii(errors: pd.DataFrame) -> tuple[np.ndarray, np.ndarray]:
+    """The errors and ``accuracy_m`` of the footsteps with an estimate and a finite radius."""
+    if "accuracy_m" not in errors:
+        return np.empty(0), np.empty(0)
+    radius = errors["accuracy_m"].to_numpy(float)
+    keep = np.isfinite(radius) & ~errors["missing"].to_numpy(bool)
+    return errors["euclid_m"].to_numpy(float)[keep], radius[keep]
+
+
 def accuracy_coverage(errors: pd.DataFrame) -> tuple[float, float]:
     """How often ``accuracy_m`` held the walker, and its median (NaN, NaN without it).
 
@@ -139,14 +151,28 @@ def accuracy_coverage(errors: pd.DataFrame) -> tuple[float, float]:
         The share of footsteps with an estimate and a finite ``accuracy_m`` whose error is at most
         ``accuracy_m`` (0.68 when the radius is what it claims), and the median ``accuracy_m``.
     """
-    if "accuracy_m" not in errors:
+    error, radius = _errors_and_radii(errors)
+    if not len(error):
         return float("nan"), float("nan")
-    radius = errors["accuracy_m"].to_numpy(float)
-    keep = np.isfinite(radius) & ~errors["missing"].to_numpy(bool)
-    if not keep.any():
-        return float("nan"), float("nan")
-    held = errors["euclid_m"].to_numpy(float)[keep] <= radius[keep]
-    return float(held.mean()), float(np.median(radius[keep]))
+    return float(np.mean(error <= radius)), float(np.median(radius))
+
+
+def accuracy_curve(errors: pd.DataFrame, shares: tuple[float, ...] = RADIUS_SHARES) -> list[dict[str, float]]:
+    """How often ``accuracy_m`` scaled to each claimed share held the walker.
+
+    Each radius is :func:`~curbside.localize.filter.calibration.radius_at_share_m` of ``accuracy_m``,
+    the scaling a circular Gaussian error would justify; where the errors' tail is heavier, the share
+    held falls below the claim far out.
+
+    Returns
+    -------
+    list of dict
+        ``claimed`` and ``held``, one per share; empty without ``accuracy_m``.
+    """
+    error, radius = _errors_and_radii(errors)
+    if not len(error):
+        return []
+    return [{"claimed": q, "held": float(np.mean(error <= radius_at_share_m(radius, q)))} for q in shares]
 
 
 def reliability_rows(
@@ -169,7 +195,8 @@ def reliability_rows(
     list of dict
         One row per group and filter, groups in the order of their first run, filters in
         :data:`FILTERS` order: ``subset`` (the group, ``None`` without ``group_of``), ``method``,
-        the summary, and ``accuracy_coverage`` and ``accuracy_median_m`` (:func:`accuracy_coverage`);
+        the summary, ``accuracy_coverage`` and ``accuracy_median_m`` (:func:`accuracy_coverage`) and
+        ``accuracy_curve`` (:func:`accuracy_curve`);
         groups and filters without a scored footstep are left out.
     """
     pooled: dict[tuple[str | None, str], list[dict[str, Any]]] = {}
@@ -184,7 +211,8 @@ def reliability_rows(
         summary = confidence_summary(pd.concat([r["errors_mode"] for r in runs], ignore_index=True))
         if summary["footsteps"]:
             errors = [r["errors"] for r in runs if "errors" in r]
-            held, median = accuracy_coverage(pd.concat(errors)) if errors else (math.nan, math.nan)
-            rows.append({"subset": group, "method": method, **summary,
-                         "accuracy_coverage": held, "accuracy_median_m": median})
+            steps = pd.concat(errors) if errors else pd.DataFrame()
+            held, median = accuracy_coverage(steps)
+            rows.append({"subset": group, "method": method, **summary, "accuracy_coverage": held,
+                         "accuracy_median_m": median, "accuracy_curve": accuracy_curve(steps)})
     return rows

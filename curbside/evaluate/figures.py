@@ -339,34 +339,65 @@ def save_png(fig: plt.Figure, path: Path, dpi: int = 110) -> bytes:
 def fig_reliability(rows: list[dict[str, Any]], base: dict[str, Any]) -> plt.Figure | None:
     """``segment_prob`` against the share of footsteps on the right sidewalk, bin by bin: one panel per
     group (a benchmark subset), one line per filter, marker area by the bin's share of the footsteps.
+    Below, where the rows carry ``accuracy_curve``, the same for the position: the share of footsteps
+    that ``accuracy_m``, scaled as for a Gaussian, held against the share it claims.
 
     ``rows`` are :func:`curbside.evaluate.confidence.reliability_rows` (``None`` without any). On the
-    diagonal the probability is a frequency; below it the filter is over-confident.
+    diagonal the claim is a frequency; below it the filter is over-confident.
     """
     if not rows:
         return None
     groups = list(dict.fromkeys(r["subset"] for r in rows))
+    radius = any(r.get("accuracy_curve") for r in rows)
     width = max(6.0, 4.3 * len(groups) + 0.4)
-    fig, axes = plt.subplots(1, len(groups), figsize=(width, 5.3), sharey=True, squeeze=False)
-    for ax, group in zip(axes[0], groups, strict=True):
-        for r in (r for r in rows if r["subset"] == group):
-            bins = pd.DataFrame(r["bins"])
-            color = METHOD_COLORS[r["method"]]
-            ax.plot(bins["mean_prob"], bins["share_right"], "-", color=color, lw=1.2, alpha=0.8)
-            area = 15 + 400 * bins["footsteps"] / r["footsteps"]
-            ax.scatter(bins["mean_prob"], bins["share_right"], s=area, color=color,
-                       edgecolor="k", linewidth=0.4, alpha=0.85, zorder=3,
-                       label=f"{METHOD_LABELS[r['method']]} (error {r['calibration_error']:.3f})")
-        ax.plot([0, 1], [0, 1], ":", color="0.4", lw=1, label="probability = share right")
-        ax.set_xlim(0, 1.02)
-        ax.set_ylim(0, 1.02)
-        ax.set_aspect("equal")
-        ax.set_xlabel("segment_prob (mean over the bin)")
-        ax.set_title(group if group is not None else "all walks")
-        ax.grid(alpha=0.3)
-        ax.legend(fontsize=7, loc="upper left")
+    fig, axes = plt.subplots(1 + radius, len(groups), figsize=(width, 5.3 + 4.6 * radius), squeeze=False)
+    for k, group in enumerate(groups):
+        in_group = [r for r in rows if r["subset"] == group]
+        _segment_reliability_axes(axes[0][k], in_group, group)
+        if radius:
+            _radius_reliability_axes(axes[1][k], in_group)
     axes[0][0].set_ylabel("share of those footsteps on the right sidewalk")
-    title = f"How far to trust segment_prob ({config_label(base)})"
-    fig.suptitle(f"{title}\nmarker area: the bin's share of the footsteps", fontsize=11)
+    if radius:
+        axes[1][0].set_ylabel("share of footsteps the radius held")
+    title = "How far to trust segment_prob" + (" and accuracy_m" if radius else "")
+    note = "marker area (top): the bin's share of the footsteps"
+    fig.suptitle(f"{title} ({config_label(base)})\n{note}", fontsize=11)
     fig.tight_layout()
     return fig
+
+
+def _segment_reliability_axes(ax, rows: list[dict[str, Any]], group: str | None) -> None:
+    for r in rows:
+        bins = pd.DataFrame(r["bins"])
+        color = METHOD_COLORS[r["method"]]
+        ax.plot(bins["mean_prob"], bins["share_right"], "-", color=color, lw=1.2, alpha=0.8)
+        area = 15 + 400 * bins["footsteps"] / r["footsteps"]
+        ax.scatter(bins["mean_prob"], bins["share_right"], s=area, color=color,
+                   edgecolor="k", linewidth=0.4, alpha=0.85, zorder=3,
+                   label=f"{METHOD_LABELS[r['method']]} (error {r['calibration_error']:.3f})")
+    ax.plot([0, 1], [0, 1], ":", color="0.4", lw=1, label="probability = share right")
+    ax.set_xlim(0, 1.02)
+    ax.set_ylim(0, 1.02)
+    ax.set_aspect("equal")
+    ax.set_xlabel("segment_prob (mean over the bin)")
+    ax.set_title(group if group is not None else "all walks")
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=7, loc="upper left")
+
+
+def _radius_reliability_axes(ax, rows: list[dict[str, Any]]) -> None:
+    for r in rows:
+        curve = pd.DataFrame(r.get("accuracy_curve") or [])
+        if curve.empty:
+            continue
+        ax.plot(curve["claimed"], curve["held"], "o-", color=METHOD_COLORS[r["method"]], lw=1.2, ms=5,
+                label=f"{METHOD_LABELS[r['method']]} (68 %: {r['accuracy_coverage']:.2f}, "
+                f"median {r['accuracy_median_m']:.1f} m)")
+    ax.plot([0, 1], [0, 1], ":", color="0.4", lw=1, label="claimed = held")
+    ax.axvline(0.68, color="0.6", lw=0.8)
+    ax.set_title("the position's radius", fontsize=10)
+    ax.set_xlim(0.4, 1.0)
+    ax.set_ylim(0, 1.0)
+    ax.set_xlabel("share the radius claims (accuracy_m at 0.68, scaled as for a Gaussian)")
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=7, loc="upper left")
