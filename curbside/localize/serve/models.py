@@ -53,7 +53,11 @@ class GnssRow(BaseModel):
     t: float = Field(description="time, s (the session's clock)")
     lat: float = Field(description="WGS84 latitude, degrees")
     lon: float = Field(description="WGS84 longitude, degrees")
-    accuracy_m: float | None = Field(None, description="horizontal accuracy (1 sigma), m; null: invalid")
+    accuracy_m: float | None = Field(
+        None,
+        description="horizontal accuracy, m: the 68 % radius (iOS horizontalAccuracy, Android "
+        "getAccuracy()); null or <= 0: invalid",
+    )
 
 
 class Samples(BaseModel):
