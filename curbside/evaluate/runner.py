@@ -28,7 +28,7 @@ from tqdm.auto import tqdm
 from curbside.errors import CurbsideInputError
 from curbside.evaluate import metrics
 from curbside.evaluate.groundtruth import groundtruth_at
-from curbside.localize.session import read_session
+from curbside.localize.session import Session, read_session
 from curbside.osmseg.mapio import MapLayers, read_map
 from curbside.projection import LocalFrame
 
@@ -185,7 +185,9 @@ def run_one(spec: RunSpec) -> dict[str, Any]:
     }
 
 
-def _clouds_at(spec: RunSpec, snap: dict | None, session, layers, frame: LocalFrame) -> list[dict[str, Any]]:
+def _clouds_at(
+    spec: RunSpec, snap: dict | None, session: Session, layers: MapLayers | None, frame: LocalFrame
+) -> list[dict[str, Any]]:
     """The particle clouds nearest ``spec.snapshot_times``, in the metrics frame, with the fix then."""
     if snap is None:
         return []
