@@ -161,9 +161,13 @@ def _step_direction(update: Update | None, max_along: float) -> tuple[float, flo
 def _add_map_log_weight(
     state, log_weight, padded, grid, table, padded_segments, axes, ux, uy, max_along, log_crossing
 ):  # pragma: no cover - compiled
+    n = state.shape[1]
+    cells = np.empty(n, np.int64)
+    for i in range(n):  # a loop of its own, with no branch, runs on SIMD lanes
+        cells[i] = cell_index(state[X, i], state[Y, i], grid)
     blocked = 0
-    for i in range(state.shape[1]):
-        cell = cell_index(state[X, i], state[Y, i], grid)
+    for i in range(n):
+        cell = cells[i]
         code = padded[cell]
         w = table[code]
         if code == STREET and max_along >= 0.0:

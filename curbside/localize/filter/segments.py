@@ -86,8 +86,11 @@ def _segment_mode(
     # sums (3, S): weight, weight * x, weight * y per segment; all zeros on entry and on exit (only the
     # touched entries are reset, in the second loop).
     n = weights.shape[0]
+    cells = np.empty(n, np.int64)
+    for i in range(n):  # a loop of its own, with no branch, runs on SIMD lanes
+        cells[i] = cell_index(state[0, i], state[1, i], grid)
     for i in range(n):
-        k = padded_segments[cell_index(state[0, i], state[1, i], grid)]
+        k = padded_segments[cells[i]]
         segment_of[i] = k
         if k >= 0:
             w = weights[i]

@@ -117,16 +117,24 @@ def _log_i0(kappa: float) -> float:
 @numba.njit(cache=True, nogil=True, error_model="numpy")
 def _axis_sums(state, log_weight, padded, padded_segments, grid, axes, ux, uy):  # pragma: no cover - compiled
     # Weights relative to the largest, so the sums stay finite; dead particles (-inf) add nothing.
+    n = state.shape[1]
     peak = -np.inf
-    for i in range(state.shape[1]):
+    for i in range(n):
         peak = max(peak, log_weight[i])
     total = on_sidewalk = c2 = s2 = step_c2 = step_s2 = 0.0
     if not np.isfinite(peak):
         return total, on_sidewalk, c2, s2, step_c2, step_s2
-    for i in range(state.shape[1]):
-        w = exp(log_weight[i] - peak)
+    # The exps and the cell indices in loops of their own, with no branch, run on SIMD lanes.
+    weight = np.empty(n)
+    cells = np.empty(n, np.int64)
+    for i in range(n):
+        weight[i] = exp(log_weight[i] - peak)
+    for i in range(n):
+        cells[i] = cell_index(state[X, i], state[Y, i], grid)
+    for i in range(n):
+        w = weight[i]
         total += w
-        cell = cell_index(state[X, i], state[Y, i], grid)
+        cell = cells[i]
         k = padded_segments[cell]
         if padded[cell] == SIDEWALK and k >= 0:
             on_sidewalk += w
@@ -144,12 +152,20 @@ def _axis_sums(state, log_weight, padded, padded_segments, grid, axes, ux, uy): 
 def _add_street_heading(
     state, log_weight, ux, uy, ax, ay, kappa, log_inlier, log_floor
 ):  # pragma: no cover - compiled
-    for i in range(state.shape[1]):
+    # logaddexp(inlier, log_floor) as max + log(sum of exps): the exps in a loop of their own run on
+    # SIMD lanes; the C library's log, which keeps a loop scalar, is left to the second loop.
+    n = state.shape[1]
+    top = np.empty(n)
+    total = np.empty(n)
+    for i in range(n):
         c, s = state[COS, i], state[SIN, i]
         along = (c * ux - s * uy) * ax + (s * ux + c * uy) * ay  # cos delta
         inlier = log_inlier + kappa * (2.0 * along * along - 1.0)  # cos 2 delta = 2 cos^2 delta - 1
-        top = max(inlier, log_floor)
-        log_weight[i] += top + math.log(exp(inlier - top) + exp(log_floor - top))
+        peak = max(inlier, log_floor)
+        top[i] = peak
+        total[i] = exp(inlier - peak) + exp(log_floor - peak)
+    for i in range(n):
+        log_weight[i] += top[i] + math.log(total[i])
 
 
 def reference_log_likelihood(
