@@ -16,8 +16,10 @@ checks for zero and raises, and that branch keeps the loop scalar.
     ``e**x`` for ``x <= 709`` (``-inf`` and anything below -745.2 give 0, as they should);
 :func:`logaddexp`
     ``log(e**u + e**v)`` as numpy computes it, with ``log1p`` on ``[0, 1]`` by fdlibm's ``log`` kernel;
-:func:`cell_index`
-    a point's index in a padded map raster (:attr:`~curbside.localize.raster.RasterLookup.index_grid`).
+:func:`cell_index`, :func:`cell_indices`
+    a point's index in a padded map raster (:attr:`~curbside.localize.raster.RasterLookup.index_grid`),
+    and every particle's, in a loop of its own (branch-free, so SIMD; a kernel that then reads the
+    raster in a branchy loop is faster than with the index computed inside it).
 
 numba's on-disk cache (``cache=True``) keys a kernel on its own source file only: after editing this
 module, delete the ``__pycache__`` folders of the modules whose kernels use it.
@@ -28,6 +30,7 @@ from __future__ import annotations
 import math
 
 import numba
+import numpy as np
 from llvmlite import ir
 from numba import types
 from numba.extending import intrinsic
@@ -169,3 +172,13 @@ def cell_index(x, y, grid):  # pragma: no cover - compiled
     fx = min(max(x * inv_res - x_offset, 0.0), col_max)
     fy = min(max(y * inv_res - y_offset, 0.0), row_max)
     return int(fy) * stride + int(fx)
+
+
+@numba.njit(inline="always", cache=True, nogil=True)
+def cell_indices(state, grid):  # pragma: no cover - compiled
+    """:func:`cell_index` of every particle (columns of ``state``, rows 0 and 1 east and north)."""
+    n = state.shape[1]
+    cells = np.empty(n, np.int64)
+    for i in range(n):
+        cells[i] = cell_index(state[0, i], state[1, i], grid)
+    return cells

@@ -32,7 +32,7 @@ import numba
 import numpy as np
 
 from curbside.localize.filter.config import MapConfig
-from curbside.localize.filter.kernelmath import cell_index
+from curbside.localize.filter.kernelmath import cell_indices
 from curbside.localize.filter.particles import COS, SIN, ParticleSet, X, Y
 from curbside.localize.filter.parts import Update
 from curbside.localize.raster import BUILDING, STREET, MapRaster, RasterLookup, building_depth_m
@@ -161,12 +161,9 @@ def _step_direction(update: Update | None, max_along: float) -> tuple[float, flo
 def _add_map_log_weight(
     state, log_weight, padded, grid, table, padded_segments, axes, ux, uy, max_along, log_crossing
 ):  # pragma: no cover - compiled
-    n = state.shape[1]
-    cells = np.empty(n, np.int64)
-    for i in range(n):  # a loop of its own, with no branch, runs on SIMD lanes
-        cells[i] = cell_index(state[X, i], state[Y, i], grid)
+    cells = cell_indices(state, grid)
     blocked = 0
-    for i in range(n):
+    for i in range(state.shape[1]):
         cell = cells[i]
         code = padded[cell]
         w = table[code]

@@ -15,7 +15,7 @@ from typing import NamedTuple
 import numba
 import numpy as np
 
-from curbside.localize.filter.kernelmath import cell_index
+from curbside.localize.filter.kernelmath import cell_indices
 from curbside.localize.filter.particles import ParticleSet
 from curbside.localize.raster import MapRaster, RasterLookup
 
@@ -86,9 +86,7 @@ def _segment_mode(
     # sums (3, S): weight, weight * x, weight * y per segment; all zeros on entry and on exit (only the
     # touched entries are reset, in the second loop).
     n = weights.shape[0]
-    cells = np.empty(n, np.int64)
-    for i in range(n):  # a loop of its own, with no branch, runs on SIMD lanes
-        cells[i] = cell_index(state[0, i], state[1, i], grid)
+    cells = cell_indices(state, grid)
     for i in range(n):
         k = padded_segments[cells[i]]
         segment_of[i] = k

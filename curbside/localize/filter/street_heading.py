@@ -42,8 +42,8 @@ import numpy as np
 from scipy import special
 
 from curbside.localize.filter.config import StreetHeadingConfig
-from curbside.localize.filter.kernelmath import cell_index, exp
-from curbside.localize.filter.particles import COS, SIN, ParticleSet, X, Y
+from curbside.localize.filter.kernelmath import cell_indices, exp
+from curbside.localize.filter.particles import COS, SIN, ParticleSet
 from curbside.localize.filter.parts import Update
 from curbside.localize.raster import SIDEWALK, MapRaster, RasterLookup
 
@@ -124,13 +124,10 @@ def _axis_sums(state, log_weight, padded, padded_segments, grid, axes, ux, uy): 
     total = on_sidewalk = c2 = s2 = step_c2 = step_s2 = 0.0
     if not np.isfinite(peak):
         return total, on_sidewalk, c2, s2, step_c2, step_s2
-    # The exps and the cell indices in loops of their own, with no branch, run on SIMD lanes.
     weight = np.empty(n)
-    cells = np.empty(n, np.int64)
-    for i in range(n):
+    for i in range(n):  # a loop of its own, with no branch, runs on SIMD lanes
         weight[i] = exp(log_weight[i] - peak)
-    for i in range(n):
-        cells[i] = cell_index(state[X, i], state[Y, i], grid)
+    cells = cell_indices(state, grid)
     for i in range(n):
         w = weight[i]
         total += w
