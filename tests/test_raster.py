@@ -55,6 +55,21 @@ def test_raster_class_precedence_and_outside_is_free():
     assert codes[3] >= BUILDING
 
 
+
+def test_compiled_cell_indices_match_the_numpy_index_math_on_and_off_the_map():
+    from curbside.localize.filter.kernelmath import cell_indices
+    from curbside.localize.raster import RasterLookup
+
+    lookup = RasterLookup(rasterize_map(block_map(), 0.5))
+    rng = np.random.default_rng(5)
+    state = np.zeros((2, 400))
+    state[0] = X0 + rng.uniform(-150, 150, 400)  # the map spans -100..100 by -6..60 m: a third on it,
+    state[1] = Y0 + rng.uniform(-30, 90, 400)  # the rest beyond it on every side
+    cells = cell_indices(state, lookup.index_grid)
+    np.testing.assert_array_equal(cells, lookup.flat_indices(state[0], state[1]))
+    assert (cells >= 0).all() and (cells < lookup.padded.size).all()
+    assert (lookup.padded[cells] == lookup.codes_at(state[0], state[1])).all()
+
 def test_building_cells_record_their_depth_past_the_wall():
     raster = rasterize_map(block_map(), 0.5)  # the building starts at y = 10
     ys = Y0 + np.array([10.1, 10.6, 12.2, 20.0])
