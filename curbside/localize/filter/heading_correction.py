@@ -77,9 +77,11 @@ class HeadingCorrection:
             return
         if not self.window.add(update.t, fix, complex(last.x, last.y), config.window_s):
             return
+        accuracy_m = self.window.median_accuracy_m()
+        if accuracy_m > config.max_accuracy_m:  # the usual case in a canyon: decided without arrays
+            return
         path, fixes, accuracy, estimates = self.window.arrays()
-        accuracy_m = float(np.median(accuracy))
-        if accuracy_m > config.max_accuracy_m or span_m(path) < config.min_path_m:
+        if span_m(path) < config.min_path_m:
             return
         if span_m(fixes) < max(config.min_fix_span_m, 3.0 * math.sqrt(2.0) * accuracy_m):
             return

@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import collections
 import math
+import statistics
 from typing import NamedTuple
 
 import numpy as np
@@ -100,6 +101,10 @@ class FixPathWindow:
             return False
         self.next_fit_t = t + 0.25 * window_s
         return True
+
+    def median_accuracy_m(self) -> float:
+        """The kept fixes' median reported accuracy (as ``numpy.median``, without building arrays)."""
+        return float(statistics.median(entry[3] for entry in self.entries))
 
     def arrays(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """``(path points, fixes, accuracies, estimates)`` of the kept fixes."""

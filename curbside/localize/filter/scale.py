@@ -104,7 +104,7 @@ class ScaleCorrection:
             return
         path, fixes, accuracy, _ = self.window.arrays()
         span = span_m(path)
-        if span < max(self.config.min_path_m, 3.0 * math.sqrt(2.0) * float(np.median(accuracy))):
+        if span < max(self.config.min_path_m, 3.0 * math.sqrt(2.0) * self.window.median_accuracy_m()):
             return
         scale, rot, se = robust_fit(path, fixes, accuracy, self.config)
         if not (math.isfinite(scale) and last.scale > 0):
