@@ -3,6 +3,8 @@ footstep tables whose answers are known by construction."""
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 import pandas as pd
 import pytest
@@ -19,6 +21,7 @@ from curbside.evaluate.confidence import (
     reliability_rows,
     scored_footsteps,
 )
+from curbside.localize.filter.calibration import TAIL_DOF
 
 BASE = {"map": "osm", "jaywalk_weight": 0.4, "particles": {"inertial": 500, "paper": 500, "fused": 2000},
         "gnss_sigma_factor": None}
@@ -127,19 +130,27 @@ def test_accuracy_coverage_counts_the_footsteps_inside_the_radius_and_leaves_the
     assert accuracy_coverage(gaussian)[0] == pytest.approx(0.68, abs=0.01)
 
 
-def test_accuracy_curve_is_the_diagonal_for_gaussian_errors_and_falls_below_it_for_a_heavy_tail():
+def test_accuracy_curve_is_the_diagonal_for_errors_with_the_tail_it_assumes_and_below_it_for_a_heavier_one():
     rng = np.random.default_rng(4)
     radius = rng.uniform(1, 10, 100_000)
     sigma = radius / 1.5096  # the 68 % radius of a circular Gaussian is 1.5096 sigma
     gaussian = pd.DataFrame({"accuracy_m": radius, "missing": False,
                              "euclid_m": np.hypot(*(sigma * rng.standard_normal((2, len(radius)))))})
-    curve = accuracy_curve(gaussian)
+    curve = accuracy_curve(gaussian, tail_dof=math.inf)
     assert [c["claimed"] for c in curve] == list(RADIUS_SHARES)
     np.testing.assert_allclose([c["held"] for c in curve], RADIUS_SHARES, atol=0.01)
-    # most footsteps a little nearer, 15 % of them 5 times as far off: above the claim near the middle,
-    # short of it far out
+    # the default, heavier tail: Gaussian errors are held more often than claimed beyond 68 %
+    held = {c["claimed"]: c["held"] for c in accuracy_curve(gaussian)}
+    assert held[0.5] < 0.48 and held[0.95] > 0.99
+    # bivariate t errors of the assumed degrees of freedom, with a radius right at 68 %: the diagonal
+    scale = np.sqrt(rng.chisquare(TAIL_DOF, len(radius)) / TAIL_DOF)
+    t_error = np.hypot(*rng.standard_normal((2, len(radius)))) / scale
+    t_errors = gaussian.assign(euclid_m=radius * t_error / np.quantile(t_error, 0.68))
+    np.testing.assert_allclose([c["held"] for c in accuracy_curve(t_errors)], RADIUS_SHARES, atol=0.01)
+    # most footsteps a little nearer, 15 % of them 5 times as far off: above a Gaussian claim near the
+    # middle, short of it far out
     tail = rng.random(len(radius)) < 0.15
     heavy = gaussian.assign(euclid_m=np.where(tail, 5.0, 0.8) * gaussian["euclid_m"])
-    held = {c["claimed"]: c["held"] for c in accuracy_curve(heavy)}
+    held = {c["claimed"]: c["held"] for c in accuracy_curve(heavy, tail_dof=math.inf)}
     assert held[0.5] > 0.53 and held[0.95] < 0.88
     assert accuracy_curve(gaussian.drop(columns="accuracy_m")) == []

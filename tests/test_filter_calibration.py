@@ -174,10 +174,30 @@ def test_the_68_percent_radius_of_a_gaussian_cloud_holds_68_percent_of_it(sigma_
     assert accuracy_radius_m(spread, 4.0) == pytest.approx(2 * accuracy_radius_m(spread))
 
 
-def test_radius_at_share_scales_the_68_percent_radius_as_for_a_gaussian():
-    assert radius_at_share_m(4.0, 0.68) == pytest.approx(4.0)
-    assert radius_at_share_m(4.0, 0.95) == pytest.approx(4.0 * 1.62146, rel=1e-5)  # sqrt(ln 0.05 / ln 0.32)
-    np.testing.assert_allclose(radius_at_share_m(np.array([1.0, 2.0]), 0.5), [0.77995, 1.55990], rtol=1e-4)
+def test_radius_at_share_scales_the_68_percent_radius_as_for_a_gaussian_with_an_infinite_tail_dof():
+    gauss = math.inf
+    assert radius_at_share_m(4.0, 0.68, gauss) == pytest.approx(4.0)
+    # sqrt(ln 0.05 / ln 0.32)
+    assert radius_at_share_m(4.0, 0.95, gauss) == pytest.approx(4.0 * 1.62146, rel=1e-5)
+    half = radius_at_share_m(np.array([1.0, 2.0]), 0.5, gauss)
+    np.testing.assert_allclose(half, [0.77995, 1.55990], rtol=1e-4)
+    assert radius_at_share_m(4.0, 0.95, 1e9) == pytest.approx(radius_at_share_m(4.0, 0.95, gauss), rel=1e-6)
     for share in (0.0, 1.0, 1.5):
         with pytest.raises(ValueError, match="share"):
             radius_at_share_m(4.0, share)
+    with pytest.raises(ValueError, match="tail_dof"):
+        radius_at_share_m(4.0, 0.9, 0.0)
+
+
+def test_radius_at_share_holds_its_share_of_student_t_errors_and_widens_the_tail_beyond_a_gaussians():
+    from curbside.localize.filter.calibration import TAIL_DOF
+
+    rng = np.random.default_rng(11)  # circular bivariate t: a Gaussian over sqrt(chi2(nu) / nu)
+    xy = rng.standard_normal((400_000, 2)) / np.sqrt(rng.chisquare(TAIL_DOF, 400_000) / TAIL_DOF)[:, None]
+    error = np.hypot(*xy.T)
+    accuracy_m = float(np.quantile(error, 0.68))  # a radius that is right at 68 %
+    for share in (0.5, 0.8, 0.9, 0.95, 0.99):
+        assert np.mean(error <= radius_at_share_m(accuracy_m, share)) == pytest.approx(share, abs=0.003)
+    assert radius_at_share_m(1.0, 0.95) == pytest.approx(2.59, abs=0.005)
+    assert radius_at_share_m(1.0, 0.5) < radius_at_share_m(1.0, 0.5, math.inf) < 1.0
+    assert radius_at_share_m(1.0, 0.9) > radius_at_share_m(1.0, 0.9, math.inf) > 1.0

@@ -14,7 +14,8 @@ the filter's confidence is not a claim about a side of the street.
 
 The filter's other claim is ``accuracy_m``, the radius around its position that should hold the walker
 68 % of the time (as a phone reports a fix's accuracy): :func:`accuracy_coverage` says how often it did,
-and :func:`accuracy_curve` how often the radius scaled to other shares as for a Gaussian did.
+and :func:`accuracy_curve` how often the radius scaled to other shares did (with the heavy tail of
+:func:`~curbside.localize.filter.calibration.radius_at_share_m`).
 """
 
 from __future__ import annotations
@@ -26,7 +27,7 @@ import numpy as np
 import pandas as pd
 
 from curbside.evaluate.figures import is_base
-from curbside.localize.filter.calibration import radius_at_share_m
+from curbside.localize.filter.calibration import TAIL_DOF, radius_at_share_m
 
 #: The methods that name a sidewalk with a probability (GNSS alone names none).
 FILTERS = ("inertial", "paper", "fused")
@@ -157,12 +158,14 @@ def accuracy_coverage(errors: pd.DataFrame) -> tuple[float, float]:
     return float(np.mean(error <= radius)), float(np.median(radius))
 
 
-def accuracy_curve(errors: pd.DataFrame, shares: tuple[float, ...] = RADIUS_SHARES) -> list[dict[str, float]]:
+def accuracy_curve(
+    errors: pd.DataFrame, shares: tuple[float, ...] = RADIUS_SHARES, tail_dof: float = TAIL_DOF
+) -> list[dict[str, float]]:
     """How often ``accuracy_m`` scaled to each claimed share held the walker.
 
     Each radius is :func:`~curbside.localize.filter.calibration.radius_at_share_m` of ``accuracy_m``,
-    the scaling a circular Gaussian error would justify; where the errors' tail is heavier, the share
-    held falls below the claim far out.
+    scaled with a Student-t tail of ``tail_dof`` degrees of freedom (``math.inf``: as for a Gaussian);
+    where the errors' tail is heavier than that, the share held falls below the claim far out.
 
     Returns
     -------
@@ -172,7 +175,8 @@ def accuracy_curve(errors: pd.DataFrame, shares: tuple[float, ...] = RADIUS_SHAR
     error, radius = _errors_and_radii(errors)
     if not len(error):
         return []
-    return [{"claimed": q, "held": float(np.mean(error <= radius_at_share_m(radius, q)))} for q in shares]
+    return [{"claimed": q, "held": float(np.mean(error <= radius_at_share_m(radius, q, tail_dof)))}
+            for q in shares]
 
 
 def reliability_rows(

@@ -22,6 +22,7 @@ from mpl_toolkits.axes_grid1.anchored_artists import AnchoredSizeBar  # noqa: E4
 
 from curbside import settings  # noqa: E402
 from curbside.evaluate.runner import METHOD_LABELS, METHODS  # noqa: E402
+from curbside.localize.filter.calibration import TAIL_DOF  # noqa: E402
 from curbside.osmseg.mapio import MapLayers  # noqa: E402
 
 #: One colour per method, in every figure.
@@ -340,7 +341,8 @@ def fig_reliability(rows: list[dict[str, Any]], base: dict[str, Any]) -> plt.Fig
     """``segment_prob`` against the share of footsteps on the right sidewalk, bin by bin: one panel per
     group (a benchmark subset), one line per filter, marker area by the bin's share of the footsteps.
     Below, where the rows carry ``accuracy_curve``, the same for the position: the share of footsteps
-    that ``accuracy_m``, scaled as for a Gaussian, held against the share it claims.
+    that ``accuracy_m``, scaled with its heavy tail (``calibration.radius_at_share_m``), held against
+    the share it claims.
 
     ``rows`` are :func:`curbside.evaluate.confidence.reliability_rows` (``None`` without any). On the
     diagonal the claim is a frequency; below it the filter is over-confident.
@@ -395,7 +397,7 @@ def _radius_reliability_axes(ax, rows: list[dict[str, Any]]) -> None:
                 f"median {r['accuracy_median_m']:.1f} m)")
     ax.plot([0, 1], [0, 1], ":", color="0.4", lw=1, label="claimed = held")
     ax.axvline(0.68, color="0.6", lw=0.8)
-    ax.set_title("accuracy_m (0.68), scaled as for a Gaussian", fontsize=10)
+    ax.set_title(f"accuracy_m (0.68), scaled with a t tail (\u03bd = {TAIL_DOF:g})", fontsize=10)
     ax.set_xlim(0.4, 1.0)
     ax.set_ylim(0, 1.0)
     ax.set_xlabel("share the radius claims")
