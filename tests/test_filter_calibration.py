@@ -19,7 +19,7 @@ from curbside.localize.filter import (
     SegmentCalibration,
     Tracker,
 )
-from curbside.localize.filter.calibration import accuracy_radius_m, radius_at_share_m
+from curbside.localize.filter.calibration import TAIL_DOF, accuracy_radius_m, radius_at_share_m
 
 LAG_S = 10.0
 
@@ -190,8 +190,6 @@ def test_radius_at_share_scales_the_68_percent_radius_as_for_a_gaussian_with_an_
 
 
 def test_radius_at_share_holds_its_share_of_student_t_errors_and_widens_the_tail_beyond_a_gaussians():
-    from curbside.localize.filter.calibration import TAIL_DOF
-
     rng = np.random.default_rng(11)  # circular bivariate t: a Gaussian over sqrt(chi2(nu) / nu)
     xy = rng.standard_normal((400_000, 2)) / np.sqrt(rng.chisquare(TAIL_DOF, 400_000) / TAIL_DOF)[:, None]
     error = np.hypot(*xy.T)

@@ -9,12 +9,14 @@ from filter_maps import X0, Y0, block_map, box, shifted_building_map, two_sidewa
 
 from curbside import settings
 from curbside.localize import raster as raster_mod
+from curbside.localize.filter.kernelmath import cell_indices
 from curbside.localize.raster import (
     BUILDING,
     CROSSWALK,
     FREE,
     SIDEWALK,
     STREET,
+    RasterLookup,
     building_depth_m,
     load_or_build_raster,
     map_hash,
@@ -55,11 +57,7 @@ def test_raster_class_precedence_and_outside_is_free():
     assert codes[3] >= BUILDING
 
 
-
 def test_compiled_cell_indices_match_the_numpy_index_math_on_and_off_the_map():
-    from curbside.localize.filter.kernelmath import cell_indices
-    from curbside.localize.raster import RasterLookup
-
     lookup = RasterLookup(rasterize_map(block_map(), 0.5))
     rng = np.random.default_rng(5)
     state = np.zeros((2, 400))
@@ -69,6 +67,7 @@ def test_compiled_cell_indices_match_the_numpy_index_math_on_and_off_the_map():
     np.testing.assert_array_equal(cells, lookup.flat_indices(state[0], state[1]))
     assert (cells >= 0).all() and (cells < lookup.padded.size).all()
     assert (lookup.padded[cells] == lookup.codes_at(state[0], state[1])).all()
+
 
 def test_building_cells_record_their_depth_past_the_wall():
     raster = rasterize_map(block_map(), 0.5)  # the building starts at y = 10
