@@ -120,6 +120,17 @@ def test_compiled_predictor_matches_its_oracle_fed_the_same_draws(scale_noise, a
     np.testing.assert_array_equal(pred.stream.state, replay.state)  # the kernel drew exactly these
 
 
+def test_a_motion_swapped_mid_walk_moves_the_next_update_with_its_own_noise():
+    # Tracker.adopt_motion assigns predictor.config; the per-update constants must follow it.
+    pred = InertialPredictor(QUIET, 4000, np.random.default_rng(4))
+    pred.config = MotionConfig(heading_noise_deg=2.0, step_noise_fraction=0.5, step_noise_floor_m=0.0,
+                               scale_init_sigma=0.0, scale_noise_per_step=0.0)
+    assert pred.theta_sigma == pytest.approx(math.radians(2.0))
+    p = ParticleSet(4000)
+    pred.predict(p, 2.0, 0.0)
+    np.testing.assert_allclose([np.std(p.y), np.degrees(np.std(p.theta))], [1.0, 2.0], rtol=0.06)
+
+
 def test_anisotropic_step_noise_spreads_along_each_particles_step_not_across_it():
     cfg = MotionConfig(heading_noise_deg=0.0, scale_init_sigma=0.0, scale_noise_per_step=0.0,
                        step_noise_fraction=0.5, step_noise_across_fraction=0.1, step_noise_floor_m=0.0)

@@ -141,6 +141,7 @@ class SegmentCalibration:
     def __init__(self, config: CalibrationConfig, n: int) -> None:
         self.config = config
         self._floor = 0.5 / n
+        self._ceiling = 1.0 - self._floor
         self._recent: deque[tuple[float, float, float]] = deque()
         self._sum_sq = 0.0
         self._fixes = 0
@@ -177,7 +178,8 @@ class SegmentCalibration:
         """The tempered probability of a MAP segment of posterior mass ``prob`` (0 stays 0: no segment)."""
         if not prob > 0:
             return 0.0
-        p = min(max(prob, self._floor), 1.0 - self._floor)
+        floor, ceiling = self._floor, self._ceiling
+        p = floor if prob < floor else ceiling if prob > ceiling else prob  # clip, without two builtin calls
         return 1.0 / (1.0 + math.exp(-math.log(p / (1.0 - p)) / self.temperature))
 
     def record(self) -> dict[str, float]:

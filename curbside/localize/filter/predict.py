@@ -58,24 +58,42 @@ class InertialPredictor:
     """
 
     def __init__(self, config: MotionConfig, n: int, rng: np.random.Generator) -> None:
-        #: The noise parameters, read at every update (a tracker may swap them mid-walk).
         self.config = config
         self.stream = Stream(rng)
 
     @property
+    def config(self) -> MotionConfig:
+        """The noise parameters (a tracker may swap them mid-walk: the per-update constants follow)."""
+        return self._config
+
+    @config.setter
+    def config(self, config: MotionConfig) -> None:
+        self._config = config
+        # What predict() passes to the kernel at every update, in radians, computed once per config.
+        self._constants = (
+            config.step_noise_floor_m,
+            config.step_noise_fraction,
+            config.step_noise_across_fraction,
+            math.radians(config.heading_noise_deg),
+            config.scale_noise_per_step,
+            config.heading_jump_prob,
+            math.radians(config.heading_jump_sigma_deg),
+        )
+
+    @property
     def theta_sigma(self) -> float:
         """Heading-offset random walk per update (radians)."""
-        return math.radians(self.config.heading_noise_deg)
+        return self._constants[3]
 
     @property
     def scale_sigma(self) -> float:
         """Speed-scale random walk per update."""
-        return self.config.scale_noise_per_step
+        return self._constants[4]
 
     @property
     def jump_sigma(self) -> float:
         """Sigma of a heading-offset jump (radians)."""
-        return math.radians(self.config.heading_jump_sigma_deg)
+        return self._constants[6]
 
     def position_sigma(self, dx: float, dy: float) -> float:
         """Position noise sigma (m) of a step with displacement ``(dx, dy)`` (along it, when anisotropic)."""
@@ -90,18 +108,13 @@ class InertialPredictor:
 
     def predict(self, particles: ParticleSet, dx: float, dy: float) -> None:
         """Move ``particles`` in place by the step displacement ``(dx, dy)`` metres (east, north)."""
-        _predict(
-            particles.state,
-            self.stream.state,
-            dx,
-            dy,
-            self.position_sigma(dx, dy),
-            self.across_sigma(dx, dy),
-            self.theta_sigma,
-            self.scale_sigma,
-            self.config.heading_jump_prob,
-            self.jump_sigma,
-        )
+        # position_sigma and across_sigma, inline: this is once per footstep.
+        floor, fraction, across, theta_sigma, scale_sigma, jump_prob, jump_sigma = self._constants
+        length = math.hypot(dx, dy)
+        sigma = max(floor, fraction * length)
+        sigma_across = sigma if across is None else max(floor, across * length)
+        _predict(particles.state, self.stream.state, dx, dy, sigma, sigma_across, theta_sigma, scale_sigma,
+                 jump_prob, jump_sigma)
 
 
 @numba.njit(cache=True, nogil=True)

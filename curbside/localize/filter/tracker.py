@@ -345,7 +345,7 @@ class Tracker:
             return self.start_at_fix(t, gnss_fix) if _valid_fix(gnss_fix) else None
         # Once per footstep: attributes are read once into locals (this is most of the update at small N).
         particles, divergence = self.particles, self.divergence
-        update = Update(t, t - last.t, dx, dy, gnss_fix)
+        update = _new_tuple(Update, (t, t - last.t, dx, dy, gnss_fix))
         self.predictor.predict(particles, dx, dy)
         inject = 0.0 if divergence is None else divergence.observe(particles, update, last)
         if self.scale is not None:
