@@ -162,7 +162,8 @@ def replay_stage(ctx: DemoContext) -> dict[str, Path]:
         if localize_main(args) != 0:
             raise RuntimeError(f"localize run failed on {sessions[0]} ({mode})")
         runs.append(str(out))
-    if localize_main(["-v", "view", *runs, "-o", str(ctx.out_dir / "view.html")]) != 0:
+    # The demo's folder is its own: its page is replaced even when an older curbside wrote it unsigned.
+    if localize_main(["-v", "view", *runs, "-o", str(ctx.out_dir / "view.html"), "--overwrite"]) != 0:
         raise RuntimeError("localize view failed")
     return {"runs": ctx.out_dir / "runs", "replay_viewer": ctx.out_dir / "view.html"}
 

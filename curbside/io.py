@@ -3,14 +3,18 @@
 Output rules (every command that writes goes through here):
 
 - a **file** is written to a temporary name beside it and renamed into place, so a reader sees the
-  old file or the new one, never half of one (:func:`atomic_path`);
+  old file or the new one, never half of one (:func:`atomic_path`). A command replaces an existing
+  file only when curbside wrote it (:func:`written_by_curbside`: listed in its folder's marker, or
+  carrying curbside's signature, as every map, page, figure and JSON report it writes does) or the
+  command was given ``--overwrite``; never one of the command's own inputs, and never anything but a
+  regular file (a device, a link) (:func:`check_output_file`);
 - a **folder** may be written when it does not exist, is empty, or holds the marker
-  ``.curbside-output`` that curbside leaves in every folder it writes (a previous curbside output).
-  Any other folder is refused unless the command was given ``--overwrite``; even then, only the files
-  the command writes are replaced, and files curbside did not write are never deleted
-  (:func:`output_folder`, :func:`check_output_folder`). The marker lists the files curbside wrote, so
-  the next run into the same folder removes its own stale files (e.g. ``particles.npz`` from a run
-  with ``--save-particles``) and nothing else;
+  ``.curbside-output`` that the same command left there (a previous output of it). Any other folder,
+  another command's output included (a session folder is not a run folder), is refused unless the
+  command was given ``--overwrite``; even then, only the files the command writes are replaced, and
+  nothing else is deleted (:func:`output_folder`, :func:`check_output_folder`). The marker lists the
+  files curbside wrote, so the next run of the same command into the folder removes its own stale files
+  (e.g. ``particles.npz`` from a run with ``--save-particles``) and nothing else;
 - a path that cannot be written (permission denied, a file where a folder should be, a read-only
   disk) is bad input: :class:`~curbside.errors.CurbsideInputError`, not an internal error.
 """
@@ -42,6 +46,20 @@ logger = logging.getLogger(__name__)
 MARKER = ".curbside-output"
 
 _STAGING_PREFIX = ".curbside-staging-"
+
+#: What marks a single file as curbside's own, searched for in its first :data:`_SIGNATURE_BYTES`: a map
+#: (``mapio.write_map``), a page (``<meta name="generator">``), a JSON report, a PNG figure (its
+#: ``Software`` text chunk).
+SIGNATURES = (
+    b'{"type":"FeatureCollection","curbside":',
+    b'<meta name="generator" content="curbside',
+    b'"generator": "curbside',
+    b"tEXtSoftware\x00curbside",
+)
+_SIGNATURE_BYTES = 8192
+
+#: ``--overwrite`` of the commands that write one file.
+OVERWRITE_FILE_HELP = "replace the output file even when curbside did not write it (never one of the inputs)"
 
 
 def json_ready(value: Any) -> Any:
@@ -108,32 +126,78 @@ def read_marker(folder: str | os.PathLike[str]) -> dict | None:
     return doc
 
 
-def note_written(path: str | os.PathLike[str]) -> None:
-    """Record in its folder's marker a file curbside added to a curbside output folder.
+def note_written(path: str | os.PathLike[str], command: str = "curbside") -> None:
+    """Record in its folder's marker a file curbside added to a folder (see :func:`written_by_curbside`).
 
     ``localize ronin`` writes ``velocity.csv`` into a session folder that ``localize convert`` wrote;
-    listing it lets the next conversion into that folder remove it with the other stale outputs
-    (it was computed from the old ``imu.csv``). A folder without a marker is left alone.
+    listing it lets the next conversion into that folder remove it with the other stale outputs (it was
+    computed from the old ``imu.csv``), and lets the next ``localize ronin`` replace it. A folder
+    without a marker gets one naming ``command`` and this file alone, which no other command's output
+    may then be written over (:func:`check_output_folder`).
 
     Parameters
     ----------
     path
         The file just written.
+    command
+        What wrote it, for a folder that has no marker yet.
     """
     path = _absolute(path)
     doc = read_marker(path.parent)
-    if doc is None or path.name in doc["files"]:
-        return
-    _write_marker(path.parent, str(doc.get("command", "curbside")), sorted([*doc["files"], path.name]))
+    if doc is None:
+        _write_marker(path.parent, command, [path.name])
+    elif path.name not in doc["files"]:
+        _write_marker(path.parent, str(doc.get("command", command)), sorted([*doc["files"], path.name]))
 
 
-def check_output_file(path: str | os.PathLike[str]) -> Path:
-    """Check early, before long work, that a file can be written at ``path``.
+def written_by_curbside(path: str | os.PathLike[str]) -> bool:
+    """Whether curbside wrote the file ``path``: its folder's marker lists it, or it carries a signature.
+
+    Parameters
+    ----------
+    path
+        An existing file.
+
+    Returns
+    -------
+    bool
+        ``True`` for a file listed in ``.curbside-output`` beside it, or one whose first bytes hold one
+        of :data:`SIGNATURES`.
+    """
+    path = _absolute(path)
+    doc = read_marker(path.parent)
+    if doc is not None and path.name in doc["files"]:
+        return True
+    try:
+        with open(path, "rb") as fh:
+            head = fh.read(_SIGNATURE_BYTES)
+    except OSError:
+        return False
+    return any(signature in head for signature in SIGNATURES)
+
+
+def _same_file(a: Path, b: str | os.PathLike[str]) -> bool:
+    try:
+        return os.path.samefile(a, b)
+    except OSError:
+        return False
+
+
+def check_output_file(
+    path: str | os.PathLike[str],
+    overwrite: bool = False,
+    inputs: tuple[str | os.PathLike[str], ...] = (),
+) -> Path:
+    """Check early, before long work, that a command may write the file ``path``.
 
     Parameters
     ----------
     path
         The output file.
+    overwrite
+        Allow replacing an existing regular file that curbside did not write.
+    inputs
+        The command's input files: none of them may be the output.
 
     Returns
     -------
@@ -143,20 +207,35 @@ def check_output_file(path: str | os.PathLike[str]) -> Path:
     Raises
     ------
     CurbsideInputError
-        ``path`` is a folder, or neither it nor its missing parent folders can be written.
+        ``path`` is a folder, a link or another non-regular file, one of ``inputs``, an existing file
+        curbside did not write (without ``overwrite``), or neither it nor its missing parent folders
+        can be written.
     """
     dst = _absolute(path)
+    if dst.is_symlink():
+        raise CurbsideInputError(path, "is a symbolic link; give the path of the file itself")
     if dst.is_dir():
         raise CurbsideInputError(path, "is a folder; give a file name")
-    if dst.exists():
-        if not os.access(dst.parent, os.W_OK | os.X_OK):
-            raise CurbsideInputError(path, f"cannot write here: no write permission in {dst.parent}")
-    else:
+    if not os.path.lexists(dst):
         _check_creatable(dst)
+        return dst
+    if not dst.is_file():
+        raise CurbsideInputError(path, "exists and is not a regular file; give a file name")
+    if any(_same_file(dst, source) for source in inputs):
+        raise CurbsideInputError(path, "is also an input of this command; write the output elsewhere")
+    if not overwrite and not written_by_curbside(dst):
+        raise CurbsideInputError(
+            path, "exists and was not written by curbside; pass --overwrite to replace it, or choose another "
+            "name",
+        )
+    if not os.access(dst.parent, os.W_OK | os.X_OK):
+        raise CurbsideInputError(path, f"cannot write here: no write permission in {dst.parent}")
     return dst
 
 
-def check_output_folder(folder: str | os.PathLike[str], overwrite: bool = False) -> Path:
+def check_output_folder(
+    folder: str | os.PathLike[str], overwrite: bool = False, command: str | None = None
+) -> Path:
     """Check early, before long work, that a command may write the folder ``folder``.
 
     Parameters
@@ -164,7 +243,11 @@ def check_output_folder(folder: str | os.PathLike[str], overwrite: bool = False)
     folder
         The output folder (``.`` allowed).
     overwrite
-        Allow a non-empty folder that curbside did not write (only the command's own files are replaced).
+        Allow a non-empty folder that this command did not write (only the command's own files are
+        replaced).
+    command
+        What will write it (as its marker records it, e.g. ``"localize run"``): a folder holding another
+        command's output is refused without ``overwrite``. ``None`` accepts any curbside output.
 
     Returns
     -------
@@ -174,8 +257,8 @@ def check_output_folder(folder: str | os.PathLike[str], overwrite: bool = False)
     Raises
     ------
     CurbsideInputError
-        ``folder`` is a file; it is a non-empty folder without the curbside marker and ``overwrite``
-        is off; or it cannot be written.
+        ``folder`` is a file; it is a non-empty folder without the curbside marker, or with another
+        command's, and ``overwrite`` is off; or it cannot be written.
     """
     dst = _absolute(folder)
     if not os.path.lexists(dst):
@@ -193,7 +276,24 @@ def check_output_folder(folder: str | os.PathLike[str], overwrite: bool = False)
             f"folder is not empty ({count}) and was not written by curbside; pass --overwrite to write "
             "into it anyway (files curbside does not write are kept)",
         )
+    other = _other_command(dst, command)
+    if entries and other is not None and not overwrite:
+        raise CurbsideInputError(
+            folder,
+            f"holds the output of '{other}', not of '{command}'; write into another folder, or pass "
+            "--overwrite to add this output beside it (nothing of the other is deleted)",
+        )
     return dst
+
+
+def _other_command(folder: Path, command: str | None) -> str | None:
+    """The command recorded in ``folder``'s marker when it is not ``command`` (``None``: the same, or
+    no marker, or no command to compare)."""
+    doc = read_marker(folder)
+    if doc is None or command is None:
+        return None
+    recorded = str(doc.get("command", ""))
+    return None if recorded == command else recorded
 
 
 def _staged_files(staged: Path) -> list[str]:
@@ -245,13 +345,14 @@ def _remove_stale(dst: Path, old: list[str], new: list[str]) -> None:
 
 def _commit_folder(staged: Path, dst: Path, command: str, overwrite: bool) -> None:
     """Move the staged folder's files onto ``dst`` under the output-folder rules."""
-    check_output_folder(dst, overwrite)  # again: the folder may have changed during the run
+    check_output_folder(dst, overwrite, command)  # again: the folder may have changed during the run
     files = _staged_files(staged)
     if not os.path.lexists(dst):
         _write_marker(staged, command, files)
         os.replace(staged, dst)
         return
-    old = (read_marker(dst) or {}).get("files", [])
+    # Only this command's own earlier files are stale; another command's (with --overwrite) stay.
+    old = [] if _other_command(dst, command) is not None else (read_marker(dst) or {}).get("files", [])
     _check_conflicts(dst, files)
     for rel in files:
         target = dst / rel
@@ -296,7 +397,7 @@ def output_folder(
     CurbsideInputError
         The folder may not or cannot be written (checked before the block runs and again after).
     """
-    dst = check_output_folder(folder, overwrite)
+    dst = check_output_folder(folder, overwrite, command)
     tmp_dir = _staging_dir(dst)
     staged = tmp_dir / "out"
     staged.mkdir()

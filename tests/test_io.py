@@ -18,6 +18,7 @@ from curbside.io import (
     note_written,
     output_folder,
     read_marker,
+    written_by_curbside,
 )
 
 
@@ -197,9 +198,63 @@ def test_nested_outputs_and_noted_files(tmp_path):
     assert "velocity.csv" not in _tree(session)  # derived from the old imu.csv: removed with it
     unmarked = tmp_path / "plain"
     unmarked.mkdir()
+    (unmarked / "imu.csv").write_text("the user's own")
     (unmarked / "velocity.csv").write_text("v")
-    note_written(unmarked / "velocity.csv")
-    assert not (unmarked / MARKER).exists()
+    note_written(unmarked / "velocity.csv", "localize ronin")
+    doc = read_marker(unmarked)
+    assert (doc["command"], doc["files"]) == ("localize ronin", ["velocity.csv"])
+    assert written_by_curbside(unmarked / "velocity.csv") and not written_by_curbside(unmarked / "imu.csv")
+    with pytest.raises(CurbsideInputError, match="holds the output of 'localize ronin'"):
+        check_output_folder(unmarked, command="localize run")
+
+
+def _files(folder):
+    return {k: v for k, v in _tree(folder).items() if k != MARKER}
+
+
+def test_another_commands_folder_is_refused_and_kept_whole_with_overwrite(tmp_path):
+    # `localize run S -o S` on a session folder that `localize convert` wrote used to delete its inputs.
+    session = tmp_path / "session"
+    _write(output_folder(session, "localize convert"), {"imu.csv": "i", "gnss.csv": "g"})
+    with pytest.raises(CurbsideInputError, match="holds the output of 'localize convert'"):
+        _write(output_folder(session, "localize run"), {"track.csv": "t"})
+    assert _files(session) == {"imu.csv": "i", "gnss.csv": "g"}
+    _write(output_folder(session, "localize run", overwrite=True), {"track.csv": "t"})
+    assert _files(session) == {"imu.csv": "i", "gnss.csv": "g", "track.csv": "t"}
+    assert read_marker(session)["files"] == ["track.csv"]  # the run's own files only
+    _write(output_folder(session, "localize run"), {"run.json": "r"})  # the run's stale track.csv goes
+    assert _files(session) == {"imu.csv": "i", "gnss.csv": "g", "run.json": "r"}
+
+
+def test_an_existing_file_is_replaced_only_when_curbside_wrote_it(tmp_path):
+    mine = tmp_path / "notes.geojson"
+    mine.write_text('{"type": "FeatureCollection", "features": []}')
+    with pytest.raises(CurbsideInputError, match="not written by curbside; pass --overwrite"):
+        check_output_file(mine)
+    assert check_output_file(mine, overwrite=True) == mine
+    ours = tmp_path / "map.geojson"
+    ours.write_text('{"type":"FeatureCollection","curbside":{"source":"osm"},"features":[]}')
+    page = tmp_path / "map.html"
+    page.write_text('<!doctype html><html><head><meta name="generator" content="curbside 0.2">')
+    figure = tmp_path / "map.png"
+    figure.write_bytes(b"\x89PNG\r\n\x1a\n....tEXtSoftware\x00curbside 0.2....IDAT")
+    for path in (ours, page, figure):
+        assert check_output_file(path) == path
+    with pytest.raises(CurbsideInputError, match="also an input"):
+        check_output_file(ours, inputs=(tmp_path / "other.osm", ours))
+
+
+def test_links_devices_and_folders_are_not_output_files(tmp_path):
+    target = tmp_path / "map.geojson"
+    target.write_text('{"type":"FeatureCollection","curbside":{},"features":[]}')
+    link = tmp_path / "link.geojson"
+    link.symlink_to(target)
+    with pytest.raises(CurbsideInputError, match="symbolic link"):
+        check_output_file(link, overwrite=True)
+    with pytest.raises(CurbsideInputError, match="not a regular file"):
+        check_output_file("/dev/null", overwrite=True)
+    with pytest.raises(CurbsideInputError, match="is a folder"):
+        check_output_file(tmp_path, overwrite=True)
 
 
 def test_marker_cannot_make_curbside_delete_outside_the_folder(tmp_path):

@@ -76,14 +76,15 @@ def _convert(args: argparse.Namespace) -> int:
     if args.dst is None:
         raise CurbsideInputError("DST", "missing destination folder")
     dst = Path(args.dst)
-    check_output_folder(dst, args.overwrite)  # before reading: fail fast on an unusable destination
+    command = "localize convert --all" if args.all else "localize convert"
+    check_output_folder(dst, args.overwrite, command)  # before reading: fail fast on an unusable destination
     if args.all:
         path, trial = split_trial(args.src)
         if trial is not None:
             raise CurbsideInputError(args.src, "--all converts every trial; drop the ::TRIAL part")
         trials = ipin.list_trials(path)
         lines: list[str] = []
-        with output_folder(dst, "localize convert --all", overwrite=args.overwrite) as tmp:
+        with output_folder(dst, command, overwrite=args.overwrite) as tmp:
             for name in tqdm(trials, desc="convert", unit="trial", disable=not sys.stderr.isatty()):
                 session = add_derived(ipin.read_trial(path, name), args.steps, args.pdr)
                 write_session(session, tmp / session.name, command="localize convert")

@@ -8,8 +8,9 @@ import logging
 import sys
 from pathlib import Path
 
+from curbside import __version__
 from curbside.errors import CurbsideInputError
-from curbside.io import atomic_path, check_output_file, note_written
+from curbside.io import OVERWRITE_FILE_HELP, atomic_path, check_output_file, note_written
 
 logger = logging.getLogger(__name__)
 
@@ -25,9 +26,14 @@ def _stream_config(args: argparse.Namespace):
 
 def _ronin(args: argparse.Namespace) -> int:
     out = Path(args.output) if args.output else Path(args.session) / "velocity.csv"
-    check_output_file(out)
+    if out.suffix.lower() != ".csv":
+        raise CurbsideInputError(out, "the velocity is a CSV file: name it .csv")
+    from curbside.localize.session import COLUMNS, read_session
+
+    session_files = [Path(args.session) / f"{kind}.csv" for kind in COLUMNS if kind != "velocity"]
+    inputs = (*session_files, Path(args.session) / "meta.json", *([args.weights] if args.weights else []))
+    check_output_file(out, args.overwrite, inputs=inputs)
     from curbside.localize.ronin.infer import load_model, ronin_velocity
-    from curbside.localize.session import read_session
 
     session = read_session(args.session)
     if session.imu is None:
@@ -37,7 +43,7 @@ def _ronin(args: argparse.Namespace) -> int:
                               source=str(imu_path))
     with atomic_path(out) as tmp:
         velocity.to_csv(tmp, index=False, float_format="%.6f")
-    note_written(out)
+    note_written(out, "localize ronin")
     span = velocity["t"].iat[-1] - velocity["t"].iat[0]
     sys.stdout.write(f"{out}: {len(velocity)} velocities over {span:.1f} s\n")
     return 0
@@ -51,7 +57,11 @@ def _recordings(args: argparse.Namespace, keep_imu: tuple[str, ...] = ()):
 
 
 def _train(args: argparse.Namespace) -> int:
-    check_output_file(args.output)  # before hours of training
+    # Before hours of training: the weights and their config beside them.
+    from curbside.localize.ronin.infer import config_path_for
+
+    for path in (args.output, config_path_for(args.output)):
+        check_output_file(path, args.overwrite)
     import torch
 
     from curbside.localize.ronin.data import WindowSet
@@ -92,7 +102,7 @@ def _evaluate(args: argparse.Namespace) -> int:
     from curbside.localize.ronin.infer import load_model
 
     if args.output:
-        check_output_file(args.output)
+        check_output_file(args.output, args.overwrite, inputs=(args.weights,) if args.weights else ())
     keep = () if args.no_pdr else (args.split,)
     recordings = [r for r in _recordings(args, keep) if r.split == args.split]
     if not recordings:
@@ -101,7 +111,8 @@ def _evaluate(args: argparse.Namespace) -> int:
                                  config=_stream_config(args))
     if args.output:
         with atomic_path(args.output) as tmp:
-            tmp.write_text(json.dumps(report, indent=1), encoding="utf-8")
+            tmp.write_text(json.dumps({"generator": f"curbside {__version__}", **report}, indent=1),
+                           encoding="utf-8")
     sys.stdout.write(format_summary(report))
     return 0
 
@@ -134,6 +145,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     )
     p.add_argument("session", metavar="SESSION", help="session folder holding imu.csv")
     p.add_argument("-o", "--output", metavar="CSV", help="output file (default: SESSION/velocity.csv)")
+    p.add_argument("--overwrite", action="store_true", help=OVERWRITE_FILE_HELP)
     p.add_argument("--weights", metavar="PT", help="weights .pt with its .json (default: the bundled model)")
     _add_stride_arg(p)
     p.set_defaults(func=_ronin)
@@ -161,6 +173,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--threads", type=int, default=2, help="CPU threads for torch (default: %(default)s)")
     p.add_argument("--checkpoint", metavar="PT", help="resumable checkpoint, written every epoch")
     p.add_argument("-o", "--output", metavar="PT", required=True, help="best weights (config .json beside)")
+    p.add_argument("--overwrite", action="store_true",
+                   help="replace existing weights and their config (to train into the same file again)")
     p.set_defaults(func=_train)
 
     p = subparsers.add_parser(
@@ -176,4 +190,5 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--no-pdr", action="store_true", help="skip the PDR baseline")
     _add_stride_arg(p)
     p.add_argument("-o", "--output", metavar="JSON", help="write the full report here")
+    p.add_argument("--overwrite", action="store_true", help=OVERWRITE_FILE_HELP)
     p.set_defaults(func=_evaluate)

@@ -18,6 +18,7 @@ from pathlib import Path
 
 from curbside.cli.common import positive_int
 from curbside.errors import CurbsideInputError
+from curbside.io import OVERWRITE_FILE_HELP, check_output_file
 from curbside.localize.view import label_runs, load_run, maps_of, write_view
 from curbside.osmseg.mapio import read_map
 
@@ -27,6 +28,7 @@ log = logging.getLogger(__name__)
 def _view(args: argparse.Namespace) -> int:
     if Path(args.output).suffix.lower() not in (".html", ".htm"):
         raise CurbsideInputError(args.output, "the viewer is an HTML page: name it .html")
+    check_output_file(args.output, args.overwrite, inputs=(args.map,) if args.map else ())
     runs = [load_run(folder, args.session, args.map) for folder in args.runs]
     label_runs(runs, args.labels)
     maps = {Path(args.map).stem: read_map(args.map)} if args.map else maps_of(runs)
@@ -57,6 +59,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     )
     parser.add_argument("runs", nargs="+", metavar="RUN", help="run folder(s) written by `localize run -o`")
     parser.add_argument("-o", "--output", required=True, help="output page (.html)")
+    parser.add_argument("--overwrite", action="store_true", help=OVERWRITE_FILE_HELP)
     parser.add_argument("--session", help="session to show (default: the one each run.json names)")
     parser.add_argument("--map", help="map GeoJSON to draw (default: the map(s) the runs were tracked on)")
     parser.add_argument(

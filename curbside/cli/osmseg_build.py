@@ -9,7 +9,8 @@ from pathlib import Path
 from curbside import settings
 from curbside.cli.common import set_overrides
 from curbside.configio import with_overrides
-from curbside.io import check_output_file
+from curbside.errors import CurbsideInputError
+from curbside.io import OVERWRITE_FILE_HELP, check_output_file
 from curbside.osmseg.build import build_map
 from curbside.osmseg.config import UNMARKED_CHOICES, SegmentationConfig
 from curbside.osmseg.mapio import CLASSES, MapLayers, write_map
@@ -37,6 +38,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--osm", type=Path, metavar="FILE", help=".osm, .osm.bz2, .osm.gz or .osm.pbf file")
     p.add_argument("-o", "--output", type=Path, default=Path("map.geojson"),
                    help="output GeoJSON (default: %(default)s)")
+    p.add_argument("--overwrite", action="store_true", help=OVERWRITE_FILE_HELP)
     p.add_argument(
         "--unmarked-as",
         choices=UNMARKED_CHOICES,
@@ -74,7 +76,9 @@ def _conflict_share_min() -> float:
 
 def run(args: argparse.Namespace) -> int:
     """Build the map and write it."""
-    check_output_file(args.output)
+    if Path(args.output).suffix.lower() not in (".geojson", ".json"):
+        raise CurbsideInputError(args.output, "the map is GeoJSON: name it .geojson")
+    check_output_file(args.output, args.overwrite, inputs=(args.osm,) if args.osm else ())
     config = with_overrides(
         SegmentationConfig(unmarked_crossing_as=args.unmarked_as), set_overrides(args.set)
     )

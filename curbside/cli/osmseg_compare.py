@@ -4,9 +4,11 @@ from __future__ import annotations
 
 import argparse
 import logging
+from pathlib import Path
 
 from curbside.cli.osmseg_show import add_bbox_option
-from curbside.io import check_output_file
+from curbside.errors import CurbsideInputError
+from curbside.io import OVERWRITE_FILE_HELP, check_output_file
 from curbside.osmseg.build import check_bbox
 from curbside.osmseg.compare import compare_maps, format_comparison, write_comparison
 from curbside.osmseg.datasf import read_datasf
@@ -18,7 +20,9 @@ log = logging.getLogger(__name__)
 
 def _compare(args: argparse.Namespace) -> int:
     if args.json:
-        check_output_file(args.json)
+        if Path(args.json).suffix.lower() != ".json":
+            raise CurbsideInputError(args.json, "the figures are JSON: name the file .json")
+        check_output_file(args.json, args.overwrite, inputs=(args.a, args.b))
     a, b = read_map(args.a), read_map(args.b)
     result = compare_maps(a, b, name_b=args.b)
     print(format_comparison(result, args.a, args.b))
@@ -30,7 +34,9 @@ def _compare(args: argparse.Namespace) -> int:
 
 def _import_datasf(args: argparse.Namespace) -> int:
     bbox = check_bbox(args.bbox) if args.bbox is not None else None
-    check_output_file(args.output)
+    if Path(args.output).suffix.lower() not in (".geojson", ".json"):
+        raise CurbsideInputError(args.output, "the map is GeoJSON: name it .geojson")
+    check_output_file(args.output, args.overwrite, inputs=tuple(args.tiles))
     layers = read_datasf(args.tiles, bbox=bbox, fill_holes=args.fill_holes)
     write_map(layers, args.output)
     print(format_summary(class_summary(layers).loc[["building"]]))
@@ -49,6 +55,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     compare.add_argument("a", help="map A (GeoJSON)")
     compare.add_argument("b", help="map B (GeoJSON)")
     compare.add_argument("--json", metavar="OUT", help="also write the figures to this JSON file")
+    compare.add_argument("--overwrite", action="store_true", help=OVERWRITE_FILE_HELP)
     compare.set_defaults(func=_compare)
 
     datasf = subparsers.add_parser(
@@ -63,4 +70,5 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "--fill-holes", action="store_true", help="drop inner rings (light wells, courtyards)"
     )
     datasf.add_argument("-o", "--output", required=True, help="output map GeoJSON")
+    datasf.add_argument("--overwrite", action="store_true", help=OVERWRITE_FILE_HELP)
     datasf.set_defaults(func=_import_datasf)

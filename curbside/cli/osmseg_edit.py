@@ -7,6 +7,7 @@ from pathlib import Path
 
 from curbside.cli.osmseg_show import add_bbox_option
 from curbside.errors import CurbsideInputError
+from curbside.io import OVERWRITE_FILE_HELP, check_output_file
 from curbside.osmseg.build import check_bbox
 from curbside.osmseg.edit import file_features, write_editor
 from curbside.osmseg.mapio import read_map
@@ -16,6 +17,7 @@ from curbside.osmseg.plot import clip_to_bbox
 def _edit(args: argparse.Namespace) -> int:
     if Path(args.output).suffix.lower() not in (".html", ".htm"):
         raise CurbsideInputError(args.output, "the editor is an HTML page: name it .html")
+    check_output_file(args.output, args.overwrite, inputs=(args.map,))
     layers = read_map(args.map)
     features = None
     if args.bbox is not None:
@@ -45,6 +47,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     )
     parser.add_argument("map", help="map GeoJSON (osmseg build output or hand-labelled)")
     parser.add_argument("-o", "--output", required=True, help="output page (.html)")
+    parser.add_argument("--overwrite", action="store_true", help=OVERWRITE_FILE_HELP)
     add_bbox_option(parser, "edit only this WGS84 window (polygons clipped at its edges; the saved map "
                     "covers the window only)")
     parser.set_defaults(func=_edit)

@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 import logging
 
-from curbside.io import check_output_file
+from curbside.io import OVERWRITE_FILE_HELP, check_output_file
 from curbside.osmseg.build import check_bbox
 from curbside.osmseg.mapio import read_map
 from curbside.osmseg.plot import output_format, render_map
@@ -22,7 +22,7 @@ def add_bbox_option(parser: argparse.ArgumentParser, help_text: str) -> None:
 
 def _show(args: argparse.Namespace) -> int:
     output_format(args.output)
-    check_output_file(args.output)
+    check_output_file(args.output, args.overwrite, inputs=(args.map,))
     bbox = check_bbox(args.bbox) if args.bbox is not None else None
     layers = read_map(args.map)
     path = render_map(layers, args.output, bbox=bbox)
@@ -40,5 +40,6 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     )
     parser.add_argument("map", help="map GeoJSON (osmseg build output or hand-labelled)")
     parser.add_argument("-o", "--output", required=True, help="output file: .png or .html")
+    parser.add_argument("--overwrite", action="store_true", help=OVERWRITE_FILE_HELP)
     add_bbox_option(parser, "show only this WGS84 window")
     parser.set_defaults(func=_show)

@@ -35,6 +35,7 @@ import numpy as np
 import pandas as pd
 import shapely
 
+from curbside import __version__
 from curbside.errors import CurbsideInputError
 from curbside.io import atomic_path
 from curbside.osmseg.mapio import CLASSES, MapLayers
@@ -285,7 +286,7 @@ def write_comparison(result: MapComparison, path: str | Path, name_a: str, name_
         ``path``.
     """
     path = Path(path)
-    doc = {"a": name_a, "b": name_b, **result.to_dict()}
+    doc = {"generator": f"curbside {__version__}", "a": name_a, "b": name_b, **result.to_dict()}
     with atomic_path(path) as tmp:
         tmp.write_text(json.dumps(doc, indent=2), encoding="utf-8")
     return path

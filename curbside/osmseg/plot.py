@@ -18,6 +18,7 @@ from matplotlib.axes import Axes
 from matplotlib.figure import Figure
 from matplotlib.patches import Patch, Rectangle
 
+from curbside import __version__
 from curbside.errors import CurbsideInputError
 from curbside.io import atomic_path
 from curbside.osmseg.mapio import MapLayers
@@ -201,7 +202,7 @@ def save_png(layers: MapLayers, path: str | Path, width_in: float = 12.0, dpi: i
     plot_map(layers, ax)
     path = Path(path)
     with atomic_path(path) as tmp:
-        fig.savefig(tmp, format="png", facecolor="white")
+        fig.savefig(tmp, format="png", facecolor="white", metadata={"Software": f"curbside {__version__}"})
     log.info("wrote %s", path)
     return path
 

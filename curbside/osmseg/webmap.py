@@ -16,7 +16,7 @@ from pathlib import Path
 import geopandas as gpd
 import shapely
 
-from curbside import settings
+from curbside import __version__, settings
 from curbside.osmseg.mapio import MapLayers, to_geojson
 from curbside.osmseg.style import BACKGROUND, CLASS_STYLE, CONFLICT_COLOUR, stroke_colour
 from curbside.projection import WGS84
@@ -133,6 +133,7 @@ _PAGE = """<!DOCTYPE html>
 <html lang="en">
 <head>
 <meta charset="utf-8">
+<meta name="generator" content="curbside {version}">
 <meta name="viewport" content="width=device-width, initial-scale=1.0">
 <title>{title}</title>
 {styles}
@@ -209,6 +210,7 @@ def leaflet_page(
         The HTML document.
     """
     return _PAGE.format(
+        version=__version__,
         title=html.escape(title),
         styles="\n".join(f"<style>\n{asset_text(name)}\n</style>" for name in styles),
         scripts="\n".join(f"<script>\n{asset_text(name)}\n</script>" for name in scripts),
