@@ -55,6 +55,7 @@ def test_cli_with_bbox_edits_the_clipped_map(crossroads, tmp_path, capsys):
     [
         (["edit", "{map}", "-o", "{tmp}/edit.png"], "name it .html"),
         (["edit", "{tmp}/missing.geojson", "-o", "{tmp}/edit.html"], "no such map file"),
+        (["edit", "{tmp}", "-o", "{tmp}/edit.html"], "is a folder, not a map file"),
         (["edit", "{map}", "--bbox", "0", "0", "0.001", "0.001", "-o", "{tmp}/edit.html"], "no polygon"),
     ],
 )

@@ -121,6 +121,8 @@ def test_convert_into_dot(tmp_path, monkeypatch):
          "route needs columns lat,lon"),
         (["{data}/sensorlogger-android", "/proc/curbside-test/out"], "cannot write here"),
         (["{data}/sensorlogger-android", "{data}/walk.gpx"], "exists and is not a folder"),
+        (["{data}/walk.gpx", "--list"], "--list needs an IPIN .h5 file or Sensor Logger exports"),
+        (["{data}/walk.gpx", "{dst}", "--all"], "--all converts every trial of an IPIN .h5 file"),
     ],
 )
 def test_bad_input_exits_2_and_writes_nothing(tmp_path, capsys, args, message):

@@ -67,10 +67,13 @@ def summary_lines(session: Session, folder: Path) -> list[str]:
 def _convert(args: argparse.Namespace) -> int:
     if args.list:
         path, _ = split_trial(args.src)
-        if detect_format(path) == "sensorlogger":
+        kind = detect_format(path)
+        if kind == "sensorlogger":
             names = sorted(find_recordings(path))
-        else:
+        elif kind == "ipin":
             names = ipin.list_trials(path)
+        else:
+            raise CurbsideInputError(args.src, "--list needs an IPIN .h5 file or Sensor Logger exports")
         print("\n".join(names))
         return 0
     if args.dst is None:
@@ -80,6 +83,8 @@ def _convert(args: argparse.Namespace) -> int:
     check_output_folder(dst, args.overwrite, command)  # before reading: fail fast on an unusable destination
     if args.all:
         path, trial = split_trial(args.src)
+        if detect_format(path) != "ipin":
+            raise CurbsideInputError(args.src, "--all converts every trial of an IPIN .h5 file")
         if trial is not None:
             raise CurbsideInputError(args.src, "--all converts every trial; drop the ::TRIAL part")
         trials = ipin.list_trials(path)

@@ -127,6 +127,8 @@ def load_run(
 
     folder = Path(folder)
     track_csv, run_json = folder / "track.csv", folder / "run.json"
+    if not folder.exists():
+        raise CurbsideInputError(folder, "no such run folder")
     if not track_csv.is_file():
         raise CurbsideInputError(folder, "not a run folder (no track.csv; write one with `localize run -o`)")
     try:

@@ -96,6 +96,8 @@ def read_map(path: str | Path) -> MapLayers:
         not lon/lat degrees, no polygons.
     """
     path = Path(path)
+    if path.is_dir():
+        raise CurbsideInputError(path, "is a folder, not a map file (a GeoJSON written by `osmseg build`)")
     if not path.is_file():
         raise CurbsideInputError(path, "no such map file")
     try:
