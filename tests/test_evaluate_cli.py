@@ -413,3 +413,40 @@ def test_snapshot_moments_are_a_bad_fix_and_a_turn(sessions):
     assert all(t0 <= t <= t1 for t in times)
     assert any(np.isclose(session.waypoints["t"], t).any() for t in times)
     assert any(np.isclose(session.gnss["t"], t).any() for t in times)
+
+
+def _far_map(tmp_path: Path) -> Path:
+    """The fixture map moved a degree east: no session lies on it."""
+    far = tmp_path / "far.geojson"
+    doc = json.loads(MAP.read_text())
+    for f in doc["features"]:
+        f["geometry"]["coordinates"] = json.loads(
+            json.dumps(f["geometry"]["coordinates"]).replace("-122.", "-121.")
+        )
+    far.write_text(json.dumps(doc))
+    return far
+
+
+@pytest.mark.parametrize("method", ["gnss", "inertial", "paper", "fused"])
+def test_a_session_off_the_map_is_refused_up_front_for_every_method(tmp_path, capsys, sessions, method,
+                                                                     monkeypatch):
+    monkeypatch.setattr(runner, "run_all", lambda *a, **k: pytest.fail("ran a session off the map"))
+    far, out = _far_map(tmp_path), tmp_path / "r"
+    argv = ["evaluate", str(sessions[0]), "--maps", str(MAP), str(far), "--methods", method, "-o", str(out)]
+    _fails(capsys, argv, f"{sessions[0]}/meta.json: start pose", out)
+    main(argv)
+    err = capsys.readouterr().err
+    assert "lies outside the map's extent" in err and str(far) in err
+
+
+def test_a_session_without_ground_truth_is_refused_naming_its_file(tmp_path, capsys, sessions):
+    import shutil
+
+    copy, out = tmp_path / "nowp", tmp_path / "r"
+    shutil.copytree(sessions[0], copy)
+    (copy / "waypoints.csv").unlink()
+    argv = ["evaluate", str(copy), "--maps", str(MAP), "--methods", "gnss", "-o", str(out)]
+    _fails(capsys, argv, f"{copy / 'waypoints.csv'}: missing: no ground truth", out)
+    pd.DataFrame({"t": [0.0], "lat": [37.79], "lon": [-122.4]}).to_csv(copy / "waypoints.csv", index=False)
+    needle = f"{copy / 'waypoints.csv'}: ground truth needs at least two waypoints; it holds 1"
+    _fails(capsys, argv, needle, out)

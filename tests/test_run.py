@@ -485,3 +485,44 @@ def test_output_to_the_current_folder(tmp_path, monkeypatch):
     monkeypatch.chdir(out)
     assert run_cli(folder, "-o", ".") == 0
     assert (out / "track.csv").is_file() and (out / "run.json").is_file()
+
+
+# -- waypoints that cannot be scored, particle stores that cannot be read ----------------------------------
+
+
+def _waypoints(folder: Path, xs: list[float], ts: list[float]) -> Path:
+    lon, lat = lonlat(xs, [8.0] * len(xs))
+    pd.DataFrame({"t": ts, "lat": lat, "lon": lon}).to_csv(folder / "waypoints.csv", index=False)
+    return folder / "waypoints.csv"
+
+
+@pytest.mark.parametrize(
+    "duration_s, waypoints, why",
+    [(0.5, ([-100.0, -99.0, -98.0], [0.0, 0.5, 1.0]), "at least two estimates"),
+     (10.0, ([-99.0], [1.0]), "at least two of them")],
+)
+def test_a_waypoint_score_that_cannot_be_made_warns_and_the_track_is_written(
+    tmp_path, map_file, capsys, caplog, duration_s, waypoints, why
+):
+    folder = write_walk(tmp_path / "walk", duration_s=duration_s)
+    path = _waypoints(folder, *waypoints)
+    assert run_cli(folder, "--map", map_file, "-o", tmp_path / "out") == 0
+    assert (tmp_path / "out" / "track.csv").is_file()
+    warned = [r.getMessage() for r in caplog.records if "at waypoints" in r.getMessage()]
+    assert len(warned) == 1 and warned[0].startswith(f"{path}: error at waypoints not scored")
+    assert why in warned[0]
+    info = json.loads((tmp_path / "out" / "run.json").read_text())
+    assert info["waypoint_error"]["n_waypoints"] == 0 and info["waypoint_error"]["waypoint_median_m"] is None
+    assert "error at" not in capsys.readouterr().out
+
+
+def test_view_names_a_corrupt_particle_store_in_one_line(tmp_path, capsys):
+    folder = write_walk(tmp_path / "walk", duration_s=5.0)
+    assert run_cli(folder, "--particles", 100, "--save-particles", "-o", tmp_path / "run") == 0
+    store = tmp_path / "run" / "particles.npz"
+    store.write_bytes(store.read_bytes()[:200])
+    capsys.readouterr()
+    assert localize_main(["view", str(tmp_path / "run"), "-o", str(tmp_path / "v.html")]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and f"{store}: not a readable particle store" in err
+    assert not (tmp_path / "v.html").exists()

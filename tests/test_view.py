@@ -166,7 +166,7 @@ def test_cli_writes_the_page_and_says_so(runs, tmp_path, capsys):
     ("make_args", "words"),
     [
         (lambda runs, tmp: ["view", str(tmp), "-o", str(tmp / "v.html")], "not a run folder"),
-        (lambda runs, tmp: ["view", str(tmp / "gone"), "-o", str(tmp / "v.html")], "gone: no such run folder"),
+        (lambda runs, tmp: ["view", str(tmp / "gone"), "-o", str(tmp / "v.html")], "no such run folder"),
         (lambda runs, tmp: ["view", str(runs[0]), "-o", str(tmp / "v.png")], "name it .html"),
         (lambda runs, tmp: ["view", str(runs[0]), "--session", str(tmp / "gone"), "-o", str(tmp / "v.html")],
          "gone"),

@@ -29,7 +29,7 @@ import logging
 import os
 from pathlib import Path
 
-from curbside.cli.common import non_negative_float, positive_float, positive_int, unit_interval
+from curbside.cli.common import non_negative_float, positive_float, positive_int, seed, unit_interval
 from curbside.errors import CurbsideInputError
 from curbside.evaluate.runner import METHODS
 from curbside.io import check_output_folder, output_folder
@@ -48,7 +48,8 @@ _OVERWRITE_HELP = "write into a non-empty folder curbside did not write (its oth
 
 
 def _simulate(args: argparse.Namespace) -> int:
-    check_output_folder(args.output, args.overwrite)  # before the slow imports and the OSM load
+    command = "localize simulate --benchmark" if args.benchmark else "localize simulate"
+    check_output_folder(args.output, args.overwrite, command)  # before the slow imports and the OSM load
     from curbside.evaluate import routes as routes_mod
     from curbside.evaluate.gnss_model import GnssErrorModel
     from curbside.evaluate.simulate import SimulationConfig, sf6_routes, simulate_benchmark, simulate_session
@@ -57,7 +58,7 @@ def _simulate(args: argparse.Namespace) -> int:
     config = SimulationConfig(profile=args.profile, gnss=GnssErrorModel.named(args.gnss),
                               write_velocity=not args.no_velocity, write_imu=args.imu)
     if args.benchmark:
-        with output_folder(args.output, "localize simulate --benchmark", overwrite=args.overwrite) as tmp:
+        with output_folder(args.output, command, overwrite=args.overwrite) as tmp:
             written = simulate_benchmark(tmp, args.seeds, config, args.osm)
         print(
             f"{args.output}: {len(written)} sessions of the sf6 benchmark ({args.seeds} seed(s) per route, "
@@ -118,13 +119,49 @@ def _check_on_map(map_path: str, route, frame) -> None:
         )
 
 
+def _check_sessions(sessions: list[Path], maps: dict, methods: list[str]) -> None:
+    """Refuse, before any run, a session without ground truth or off one of the maps.
+
+    Parameters
+    ----------
+    sessions
+        Session folders.
+    maps
+        The maps' layers by path (every method scores on them, the GNSS baseline too).
+    methods
+        The methods to run (their configurations decide whether the start pose is checked).
+
+    Raises
+    ------
+    CurbsideInputError
+        Naming the session's file (and the map): ``waypoints.csv`` missing or with fewer than two
+        waypoints, a session outside a map's extent.
+    """
+    from curbside.localize.pipeline import check_on_map, resolve_config
+    from curbside.localize.session import read_session
+
+    configs = [resolve_config(None, method) for method in methods]
+    for folder in sessions:
+        session = read_session(folder, kinds=("gnss", "waypoints"))
+        waypoints = folder / "waypoints.csv"
+        if session.waypoints is None:
+            raise CurbsideInputError(waypoints, "missing: no ground truth to score the session against")
+        if len(session.waypoints) < 2:
+            raise CurbsideInputError(
+                waypoints, f"ground truth needs at least two waypoints; it holds {len(session.waypoints)}"
+            )
+        for path, layers in maps.items():
+            for config in configs:
+                check_on_map(session, layers, config, folder=str(folder), map_name=path)
+
+
 def _evaluate(args: argparse.Namespace) -> int:
     from curbside.evaluate.benchmark import expand_sessions, ipin_table, plan, route_table
     from curbside.evaluate.report import write_report
     from curbside.evaluate.runner import run_all
     from curbside.osmseg.mapio import read_map
 
-    check_output_folder(args.output, args.overwrite)  # before minutes of runs
+    check_output_folder(args.output, args.overwrite, "localize evaluate")  # before minutes of runs
     sessions = expand_sessions(args.sessions)
     for m in args.maps:
         if not Path(m).is_file():
@@ -137,8 +174,7 @@ def _evaluate(args: argparse.Namespace) -> int:
     reference = read_map(metrics_map)
     if len(reference.layer("sidewalk")) == 0:
         raise CurbsideInputError(metrics_map, "no sidewalk segments to score against: pass --metrics-map")
-    for m in maps.values():
-        read_map(m)  # fail early, with the file's name, on a bad map
+    _check_sessions(sessions, {path: read_map(path) for path in maps.values()}, args.methods)
     sigmas = tuple(args.gnss_sigma_factors) if args.gnss_sigma_factors else (None,)
     specs, base = plan(
         sessions,
@@ -175,8 +211,9 @@ def _evaluate(args: argparse.Namespace) -> int:
 
 
 def _benchmark(args: argparse.Namespace) -> int:
-    from curbside.evaluate.suite import SuiteConfig, run_suite, suite_summary
+    from curbside.evaluate.suite import SuiteConfig, check_suite_folder, run_suite, suite_summary
 
+    check_suite_folder(args.output, args.overwrite)  # before any map, model or walk
     for path in [*(args.datasf_tiles or []), *([args.ipin] if args.ipin else [])]:
         if not Path(path).is_file():
             raise CurbsideInputError(path, "no such file")
@@ -209,6 +246,7 @@ def _benchmark(args: argparse.Namespace) -> int:
         scheduler=args.scheduler,
         ipin=args.ipin,
         ipin_ronin=args.ipin_ronin,
+        overwrite=args.overwrite,
     )
     print(suite_summary(paths["report"]), end="")
     print(f"{paths['report.html']}")
@@ -235,7 +273,7 @@ def _register_simulate(subparsers: argparse._SubParsersAction) -> None:
     what = sim.add_mutually_exclusive_group(required=True)
     what.add_argument("--route", help="one benchmark route (path1 .. path6), or 'custom'")
     what.add_argument("--benchmark", choices=["sf6"], help="all six routes, --seeds recordings each")
-    sim.add_argument("--seed", type=int, default=1, help="seed of one session (default: %(default)s)")
+    sim.add_argument("--seed", type=seed, default=1, help="seed of one session (default: %(default)s)")
     sim.add_argument("--start", nargs=2, type=float, metavar=("LON", "LAT"), help="custom route: start")
     sim.add_argument("--length-m", type=positive_float, help="custom route: length in metres")
     sim.add_argument("--crossings", type=int, default=0,
@@ -299,7 +337,7 @@ def _register_evaluate(subparsers: argparse._SubParsersAction) -> None:
     )
     ev.add_argument("--velocity-source", default="auto", choices=["auto", "file", "ronin", "pdr"],
                     help="auto: velocity.csv, else RoNIN on imu.csv, else PDR (default: %(default)s)")
-    ev.add_argument("--seed", type=int, default=0, help="filter seed (default: %(default)s)")
+    ev.add_argument("--seed", type=seed, default=0, help="filter seed (default: %(default)s)")
     ev.add_argument("--workers", type=positive_int,
                     help="dask LocalCluster worker processes; 1 runs serially (default: one per CPU, "
                     "at most one per run)")
@@ -348,7 +386,7 @@ def _register_benchmark(subparsers: argparse._SubParsersAction) -> None:
     bench.add_argument("--particles", type=positive_int, default=500,
                        help="particles of the paper's method and RoNIN+PF (default 500, the paper's); "
                        "curbside fused runs with its own default (2000)")
-    bench.add_argument("--seed", type=int, default=0, help="filter seed (default 0)")
+    bench.add_argument("--seed", type=seed, default=0, help="filter seed (default 0)")
     bench.add_argument("--filter-seeds", type=positive_int, default=1, metavar="N",
                        help="run every filter with N seeds from --seed on and pool them (less noisy "
                        "figures and checks, N times the tracking time; default 1)")
@@ -364,5 +402,7 @@ def _register_benchmark(subparsers: argparse._SubParsersAction) -> None:
                        help="dask worker processes; 1 runs serially (default 2)")
     bench.add_argument("--scheduler", help="address of an existing dask scheduler")
     bench.add_argument("-o", "--output", required=True,
-                       help="output folder (its sessions are reused when they match)")
+                       help="output folder: new, empty or a previous benchmark output (its sessions are "
+                       "reused when they match)")
+    bench.add_argument("--overwrite", action="store_true", help=_OVERWRITE_HELP)
     bench.set_defaults(func=_benchmark)

@@ -9,6 +9,7 @@ import sys
 from pathlib import Path
 
 from curbside import __version__
+from curbside.cli.common import seed
 from curbside.errors import CurbsideInputError
 from curbside.io import OVERWRITE_FILE_HELP, atomic_path, check_output_file, note_written
 
@@ -167,7 +168,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--batch-size", type=int, default=256, help="windows per batch (default: %(default)s)")
     p.add_argument("--lr", type=float, default=1e-3,
                    help="Adam learning rate, cosine decay to lr/100 (default: %(default)s)")
-    p.add_argument("--seed", type=int, default=0,
+    p.add_argument("--seed", type=seed, default=0,
                    help="seed of initialisation, window draws and augmentation (default: %(default)s)")
     p.add_argument("--device", default="cpu", help="torch device: cpu, cuda (default: %(default)s)")
     p.add_argument("--threads", type=int, default=2, help="CPU threads for torch (default: %(default)s)")

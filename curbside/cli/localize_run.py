@@ -22,11 +22,14 @@ import json
 import logging
 from pathlib import Path
 
+import pandas as pd
+
 from curbside.cli.common import (
     add_config_options,
     config_overrides,
     non_negative_float,
     positive_int,
+    seed,
     unit_interval,
 )
 from curbside.errors import CurbsideInputError
@@ -55,7 +58,7 @@ def _replayed(path: str) -> tuple[dict, RunConfig]:
 
 
 def _run(args: argparse.Namespace) -> int:
-    check_output_folder(args.output, args.overwrite)
+    check_output_folder(args.output, args.overwrite, "localize run")
     info, config = _replayed(args.config) if args.config else ({}, None)
     session_path = args.session or info.get("session")
     if not session_path:
@@ -81,9 +84,11 @@ def _run(args: argparse.Namespace) -> int:
     result = track_session(session, layers, config=config, save_particles=args.save_particles)
     run_info = {"session": _absolute(session_path), "map": _absolute(map_path) if map_path else None}
     summary = None
-    if session.waypoints is not None and len(session.waypoints) >= 2:
-        summary = waypoint_summary(waypoint_errors(result.track, session.waypoints))
-        run_info["waypoint_error"] = summary
+    if session.waypoints is not None:
+        run_info["waypoint_error"], scored = _waypoint_score(
+            result.track, session.waypoints, _waypoints_source(session_path)
+        )
+        summary = run_info["waypoint_error"] if scored else None
     write_track(result, args.output, run_info, overwrite=args.overwrite)
     track = result.track
     span = track["t"].iat[-1] - track["t"].iat[0] if len(track) else 0.0
@@ -129,6 +134,27 @@ def _run(args: argparse.Namespace) -> int:
     if summary is not None:
         print(f"{args.output}: {format_waypoint_summary(summary)}")
     return 0
+
+
+def _waypoints_source(session_path: str) -> str:
+    """Where a session's waypoints come from, for messages: its ``waypoints.csv`` or the recording."""
+    return str(Path(session_path) / "waypoints.csv") if Path(session_path).is_dir() else str(session_path)
+
+
+def _waypoint_score(track: pd.DataFrame, waypoints: pd.DataFrame, source: str) -> tuple[dict, bool]:
+    """The track's error at the surveyed waypoints (:func:`waypoint_summary`), and whether it could be
+    scored.
+
+    Scoring is an extra: when it cannot be done (one waypoint, a track of fewer than two estimates) a
+    warning says why and the summary scores no waypoint (``n_waypoints`` 0, the figures null in
+    ``run.json``), as when no waypoint lies inside the track's time span.
+    """
+    try:
+        return waypoint_summary(waypoint_errors(track, waypoints)), True
+    except CurbsideInputError as exc:
+        logger.warning("%s: error at waypoints not scored (%s); the track is written without it",
+                       source, exc.problem)
+        return waypoint_summary(pd.DataFrame({"error_m": []})), False
 
 
 def _absolute(path: str) -> str:
@@ -182,11 +208,11 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "--jaywalk-weight",
         type=unit_interval,
         default=None,
-        help="particle weight on street surface outside crosswalks (default 0.4); a step across the "
-        "street weighs at least filter.map.crossing_weight (0.7; not with --mode paper)",
+        help="particle weight in [0, 1] on street surface outside crosswalks (default 0.4); a step across "
+        "the street weighs at least filter.map.crossing_weight (0.7; not with --mode paper)",
     )
     parser.add_argument(
-        "--seed", type=int, default=None, help="random seed (default 0): same seed, same track"
+        "--seed", type=seed, default=None, help="random seed (default 0): same seed, same track"
     )
     add_config_options(
         parser,

@@ -20,7 +20,7 @@ import sys
 from pathlib import Path
 
 from curbside import settings
-from curbside.cli.common import add_config_options, config_overrides, positive_float, positive_int
+from curbside.cli.common import add_config_options, config_overrides, port, positive_float, positive_int
 from curbside.errors import CurbsideInputError
 from curbside.localize.runconfig import MODES
 
@@ -112,7 +112,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     )
     parser.add_argument("--map", help="map layers GeoJSON (osmseg build); none: no map likelihood")
     parser.add_argument("--host", default="127.0.0.1", help="address to listen on (default 127.0.0.1)")
-    parser.add_argument("--port", type=positive_int, default=8750, help="port (default 8750)")
+    parser.add_argument("--port", type=port, default=8750, help="port (default 8750)")
     parser.add_argument(
         "--data-dir", help=f"where tracks of ended sessions go, under tracks/ (default {settings.data_dir})"
     )

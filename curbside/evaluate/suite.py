@@ -27,22 +27,27 @@ import pandas as pd
 import curbside
 from curbside.errors import CurbsideInputError
 from curbside.evaluate import criteria
-from curbside.evaluate.benchmark import IpinScores, datasf_osm_map, snapshot_times
+from curbside.evaluate.benchmark import IpinScores, snapshot_times
 from curbside.evaluate.gnss_model import GnssErrorModel
 from curbside.evaluate.runner import SMOOTHED_METHOD, RunSpec, pool, run_all, smoothed_results, subset_of
 from curbside.evaluate.simulate import PROFILES, SimulationConfig
 from curbside.evaluate.subsets import DEFAULT_ROUTES, SPLITS, SUBSETS, benchmark_sessions, load_world
+from curbside.evaluate.suite_output import (
+    DATASF_MAP,
+    OSM_MAP,
+    benchmark_maps,
+    check_suite_folder,
+    folder_for_run,
+)
 from curbside.localize.filter import FilterConfig
 from curbside.localize.runconfig import UNSEEN_VELOCITY_MODES, RunConfig, UnseenVelocityConfig
 from curbside.localize.session import read_session
-from curbside.osmseg.mapio import read_map, write_map
+from curbside.osmseg.mapio import read_map
 
 log = logging.getLogger(__name__)
 
 #: The methods every benchmark table shows, in order.
 SUITE_METHODS: tuple[str, ...] = ("gnss", "inertial", "paper", "fused")
-OSM_MAP = "osm"
-DATASF_MAP = "datasf"
 
 
 @dataclass(frozen=True)
@@ -337,25 +342,6 @@ def _ipin_info(ipin: str | Path | None, ipin_ronin: str | Path | None) -> dict[s
     }
 
 
-def _maps(
-    out_dir: Path, map_path: str | Path | None, datasf_tiles: list[str | Path] | None
-) -> dict[str, str]:
-    """The OSM map (built into ``out_dir`` unless given or already there) and the DataSF one."""
-    if map_path is None:
-        map_path = out_dir / "map.geojson"
-        if not map_path.is_file():
-            from curbside.osmseg.build import build_map
-
-            log.info("building the OSM map -> %s", map_path)
-            write_map(build_map(), map_path)
-    elif not Path(map_path).is_file():
-        raise CurbsideInputError(map_path, "no such map file")
-    maps = {OSM_MAP: str(map_path)}
-    if datasf_tiles:
-        maps[DATASF_MAP] = str(datasf_osm_map(map_path, list(datasf_tiles), out_dir / "map-datasf.geojson"))
-    return maps
-
-
 def _run_info(
     config: SuiteConfig, maps: dict[str, str], specs: list[RunSpec], sessions: dict[str, list[Path]]
 ) -> dict[str, Any]:
@@ -419,6 +405,31 @@ def _scores(
     return pooled, per_session, checks
 
 
+def _maps_and_sessions(
+    out_dir: Path,
+    config: SuiteConfig,
+    map_path: str | Path | None,
+    datasf_tiles: list[str | Path] | None,
+    osm_file: str | Path | None,
+    overwrite: bool,
+    timings: dict[str, float],
+) -> tuple[dict[str, str], dict[str, list[Path]]]:
+    """:func:`run_suite`'s maps and sessions, built (or reused) in ``out_dir`` once the given map reads
+    (the folder is created only then); their seconds go into ``timings``."""
+    if map_path is not None:
+        if not Path(map_path).is_file():
+            raise CurbsideInputError(map_path, "no such map file")
+        read_map(map_path)  # a bad map fails now, not after the walks
+    with folder_for_run(out_dir):
+        start = time.perf_counter()
+        maps = benchmark_maps(out_dir, map_path, datasf_tiles, overwrite)
+        timings["maps_s"] = time.perf_counter() - start
+        start = time.perf_counter()
+        sessions = simulate_suite(out_dir, config, osm_file)
+        timings["simulate_s"] = time.perf_counter() - start
+    return maps, sessions
+
+
 def run_suite(
     out_dir: str | Path,
     config: SuiteConfig | None = None,
@@ -429,6 +440,7 @@ def run_suite(
     ipin: str | Path | None = None,
     osm_file: str | Path | None = None,
     ipin_ronin: str | Path | None = None,
+    overwrite: bool = False,
 ) -> dict[str, Path]:
     """Simulate, track, score and report a benchmark in one seeded run.
 
@@ -453,6 +465,9 @@ def run_suite(
     ipin_ronin
         RoNIN weights never trained on IPIN (with ``ipin``): also score every trial with their velocity
         (a phone and place the model has not seen; reported, not judged by the criteria).
+    overwrite
+        Also write into a non-empty folder curbside did not write (:func:`check_suite_folder`); its
+        ``map.geojson`` is then rebuilt, never taken for the benchmark's.
 
     Returns
     -------
@@ -462,15 +477,9 @@ def run_suite(
     from curbside.evaluate.suite_report import write_suite_report
 
     config = config or SuiteConfig()
-    out_dir = Path(out_dir)
-    out_dir.mkdir(parents=True, exist_ok=True)
+    out_dir = check_suite_folder(out_dir, overwrite)
     timings: dict[str, float] = {}
-    start = time.perf_counter()
-    maps = _maps(out_dir, map_path, datasf_tiles)
-    timings["maps_s"] = time.perf_counter() - start
-    start = time.perf_counter()
-    sessions = simulate_suite(out_dir, config, osm_file)
-    timings["simulate_s"] = time.perf_counter() - start
+    maps, sessions = _maps_and_sessions(out_dir, config, map_path, datasf_tiles, osm_file, overwrite, timings)
     specs = plan_suite(sessions, maps, config)
     log.info("benchmark: %d runs over %d sessions", len(specs), sum(map(len, sessions.values())))
     start = time.perf_counter()

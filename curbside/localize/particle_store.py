@@ -26,6 +26,8 @@ resampling at every footstep the weights are uniform and are not stored.
 from __future__ import annotations
 
 import logging
+import zipfile
+import zlib
 from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
@@ -199,19 +201,32 @@ def unpack_particles(packed: Mapping[str, np.ndarray], source: str = "particles"
     Raises
     ------
     CurbsideInputError
-        Neither format.
+        Neither format, or arrays of the wrong shape or type.
     """
-    names = set(packed)
-    if "format" not in names and {"x", "y", "origin", "t", "crs"} <= names:
-        ox, oy = np.asarray(packed["origin"], np.float64)
-        x, y = np.asarray(packed["x"], np.float64), np.asarray(packed["y"], np.float64)
-        packed = pack_snapshots(dict(packed), x.mean(axis=1) + ox, y.mean(axis=1) + oy)
+    try:
         names = set(packed)
-    fmt = str(packed["format"]) if "format" in names else None
-    if fmt != FORMAT:
+        if "format" not in names and {"x", "y", "origin", "t", "crs"} <= names:
+            ox, oy = np.asarray(packed["origin"], np.float64)
+            x, y = np.asarray(packed["x"], np.float64), np.asarray(packed["y"], np.float64)
+            packed = pack_snapshots(dict(packed), x.mean(axis=1) + ox, y.mean(axis=1) + oy)
+            names = set(packed)
+        fmt = str(packed["format"]) if "format" in names else None
+        if fmt != FORMAT:
+            raise CurbsideInputError(
+                source,
+                f"not a {FORMAT} particle store (format {fmt!r}); re-run `localize run --save-particles`",
+            )
+        return _clouds(packed)
+    except (KeyError, ValueError, IndexError, TypeError) as exc:
+        detail = (str(exc).splitlines() or [type(exc).__name__])[0].strip()
         raise CurbsideInputError(
-            source, f"not a {FORMAT} particle store (format {fmt!r}); re-run `localize run --save-particles`"
-        )
+            source, f"not a readable {FORMAT} particle store (an array is missing or malformed: {detail})"
+        ) from None
+
+
+def _clouds(packed: Mapping[str, np.ndarray]) -> ParticleClouds:
+    """:func:`unpack_particles` for arrays in the current format."""
+    names = set(packed)
     ref_x, ref_y = packed["ref_x_m"], packed["ref_y_m"]
     weight = None
     if "weight_u8" in names:
@@ -247,6 +262,14 @@ def read_particles(path: str | Path) -> ParticleClouds:
     path = Path(path)
     try:
         with np.load(path, allow_pickle=False) as npz:
-            return unpack_particles({k: npz[k] for k in npz.files}, str(path))
-    except (OSError, ValueError, KeyError) as exc:
-        raise CurbsideInputError(path, f"not a readable particle store ({exc})") from None
+            packed = {k: npz[k] for k in npz.files}
+    except FileNotFoundError:
+        raise CurbsideInputError(path, "no such file") from None
+    except OSError as exc:
+        raise CurbsideInputError(path, f"cannot read ({exc.strerror or exc})") from None
+    except (ValueError, EOFError, zipfile.BadZipFile, zlib.error, NotImplementedError):
+        raise CurbsideInputError(
+            path, "not a readable particle store (not an .npz, or a corrupt or truncated one); "
+            "re-run `localize run --save-particles`"
+        ) from None
+    return unpack_particles(packed, str(path))

@@ -160,7 +160,10 @@ def resolve_config(
     ):
         if value is not None:
             overrides[key] = value
-    return config.with_overrides(overrides)
+    config = config.with_overrides(overrides)
+    if config.seed < 0:  # numpy refuses it only when the filter starts
+        raise CurbsideInputError("seed", f"must be a non-negative integer, got {config.seed}")
+    return config
 
 
 def _frame_for(session: Session, map_layers: MapLayers | None) -> LocalFrame:
@@ -190,16 +193,53 @@ def _start_of(session: Session) -> tuple[StartPose | None, float | None]:
     return start, t
 
 
-def _check_extent(
-    session: Session, layers: MapLayers, frame: LocalFrame, start: StartPose | None, tolerance_m: float
+def check_on_map(
+    session: Session,
+    map_layers: MapLayers,
+    config: RunConfig | None = None,
+    *,
+    folder: str | None = None,
+    map_name: str | None = None,
 ) -> None:
+    """Raise unless the session lies on the map: the check :func:`track_session` makes first.
+
+    Parameters
+    ----------
+    session
+        The recording (its ``gnss.csv`` and ``meta.json`` start pose are checked).
+    map_layers
+        The map.
+    config
+        The run's configuration (whether it uses the start pose; the extent tolerance); default
+        :class:`RunConfig`'s.
+    folder, map_name
+        How messages name the session (default its name) and the map (default "the map").
+
+    Raises
+    ------
+    CurbsideInputError
+        A start pose outside the map's extent, or no fix near it.
+    """
+    config = config or RunConfig()
+    start, _ = _start_of(session)
+    pose = start if config.use_start_pose else None
+    _check_extent(session, map_layers, _frame_for(session, map_layers), pose,
+                  config.engine.extent_tolerance_m, folder=folder, map_name=map_name)
+
+
+def _check_extent(
+    session: Session, layers: MapLayers, frame: LocalFrame, start: StartPose | None, tolerance_m: float,
+    *, folder: str | None = None, map_name: str | None = None,
+) -> None:
+    folder = folder or session.name
+    where = f" ({map_name})" if map_name else ""
     xmin, ymin, xmax, ymax = layers.gdf.total_bounds
     if start is not None:
         x, y = frame.to_xy(start.lon, start.lat)
         if not (xmin <= x <= xmax and ymin <= y <= ymax):
             raise CurbsideInputError(
-                f"{session.name}/meta.json",
-                f"start pose ({start.lat:.6f}, {start.lon:.6f}) lies outside the map's extent",
+                f"{folder}/meta.json",
+                f"start pose ({start.lat:.6f}, {start.lon:.6f}) lies outside the map's extent{where}",
             )
     gnss = session.gnss
     if gnss is not None and len(gnss):
@@ -208,7 +248,8 @@ def _check_extent(
         near = (fx > xmin - tol) & (fx < xmax + tol) & (fy > ymin - tol) & (fy < ymax + tol)
         if not np.any(near):
             raise CurbsideInputError(
-                f"{session.name}/gnss.csv", "the session lies outside the map's extent (no fix near the map)"
+                f"{folder}/gnss.csv",
+                f"the session lies outside the map's extent{where} (no fix near the map)",
             )
 
 

@@ -9,6 +9,7 @@ raises :class:`~curbside.errors.CurbsideInputError` (one line, naming the file) 
 from __future__ import annotations
 
 import json
+from collections.abc import Collection
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -133,7 +134,7 @@ def validate_table(kind: str, table: pd.DataFrame, source: str | Path) -> pd.Dat
         i = int(np.argmax(dt <= 0))
         what = "duplicated" if dt[i] == 0 else "out-of-order"
         raise CurbsideInputError(
-            source, f"{what} timestamp t={out['t'].iat[i + 1]!r} at data row {i + 2}"
+            source, f"{what} timestamp t={float(out['t'].iat[i + 1])!r} at data row {i + 2}"
         )
     if "lat" in out and not ((out["lat"].abs() <= 90).all() and (out["lon"].abs() <= 180).all()):
         raise CurbsideInputError(source, "lat/lon outside WGS84 degree ranges")
@@ -147,7 +148,7 @@ def _read_csv(path: Path) -> pd.DataFrame:
         raise CurbsideInputError(path, f"malformed CSV ({str(exc).splitlines()[0]})") from None
 
 
-def read_session(folder: str | Path) -> Session:
+def read_session(folder: str | Path, kinds: Collection[str] | None = None) -> Session:
     """Read and validate a SPEC session folder.
 
     Parameters
@@ -155,6 +156,9 @@ def read_session(folder: str | Path) -> Session:
     folder
         Directory holding any of ``imu.csv``, ``velocity.csv``, ``steps.csv``, ``gnss.csv``,
         ``waypoints.csv``, ``meta.json``.
+    kinds
+        Read only these tables (file stems, e.g. ``("gnss", "waypoints")``; ``meta.json`` is always
+        read); default all of them.
 
     Returns
     -------
@@ -171,7 +175,7 @@ def read_session(folder: str | Path) -> Session:
     session = Session(name=folder.name)
     for kind in COLUMNS:
         path = folder / f"{kind}.csv"
-        if path.is_file():
+        if path.is_file() and (kinds is None or kind in kinds):
             setattr(session, kind, validate_table(kind, _read_csv(path), path))
     meta_path = folder / "meta.json"
     if meta_path.is_file():
@@ -191,7 +195,7 @@ def read_session(folder: str | Path) -> Session:
                 raise CurbsideInputError(
                     meta_path, "'start' must be {\"lat\": .., \"lon\": .., \"heading_deg\": ..}"
                 )
-    if not session.tables():
+    if not any((folder / f"{kind}.csv").is_file() for kind in COLUMNS):
         raise CurbsideInputError(
             folder, "not a session folder: none of imu.csv, velocity.csv, gnss.csv, steps.csv"
         )

@@ -74,7 +74,7 @@ def tidy_table(
         raise CurbsideInputError(source, f"no usable rows (read {n_in})")
     same_t = out["t"].duplicated(keep=False)
     if same_t.any():
-        t = out.loc[same_t, "t"].iat[0]
+        t = float(out.loc[same_t, "t"].iat[0])
         raise CurbsideInputError(source, f"conflicting rows share timestamp t={t!r}")
     return out.reset_index(drop=True)
 

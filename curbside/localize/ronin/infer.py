@@ -48,25 +48,94 @@ def load_model(weights: str | Path | None = None) -> RoninResNet:
     Raises
     ------
     CurbsideInputError
-        Missing or unreadable weights or config.
+        Missing or unreadable weights or config, a file that is not a weights file, or weights
+        that do not fit the config.
     """
     weights = Path(weights or settings.ronin_default_weights)
     cfg_path = config_path_for(weights)
+    if cfg_path == weights:
+        raise CurbsideInputError(
+            weights, "not a curbside RoNIN weights file (a .json is the config beside one: give the .pt)"
+        )
     for path in (weights, cfg_path):
         if not path.is_file():
             raise CurbsideInputError(path, "no such RoNIN weights/config file")
-    try:
-        config = RoninConfig.from_dict(json.loads(cfg_path.read_text(encoding="utf-8")))
-    except (json.JSONDecodeError, TypeError) as exc:
-        raise CurbsideInputError(cfg_path, f"not a RoNIN config ({exc})") from None
-    model = RoninResNet(config)
-    try:
-        state = torch.load(weights, map_location="cpu", weights_only=True)
-        model.load_state_dict(state)
-    except (RuntimeError, OSError, KeyError) as exc:
-        first_line = str(exc).splitlines()[0]
-        raise CurbsideInputError(weights, f"not a state_dict for this config ({first_line})") from None
+    model = RoninResNet(_read_config(cfg_path))
+    state = _read_state_dict(weights)
+    problem = _state_dict_mismatch(model.state_dict(), state)
+    if problem:
+        raise CurbsideInputError(weights, f"not a state_dict for the config in {cfg_path.name} ({problem})")
+    model.load_state_dict(state)
     return model.eval()
+
+
+def _read_config(path: Path) -> RoninConfig:
+    """The :class:`RoninConfig` a JSON file holds."""
+    try:
+        data = json.loads(path.read_text(encoding="utf-8"))
+    except OSError as exc:
+        raise CurbsideInputError(path, f"cannot read the RoNIN config ({exc.strerror or exc})") from None
+    except UnicodeDecodeError:
+        raise CurbsideInputError(path, "not a RoNIN config (not UTF-8 text)") from None
+    except json.JSONDecodeError as exc:
+        problem = f"not a RoNIN config (not JSON: {exc.msg} at line {exc.lineno})"
+        raise CurbsideInputError(path, problem) from None
+    if not isinstance(data, dict):
+        raise CurbsideInputError(path, "not a RoNIN config (not a JSON object)")
+    try:
+        config = RoninConfig.from_dict(data)
+        RoninResNet(config)
+    except (TypeError, ValueError, KeyError, IndexError, RuntimeError) as exc:
+        first_line = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+        raise CurbsideInputError(path, f"not a RoNIN config ({first_line})") from None
+    return config
+
+
+def _read_state_dict(path: Path) -> dict[str, torch.Tensor]:
+    """The tensors a weights file holds, by name."""
+    try:
+        state = torch.load(path, map_location="cpu", weights_only=True)
+    except OSError as exc:
+        raise CurbsideInputError(path, f"cannot read the RoNIN weights ({exc.strerror or exc})") from None
+    # torch.load raises anything from UnpicklingError to RuntimeError or EOFError (with many-line
+    # messages) for a file in another format; none of them says more than this does.
+    except Exception:  # noqa: BLE001
+        raise CurbsideInputError(
+            path, "not a curbside RoNIN weights file (torch cannot read it as saved tensors)"
+        ) from None
+    if not isinstance(state, dict) or not all(
+        isinstance(key, str) and isinstance(value, torch.Tensor) for key, value in state.items()
+    ):
+        raise CurbsideInputError(
+            path, f"not a curbside RoNIN weights file (holds a {type(state).__name__}, not named tensors)"
+        )
+    return state
+
+
+def _names(keys: list[str], limit: int = 3) -> str:
+    """The first ``limit`` of ``keys``, and how many more."""
+    more = f" and {len(keys) - limit} more" if len(keys) > limit else ""
+    return ", ".join(keys[:limit]) + more
+
+
+def _state_dict_mismatch(expected: dict[str, torch.Tensor], state: dict[str, torch.Tensor]) -> str:
+    """What keeps ``state`` from loading into a model whose state_dict is ``expected``, in words
+    (empty when nothing does)."""
+    missing = [key for key in expected if key not in state]
+    unexpected = [key for key in state if key not in expected]
+    reshaped = [
+        f"{key} is {tuple(state[key].shape)}, not {tuple(value.shape)}"
+        for key, value in expected.items()
+        if key in state and state[key].shape != value.shape
+    ]
+    problems = []
+    if missing:
+        problems.append(f"missing {len(missing)} tensor(s): {_names(missing)}")
+    if unexpected:
+        problems.append(f"unexpected {len(unexpected)} tensor(s): {_names(unexpected)}")
+    if reshaped:
+        problems.append(f"{len(reshaped)} of another shape: {_names(reshaped, 2)}")
+    return "; ".join(problems)
 
 
 def infer_windows(model: RoninResNet, windows: np.ndarray, batch_size: int | None = None) -> np.ndarray:

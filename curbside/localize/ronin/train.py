@@ -25,7 +25,7 @@ from torch import nn
 from tqdm.auto import tqdm
 
 from curbside.errors import CurbsideInputError
-from curbside.io import atomic_path
+from curbside.io import atomic_path, note_written
 from curbside.localize.ronin.data import WindowSet
 from curbside.localize.ronin.infer import config_path_for
 from curbside.localize.ronin.model import RoninConfig, RoninResNet, count_parameters
@@ -140,12 +140,15 @@ def evaluate_loss(model: nn.Module, batcher: WindowBatcher, every: int = 1, batc
 
 
 def save_weights(model: RoninResNet, path: str | Path) -> Path:
-    """Write ``path`` (state_dict) and its JSON config beside it, atomically."""
+    """Write ``path`` (state_dict) and its JSON config beside it, atomically, and list both in the
+    folder's marker (a later ``train-ronin -o`` the same path may replace them)."""
     path = Path(path)
     with atomic_path(path) as tmp:
         torch.save({k: v.detach().cpu() for k, v in model.state_dict().items()}, tmp)
     with atomic_path(config_path_for(path)) as tmp:
         tmp.write_text(json.dumps(model.config.to_dict(), indent=1), encoding="utf-8")
+    for written in (path, config_path_for(path)):
+        note_written(written, "localize train-ronin")
     return path
 
 
