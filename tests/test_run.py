@@ -283,6 +283,18 @@ def test_start_pose_in_building_recovers_with_a_warning(tmp_path, map_file, capl
     assert (track["sidewalk_segment_id"] == "N").mean() > 0.9
 
 
+def test_fixes_that_all_report_no_usable_accuracy_are_named_in_a_warning(tmp_path, map_file, caplog):
+    folder = write_walk(tmp_path / "walk", duration_s=20.0)
+    track_session(read_session(folder), read_map(map_file), "fused", seed=0)
+    assert "usable accuracy" not in caplog.text  # some fixes are invalid, most are not
+    gnss = pd.read_csv(folder / "gnss.csv").assign(accuracy_m=0.0)
+    gnss.to_csv(folder / "gnss.csv", index=False)
+    with caplog.at_level("WARNING", logger="curbside.localize.pipeline"):
+        result = track_session(read_session(folder), read_map(map_file), "fused", seed=0)
+    assert "walk/gnss.csv: none of its 20 fixes reports a usable accuracy" in caplog.text
+    assert not result.track["gnss_used"].any()
+
+
 def test_gnss_start_without_start_pose(tmp_path, map_file):
     folder = write_walk(tmp_path / "walk", duration_s=60.0, start_xy=None, gnss_offset_m=(0, 0))
     session = read_session(folder)

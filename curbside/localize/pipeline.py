@@ -333,6 +333,18 @@ def _report_unanchored_inertial(session: Session, config: RunConfig, start: Star
         )
 
 
+def _report_unusable_fixes(session: Session) -> None:
+    gnss = session.gnss
+    if gnss is None or len(gnss) == 0:
+        return
+    accuracy = gnss["accuracy_m"].to_numpy(float)
+    if not np.any(np.isfinite(accuracy) & (accuracy > 0)):
+        logger.warning(
+            "%s/gnss.csv: none of its %d fixes reports a usable accuracy (a positive accuracy_m): the walk "
+            "is tracked as if it had no GNSS", session.name, len(gnss),
+        )
+
+
 def track_session(
     session: Session,
     map_layers: MapLayers | None = None,
@@ -375,6 +387,7 @@ def track_session(
     frame = _frame_for(session, map_layers)
     start, t_begin = _start_of(session)
     _report_unanchored_inertial(session, config, start)
+    _report_unusable_fixes(session)
     if map_layers is not None:
         pose = start if config.use_start_pose else None
         _check_extent(session, map_layers, frame, pose, config.engine.extent_tolerance_m)
