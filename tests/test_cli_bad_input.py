@@ -68,8 +68,10 @@ def test_a_negative_seed_is_refused_when_parsing(tmp_path, capsys, monkeypatch, 
 
 
 def test_a_negative_seed_from_set_or_a_run_json_is_bad_input():
-    with pytest.raises(CurbsideInputError, match="seed: must be a non-negative integer, got -3"):
+    with pytest.raises(CurbsideInputError, match="seed must be a non-negative integer, got -3"):
         resolve_config(RunConfig().with_overrides({"seed": -3}), None)
+    with pytest.raises(ValueError, match="seed must be a non-negative integer"):
+        RunConfig(seed=-2)
     with pytest.raises(CurbsideInputError, match="got -1"):
         resolve_config(None, "gnss", seed=-1)
 

@@ -100,6 +100,22 @@ def test_an_outlier_fix_cannot_drag_or_kill_the_cloud():
     assert math.hypot(robust.x, robust.y) < 0.2
 
 
+def test_a_fix_claiming_an_absurdly_small_accuracy_counts_as_the_floor():
+    # Every part that divides by the accuracy (the recovery's kernel, the heading correction's fit)
+    # used to meet zero here.
+    tracker = Tracker.from_config(None, FilterConfig(), seed=0)
+    tracker.start_at_fix(0.0, GnssFix(0.0, 0.0, 1e-300))
+    assert tracker.last_fix.accuracy_m == GnssConfig().min_accuracy_m == 0.1
+    for k in range(1, 60):
+        estimate = tracker.step(0.5 * k, displacement_en=(0.6, 0.0), gnss_fix=GnssFix(0.6 * k, 0.0, 1e-300))
+        assert math.isfinite(estimate.x) and math.isfinite(estimate.accuracy_m)
+    assert abs(estimate.x - 0.6 * 59) < 1.0
+    tracker.step(30.0, displacement_en=(0.6, 0.0), gnss_fix=GnssFix(1e3, 0.0, 0.0))  # 0 stays invalid
+    assert tracker.last_fix.x == 0.6 * 59
+    with pytest.raises(ValueError, match="min_accuracy_m"):
+        GnssConfig(min_accuracy_m=0.0)
+
+
 def test_bias_state_absorbs_a_steady_gnss_offset_instead_of_moving_the_track():
     def final_estimate(bias_sigma_factor):
         gnss = GnssConfig(

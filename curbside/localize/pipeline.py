@@ -160,10 +160,7 @@ def resolve_config(
     ):
         if value is not None:
             overrides[key] = value
-    config = config.with_overrides(overrides)
-    if config.seed < 0:  # numpy refuses it only when the filter starts
-        raise CurbsideInputError("seed", f"must be a non-negative integer, got {config.seed}")
-    return config
+    return config.with_overrides(overrides)
 
 
 def _frame_for(session: Session, map_layers: MapLayers | None) -> LocalFrame:

@@ -8,6 +8,7 @@ the filter advances without a footstep).
 
 from __future__ import annotations
 
+import numbers
 from dataclasses import dataclass, field, replace
 from typing import Any
 
@@ -395,6 +396,9 @@ class RunConfig:
 
     def __post_init__(self) -> None:
         _check(self.mode in MODES, f"mode must be one of {MODES}, got {self.mode!r}")
+        # numpy would refuse a negative seed only when the filter starts (an internal error by then)
+        _check(isinstance(self.seed, numbers.Integral) and self.seed >= 0,
+               f"seed must be a non-negative integer, got {self.seed!r}")
 
     @classmethod
     def for_mode(cls, mode: str, **kwargs: Any) -> RunConfig:

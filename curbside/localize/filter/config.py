@@ -245,6 +245,10 @@ class GnssConfig:
         ``correlation_time_s * accuracy_m / correlation_accuracy_m`` (0: one time constant for every
         fix). A fix that reports tens of metres is off by multipath, whose error lasts as long as the
         walker's geometry to the reflecting facades, so it carries less than its sigma alone says.
+    min_accuracy_m
+        A fix reporting a positive accuracy under this is taken to report this: finer than a
+        pedestrian's position needs (a phone reports metres, a survey receiver centimetres), and a
+        radius near zero would leave the likelihoods nothing to divide by.
     bias_sigma_factor, bias_time_s
         A GNSS bias state (0: none): the slowly wandering error that successive fixes share, a
         first-order Gauss-Markov process with time constant ``bias_time_s`` and stationary sigma
@@ -262,12 +266,17 @@ class GnssConfig:
     student_dof: float = 0.0
     correlation_time_s: float = 3.0
     correlation_accuracy_m: float = 10.0
+    min_accuracy_m: float = 0.1
     bias_sigma_factor: float = 0.0
     bias_time_s: float = 30.0
 
     def __post_init__(self) -> None:
         _check(self.sigma_factor > 0, f"sigma_factor must be positive, got {self.sigma_factor}")
         _check(self.max_accuracy_m > 0, f"max_accuracy_m must be positive, got {self.max_accuracy_m}")
+        _check(
+            0 < self.min_accuracy_m < self.max_accuracy_m,
+            f"need 0 < min_accuracy_m < max_accuracy_m, got {self.min_accuracy_m}, {self.max_accuracy_m}",
+        )
         _check(0.0 <= self.outlier_prob < 1.0, f"outlier_prob must lie in [0, 1), got {self.outlier_prob}")
         _check(self.outlier_radius_m > 0, f"outlier_radius_m must be positive, got {self.outlier_radius_m}")
         _check(self.student_dof >= 0, f"student_dof must be non-negative, got {self.student_dof}")

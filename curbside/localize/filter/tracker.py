@@ -36,7 +36,7 @@ import pyproj
 
 from curbside.errors import CurbsideInputError
 from curbside.localize.filter.calibration import SegmentCalibration, accuracy_radius_m
-from curbside.localize.filter.config import FilterConfig, MotionConfig, ScaleCorrectionConfig
+from curbside.localize.filter.config import FilterConfig, GnssConfig, MotionConfig, ScaleCorrectionConfig
 from curbside.localize.filter.gnss import GnssLikelihood
 from curbside.localize.filter.heading_correction import HeadingCorrection
 from curbside.localize.filter.initiate import Initiator
@@ -137,6 +137,8 @@ class Tracker:
         self.smoother = smoother
         self.turn = turn
         self.calibration = calibration
+        #: Fixes reporting a positive accuracy under this are taken to report this (``GnssConfig``).
+        self.min_accuracy_m = (gnss.config if gnss is not None else GnssConfig()).min_accuracy_m
         self._smoothed: list[np.ndarray] = []
         self.recoveries = 0
         self.last_estimate: Estimate | None = None
@@ -288,6 +290,7 @@ class Tracker:
         """Start around a GNSS fix (heading offset over the configured spread)."""
         if not _valid_fix(fix):
             raise ValueError(f"cannot start from an invalid fix {fix}")
+        fix = self._floored(fix)
         self.initiator.at_fix(self.particles, fix)
         self.last_fix = fix
         return self._conclude(t, 0.0)
@@ -340,6 +343,8 @@ class Tracker:
             raise ValueError("step() needs velocity_en and dt, or displacement_en")
         if not (math.isfinite(dx) and math.isfinite(dy) and math.isfinite(t)):
             raise ValueError(f"non-finite inertial displacement ({dx}, {dy}) or time at t={t}")
+        if gnss_fix is not None and 0.0 < gnss_fix.accuracy_m < self.min_accuracy_m:
+            gnss_fix = self._floored(gnss_fix)
         last = self.last_estimate
         if last is None:
             return self.start_at_fix(t, gnss_fix) if _valid_fix(gnss_fix) else None
@@ -359,6 +364,13 @@ class Tracker:
             if self.calibration is not None:
                 self.calibration.observe(t, gnss_fix.x - last.x, gnss_fix.y - last.y)
         return self._conclude(t, inject)
+
+    def _floored(self, fix: GnssFix) -> GnssFix:
+        """``fix`` with its accuracy raised to :attr:`min_accuracy_m` when it reports less (not 0:
+        invalid stays invalid)."""
+        if 0.0 < fix.accuracy_m < self.min_accuracy_m:
+            return fix._replace(accuracy_m=self.min_accuracy_m)
+        return fix
 
     def take_smoothed(self, final: bool = False) -> np.ndarray:
         """The fixed-lag smoother's positions made since the last call, oldest first.
