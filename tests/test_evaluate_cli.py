@@ -244,15 +244,11 @@ def test_bad_input(tmp_path, capsys, sessions):
         out,
     )
     _fails(capsys, ["simulate", "--route", "path9", "-o", str(out)], "unknown route", out)
-    far = tmp_path / "far.geojson"
-    doc = json.loads(MAP.read_text())
-    for f in doc["features"]:
-        f["geometry"]["coordinates"] = json.loads(
-            json.dumps(f["geometry"]["coordinates"]).replace("-122.", "-121.")
-        )
-    far.write_text(json.dumps(doc))
     _fails(
-        capsys, ["simulate", "--route", "path3", "--map", str(far), "-o", str(out)], "outside the map", out
+        capsys,
+        ["simulate", "--route", "path3", "--map", str(_far_map(tmp_path)), "-o", str(out)],
+        "outside the map",
+        out,
     )
 
 
