@@ -103,10 +103,8 @@ class StartConfig:
     max_snap_m: float = 30.0
 
     def __post_init__(self) -> None:
-        _check(
-            self.position_sigma_m >= 0 and self.heading_sigma_deg >= 0 and self.max_snap_m >= 0,
-            "start spreads and max_snap_m must be non-negative",
-        )
+        _check(self.position_sigma_m >= 0 and self.heading_sigma_deg >= 0 and self.max_snap_m >= 0,
+               "start spreads and max_snap_m must be non-negative")
         _check(self.fix_sigma_factor > 0, f"fix_sigma_factor must be positive, got {self.fix_sigma_factor}")
 
 
@@ -151,26 +149,21 @@ class MapConfig:
     segment_reach_m: float = 25.0
 
     def __post_init__(self) -> None:
-        _check(
-            0.0 <= self.jaywalk_weight <= 1.0, f"jaywalk_weight must lie in [0, 1], got {self.jaywalk_weight}"
-        )
+        _check(0.0 <= self.jaywalk_weight <= 1.0,
+               f"jaywalk_weight must lie in [0, 1], got {self.jaywalk_weight}")
         _check(
             self.crossing_weight is None or 0.0 <= self.crossing_weight <= 1.0,
             f"crossing_weight must lie in [0, 1] or be None, got {self.crossing_weight}",
         )
-        _check(
-            0.0 < self.crossing_angle_deg <= 90.0,
-            f"crossing_angle_deg must lie in (0, 90], got {self.crossing_angle_deg}",
-        )
+        _check(0.0 < self.crossing_angle_deg <= 90.0,
+               f"crossing_angle_deg must lie in (0, 90], got {self.crossing_angle_deg}")
         _check(
             min(self.wall_tolerance_m, self.conflict_wall_tolerance_m) >= 0,
             "wall_tolerance_m and conflict_wall_tolerance_m must be non-negative, got "
             f"{self.wall_tolerance_m}, {self.conflict_wall_tolerance_m}",
         )
-        _check(
-            0.0 <= self.conflict_share_min <= 1.0,
-            f"conflict_share_min must lie in [0, 1], got {self.conflict_share_min}",
-        )
+        _check(0.0 <= self.conflict_share_min <= 1.0,
+               f"conflict_share_min must lie in [0, 1], got {self.conflict_share_min}")
         _check(min(self.raster_resolution_m, self.segment_reach_m) > 0, "raster sizes must be positive")
 
 
@@ -246,9 +239,8 @@ class GnssConfig:
         fix). A fix that reports tens of metres is off by multipath, whose error lasts as long as the
         walker's geometry to the reflecting facades, so it carries less than its sigma alone says.
     min_accuracy_m
-        A fix reporting a positive accuracy under this is taken to report this: finer than a
-        pedestrian's position needs (a phone reports metres, a survey receiver centimetres), and a
-        radius near zero would leave the likelihoods nothing to divide by.
+        A fix reporting a positive accuracy under this counts as reporting this (a phone reports
+        metres; a radius near zero would leave the likelihoods nothing to divide by).
     bias_sigma_factor, bias_time_s
         A GNSS bias state (0: none): the slowly wandering error that successive fixes share, a
         first-order Gauss-Markov process with time constant ``bias_time_s`` and stationary sigma
@@ -273,10 +265,8 @@ class GnssConfig:
     def __post_init__(self) -> None:
         _check(self.sigma_factor > 0, f"sigma_factor must be positive, got {self.sigma_factor}")
         _check(self.max_accuracy_m > 0, f"max_accuracy_m must be positive, got {self.max_accuracy_m}")
-        _check(
-            0 < self.min_accuracy_m < self.max_accuracy_m,
-            f"need 0 < min_accuracy_m < max_accuracy_m, got {self.min_accuracy_m}, {self.max_accuracy_m}",
-        )
+        _check(0 < self.min_accuracy_m < self.max_accuracy_m, f"need 0 < min_accuracy_m < max_accuracy_m, "
+               f"got {self.min_accuracy_m}, {self.max_accuracy_m}")
         _check(0.0 <= self.outlier_prob < 1.0, f"outlier_prob must lie in [0, 1), got {self.outlier_prob}")
         _check(self.outlier_radius_m > 0, f"outlier_radius_m must be positive, got {self.outlier_radius_m}")
         _check(self.student_dof >= 0, f"student_dof must be non-negative, got {self.student_dof}")
