@@ -40,6 +40,7 @@ from curbside.localize.live_input import (
     LiveLimits,
     check_gnss,
     check_imu,
+    check_time_value,
 )
 from curbside.localize.pipeline import TrackResult, track_table, tracker_record
 from curbside.localize.raster import MapRaster, load_or_build_raster
@@ -76,7 +77,8 @@ class LiveSession:
     ------
     CurbsideInputError
         A velocity or footstep source a live session cannot have (``file``, ``pdr``), or a start pose
-        outside the map.
+        outside the map or at a time that is not seconds
+        (:func:`~curbside.localize.live_input.check_time_value`).
     """
 
     def __init__(
@@ -98,6 +100,8 @@ class LiveSession:
             raise CurbsideInputError(
                 "engine.step_source", f"{e.step_source!r} is not available live; use auto, detect or cadence"
             )
+        if start is not None and start.t is not None:
+            check_time_value(start.t, "start.t")
         self.config = config
         self.map_layers = map_layers
         self.raster = raster if config.mode != "gnss" else None
@@ -216,7 +220,8 @@ class LiveSession:
             row = int(np.argmax(ahead > self.limits.max_clock_skew_s))
             raise CurbsideInputError(
                 f"gnss[{row}].t",
-                f"{gnss[row, 0]!r} is {ahead[row]:.0f} s ahead of the IMU (one clock for both streams)",
+                f"{float(gnss[row, 0])!r} is {ahead[row]:.0f} s ahead of the IMU (one clock for both "
+                "streams)",
             )
         self._check_distance(gnss)
         late = gnss[:, 0] <= self._released_until

@@ -5,8 +5,9 @@ Validation (:func:`check_imu`, :func:`check_gnss`) follows
 across pushes too, lat/lon in range) and adds unit checks a live feed needs: accelerations in m/s²
 with gravity (the median ``|a|`` of a batch between 4 and 25 m/s²: 1 means g, ~0 means gravity
 removed), rotation rates in rad/s (no component above 35 rad/s, the 2000 °/s full scale of phone
-gyroscopes), unit quaternions, and no time jump or clock mismatch that would make the engine fill hours
-of updates. A batch that fails changes nothing.
+gyroscopes), unit quaternions, times that read as seconds (``|t|`` under :data:`MAX_ABS_T_S`: epoch
+milliseconds or nanoseconds are not), and no time jump or clock mismatch that would make the engine fill
+hours of updates. A batch that fails changes nothing.
 """
 
 from __future__ import annotations
@@ -23,6 +24,31 @@ IMU_COLUMNS = ("t", "ax", "ay", "az", "gx", "gy", "gz")
 IMU_QUAT_COLUMNS = (*IMU_COLUMNS, "qx", "qy", "qz", "qw")
 #: Columns of a GNSS batch (SPEC ``gnss.csv``); ``accuracy_m`` NaN or <= 0 marks an invalid fix.
 GNSS_COLUMNS = ("t", "lat", "lon", "accuracy_m")
+#: Largest ``|t|`` a row (or a start pose) may have, s: Unix time in seconds is 1.7e9 today, in
+#: milliseconds 1.7e12. Larger values also break the stages' float arithmetic (a 1 s window is below
+#: the resolution of a float at 1e20).
+MAX_ABS_T_S = 1e10
+
+
+def check_time_value(t: float, where: str) -> None:
+    """Raise :class:`CurbsideInputError` (naming ``where``) unless ``t`` reads as seconds on a clock.
+
+    Parameters
+    ----------
+    t
+        A time, s.
+    where
+        The field, for the message (``imu[3].t``, ``start.t``).
+    """
+    if not math.isfinite(t):
+        raise CurbsideInputError(where, "not a finite number")
+    if abs(t) >= MAX_ABS_T_S:
+        bound = f"{MAX_ABS_T_S:.0e}".replace("e+", "e")
+        raise CurbsideInputError(
+            where,
+            f"t={float(t)!r} is not seconds on a clock (|t| must be under {bound} s; milliseconds or "
+            "nanoseconds?)",
+        )
 
 
 @dataclass(frozen=True)
@@ -65,6 +91,10 @@ class LiveLimits:
 def _check_times(t: np.ndarray, last_t: float, max_jump_s: float, source: str) -> None:
     if not np.isfinite(t).all():
         raise CurbsideInputError(f"{source}[{int(np.argmax(~np.isfinite(t)))}].t", "not a finite number")
+    huge = np.abs(t) >= MAX_ABS_T_S
+    if huge.any():
+        i = int(np.argmax(huge))
+        check_time_value(float(t[i]), f"{source}[{i}].t")
     dt = np.diff(np.concatenate([[last_t], t])) if math.isfinite(last_t) else np.diff(t)
     offset = 0 if math.isfinite(last_t) else 1
     if (dt <= 0).any():

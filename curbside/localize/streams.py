@@ -88,9 +88,11 @@ class DisplacementIntegrator:
         else:
             inc = 0.5 * (v_all[1:] + v_all[:-1]) * dt[:, None]
             inc[dt > self.max_gap_s] = 0.0
-        d = d0 + np.cumsum(inc, axis=0)
-        if self._last is None:
-            d = np.vstack([np.zeros((1, 2)), d])
+        # One running sum from d0 on, ((d0 + a) + b) + c: d0 + (a + b + c) would round differently, and
+        # D(t) would depend on where the chunks end (the live service's last digits against the batch's).
+        d = np.cumsum(np.vstack([d0, inc]), axis=0)
+        if self._last is not None:
+            d = d[1:]
         self.knots.append(np.column_stack([t, d]))
         self._last = (float(t[-1]), float(v[-1, 0]), float(v[-1, 1]), float(d[-1, 0]), float(d[-1, 1]))
 

@@ -2,8 +2,9 @@
 
 Every error is a JSON ``{"detail": "one line"}`` with a 4xx status: 400 malformed JSON, 401 missing or
 wrong token, 404 unknown session, 409 session ending or still open, 410 session ended, 413 body too
-large, 422 rows or configuration refused (nothing changed), 503 too many sessions. The OpenAPI page is
-at ``/docs`` (the schema at ``/openapi.json``).
+large, 422 rows or configuration refused (nothing changed), 503 too many sessions or the service
+stopping; a bug is a 500 naming only the exception's type. The OpenAPI page is at ``/docs`` (the schema
+at ``/openapi.json``; both public: they hold no data).
 """
 
 from __future__ import annotations
@@ -12,6 +13,7 @@ import json
 import logging
 import secrets
 from contextlib import asynccontextmanager
+from contextvars import ContextVar
 from typing import Annotated, Any
 
 from fastapi import Depends, FastAPI, Request, WebSocket, WebSocketDisconnect
@@ -42,11 +44,15 @@ logger = logging.getLogger(__name__)
 #: Largest request body (and WebSocket message) accepted, bytes: ~30,000 IMU rows of JSON.
 MAX_BODY_BYTES = 4 * 2**20
 
-_ERRORS = {status: {"model": ErrorMessage} for status in (400, 401, 404, 409, 410, 413, 422, 503)}
+_ERRORS = {status: {"model": ErrorMessage} for status in (400, 401, 404, 409, 410, 413, 422, 500, 503)}
 
 
 class BodyLimit:
-    """ASGI middleware: 413 for a body over ``max_bytes`` (by ``Content-Length`` or as it streams in)."""
+    """ASGI middleware: 413 for a body over ``max_bytes`` (by ``Content-Length`` or as it streams in).
+
+    The body is read whole before the route runs (the routes parse it whole anyway): a limit raised
+    while the route reads it would reach FastAPI's body parser, which turns any error into a 400.
+    """
 
     def __init__(self, app: ASGIApp, max_bytes: int = MAX_BODY_BYTES) -> None:
         self.app = app
@@ -60,30 +66,54 @@ class BodyLimit:
         if length is not None and length.isdigit() and int(length) > self.max_bytes:
             await _too_large(self.max_bytes)(scope, receive, send)
             return
-        seen = 0
-
-        async def counted() -> dict:
-            nonlocal seen
+        chunks, seen = [], 0
+        while True:
             message = await receive()
-            seen += len(message.get("body", b""))
+            if message["type"] != "http.request":  # the client went away
+                return
+            chunks.append(message.get("body", b""))
+            seen += len(chunks[-1])
             if seen > self.max_bytes:
-                raise _BodyTooLargeError
+                await _too_large(self.max_bytes)(scope, receive, send)
+                return
+            if not message.get("more_body", False):
+                break
+        body: dict | None = {"type": "http.request", "body": b"".join(chunks), "more_body": False}
+
+        async def replay() -> dict:
+            nonlocal body
+            if body is None:
+                return await receive()  # the disconnect, for a route that waits for it
+            message, body = body, None
             return message
 
-        try:
-            await self.app(scope, counted, send)
-        except _BodyTooLargeError:
-            await _too_large(self.max_bytes)(scope, receive, send)
-
-
-class _BodyTooLargeError(Exception):
-    pass
+        await self.app(scope, replay, send)
 
 
 def _too_large(max_bytes: int) -> Response:
     return JSONResponse(
         {"detail": f"request body over {max_bytes} bytes: send fewer rows per request"}, status_code=413
     )
+
+
+class _DeniedHandshakeFilter(logging.Filter):
+    """Drops uvicorn's "ASGI callable returned without completing handshake." after a WebSocket this
+    app refused with an HTTP response: its websockets-sansio protocol does not count a denial response
+    as a completed handshake (uvicorn PR 3138) and logs an error for every refusal. ``_denied`` is set
+    in the connection's task, whose context the log call shares, so every other case is still logged.
+    """
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        return not (_denied.get() and record.getMessage().startswith("ASGI callable returned without"))
+
+
+_denied: ContextVar[bool] = ContextVar("curbside_ws_denied", default=False)
+
+
+def _quiet_denials() -> None:
+    uvicorn_log = logging.getLogger("uvicorn.error")
+    if not any(isinstance(f, _DeniedHandshakeFilter) for f in uvicorn_log.filters):
+        uvicorn_log.addFilter(_DeniedHandshakeFilter())
 
 
 def _one_line(errors: list[dict[str, Any]]) -> tuple[int, str]:
@@ -138,6 +168,7 @@ def create_app(config: ServiceConfig, service: TrackingService | None = None) ->
     )
     app.state.service = service
     app.state.token = config.token
+    _quiet_denials()
     app.add_middleware(BodyLimit, max_bytes=MAX_BODY_BYTES)
     auth = [Depends(require_token)]
 
@@ -145,6 +176,12 @@ def create_app(config: ServiceConfig, service: TrackingService | None = None) ->
     async def _service_error(request: Request, exc: ServiceError) -> JSONResponse:
         headers = {"WWW-Authenticate": "Bearer"} if exc.status == 401 else None
         return JSONResponse({"detail": exc.detail}, status_code=exc.status, headers=headers)
+
+    @app.exception_handler(Exception)
+    async def _bug(request: Request, exc: Exception) -> JSONResponse:
+        # Starlette still re-raises it after this reply, so the traceback goes to the log, not the client
+        detail = f"internal error ({type(exc).__name__}); see the service log"
+        return JSONResponse({"detail": detail}, status_code=500)
 
     @app.exception_handler(RequestValidationError)
     async def _invalid(request: Request, exc: RequestValidationError) -> JSONResponse:
@@ -188,6 +225,10 @@ def _add_session_routes(app: FastAPI, service: TrackingService, config: ServiceC
     async def push_samples(session_id: str, body: Samples) -> dict[str, Any]:
         """Feed rows (each stream in time order); returns the latest estimate. A refused batch changes
         nothing."""
+        if body.end:
+            raise ServiceError(
+                422, "end is for the WebSocket; end an HTTP session with DELETE /sessions/{id}"
+            )
         return await _push(service, session_id, body)
 
     @app.get("/sessions/{session_id}/estimate", response_model=Estimate, dependencies=auth, tags=["sessions"])
@@ -259,26 +300,41 @@ async def _serve_stream(websocket: WebSocket, session_id: str, service: Tracking
             refusal = exc
     if refusal is not None:
         await websocket.send_denial_response(JSONResponse({"detail": refusal.detail}, refusal.status))
+        _denied.set(True)
         return
     await websocket.accept()
     try:
         while True:
-            text = await websocket.receive_text()
-            try:
-                body = Samples.model_validate_json(text)
-                answer = await _push(service, session_id, body) if body.imu or body.gnss else None
-                if body.end:
-                    answer = await service.end(session_id, "deleted")
-                elif answer is None:
-                    answer = service.estimate(session_id)
-            except ValidationError as exc:
-                status, detail = _one_line(exc.errors())
-                answer = {"detail": detail, "status": status}
-            except ServiceError as exc:
-                answer = {"detail": exc.detail, "status": exc.status}
+            message = await websocket.receive()
+            if message["type"] == "websocket.disconnect":
+                return
+            # a binary frame holding UTF-8 JSON is the same message as a text frame
+            data = message["text"] if message.get("text") is not None else message.get("bytes") or b""
+            body, answer = await _answer(service, session_id, data)
             await websocket.send_json(answer)
-            if "saved" in answer:  # the track summary: the session has ended
+            if body is not None and body.end and session_id not in service.sessions:  # it has ended
                 await websocket.close()
                 return
     except WebSocketDisconnect:
         return
+
+
+async def _answer(
+    service: TrackingService, session_id: str, data: str | bytes
+) -> tuple[Samples | None, dict[str, Any]]:
+    """A WebSocket message's batch (``None`` if it is not one) and its answer: the estimate, the track
+    summary after ``end``, or the error ``{"detail", "status"}``."""
+    body = None
+    try:
+        body = Samples.model_validate_json(data)
+        answer = await _push(service, session_id, body) if body.imu or body.gnss else None
+        if body.end:
+            answer = await service.end(session_id, "deleted")
+        elif answer is None:
+            answer = service.estimate(session_id)
+    except ValidationError as exc:
+        status, detail = _one_line(exc.errors())
+        answer = {"detail": detail, "status": status}
+    except ServiceError as exc:
+        answer = {"detail": exc.detail, "status": exc.status}
+    return body, answer

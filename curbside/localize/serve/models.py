@@ -93,7 +93,9 @@ class StartPose(BaseModel):
     model_config = _ROW
     lat: float = Field(ge=-90, le=90)
     lon: float = Field(ge=-180, le=180)
-    heading_deg: float = Field(description="walking direction, degrees clockwise from north")
+    heading_deg: float = Field(
+        ge=-360, le=360, description="walking direction, degrees clockwise from north (-360 to 360)"
+    )
     t: float | None = Field(
         None, description="when the walk starts (s, session clock); default: the data's start"
     )

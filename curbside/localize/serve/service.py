@@ -24,7 +24,8 @@ chunk-invariant: a session's track is the one ``localize run`` computes for its 
 
 A session ends with :meth:`TrackingService.end` (``DELETE``), after ``idle_timeout_s`` without a
 request, or when the service stops; once its last windows are back, its track is written under
-``DATA_DIR/tracks`` (:class:`~curbside.localize.serve.store.TrackStore`).
+``DATA_DIR/tracks`` (:class:`~curbside.localize.serve.store.TrackStore`). If finishing it fails (a bug),
+it ends all the same, with the track it has so far: no request waits for good, nor does the shutdown.
 """
 
 from __future__ import annotations
@@ -52,6 +53,8 @@ from curbside.localize.engine import StartPose
 from curbside.localize.live import IMU_COLUMNS, IMU_QUAT_COLUMNS, InferenceQueue, LiveLimits, LiveSession
 from curbside.localize.pipeline import resolve_config
 from curbside.localize.runconfig import RunConfig
+from curbside.localize.serve.configs import config_key, session_config
+from curbside.localize.serve.models import Estimate
 from curbside.localize.serve.store import TrackStore
 from curbside.localize.sidewalks import SidewalkPlace, sidewalk_places
 
@@ -129,33 +132,14 @@ class _Op:
     error: Exception | None = None
 
 
-#: Every field of an estimate (``models.Estimate``); those without a value are null.
-_ESTIMATE_FIELDS = (
-    "status",
-    "t",
-    "lat",
-    "lon",
-    "accuracy_m",
-    "segment_id",
-    "segment_prob",
-    "street",
-    "side",
-    "place",
-    "n_eff",
-    "recoveries",
-    "unseen_velocity_from_s",
-    "motion",
-    "update",
-    "gnss_used",
-    "updates",
-    "data_until",
-    "lag_s",
-    "warnings",
-)
+#: Every field of an estimate; those without a value are null.
+_ESTIMATE_FIELDS = tuple(Estimate.model_fields)
 
 
 #: Longest a tick spends on requests before it answers them and lets the event loop read more (s).
 TICK_BUDGET_S = 0.02
+#: Longest the shutdown waits for the open sessions to end and save their tracks (s).
+STOP_WAIT_S = 60.0
 
 
 def _now_iso() -> str:
@@ -251,13 +235,27 @@ class TrackingService:
         self._tasks = [asyncio.create_task(self._worker()), asyncio.create_task(self._expire())]
 
     async def stop(self) -> None:
-        """End every open session (tracks saved, reason ``shutdown``), then stop the worker."""
-        ending = [self._submit_end(e, "shutdown") for e in list(self.sessions.values()) if not e.ending]
-        if ending:
-            await asyncio.gather(*ending, return_exceptions=True)
+        """End every open session (tracks saved, reason ``shutdown``), then stop the worker.
+
+        Waits at most :data:`STOP_WAIT_S` for the sessions to end; a request still unanswered then gets
+        a 503, so that a session that cannot end never holds the process up.
+        """
+        for entry in list(self.sessions.values()):
+            if not entry.ending:
+                self._submit_end(entry, "shutdown")
+        ending = {op.future for op in (*self._ops, *self._ending) if op.kind == "end"}
+        if ending and not all(task.done() for task in self._tasks):
+            _, late = await asyncio.wait(ending, timeout=STOP_WAIT_S)
+            if late:
+                logger.error("%d session(s) did not end within %g s of the shutdown", len(late), STOP_WAIT_S)
         for task in self._tasks:
             task.cancel()
         await asyncio.gather(*self._tasks, return_exceptions=True)
+        for op in (*self._ops, *self._ending):
+            if not op.future.done():
+                op.future.set_exception(ServiceError(503, "the service is stopping"))
+        self._ops.clear()
+        self._ending = []
         self._inference_executor.shutdown(wait=True)
 
     # -- requests -----------------------------------------------------------------------------------
@@ -282,30 +280,18 @@ class TrackingService:
         try:
             live = self._new_live(config, pose, session_id)
         except CurbsideInputError as exc:
-            raise ServiceError(422, str(exc)) from None
+            source = config_key(exc.source) if exc.source.startswith("engine.") else exc.source
+            raise ServiceError(422, f"{source}: {exc.problem}") from None
         entry = _Entry(session_id, live, _now_iso(), time.monotonic())
         self.sessions[session_id] = entry
         return entry
 
     def _session_config(self, overrides: dict[str, Any]) -> RunConfig:
-        overrides = dict(overrides)
         try:
-            config = self._base_config(overrides.pop("mode", None)).with_overrides(overrides)
+            fixed_map, max_particles = self.base.filter.map, self.config.max_particles
+            return session_config(overrides, self._base_config, fixed_map, max_particles)
         except CurbsideInputError as exc:
-            raise ServiceError(422, f"config: {exc}") from None
-        fixed = self.base.filter.map
-        if (config.filter.map.raster_resolution_m, config.filter.map.segment_reach_m) != (
-            fixed.raster_resolution_m,
-            fixed.segment_reach_m,
-        ):
-            raise ServiceError(422, "config: the map raster's resolution and segment reach are the service's")
-        if config.filter.n_particles > self.config.max_particles:
-            raise ServiceError(
-                422,
-                f"config: filter.n_particles {config.filter.n_particles} exceeds the service's "
-                f"maximum of {self.config.max_particles}",
-            )
-        return config
+            raise ServiceError(422, str(exc)) from None
 
     def _new_live(self, config: RunConfig, pose: StartPose | None, session_id: str) -> LiveSession:
         raster = self.raster if config.mode != "gnss" else None
@@ -398,6 +384,7 @@ class TrackingService:
             for op in answered:
                 if op.kind == "end":
                     self.sessions.pop(op.entry.id, None)
+                    self.queue.drop(op.entry.live)
                 if op.future.done():
                     continue
                 if op.error is not None:
@@ -456,7 +443,7 @@ class TrackingService:
             except CurbsideInputError as exc:
                 op.error = exc
             except Exception as exc:  # a bug: this request fails, the others go on
-                logger.exception("session %s: push failed", live.name)
+                logger.exception("session %s: %s failed", live.name, op.kind)
                 op.error = exc
             self.queue.collect(live)
             touched.add(live)
@@ -466,9 +453,11 @@ class TrackingService:
             except Exception as exc:  # a bug: the session stops, the others go on
                 logger.exception("session %s: filter update failed", live.name)
                 live.failed = live.failed or f"internal error ({type(exc).__name__})"
-        answered = [op for op in ops if op.kind == "push"]
+        answered = [op for op in ops if op.kind == "push" or op.error is not None]
         for op in answered:
-            if op.error is None:
+            if op.kind == "end":  # finishing its streams failed: it ends now, with what it has
+                op.error = self._abandon(op.entry, op.reason, op.error)
+            elif op.error is None:
                 op.result = self._estimate(op.entry, op.result)
         for op in list(self._ending):
             live = op.entry.live
@@ -482,6 +471,21 @@ class TrackingService:
                 logger.exception("session %s: saving its track failed", live.name)
                 op.error = exc
         return answered
+
+    def _abandon(self, entry: _Entry, reason: str, error: Exception) -> ServiceError:
+        """End a session whose streams could not be finished: save its track so far; the reply's error."""
+        live = entry.live
+        client = isinstance(error, CurbsideInputError)
+        what = str(error) if client else f"internal error ({type(error).__name__})"
+        live.failed = live.failed or f"ending failed: {what}"
+        try:
+            saved = self._save(entry, reason)["saved"]
+        except Exception:
+            logger.exception("session %s: saving its track failed", live.name)
+            saved = False
+        kept = "its track so far is at /tracks/{id}" if saved else "no track was saved"
+        detail = f"the session has ended, but finishing it failed ({what}); {kept}"
+        return ServiceError(422 if client else 500, detail)
 
     def _save(self, entry: _Entry, reason: str) -> dict[str, Any]:
         live = entry.live
