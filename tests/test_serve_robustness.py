@@ -257,6 +257,10 @@ def test_a_refused_websocket_gets_its_status_and_logs_no_error(tmp_path, model, 
             log_level="info",
         )
     )
+    # Straight to caplog's handler: an earlier uvicorn in the same process may have configured its
+    # loggers not to propagate.
+    error_log = logging.getLogger("uvicorn.error")
+    error_log.addHandler(caplog.handler)
     thread = threading.Thread(target=server.run, daemon=True)
     thread.start()
     try:
@@ -267,13 +271,17 @@ def test_a_refused_websocket_gets_its_status_and_logs_no_error(tmp_path, model, 
         with caplog.at_level(logging.INFO, logger="uvicorn.error"):
             with pytest.raises(InvalidStatus) as refused:
                 connect(f"ws://127.0.0.1:{port}/sessions/nope/stream", open_timeout=10)
-            time.sleep(0.2)  # the server logs after the reply
+            deadline = time.monotonic() + 10.0  # the server logs after the reply
+            while not any('"WebSocket /sessions/nope/stream" 404' in r.getMessage() for r in caplog.records):
+                assert time.monotonic() < deadline, "uvicorn never logged the refusal"
+                time.sleep(0.05)
+            time.sleep(0.2)  # and the handshake error, when there is one, right after it
     finally:
+        error_log.removeHandler(caplog.handler)
         server.should_exit = True
         thread.join(30)
     assert refused.value.response.status_code == 404
     assert json.loads(refused.value.response.body) == {"detail": "no such session"}
-    assert any('"WebSocket /sessions/nope/stream" 404' in r.getMessage() for r in caplog.records)
     assert not [r.getMessage() for r in caplog.records if r.levelno >= logging.ERROR]
 
 
