@@ -23,3 +23,22 @@ def shared_data() -> Path:
 def test_data() -> Path:
     """The small in-repo fixtures in ``tests/data``."""
     return TEST_DATA
+
+
+@pytest.fixture(scope="module")
+def ipin_walk():
+    """A real IPIN 2023 walk (``serve_fixtures.TRIAL``): 32 s of 50 Hz IMU with the quaternion, 1 Hz
+    GNSS, a start pose."""
+    from serve_fixtures import TRIAL
+
+    from curbside.localize.readers import read_any
+
+    return read_any(TRIAL)
+
+
+@pytest.fixture(scope="module")
+def ronin_model():
+    """The bundled RoNIN model."""
+    from curbside.localize.ronin.infer import load_model
+
+    return load_model()

@@ -26,25 +26,20 @@ import numpy as np
 import pandas as pd
 import pyproj
 import pytest
-from fastapi.testclient import TestClient
+from serve_fixtures import TRIAL, client_for
 from starlette.testclient import WebSocketDenialResponse
 
 from curbside.cli.localize import main as localize_main
 from curbside.localize.engine import StartPose
 from curbside.localize.live import IMU_QUAT_COLUMNS, InferenceQueue, LiveSession, stream_session
 from curbside.localize.pipeline import track_session
-from curbside.localize.readers import read_any
-from curbside.localize.ronin.infer import load_model
 from curbside.localize.runconfig import RunConfig
-from curbside.localize.serve.app import create_app
-from curbside.localize.serve.service import ServiceConfig, TrackingService
 from curbside.localize.session import write_session
 from curbside.localize.sidewalks import sidewalk_places
 from curbside.osmseg.mapio import read_map
 from curbside.projection import LocalFrame
 
 DATA = Path(__file__).parent / "data"
-TRIAL = f"{DATA / 'sessions' / 'ipin2023-cut.h5'}::TrainingTrial01_repetition01"
 CROSSROADS = DATA / "maps" / "crossroads.geojson"
 REPO = Path(__file__).parent.parent
 
@@ -55,39 +50,23 @@ def _cache_in_tmp(tmp_path, monkeypatch):
 
 
 @pytest.fixture(scope="module")
-def walk():
-    """A real IPIN 2023 walk: 32 s of 50 Hz IMU with the quaternion, 1 Hz GNSS, a start pose."""
-    return read_any(TRIAL)
-
-
-@pytest.fixture(scope="module")
-def walk_on_map(walk):
+def walk_on_map(ipin_walk):
     """The same walk moved onto the crossroads map, heading east along Market Street's north sidewalk."""
-    start = walk.meta["start"]
+    start = ipin_walk.meta["start"]
     here = LocalFrame.around(start["lon"], start["lat"])
     x0, y0 = here.to_xy(start["lon"], start["lat"])
-    x, y = here.to_xy(walk.gnss["lon"].to_numpy(), walk.gnss["lat"].to_numpy())
+    x, y = here.to_xy(ipin_walk.gnss["lon"].to_numpy(), ipin_walk.gnss["lat"].to_numpy())
     turn = math.radians(start["heading_deg"] - 90.0)
     c, s = math.cos(turn), math.sin(turn)
     there = LocalFrame(pyproj.CRS("EPSG:32610"))
     nx, ny = 553062.0, 4182750.0
     lon, lat = there.to_lonlat(nx + c * (x - x0) - s * (y - y0), ny + s * (x - x0) + c * (y - y0))
-    moved = copy.copy(walk)
-    moved.gnss = walk.gnss.assign(lat=lat, lon=lon)
+    moved = copy.copy(ipin_walk)
+    moved.gnss = ipin_walk.gnss.assign(lat=lat, lon=lon)
     moved.waypoints = None
     slon, slat = there.to_lonlat(nx, ny)
     moved.meta = {"start": {"lat": float(slat), "lon": float(slon), "heading_deg": 90.0, "t": start["t"]}}
     return moved
-
-
-@pytest.fixture(scope="module")
-def model():
-    return load_model()
-
-
-def client_for(tmp_path: Path, model, **kwargs) -> TestClient:
-    config = ServiceConfig(data_dir=tmp_path / "data", **kwargs)
-    return TestClient(create_app(config, TrackingService(config, model)))
 
 
 def batches(session, batch_s: float):
@@ -161,11 +140,13 @@ def batch_run(tmp_path_factory):
     return pd.read_csv(out / "track.csv"), json.loads((out / "run.json").read_text())
 
 
-def test_streamed_in_small_batches_the_service_gives_the_localize_run_track(tmp_path, model, walk, batch_run):
+def test_streamed_in_small_batches_the_service_gives_the_localize_run_track(
+    tmp_path, ronin_model, ipin_walk, batch_run
+):
     batch_track, batch_info = batch_run
-    with client_for(tmp_path, model, inference_wait_s=0.0) as client:  # replies faster than real time
-        session_id = new_session(client, walk, seed=3)
-        estimates = replay(client, session_id, walk, 0.2, settle_every_s=10.0)
+    with client_for(tmp_path, ronin_model, inference_wait_s=0.0) as client:  # replies faster than real time
+        session_id = new_session(client, ipin_walk, seed=3)
+        estimates = replay(client, session_id, ipin_walk, 0.2, settle_every_s=10.0)
         summary = client.delete(f"/sessions/{session_id}").json()
         live_track = saved_track(client, session_id)
         info = client.get(f"/tracks/{session_id}").json()["run"]
@@ -188,10 +169,10 @@ def live_unseen(estimates: list[dict]) -> float | None:
     return estimates[-1]["unseen_velocity_from_s"]
 
 
-def test_estimates_say_since_when_the_unseen_velocity_motion_model_applies(tmp_path, model, walk):
-    with client_for(tmp_path, model, inference_wait_s=0.0) as client:
-        session_id = new_session(client, walk, seed=3, unseen_velocity={"mode": "on"})
-        estimates = replay(client, session_id, walk, 0.5)
+def test_estimates_say_since_when_the_unseen_velocity_motion_model_applies(tmp_path, ronin_model, ipin_walk):
+    with client_for(tmp_path, ronin_model, inference_wait_s=0.0) as client:
+        session_id = new_session(client, ipin_walk, seed=3, unseen_velocity={"mode": "on"})
+        estimates = replay(client, session_id, ipin_walk, 0.5)
         for _ in range(100):  # the velocity model may still be catching up with the data
             latest = client.get(f"/sessions/{session_id}/estimate").json()
             if latest["t"] is not None:
@@ -205,10 +186,10 @@ def test_estimates_say_since_when_the_unseen_velocity_motion_model_applies(tmp_p
     assert latest["unseen_velocity_from_s"] == info["unseen_velocity_from_s"] == start_t
 
 
-def test_live_estimates_trail_the_data_by_the_fix_look_ahead_and_delay(walk, model):
-    live = LiveSession(RunConfig.for_mode("fused"), start=StartPose(**walk.meta["start"]))
-    queue = InferenceQueue(model)
-    imu, gnss = walk.imu[list(IMU_QUAT_COLUMNS)].to_numpy(), walk.gnss.to_numpy()
+def test_live_estimates_trail_the_data_by_the_fix_look_ahead_and_delay(ipin_walk, ronin_model):
+    live = LiveSession(RunConfig.for_mode("fused"), start=StartPose(**ipin_walk.meta["start"]))
+    queue = InferenceQueue(ronin_model)
+    imu, gnss = ipin_walk.imu[list(IMU_QUAT_COLUMNS)].to_numpy(), ipin_walk.gnss.to_numpy()
     lags = []
     for lo in np.arange(50.0, 82.0, 0.2):
         live.push(
@@ -224,14 +205,16 @@ def test_live_estimates_trail_the_data_by_the_fix_look_ahead_and_delay(walk, mod
     assert max(lags) < 4.0  # the 2 s fix look-ahead, the 1 s fix delay, a footstep interval
 
 
-def test_a_live_session_on_a_map_equals_localize_run_and_names_the_sidewalk(tmp_path, model, walk_on_map):
+def test_a_live_session_on_a_map_equals_localize_run_and_names_the_sidewalk(
+    tmp_path, ronin_model, walk_on_map
+):
     layers = read_map(CROSSROADS)
     config = RunConfig.for_mode("fused", seed=1)
     batch = track_session(walk_on_map, layers, config=config).track
     pd.testing.assert_frame_equal(
-        stream_session(walk_on_map, layers, config, model, chunk_s=1.3).track, batch
+        stream_session(walk_on_map, layers, config, ronin_model, chunk_s=1.3).track, batch
     )
-    with client_for(tmp_path, model, map_path=str(CROSSROADS)) as client:
+    with client_for(tmp_path, ronin_model, map_path=str(CROSSROADS)) as client:
         session_id = new_session(client, walk_on_map, seed=1)
         replay(client, session_id, walk_on_map, 0.5)
         last = caught_up_estimate(client, session_id, walk_on_map.time_span()[1])
@@ -250,10 +233,12 @@ def test_a_live_session_on_a_map_equals_localize_run_and_names_the_sidewalk(tmp_
     )
 
 
-def test_ending_before_the_last_velocities_are_back_still_gives_the_batch_track(walk, model, batch_run):
-    live = LiveSession(RunConfig.for_mode("fused", seed=3), start=StartPose(**walk.meta["start"]))
-    queue = InferenceQueue(model)
-    live.push(walk.imu[list(IMU_QUAT_COLUMNS)].to_numpy(), walk.gnss.to_numpy(), IMU_QUAT_COLUMNS)
+def test_ending_before_the_last_velocities_are_back_still_gives_the_batch_track(
+    ipin_walk, ronin_model, batch_run
+):
+    live = LiveSession(RunConfig.for_mode("fused", seed=3), start=StartPose(**ipin_walk.meta["start"]))
+    queue = InferenceQueue(ronin_model)
+    live.push(ipin_walk.imu[list(IMU_QUAT_COLUMNS)].to_numpy(), ipin_walk.gnss.to_numpy(), IMU_QUAT_COLUMNS)
     queue.collect(live)
     live.finish_streams()
     queue.collect(live)
@@ -318,10 +303,12 @@ BAD = {
 }
 
 
-def test_every_bad_input_gets_a_4xx_with_one_line_and_the_sessions_go_on(tmp_path, model, walk, batch_run):
-    walk_batches = list(batches(walk, 1.0))
-    with client_for(tmp_path, model) as client:
-        session_id, other = new_session(client, walk, seed=3), new_session(client, walk, seed=3)
+def test_every_bad_input_gets_a_4xx_with_one_line_and_the_sessions_go_on(
+    tmp_path, ronin_model, ipin_walk, batch_run
+):
+    walk_batches = list(batches(ipin_walk, 1.0))
+    with client_for(tmp_path, ronin_model) as client:
+        session_id, other = new_session(client, ipin_walk, seed=3), new_session(client, ipin_walk, seed=3)
         for body in walk_batches[:18]:  # 18 s: the filter runs
             for sid in (session_id, other):
                 assert client.post(f"/sessions/{sid}/samples", json=body).status_code == 200
@@ -355,7 +342,7 @@ def test_every_bad_input_gets_a_4xx_with_one_line_and_the_sessions_go_on(tmp_pat
         for sid in (session_id, other):  # and the refused batches changed nothing
             client.delete(f"/sessions/{sid}")
             pd.testing.assert_frame_equal(saved_track(client, sid), batch_run[0])
-    with client_for(tmp_path / "m", model, map_path=str(CROSSROADS)) as mapped:
+    with client_for(tmp_path / "m", ronin_model, map_path=str(CROSSROADS)) as mapped:
         reply = mapped.post("/sessions", json={"start": {"lat": 37.70, "lon": -122.39, "heading_deg": 0.0}})
         assert reply.status_code == 422 and "outside the map" in reply.json()["detail"]
 
@@ -363,8 +350,8 @@ def test_every_bad_input_gets_a_4xx_with_one_line_and_the_sessions_go_on(tmp_pat
 # -- isolation, token, expiry, WebSocket -------------------------------------------------------------------
 
 
-def test_ids_are_unguessable_and_a_token_guards_every_route(tmp_path, model, walk):
-    with client_for(tmp_path, model, token="s3cret-token-0123456789") as client:
+def test_ids_are_unguessable_and_a_token_guards_every_route(tmp_path, ronin_model, ipin_walk):
+    with client_for(tmp_path, ronin_model, token="s3cret-token-0123456789") as client:
         assert client.post("/sessions", json={}).status_code == 401
         reply = client.post("/sessions", json={}, headers={"Authorization": "Bearer wrong"})
         assert reply.status_code == 401 and reply.headers["www-authenticate"] == "Bearer"
@@ -390,10 +377,10 @@ def test_ids_are_unguessable_and_a_token_guards_every_route(tmp_path, model, wal
             assert ws.receive_json()["status"] == "starting"
 
 
-def test_idle_sessions_expire_and_their_tracks_are_kept(tmp_path, model, walk):
-    with client_for(tmp_path, model, idle_timeout_s=2.0) as client:
-        session_id = new_session(client, walk)
-        replay(client, session_id, walk, 4.0)
+def test_idle_sessions_expire_and_their_tracks_are_kept(tmp_path, ronin_model, ipin_walk):
+    with client_for(tmp_path, ronin_model, idle_timeout_s=2.0) as client:
+        session_id = new_session(client, ipin_walk)
+        replay(client, session_id, ipin_walk, 4.0)
         deadline = time.monotonic() + 20.0
         while client.get("/health").json()["sessions"]:  # (asking for the estimate would keep it alive)
             assert time.monotonic() < deadline
@@ -404,14 +391,14 @@ def test_idle_sessions_expire_and_their_tracks_are_kept(tmp_path, model, walk):
         assert session_id not in json.dumps(listed)  # the listing shows hashes, never ids
 
 
-def test_websocket_round_trip_gives_the_same_track(tmp_path, model, walk, batch_run):
-    with client_for(tmp_path, model, inference_wait_s=0.0) as client:
-        session_id = new_session(client, walk, seed=3)
+def test_websocket_round_trip_gives_the_same_track(tmp_path, ronin_model, ipin_walk, batch_run):
+    with client_for(tmp_path, ronin_model, inference_wait_s=0.0) as client:
+        session_id = new_session(client, ipin_walk, seed=3)
         with client.websocket_connect(f"/sessions/{session_id}/stream") as ws:
             ws.send_text("not json")
             assert ws.receive_json()["status"] == 400  # the connection stays open
             answers = []
-            for body in batches(walk, 0.7):
+            for body in batches(ipin_walk, 0.7):
                 ws.send_json(body)
                 answers.append(ws.receive_json())
             ws.send_json({"imu": [_imu_row(1.0)]})
@@ -467,11 +454,11 @@ class Server:
         return out.decode()
 
 
-def test_restart_keeps_every_finished_track(tmp_path, walk):
+def test_restart_keeps_every_finished_track(tmp_path, ipin_walk):
     server = Server(tmp_path / "data")
     with httpx.Client(base_url=server.url) as http:
-        ids = [http.post("/sessions", json={"start": walk.meta["start"]}).json()["id"] for _ in range(2)]
-        for body in batches(walk, 2.0):
+        ids = [http.post("/sessions", json={"start": ipin_walk.meta["start"]}).json()["id"] for _ in range(2)]
+        for body in batches(ipin_walk, 2.0):
             for session_id in ids:
                 assert http.post(f"/sessions/{session_id}/samples", json=body).status_code == 200
         assert http.delete(f"/sessions/{ids[0]}").json()["saved"]
@@ -522,12 +509,12 @@ def test_the_python_client_of_the_docs_runs(docs_server):
 def test_the_javascript_client_of_the_docs_runs(docs_server, walk_on_map):
     server, folder = docs_server
     (folder / "client.mjs").write_text(_doc_example("client.mjs"))
-    walk = {
+    ipin_walk = {
         "start": walk_on_map.meta["start"],
         "imu": walk_on_map.imu.to_dict("records"),
         "gnss": walk_on_map.gnss.to_dict("records"),
     }
-    (folder / "walk.json").write_text(json.dumps(walk))
+    (folder / "walk.json").write_text(json.dumps(ipin_walk))
     done = subprocess.run(
         [
             "node",

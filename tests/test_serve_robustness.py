@@ -16,25 +16,21 @@ import math
 import socket
 import threading
 import time
-from pathlib import Path
 
 import numpy as np
 import pytest
 import uvicorn
 from fastapi.testclient import TestClient
+from serve_fixtures import client_for
 from websockets.exceptions import InvalidStatus
 from websockets.sync.client import connect
 
 from curbside.localize.live import IMU_QUAT_COLUMNS, LiveSession
-from curbside.localize.readers import read_any
-from curbside.localize.ronin.infer import load_model
 from curbside.localize.serve import app as app_module
 from curbside.localize.serve import service as service_module
 from curbside.localize.serve.app import MAX_BODY_BYTES, create_app
 from curbside.localize.serve.service import ServiceConfig, ServiceError, TrackingService
 from curbside.localize.streams import DisplacementIntegrator
-
-TRIAL = f"{Path(__file__).parent / 'data' / 'sessions' / 'ipin2023-cut.h5'}::TrainingTrial01_repetition01"
 
 
 @pytest.fixture(autouse=True)
@@ -42,25 +38,9 @@ def _cache_in_tmp(tmp_path, monkeypatch):
     monkeypatch.setattr("curbside.settings.cache_dir", tmp_path / "cache")
 
 
-@pytest.fixture(scope="module")
-def walk():
-    """A real IPIN 2023 walk: 32 s of 50 Hz IMU with the quaternion, 1 Hz GNSS, a start pose."""
-    return read_any(TRIAL)
-
-
-@pytest.fixture(scope="module")
-def model():
-    return load_model()
-
-
-def _client(tmp_path: Path, model, **kwargs) -> TestClient:
-    config = ServiceConfig(data_dir=tmp_path / "data", **kwargs)
-    return TestClient(create_app(config, TrackingService(config, model)))
-
-
-def _rows(walk, until_t: float) -> tuple[np.ndarray, np.ndarray]:
-    imu = walk.imu[list(IMU_QUAT_COLUMNS)].to_numpy(float)
-    gnss = walk.gnss[["t", "lat", "lon", "accuracy_m"]].to_numpy(float)
+def _rows(ipin_walk, until_t: float) -> tuple[np.ndarray, np.ndarray]:
+    imu = ipin_walk.imu[list(IMU_QUAT_COLUMNS)].to_numpy(float)
+    gnss = ipin_walk.gnss[["t", "lat", "lon", "accuracy_m"]].to_numpy(float)
     return imu[imu[:, 0] < until_t], gnss[gnss[:, 0] < until_t]
 
 
@@ -76,12 +56,12 @@ def _fix(t: float, accuracy_m: float = 5.0) -> dict:
 
 
 def test_a_session_whose_end_fails_is_answered_and_gone_and_the_shutdown_completes(
-    tmp_path, model, walk, monkeypatch, caplog
+    tmp_path, ronin_model, ipin_walk, monkeypatch, caplog
 ):
     """``finish_streams`` raising (as scipy did for a row at t=1e20) used to leave DELETE unanswered,
     the session stuck "ending" for good and the shutdown waiting on it."""
-    service = TrackingService(ServiceConfig(data_dir=tmp_path / "data"), model)
-    imu, gnss = _rows(walk, 60.0)
+    service = TrackingService(ServiceConfig(data_dir=tmp_path / "data"), ronin_model)
+    imu, gnss = _rows(ipin_walk, 60.0)
     broken: set[LiveSession] = set()
     finish = LiveSession.finish_streams
 
@@ -94,7 +74,7 @@ def test_a_session_whose_end_fails_is_answered_and_gone_and_the_shutdown_complet
 
     async def scenario() -> None:
         await service.start()
-        entries = [await service.create(walk.meta["start"], {"seed": 3}) for _ in range(3)]
+        entries = [await service.create(ipin_walk.meta["start"], {"seed": 3}) for _ in range(3)]
         for entry in entries:
             await service.push(entry.id, imu, IMU_QUAT_COLUMNS, gnss)
         bad, good, left_open = entries
@@ -116,9 +96,9 @@ def test_a_session_whose_end_fails_is_answered_and_gone_and_the_shutdown_complet
     assert any("end failed" in r.getMessage() for r in caplog.records)
 
 
-def test_a_bug_in_a_route_is_a_json_500_without_the_traceback(tmp_path, model, monkeypatch):
+def test_a_bug_in_a_route_is_a_json_500_without_the_traceback(tmp_path, ronin_model, monkeypatch):
     config = ServiceConfig(data_dir=tmp_path / "data")
-    service = TrackingService(config, model)
+    service = TrackingService(config, ronin_model)
 
     def estimate(session_id: str) -> dict:
         raise RuntimeError("secret internals")
@@ -132,15 +112,15 @@ def test_a_bug_in_a_route_is_a_json_500_without_the_traceback(tmp_path, model, m
         assert client.delete(f"/sessions/{session_id}").status_code == 200  # the service goes on
 
 
-def test_the_shutdown_completes_when_a_session_never_finishes(tmp_path, model, walk, monkeypatch):
+def test_the_shutdown_completes_when_a_session_never_finishes(tmp_path, ronin_model, ipin_walk, monkeypatch):
     monkeypatch.setattr(service_module, "STOP_WAIT_S", 0.5)
     monkeypatch.setattr(LiveSession, "drained", property(lambda live: False))  # its windows never return
-    service = TrackingService(ServiceConfig(data_dir=tmp_path / "data"), model)
-    imu, gnss = _rows(walk, 60.0)
+    service = TrackingService(ServiceConfig(data_dir=tmp_path / "data"), ronin_model)
+    imu, gnss = _rows(ipin_walk, 60.0)
 
     async def scenario() -> None:
         await service.start()
-        entry = await service.create(walk.meta["start"], {})
+        entry = await service.create(ipin_walk.meta["start"], {})
         await service.push(entry.id, imu, IMU_QUAT_COLUMNS, gnss)
         deleting = asyncio.create_task(service.end(entry.id))
         await asyncio.sleep(0.1)
@@ -155,10 +135,12 @@ def test_the_shutdown_completes_when_a_session_never_finishes(tmp_path, model, w
 # -- refused input names the field -------------------------------------------------------------------------
 
 
-def test_times_that_are_not_seconds_are_refused_in_every_stream_and_the_start(tmp_path, model, walk):
+def test_times_that_are_not_seconds_are_refused_in_every_stream_and_the_start(
+    tmp_path, ronin_model, ipin_walk
+):
     """A row at t=1e20 used to be taken, then break the session's end (the test above)."""
-    with _client(tmp_path, model) as client:
-        start = walk.meta["start"]
+    with client_for(tmp_path, ronin_model) as client:
+        start = ipin_walk.meta["start"]
         reply = client.post("/sessions", json={"start": start | {"t": 1.7e12}})
         assert reply.status_code == 422
         assert reply.json()["detail"].startswith("start.t: t=1700000000000.0 is not seconds on a clock")
@@ -178,8 +160,8 @@ def test_times_that_are_not_seconds_are_refused_in_every_stream_and_the_start(tm
         assert client.delete(f"/sessions/{session_id}").status_code == 200  # it ends, as any session
 
 
-def test_config_start_and_end_refusals_name_the_field_in_plain_numbers(tmp_path, model, walk):
-    with _client(tmp_path, model) as client:
+def test_config_start_and_end_refusals_name_the_field_in_plain_numbers(tmp_path, ronin_model, ipin_walk):
+    with client_for(tmp_path, ronin_model) as client:
         for seed in (-1, "-1", 1.5):
             reply = client.post("/sessions", json={"config": {"seed": seed}})
             assert reply.status_code == 422, reply.text
@@ -191,9 +173,9 @@ def test_config_start_and_end_refusals_name_the_field_in_plain_numbers(tmp_path,
         ]:
             reply = client.post("/sessions", json={"config": {key: "x"}})
             assert reply.status_code == 422 and reply.json()["detail"].startswith(words), reply.text
-        reply = client.post("/sessions", json={"start": walk.meta["start"] | {"heading_deg": 1e308}})
+        reply = client.post("/sessions", json={"start": ipin_walk.meta["start"] | {"heading_deg": 1e308}})
         assert reply.status_code == 422 and reply.json()["detail"].startswith("start.heading_deg: ")
-        session_id = client.post("/sessions", json={"start": walk.meta["start"]}).json()["id"]
+        session_id = client.post("/sessions", json={"start": ipin_walk.meta["start"]}).json()["id"]
         path = f"/sessions/{session_id}/samples"
         reply = client.post(path, json={"imu": [_imu_row(50.0)], "end": True})
         assert reply.status_code == 422
@@ -208,8 +190,8 @@ def test_config_start_and_end_refusals_name_the_field_in_plain_numbers(tmp_path,
 # -- transport --------------------------------------------------------------------------------------------
 
 
-def test_a_binary_websocket_frame_is_a_message_and_the_connection_stays(tmp_path, model):
-    with _client(tmp_path, model) as client:
+def test_a_binary_websocket_frame_is_a_message_and_the_connection_stays(tmp_path, ronin_model):
+    with client_for(tmp_path, ronin_model) as client:
         session_id = client.post("/sessions", json={}).json()["id"]
         with client.websocket_connect(f"/sessions/{session_id}/stream") as ws:
             ws.send_bytes(json.dumps({"imu": [_imu_row(1.0)]}).encode())
@@ -220,7 +202,7 @@ def test_a_binary_websocket_frame_is_a_message_and_the_connection_stays(tmp_path
             assert ws.receive_json()["reason"] == "deleted"
 
 
-def test_a_chunked_body_over_the_limit_is_a_413(tmp_path, model):
+def test_a_chunked_body_over_the_limit_is_a_413(tmp_path, ronin_model):
     row = json.dumps(_imu_row(1.0)).encode()
     body = b'{"imu": [' + b",".join([row] * (MAX_BODY_BYTES // len(row) + 1)) + b"]}"
 
@@ -228,7 +210,7 @@ def test_a_chunked_body_over_the_limit_is_a_413(tmp_path, model):
         for i in range(0, len(body), 65536):
             yield body[i : i + 65536]
 
-    with _client(tmp_path, model) as client:
+    with client_for(tmp_path, ronin_model) as client:
         session_id = client.post("/sessions", json={}).json()["id"]
         headers = {"content-type": "application/json"}
         reply = client.post(f"/sessions/{session_id}/samples", content=chunks(), headers=headers)
@@ -244,14 +226,14 @@ def _free_port() -> int:
         return s.getsockname()[1]
 
 
-def test_a_refused_websocket_gets_its_status_and_logs_no_error(tmp_path, model, caplog):
+def test_a_refused_websocket_gets_its_status_and_logs_no_error(tmp_path, ronin_model, caplog):
     """uvicorn's websockets-sansio protocol logs "ASGI callable returned without completing
     handshake." after every denial response unless the service filters it out."""
     config = ServiceConfig(data_dir=tmp_path / "data")
     port = _free_port()
     server = uvicorn.Server(
         uvicorn.Config(
-            create_app(config, TrackingService(config, model)),
+            create_app(config, TrackingService(config, ronin_model)),
             host="127.0.0.1",
             port=port,
             log_config=None,  # records reach caplog
@@ -301,13 +283,13 @@ def test_the_denial_filter_drops_only_the_handshake_error_of_a_refused_websocket
 # -- what the filter is given ---------------------------------------------------------------------------
 
 
-def test_fixes_claiming_an_accuracy_of_1e_300_m_do_not_stop_the_session(tmp_path, model, walk):
+def test_fixes_claiming_an_accuracy_of_1e_300_m_do_not_stop_the_session(tmp_path, ronin_model, ipin_walk):
     """Every such fix used to fail the session with "internal error (ZeroDivisionError)"; the filter
     takes an accuracy under its floor as the floor."""
-    gnss = walk.gnss.assign(accuracy_m=1e-300).to_dict("records")
-    imu = walk.imu.to_dict("records")
-    with _client(tmp_path, model, inference_wait_s=0.0) as client:
-        session_id = client.post("/sessions", json={"start": walk.meta["start"]}).json()["id"]
+    gnss = ipin_walk.gnss.assign(accuracy_m=1e-300).to_dict("records")
+    imu = ipin_walk.imu.to_dict("records")
+    with client_for(tmp_path, ronin_model, inference_wait_s=0.0) as client:
+        session_id = client.post("/sessions", json={"start": ipin_walk.meta["start"]}).json()["id"]
         for lo in np.arange(50.0, 82.0, 2.0):
             body = {
                 "imu": [r for r in imu if lo <= r["t"] < lo + 2.0],
