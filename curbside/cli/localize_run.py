@@ -187,6 +187,36 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "(default with --config: the session it names)",
     )
     parser.add_argument("--map", help="map layers GeoJSON (osmseg build); none: no map likelihood")
+    _add_method_options(parser)
+    parser.add_argument("--save-particles", action="store_true", help="also write OUT/particles.npz")
+    parser.add_argument(
+        "--lag-s",
+        type=non_negative_float,
+        default=None,
+        metavar="SECONDS",
+        help="also estimate each position from the data up to SECONDS later (fixed-lag smoother; "
+        "track.csv's smooth_lat, smooth_lon; offline analysis, e.g. 30). Default 0: off",
+    )
+    parser.add_argument(
+        "--velocity-source",
+        choices=VELOCITY_SOURCES,
+        default=None,
+        help="auto (default): velocity.csv, else RoNIN on imu.csv, else PDR",
+    )
+    parser.add_argument(
+        "--no-start-pose",
+        action="store_true",
+        help="ignore meta.json's start pose; start from the first usable GNSS fix",
+    )
+    parser.add_argument("-o", "--output", required=True,
+                        help="output folder: new, empty or a previous curbside output")
+    parser.add_argument("--overwrite", action="store_true",
+                        help="write into a non-empty folder curbside did not write (keeping its other files)")
+    parser.set_defaults(func=_run)
+
+
+def _add_method_options(parser: argparse.ArgumentParser) -> None:
+    """The run's replayed configuration, method, particles, jaywalk weight, seed and ``--set``."""
     parser.add_argument(
         "--config",
         metavar="RUN_JSON",
@@ -219,28 +249,3 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "set any parameter of run.json's config, e.g. filter.gnss.sigma_factor=1.0 or "
         "engine.fix_association=once (repeatable; `localize parameters` lists them all)",
     )
-    parser.add_argument("--save-particles", action="store_true", help="also write OUT/particles.npz")
-    parser.add_argument(
-        "--lag-s",
-        type=non_negative_float,
-        default=None,
-        metavar="SECONDS",
-        help="also estimate each position from the data up to SECONDS later (fixed-lag smoother; "
-        "track.csv's smooth_lat, smooth_lon; offline analysis, e.g. 30). Default 0: off",
-    )
-    parser.add_argument(
-        "--velocity-source",
-        choices=VELOCITY_SOURCES,
-        default=None,
-        help="auto (default): velocity.csv, else RoNIN on imu.csv, else PDR",
-    )
-    parser.add_argument(
-        "--no-start-pose",
-        action="store_true",
-        help="ignore meta.json's start pose; start from the first usable GNSS fix",
-    )
-    parser.add_argument("-o", "--output", required=True,
-                        help="output folder: new, empty or a previous curbside output")
-    parser.add_argument("--overwrite", action="store_true",
-                        help="write into a non-empty folder curbside did not write (keeping its other files)")
-    parser.set_defaults(func=_run)

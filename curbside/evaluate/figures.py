@@ -49,7 +49,7 @@ def _nice_length(max_m: float) -> float:
     return max(m * power for m in (1, 2, 5) if m * power <= max_m)
 
 
-def draw_map(ax, layers: MapLayers | None, bounds: tuple[float, float, float, float]) -> None:
+def draw_map(ax: plt.Axes, layers: MapLayers | None, bounds: tuple[float, float, float, float]) -> None:
     """Map classes inside ``bounds`` (local metres), a scale bar and the attribution on ``ax``."""
     x0, y0, x1, y1 = bounds
     if layers is not None:

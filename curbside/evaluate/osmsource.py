@@ -13,6 +13,7 @@ import json
 import logging
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import geopandas as gpd
 import numpy as np
@@ -23,6 +24,9 @@ from curbside.configio import to_dict
 from curbside.errors import CurbsideInputError
 from curbside.osmseg.reader import read_osm_file
 from curbside.osmseg.tags import column, first_number, is_in, metres
+
+if TYPE_CHECKING:
+    from pyproj import CRS
 
 log = logging.getLogger(__name__)
 
@@ -90,7 +94,7 @@ class OsmSource:
     roads: gpd.GeoDataFrame
 
     @property
-    def crs(self):
+    def crs(self) -> CRS:
         """The local metric CRS."""
         return self.buildings.crs
 

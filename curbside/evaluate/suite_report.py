@@ -208,7 +208,9 @@ def session_table(
     return Table(f"Per session, {subset}, w = {w:g}, map 'osm'", header, rows, note)
 
 
-def interval_tables(results: list[dict], config) -> tuple[dict[str, Table | None], dict[str, Any]]:
+def interval_tables(
+    results: list[dict], config: SuiteConfig
+) -> tuple[dict[str, Table | None], dict[str, Any]]:
     """The "how sure" tables of the walks (``subsets``, ``maps``) and how far to trust ``segment_prob``
     (``confidence``), ``None`` where not run, and their rows for ``metrics.json``."""
     w = config.jaywalk_weight
@@ -398,7 +400,7 @@ def _preset_note(mode: str) -> str:
 def write_suite_report(
     results: list[dict],
     out_dir: str | Path,
-    config,
+    config: SuiteConfig,
     pooled: pd.DataFrame,
     per_session: pd.DataFrame,
     checks: list[criteria.Check],

@@ -27,6 +27,7 @@ from __future__ import annotations
 
 import logging
 import math
+from typing import TYPE_CHECKING
 
 import numpy as np
 import pandas as pd
@@ -50,6 +51,9 @@ from curbside.localize.session import Session
 from curbside.localize.steps import StepDetector
 from curbside.osmseg.mapio import MapLayers
 from curbside.projection import LocalFrame
+
+if TYPE_CHECKING:
+    from curbside.localize.ronin.model import RoninResNet
 
 logger = logging.getLogger(__name__)
 
@@ -402,7 +406,7 @@ class InferenceQueue:
         The fixed batch shape (``RoninStreamConfig.batch_size``, the batch command's).
     """
 
-    def __init__(self, model, batch_size: int | None = None) -> None:
+    def __init__(self, model: RoninResNet, batch_size: int | None = None) -> None:
         from curbside.localize.ronin.infer import check_compatible
 
         config = RoninStreamConfig()
@@ -474,7 +478,7 @@ def stream_session(
     session: Session,
     map_layers: MapLayers | None,
     config: RunConfig,
-    model=None,
+    model: RoninResNet | None = None,
     chunk_s: float = math.inf,
     limits: LiveLimits | None = None,
 ) -> TrackResult:

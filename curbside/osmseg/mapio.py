@@ -12,7 +12,7 @@ import json
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import geopandas as gpd
 import numpy as np
@@ -21,6 +21,9 @@ import shapely
 from curbside.errors import CurbsideInputError
 from curbside.io import atomic_path
 from curbside.projection import WGS84, utm_crs_for
+
+if TYPE_CHECKING:
+    from pyproj import CRS
 
 CLASSES: tuple[str, ...] = ("building", "street", "crosswalk", "sidewalk")
 SIDEWALK_COLUMNS: tuple[str, ...] = ("segment_id", "street", "side")
@@ -43,7 +46,7 @@ class MapLayers:
     meta: dict[str, Any] = field(default_factory=dict)
 
     @property
-    def crs(self):
+    def crs(self) -> CRS:
         """The metric CRS of :attr:`gdf`."""
         return self.gdf.crs
 

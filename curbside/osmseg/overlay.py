@@ -10,9 +10,10 @@ from __future__ import annotations
 
 import numpy as np
 import shapely
+from numpy.typing import ArrayLike
 
 
-def polygons_only(geoms, min_area_m2: float = 0.0) -> np.ndarray:
+def polygons_only(geoms: ArrayLike, min_area_m2: float = 0.0) -> np.ndarray:
     """The single Polygons inside ``geoms`` (multi-parts and collections exploded), at least
     ``min_area_m2`` large."""
     parts = shapely.get_parts(np.asarray(geoms, dtype=object))

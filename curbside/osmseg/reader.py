@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import contextlib
 import logging
-from collections.abc import Iterator
+from collections.abc import Iterable, Iterator
 from dataclasses import dataclass, field
 from datetime import datetime, timezone
 from pathlib import Path
@@ -99,7 +99,9 @@ def tag_table(records: list[dict[str, str]]) -> pd.DataFrame:
     return df.where(df.notna(), None)
 
 
-def make_table(ids, geoms, records: list[dict[str, str]], crs: CRS) -> gpd.GeoDataFrame:
+def make_table(
+    ids: Iterable[int], geoms: Iterable[shapely.Geometry], records: list[dict[str, str]], crs: CRS
+) -> gpd.GeoDataFrame:
     """An OsmData table from ids, geometries and tag dicts."""
     tags = tag_table(records)
     tags.insert(0, "osm_id", list(ids))

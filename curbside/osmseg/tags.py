@@ -9,6 +9,8 @@ turn into an integer array that a later unit conversion cannot hold.
 
 from __future__ import annotations
 
+from collections.abc import Iterable
+
 import numpy as np
 import pandas as pd
 
@@ -79,7 +81,7 @@ def first_number(values: pd.Series) -> np.ndarray:
     return numbers.groupby(level=0).min().reindex(values.index).to_numpy(dtype=float, na_value=np.nan)
 
 
-def is_in(values: pd.Series, allowed) -> np.ndarray:
+def is_in(values: pd.Series, allowed: Iterable[str]) -> np.ndarray:
     """Boolean mask: the value is one of ``allowed``."""
     return values.isin(list(allowed)).to_numpy()
 
