@@ -270,9 +270,9 @@ def test_tap_waypoints_and_route(tmp_path):
     np.testing.assert_allclose(session.waypoints[["t", "lat", "lon"]].to_numpy(), expected)
     assert session.meta["annotations"] == [{"t": 9.0, "text": "corner"}]
     route = tmp_path / "route.csv"
-    route.write_text("lat,lon\n49.1,11.1\n49.2,11.2\n")
+    route.write_text("lat,lon\n49.4613,11.1110\n49.4614,11.1111\n")  # near the fixes (far ones are refused)
     np.testing.assert_allclose(read_any(SESSIONS / "sensorlogger-android", route=route).waypoints["lat"],
-                               [49.1, 49.2])
+                               [49.4613, 49.4614])
     route.write_text("lat,lon\n49.1,11.1\n")
     with pytest.raises(CurbsideInputError, match="1 route points for 2 taps"):
         read_any(SESSIONS / "sensorlogger-android", route=route)

@@ -28,28 +28,47 @@ from curbside.errors import CurbsideInputError
 from curbside.io import check_output_folder, output_folder
 from curbside.localize.pdr import pdr_velocity
 from curbside.localize.readers import detect_format, ipin, read_any, split_trial
-from curbside.localize.readers._export import find_recordings
+from curbside.localize.readers._export import require_recordings
 from curbside.localize.session import Session, write_session
 from curbside.localize.steps import detect_steps
 
 
-def add_derived(session: Session, steps: bool, pdr: bool) -> Session:
+def add_derived(session: Session, steps: bool, pdr: bool, source: str | None = None) -> Session:
     """Add ``steps`` (detected footsteps) and/or ``velocity`` (PDR) tables computed from ``imu``.
+
+    Parameters
+    ----------
+    session
+        The session read from ``source``.
+    steps, pdr
+        Which tables to add.
+    source
+        The recording as the user named it, for error messages (the session name when ``None``).
 
     Raises
     ------
     CurbsideInputError
-        Steps or PDR asked for a session without ``imu``.
+        Steps or PDR asked for a session without ``imu``, or PDR for one without the quaternion.
     """
     if not (steps or pdr):
         return session
+    source = session.name if source is None else source
     if session.imu is None:
-        raise CurbsideInputError(session.name, "--steps/--pdr need IMU data, and this source has none")
-    times = detect_steps(session.imu) if session.steps is None else session.steps["t"].to_numpy()
-    if steps:
-        session.steps = pd.DataFrame({"t": times})
-    if pdr:
-        session.velocity = pdr_velocity(session.imu, times)
+        raise CurbsideInputError(source, "--steps/--pdr need IMU data, and this source has none")
+    if pdr and not {"qx", "qy", "qz", "qw"} <= set(session.imu.columns):
+        kind = session.meta.get("source", {}).get("format")
+        hint = " (a Sensor Logger export needs Orientation.csv)" if kind == "sensorlogger" else ""
+        raise CurbsideInputError(
+            source, f"--pdr needs the orientation quaternion (qx,qy,qz,qw); this source has none{hint}"
+        )
+    try:
+        times = detect_steps(session.imu) if session.steps is None else session.steps["t"].to_numpy()
+        if steps:
+            session.steps = pd.DataFrame({"t": times})
+        if pdr:
+            session.velocity = pdr_velocity(session.imu, times)
+    except CurbsideInputError as exc:  # the table has no file of its own here: name the recording
+        raise CurbsideInputError(source, exc.problem) from None
     return session
 
 
@@ -69,7 +88,7 @@ def _convert(args: argparse.Namespace) -> int:
         path, _ = split_trial(args.src)
         kind = detect_format(path)
         if kind == "sensorlogger":
-            names = sorted(find_recordings(path))
+            names = sorted(require_recordings(path))
         elif kind == "ipin":
             names = ipin.list_trials(path)
         else:
@@ -91,12 +110,12 @@ def _convert(args: argparse.Namespace) -> int:
         lines: list[str] = []
         with output_folder(dst, command, overwrite=args.overwrite) as tmp:
             for name in tqdm(trials, desc="convert", unit="trial", disable=not sys.stderr.isatty()):
-                session = add_derived(ipin.read_trial(path, name), args.steps, args.pdr)
+                session = add_derived(ipin.read_trial(path, name), args.steps, args.pdr, f"{path}::{name}")
                 write_session(session, tmp / session.name, command="localize convert")
                 lines += summary_lines(session, dst / session.name)
         print("\n".join(lines))
         return 0
-    session = add_derived(read_any(args.src, route=args.route), args.steps, args.pdr)
+    session = add_derived(read_any(args.src, route=args.route), args.steps, args.pdr, str(args.src))
     write_session(session, dst, overwrite=args.overwrite, command="localize convert")
     print("\n".join(summary_lines(session, dst)))
     return 0

@@ -4,7 +4,8 @@ A recording is the set of CSV files in one folder of the zip or tree that holds 
 export's motion or location files (:data:`MARKERS`). Two recordings in one source (a zip of two
 exports, a folder of several days) are never mixed: the source is refused with their names unless
 one is chosen as ``SRC::NAME``. macOS archive debris (``__MACOSX/``, ``._*`` resource forks) and
-hidden files are skipped.
+hidden files are skipped. A CSV re-saved by a spreadsheet with ``;`` separators (and decimal commas)
+is read as such, with a warning.
 
 Clocks. Every CSV has ``time`` (ns since the UNIX epoch) and, since export format 3,
 ``seconds_elapsed`` (s since the start tap). Format-2 exports (2021) have ``time`` only; there the
@@ -36,6 +37,8 @@ MARKERS = (
     "location.csv",
     "orientation.csv",
     "gravity.csv",
+    "accelerometeruncalibrated.csv",
+    "gyroscopeuncalibrated.csv",
 )
 
 #: Separator between a zip or folder and the recording inside it: ``export.zip::2023-06-14_10-00-00``.
@@ -95,6 +98,35 @@ def find_recordings(src: Path) -> dict[str, dict[str, object]]:
     raise CurbsideInputError(src, "no such file or folder")
 
 
+def _inner_zips(src: Path) -> list[str]:
+    """Names of the ``.zip`` files inside a zip (a zip of exports, not yet unpacked)."""
+    if not zipfile.is_zipfile(src):
+        return []
+    with zipfile.ZipFile(src) as zf:
+        names = [PurePosixPath(n.replace("\\", "/")).name for n in zf.namelist()]
+    return sorted(n for n in names if n.lower().endswith(".zip"))
+
+
+def require_recordings(src: Path) -> dict[str, dict[str, object]]:
+    """:func:`find_recordings`, refusing a source that holds none.
+
+    Raises
+    ------
+    CurbsideInputError
+        ``src`` is missing, an unreadable zip, or holds no recording (a zip of zips says so).
+    """
+    recordings = find_recordings(src)
+    if recordings:
+        return recordings
+    inner = _inner_zips(src) if src.is_file() else []
+    if inner:
+        raise CurbsideInputError(src, f"not a Sensor Logger export: it holds zip files ({', '.join(inner)}), "
+                                 "not CSVs; unpack them and give the folder, or give each zip")
+    raise CurbsideInputError(
+        src, "not a Sensor Logger export (no Accelerometer/Gyroscope/Orientation/Location CSV in it)"
+    )
+
+
 def split_recording(src: str | Path) -> tuple[Path, str | None]:
     """Split ``SRC::NAME`` into the zip or folder and the recording name (``None`` without ``::``)."""
     text = str(src)
@@ -105,10 +137,6 @@ def split_recording(src: str | Path) -> tuple[Path, str | None]:
 
 
 def _choose(src: Path, name: str | None, recordings: dict[str, dict[str, object]]) -> str:
-    if not recordings:
-        raise CurbsideInputError(
-            src, "not a Sensor Logger export (no Accelerometer/Gyroscope/Orientation/Location CSV in it)"
-        )
     if name is None:
         if len(recordings) == 1:
             return next(iter(recordings))
@@ -132,6 +160,15 @@ def _looks_like_phyphox(header: str) -> bool:
     return '"Time (s)"' in header or header.startswith("Time (s)")
 
 
+def _separators(data: bytes) -> tuple[str, str]:
+    """Field separator and decimal mark: ``(",", ".")``, or ``(";", ",")`` for a file re-saved by a
+    spreadsheet in a locale whose decimal mark is the comma (``(";", ".")`` if its numbers kept dots)."""
+    lines = data[:4096].decode("utf-8", errors="replace").lstrip("\ufeff").splitlines()
+    if not lines or ";" not in lines[0] or "," in lines[0]:
+        return ",", "."
+    return ";", ("," if any("," in line for line in lines[1:6]) else ".")
+
+
 @dataclass
 class Export:
     """The CSV files of one recording, readable by name.
@@ -150,6 +187,7 @@ class Export:
     folder: str
     label: str
     _files: dict[str, object] = field(default_factory=dict, repr=False)
+    _told_separators: bool = field(default=False, repr=False)
 
     @property
     def name(self) -> str:
@@ -183,8 +221,14 @@ class Export:
         data = self._bytes(name)
         if _looks_like_phyphox(data[:200].decode("utf-8", errors="replace")):
             raise CurbsideInputError(source, "is a phyphox export ('Time (s)' columns), not Sensor Logger's")
+        sep, decimal = _separators(data)
+        if sep != "," and not self._told_separators:
+            self._told_separators = True  # one line per export, not per file
+            commas = " and decimal commas" if decimal == "," else ""
+            logger.warning("%s uses ';' separators%s (re-saved by a spreadsheet?); read as such, and so is "
+                           "any other such file of %s", source, commas, self.label)
         try:
-            table = pd.read_csv(io.BytesIO(data), skipinitialspace=True)
+            table = pd.read_csv(io.BytesIO(data), skipinitialspace=True, sep=sep, decimal=decimal)
         except pd.errors.EmptyDataError:
             return pd.DataFrame()
         except (pd.errors.ParserError, UnicodeDecodeError) as exc:
@@ -203,7 +247,7 @@ def open_export(src: str | Path) -> Export:
         unknown name.
     """
     path, name = split_recording(src)
-    recordings = find_recordings(path)
+    recordings = require_recordings(path)
     folder = _choose(path, name, recordings)
     label = str(path) if len(recordings) == 1 and name is None else f"{path}{RECORDING_SEPARATOR}{folder}"
     return Export(src=path, folder=folder, label=label, _files=recordings[folder])

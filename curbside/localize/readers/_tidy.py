@@ -130,3 +130,40 @@ def accelerometer_ms2(acce: pd.DataFrame, source: str | PathLike[str], block: in
         f"accelerometer gravity level {level:.2f} is neither ~9.8 m/s^2 nor ~1 g "
         "(gravity must be included)",
     )
+
+
+#: A waypoint farther than this (m) from every GNSS fix of its session is taken for a mistake (a tap
+#: note such as "3,5" read as a position, a route file of another walk) rather than a surveyed point:
+#: GNSS errors, even in urban canyons, stay well below it.
+MAX_WAYPOINT_DISTANCE_M = 5000.0
+
+_EARTH_RADIUS_M = 6_371_008.8
+
+
+def far_from_fixes(waypoints: pd.DataFrame, gnss: pd.DataFrame | None,
+                   max_m: float = MAX_WAYPOINT_DISTANCE_M) -> np.ndarray:
+    """Which waypoints lie farther than ``max_m`` from every GNSS fix (great-circle distance).
+
+    Parameters
+    ----------
+    waypoints
+        Table with ``lat,lon`` (degrees).
+    gnss
+        Table with ``lat,lon``; with ``None`` or no rows nothing can be judged and no waypoint is far.
+    max_m
+        Distance (m).
+
+    Returns
+    -------
+    numpy.ndarray
+        One bool per waypoint row.
+    """
+    if gnss is None or len(gnss) == 0 or len(waypoints) == 0:
+        return np.zeros(len(waypoints), bool)
+    lat1 = np.radians(waypoints["lat"].to_numpy(float))[:, None]
+    lon1 = np.radians(waypoints["lon"].to_numpy(float))[:, None]
+    lat2 = np.radians(gnss["lat"].to_numpy(float))[None, :]
+    lon2 = np.radians(gnss["lon"].to_numpy(float))[None, :]
+    h = np.sin((lat2 - lat1) / 2) ** 2 + np.cos(lat1) * np.cos(lat2) * np.sin((lon2 - lon1) / 2) ** 2
+    nearest = 2 * _EARTH_RADIUS_M * np.arcsin(np.sqrt(np.clip(h.min(axis=1), 0.0, 1.0)))
+    return nearest > max_m

@@ -13,6 +13,10 @@ The file (``../shared/data/ipin2023/ipin2023-t3.h5``, see its README) holds one 
 - ``meta``: ``start`` = the first POSI, heading towards the second, and its time ``t``; the device,
   the floors visited and the source.
 
+``gnss`` and ``posi`` may be missing or empty (a trial logged without surveyed points): the session
+then has no ``gnss.csv`` or no ``waypoints.csv`` and start pose, with a warning. The IMU datasets
+are required.
+
 A trial is addressed as ``FILE.h5::TRIAL`` (see :func:`curbside.localize.readers.read_any`);
 ``TRIAL`` is the group name or the part after ``IPIN2023_T3_``, e.g. ``TrainingTrial01_repetition01``.
 """
@@ -36,7 +40,8 @@ from curbside.localize.session import Session
 logger = logging.getLogger(__name__)
 
 _GEOD = pyproj.Geod(ellps="WGS84")
-_REQUIRED = ("acce", "gyro", "rotvec", "gnss", "posi")
+_REQUIRED = ("acce", "gyro", "rotvec")
+_OPTIONAL = ("gnss", "posi")
 
 
 def list_trials(path: str | Path) -> list[str]:
@@ -60,7 +65,8 @@ def list_trials(path: str | Path) -> list[str]:
     with open_h5(path) as f:
         names = [n for n, g in f.items() if isinstance(g, h5py.Group) and all(k in g for k in _REQUIRED)]
     if not names:
-        raise CurbsideInputError(path, f"no trial groups with datasets {list(_REQUIRED)}")
+        raise CurbsideInputError(path, f"no trial groups with datasets {list(_REQUIRED)} (and optionally "
+                                 f"{list(_OPTIONAL)})")
     return names
 
 
@@ -73,10 +79,14 @@ def _resolve(f: h5py.File, path: str | Path, trial: str) -> str:
     raise CurbsideInputError(f"{path}::{trial}", "no such trial (see `localize convert FILE.h5 --list`)")
 
 
-def _table(g: h5py.Group, name: str, columns: list[str], source: str) -> pd.DataFrame:
+def _table(g: h5py.Group, name: str, columns: list[str], source: str) -> pd.DataFrame | None:
+    if name not in g:
+        return None
     data = g[name][:]
     # float32 -> float64 through the shortest decimal repr, so 0.0679 stays 0.0679 in the CSV.
     data = data.astype(str).astype(float) if data.dtype == np.float32 else np.asarray(data, dtype=float)
+    if data.size == 0:
+        return pd.DataFrame(columns=columns, dtype=float)
     if data.ndim != 2 or data.shape[1] < len(columns):
         raise CurbsideInputError(
             source, f"dataset {name!r} has shape {data.shape}, expected (N, >={len(columns)})"
@@ -121,22 +131,20 @@ def read_trial(path: str | Path, trial: str) -> Session:
     acce = accelerometer_ms2(tidy_table(acce, f"{source}/acce", acce.columns), f"{source}/acce")
     gyro = tidy_table(gyro, f"{source}/gyro", gyro.columns)
     quat = tidy_table(quat, f"{source}/rotvec", quat.columns)
-    imu = merge_imu(acce, gyro, quat, source)
+    names = (f"{source}/acce", f"{source}/gyro", f"{source}/rotvec")
+    imu = merge_imu(acce, gyro, quat, source, names)
+    gnss = _fixes(gnss, source)
+    posi = _surveyed(posi, source)
 
-    network = gnss["alt"] == 0
-    if network.any():
-        logger.info("%s: dropped %d network (alt == 0) fix(es)", source, int(network.sum()))
-    gnss = tidy_table(gnss[~network], f"{source}/gnss", ["t", "lat", "lon", "accuracy_m"],
-                      nullable=("accuracy_m",)) if (~network).any() else None
-    posi = tidy_table(posi, f"{source}/posi", ["t", "lat", "lon", "floor"])
-    waypoints = posi[["t", "lat", "lon"]]
-
+    floors = attrs.get("floors", [] if posi is None else posi["floor"].unique())
     meta: dict = {
         "source": {"format": "ipin2023-h5", "file": Path(path).name, "trial": name},
         "device": f"{attrs.get('device_manufacturer', '')} {attrs.get('device_model', '')}".strip(),
-        "floors": [int(x) for x in np.atleast_1d(attrs.get("floors", posi["floor"].unique()))],
-        "waypoint_floors": [int(x) for x in posi["floor"]],
+        "floors": [int(x) for x in np.atleast_1d(floors)],
     }
+    if posi is None:
+        return Session(name=name.removeprefix("IPIN2023_T3_"), imu=imu, gnss=gnss, meta=meta)
+    meta["waypoint_floors"] = [int(x) for x in posi["floor"]]
     if len(posi) >= 2:
         lon, lat = posi["lon"].to_numpy(), posi["lat"].to_numpy()
         heading, _, _ = _GEOD.inv(lon[0], lat[0], lon[1], lat[1])
@@ -146,4 +154,31 @@ def read_trial(path: str | Path, trial: str) -> Session:
             "heading_deg": float(heading % 360.0),
             "t": float(posi["t"].iat[0]),
         }
+    waypoints = posi[["t", "lat", "lon"]]
     return Session(name=name.removeprefix("IPIN2023_T3_"), imu=imu, gnss=gnss, waypoints=waypoints, meta=meta)
+
+
+def _fixes(gnss: pd.DataFrame | None, source: str) -> pd.DataFrame | None:
+    """The satellite fixes of the ``gnss`` dataset, or ``None`` (with a warning) when there are none."""
+    if gnss is None or gnss.empty:
+        logger.warning("%s: no GNSS fixes ('gnss' dataset %s); the session has no gnss.csv", source,
+                       "missing" if gnss is None else "empty")
+        return None
+    network = gnss["alt"] == 0
+    if network.all():
+        logger.warning("%s: all %d GNSS fixes are network (alt == 0) locations; the session has no gnss.csv",
+                       source, len(gnss))
+        return None
+    if network.any():
+        logger.info("%s: dropped %d network (alt == 0) fix(es)", source, int(network.sum()))
+    columns = ["t", "lat", "lon", "accuracy_m"]
+    return tidy_table(gnss[~network], f"{source}/gnss", columns, nullable=("accuracy_m",))
+
+
+def _surveyed(posi: pd.DataFrame | None, source: str) -> pd.DataFrame | None:
+    """The surveyed points (``posi``), or ``None`` (with a warning) when the trial has none."""
+    if posi is None or posi.empty:
+        logger.warning("%s: no surveyed waypoints ('posi' dataset %s); the session has no waypoints.csv "
+                       "and no start pose", source, "missing" if posi is None else "empty")
+        return None
+    return tidy_table(posi, f"{source}/posi", ["t", "lat", "lon", "floor"])

@@ -17,6 +17,8 @@ them and lists the real exports this reader was run on):
   which the orientation rotates the measured acceleration onto +9.8 m/s^2 up; without one it follows
   the metadata;
 - ``Gyroscope.csv``: rad/s, the same sign on both platforms;
+- ``AccelerometerUncalibrated.csv`` and ``GyroscopeUncalibrated.csv`` (raw, gravity included; the
+  gyroscope keeps its bias) stand in, with a warning, only for calibrated files the export lacks;
 - ``Orientation.csv``: ``qx,qy,qz,qw`` (column order varies between versions). Android's is the
   rotation vector in East-North-Up; iOS's is CoreMotion's attitude in the x-true-north, z-up frame
   (North-West-Up), turned 90 degrees about the vertical into ENU. The turn was verified on a real
@@ -26,7 +28,9 @@ them and lists the real exports this reader was run on):
 - ``Location.csv``: ``latitude,longitude,horizontalAccuracy`` (m, ~1 sigma) -> ``gnss.csv``;
   (0, 0) fixes are dropped;
 - ``Annotation.csv``: taps. A tap is a waypoint when its text is ``"lat,lon"``, or when a route file
-  gives the surveyed positions of the taps in order; other taps go to ``meta["annotations"]``.
+  gives the surveyed positions of the taps in order; other taps go to ``meta["annotations"]``. A
+  position farther than 5 km from every fix is not a waypoint (warning; a route file of nothing but
+  such points is refused).
 
 An empty file (0 bytes or a header only: the app writes ``Annotation.csv`` when annotations are on
 but never tapped) counts as absent, so an export with an empty ``Location.csv`` is an IMU-only
@@ -45,8 +49,14 @@ from scipy.spatial.transform import Rotation
 
 from curbside.errors import CurbsideInputError
 from curbside.localize.readers._export import check_same_clock, find_recordings, open_export
-from curbside.localize.readers._resample import interp_quaternions, merge_imu
-from curbside.localize.readers._tidy import STANDARD_GRAVITY, accelerometer_ms2, tidy_table
+from curbside.localize.readers._resample import interp_quaternions, merge_imu, report_gaps
+from curbside.localize.readers._tidy import (
+    MAX_WAYPOINT_DISTANCE_M,
+    STANDARD_GRAVITY,
+    accelerometer_ms2,
+    far_from_fixes,
+    tidy_table,
+)
 from curbside.localize.session import Session
 
 logger = logging.getLogger(__name__)
@@ -60,6 +70,12 @@ NORTH_TOLERANCE_DEG = 35.0
 
 _MOTION_FILES = ("TotalAcceleration.csv", "Accelerometer.csv", "Gravity.csv", "Gyroscope.csv",
                  "Orientation.csv", "Magnetometer.csv")
+#: Raw sensors, read only in place of missing calibrated ones: ``{file: the calibrated files it replaces}``.
+_UNCALIBRATED = {"AccelerometerUncalibrated.csv": ("TotalAcceleration.csv", "Accelerometer.csv"),
+                 "GyroscopeUncalibrated.csv": ("Gyroscope.csv",)}
+#: Where the accelerometer (gravity included, or restorable) and the gyroscope come from, by preference.
+_ACCELEROMETERS = ("TotalAcceleration.csv", "Accelerometer.csv", "AccelerometerUncalibrated.csv")
+_GYROSCOPES = ("Gyroscope.csv", "GyroscopeUncalibrated.csv")
 _QUAT = ["qx", "qy", "qz", "qw"]
 _ACC = ("ax", "ay", "az")
 
@@ -91,8 +107,10 @@ def _device(table: pd.DataFrame | None, label: str) -> _Device:
 
 
 def _read_streams(export) -> dict[str, pd.DataFrame]:
-    streams = {}
-    for name in (*_MOTION_FILES, "Location.csv", "Annotation.csv"):
+    streams: dict[str, pd.DataFrame] = {}
+    for name in (*_MOTION_FILES, "Location.csv", "Annotation.csv", *_UNCALIBRATED):
+        if name in _UNCALIBRATED and any(n in streams for n in _UNCALIBRATED[name]):
+            continue
         table = export.read(name)
         if table is None:
             continue
@@ -106,8 +124,8 @@ def _read_streams(export) -> dict[str, pd.DataFrame]:
 
 def _one_clock(streams: dict[str, pd.DataFrame], export, metadata: pd.DataFrame | None, meta: dict) -> None:
     """Add ``t`` (s) to every table in place; record the epoch of ``t = 0`` in ``meta``."""
-    reference = next((n for n in ("TotalAcceleration.csv", "Accelerometer.csv", "Gyroscope.csv",
-                                  "Location.csv") if n in streams), next(iter(streams)))
+    preferred = (*_ACCELEROMETERS, *_GYROSCOPES, "Location.csv")
+    reference = next((n for n in preferred if n in streams), next(iter(streams)))
     check_same_clock(streams, reference, export.label)
     ref = streams[reference]
     t0_ns = None
@@ -161,13 +179,15 @@ def _includes_gravity(acce: pd.DataFrame, source: str) -> bool:
 
 def _specific_force(streams, label: str, quat: pd.DataFrame | None, device: _Device):
     """Accelerometer including gravity, and whether its sign is still the export's (else Android's)."""
-    if "TotalAcceleration.csv" in streams:
-        return _xyz(streams["TotalAcceleration.csv"], f"{label}/TotalAcceleration.csv", _ACC), True
+    for name in ("TotalAcceleration.csv", "AccelerometerUncalibrated.csv"):
+        if name in streams:  # both include gravity; the raw one is read only when the others are absent
+            return _xyz(streams[name], f"{label}/{name}", _ACC), True
     source = f"{label}/Accelerometer.csv"
     user = _xyz(streams["Accelerometer.csv"], source, _ACC)
     t = user["t"].to_numpy()
     if "Gravity.csv" in streams:
         gravity = _xyz(streams["Gravity.csv"], f"{label}/Gravity.csv", _ACC)
+        report_gaps(gravity["t"].to_numpy(), f"{label}/Gravity.csv", "filled by interpolation in imu.csv")
         for col in _ACC:
             user[col] = user[col] + np.interp(t, gravity["t"].to_numpy(), gravity[col].to_numpy())
         return user, True
@@ -272,19 +292,34 @@ def _check_north(imu: pd.DataFrame, streams, label: str, device: _Device, meta: 
         logger.info("%s: magnetic north at %.1f deg in the world frame", label, north)
 
 
+def _report_uncalibrated(streams, label: str) -> None:
+    """Warn that raw (uncalibrated) sensors stand in for calibrated ones the export lacks."""
+    raw = [n for n in _UNCALIBRATED if n in streams]
+    if not raw:
+        return
+    missing = ", no ".join("/".join(_UNCALIBRATED[n]) for n in raw)
+    bias = " (the uncalibrated gyroscope keeps its bias: the heading drifts)" \
+        if "GyroscopeUncalibrated.csv" in raw else ""
+    logger.warning("%s: no %s: imu.csv made from %s instead%s; enable the calibrated sensors (Accelerometer, "
+                   "Gravity, Gyroscope, Orientation) in Sensor Logger", label, missing, ", ".join(raw), bias)
+
+
 def _imu(streams, label: str, device: _Device, meta: dict) -> pd.DataFrame | None:
-    acc_name = next((n for n in ("TotalAcceleration.csv", "Accelerometer.csv") if n in streams), None)
-    if acc_name is None or "Gyroscope.csv" not in streams:
-        present = [n for n in _MOTION_FILES if n in streams]
+    acc_name = next((n for n in _ACCELEROMETERS if n in streams), None)
+    gyro_name = next((n for n in _GYROSCOPES if n in streams), None)
+    if acc_name is None or gyro_name is None:
+        present = [n for n in (*_MOTION_FILES, *_UNCALIBRATED) if n in streams]
         if present:
             logger.warning("%s: no imu.csv (needs an accelerometer and Gyroscope.csv; has %s)",
                            label, ", ".join(present))
         return None
+    _report_uncalibrated(streams, label)
     quat = _orientation(streams, label, device)
     acce, export_sign = _specific_force(streams, label, quat, device)
     acce = accelerometer_ms2(acce, f"{label}/{acc_name}")
-    gyro = _xyz(streams["Gyroscope.csv"], f"{label}/Gyroscope.csv", ("gx", "gy", "gz"))
-    imu = merge_imu(acce, gyro, quat, label)
+    gyro = _xyz(streams[gyro_name], f"{label}/{gyro_name}", ("gx", "gy", "gz"))
+    names = (f"{label}/{acc_name}", f"{label}/{gyro_name}", f"{label}/Orientation.csv")
+    imu = merge_imu(acce, gyro, quat, label, names)
     sign, invert = 1.0, False
     if quat is not None and export_sign:
         sign, invert = _gravity_convention(imu, label)
@@ -328,7 +363,7 @@ def _gnss(streams, label: str) -> pd.DataFrame | None:
     return tidy_table(table, source, ["t", "lat", "lon", "accuracy_m"], nullable=("accuracy_m",))
 
 
-def _route_waypoints(taps: pd.DataFrame, route: Path) -> pd.DataFrame:
+def _route_waypoints(taps: pd.DataFrame, route: Path, gnss: pd.DataFrame | None) -> pd.DataFrame:
     try:
         points = pd.read_csv(route, skipinitialspace=True)
     except (OSError, pd.errors.ParserError, pd.errors.EmptyDataError, UnicodeDecodeError) as exc:
@@ -338,10 +373,22 @@ def _route_waypoints(taps: pd.DataFrame, route: Path) -> pd.DataFrame:
     if len(points) != len(taps):
         raise CurbsideInputError(route, f"{len(points)} route points for {len(taps)} taps")
     table = pd.DataFrame({"t": taps["t"], "lat": points["lat"].to_numpy(), "lon": points["lon"].to_numpy()})
-    return tidy_table(table, route, ["t", "lat", "lon"])
+    table = tidy_table(table, route, ["t", "lat", "lon"])
+    far = far_from_fixes(table, gnss)
+    if far.all():
+        km = MAX_WAYPOINT_DISTANCE_M / 1000
+        raise CurbsideInputError(route, f"none of its {len(table)} point(s) lies within {km:.0f} km of a "
+                                 "GNSS fix (the route of another walk?)")
+    if far.any():
+        listed = ", ".join(f"({lat:.5f}, {lon:.5f}) at t={t:.1f} s" for t, lat, lon in
+                           table.loc[far, ["t", "lat", "lon"]].itertuples(index=False))
+        logger.warning("%s: dropped %d point(s) more than %.0f km from every GNSS fix: %s", route,
+                       int(far.sum()), MAX_WAYPOINT_DISTANCE_M / 1000, listed)
+    return table[~far].reset_index(drop=True)
 
 
-def _waypoints(streams, label: str, route: str | Path | None, meta: dict) -> pd.DataFrame | None:
+def _waypoints(streams, label: str, route: str | Path | None, meta: dict,
+               gnss: pd.DataFrame | None) -> pd.DataFrame | None:
     taps = streams.get("Annotation.csv")
     if taps is None:
         if route is not None:
@@ -349,12 +396,20 @@ def _waypoints(streams, label: str, route: str | Path | None, meta: dict) -> pd.
         return None
     taps = taps.sort_values("t", kind="stable").reset_index(drop=True)
     if route is not None:
-        return _route_waypoints(taps, Path(route))
+        return _route_waypoints(taps, Path(route), gnss)
     text = taps["text"].fillna("").astype(str) if "text" in taps.columns else pd.Series([""] * len(taps))
     parts = text.str.split(",", n=1, expand=True).reindex(columns=[0, 1])
     lat = pd.to_numeric(parts[0], errors="coerce")
     lon = pd.to_numeric(parts[1], errors="coerce")
-    located = lat.notna() & lon.notna()
+    located = (lat.notna() & lon.notna()).to_numpy()
+    far = np.zeros(len(taps), bool)
+    far[located] = far_from_fixes(pd.DataFrame({"lat": lat[located], "lon": lon[located]}), gnss)
+    if far.any():
+        listed = ", ".join(f"{s!r} at t={t:.1f} s" for s, t in zip(text[far], taps["t"][far], strict=True))
+        logger.warning("%s/Annotation.csv: %d tap(s) read as 'lat,lon' lie more than %.0f km from every GNSS "
+                       "fix (%s): not waypoints, kept in meta['annotations']", label, int(far.sum()),
+                       MAX_WAYPOINT_DISTANCE_M / 1000, listed)
+        located = located & ~far
     others = taps.loc[~located]
     if len(others):
         meta["annotations"] = [
@@ -413,7 +468,7 @@ def read_sensorlogger(src: str | Path, route: str | Path | None = None) -> Sessi
     _one_clock(streams, export, metadata, meta)
     imu = _imu(streams, label, device, meta)
     gnss = _gnss(streams, label)
-    waypoints = _waypoints(streams, label, route, meta)
+    waypoints = _waypoints(streams, label, route, meta, gnss)
     if imu is None and gnss is None:
         raise CurbsideInputError(label, "export has neither a usable IMU (accelerometer + gyroscope) "
                                  "nor Location.csv fixes")
