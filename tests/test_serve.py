@@ -35,8 +35,8 @@ from curbside.localize.live import IMU_QUAT_COLUMNS, InferenceQueue, LiveSession
 from curbside.localize.pipeline import track_session
 from curbside.localize.runconfig import RunConfig
 from curbside.localize.session import write_session
-from curbside.localize.sidewalks import sidewalk_places
 from curbside.osmseg.mapio import read_map
+from curbside.osmseg.places import sidewalk_places
 from curbside.projection import LocalFrame
 
 DATA = Path(__file__).parent / "data"

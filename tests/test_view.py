@@ -26,14 +26,11 @@ from curbside.localize.particle_store import (
     unpack_particles,
     write_particles,
 )
-from curbside.localize.view import (
-    MAX_DRAWN_PARTICLES,
-    PAGE_OFFSET_UNIT_DEG,
-    _cloud_data,
-    label_runs,
-    load_run,
-    view_page,
-)
+from curbside.localize.view import ViewRun, _result_track, label_runs, load_run, view_page
+from curbside.localize.view_data import MAX_DRAWN_PARTICLES, PAGE_OFFSET_UNIT_DEG
+from curbside.localize.view_data import cloud_data as _cloud_data
+from curbside.osmseg.mapio import read_map
+from curbside.osmseg.places import sidewalk_places
 from curbside.projection import LocalFrame
 
 UTM10N = "EPSG:32610"
@@ -133,7 +130,7 @@ def test_page_holds_each_run_its_cloud_and_the_session(runs):
     views = label_runs([load_run(r) for r in runs])
     page = view_page(views)
     data = _page_data(page)
-    assert [r["label"] for r in data["runs"]] == ["gnss", "fused"]
+    assert [r["label"] for r in data["runs"]] == ["GNSS", "curbside fused"]  # the reports' METHOD_LABELS
     gnss, fused = data["runs"]
     assert gnss["cloud"] is None and fused["cloud"]["n"] == 100
     track = pd.read_csv(runs[1] / "track.csv")
@@ -153,6 +150,18 @@ def test_page_holds_each_run_its_cloud_and_the_session(runs):
     assert len(session["gnss"]["t"]) == len(pd.read_csv(runs[0].parent / "walk" / "gnss.csv"))
     assert len(session["truth"]["t"]) == 4
     assert "© OpenStreetMap contributors" in page and "sidewalk segment (" in page
+
+
+def test_segments_are_named_by_street_and_compass_side(runs):
+    fused = _page_data(view_page([load_run(runs[1])]))["runs"][0]
+    places = sidewalk_places(read_map(CROSSROADS))
+    visited = {s for s in fused["segment"] if s is not None}
+    assert fused["segment_names"] == {s: places[s].label for s in visited}
+    # the walker goes east along the north sidewalks of Market Street
+    assert "Market Street, north side" in fused["segment_names"].values()
+    # a run tracked on a map that cannot be read keeps its raw ids (and says why in the log)
+    gone = ViewRun("x", pd.read_csv(runs[1] / "track.csv"), map_path=str(runs[1] / "gone.geojson"))
+    assert _page_data(view_page([gone], maps={}))["runs"][0]["segment_names"] is None
 
 
 def test_cli_writes_the_page_and_says_so(runs, tmp_path, capsys):
@@ -247,14 +256,40 @@ def test_the_evaluation_report_links_each_session_to_its_replay(runs, tmp_path):
     assert "- [walk](view/walk.html)" in (tmp_path / "report" / "report.md").read_text()
     assert "<a href='view/walk.html'>walk</a>" in (tmp_path / "report" / "report.html").read_text()
     data = _page_data((tmp_path / "report" / "view" / "walk.html").read_text(encoding="utf-8"))
-    assert [r["label"] for r in data["runs"]] == ["gnss", "fused · crossroads", "fused · hand"]
+    labels = ["GNSS", "curbside fused · crossroads", "curbside fused · hand"]  # the reports' METHOD_LABELS
+    assert [r["label"] for r in data["runs"]] == labels
     # the track drawn is the one scored, back in lon/lat
-    fused = data["runs"][1]
+    gnss, fused = data["runs"][:2]
     scored = results[1]["track"]
     frame = LocalFrame(read_map(CROSSROADS).crs)
     lon, lat = frame.to_lonlat(scored["x_m"].to_numpy(), scored["y_m"].to_numpy())
     np.testing.assert_allclose(fused["lat"], lat, atol=1e-7)
-    assert fused["segment"] == results[1]["errors"]["est_segment"].tolist()
+    # the panel's columns the results hold: the 68 % radius, the MAP segment with its probability
+    errors, mode = results[1]["errors"], results[1]["errors_mode"]
+    assert fused["accuracy_m"] == pytest.approx(errors["accuracy_m"].round(1).tolist())
+    assert fused["segment_prob"] == pytest.approx(mode["segment_prob"].round(3).tolist())
+    assert fused["segment"] == mode["est_segment"].tolist()
+    assert "Market Street, north side" in fused["segment_names"].values()
+    assert gnss["accuracy_m"] == pytest.approx(results[0]["errors"]["accuracy_m"].round(1).tolist())
+    assert gnss["segment_prob"] is None and gnss["segment"] == results[0]["errors"]["est_segment"].tolist()
+    assert fused["n_eff"] is None  # run_one does not keep it (see test_result_columns_are_carried_when_held)
+
+
+def test_result_columns_are_carried_when_held():
+    frame = LocalFrame(pyproj.CRS(UTM10N))
+    t = np.arange(3.0)
+    scored = pd.DataFrame({"t": t, "x_m": 553000.0 + t, "y_m": np.full(3, 4182750.0)})
+    errors = pd.DataFrame(
+        {"est_segment": ["a", "a", "b"], "accuracy_m": [2.0, 3.0, 4.0], "n_eff": [90, 80, 70]}
+    )
+    mode = pd.DataFrame({"est_segment": ["a", "b", "b"], "segment_prob": [0.9, 0.6, 0.8]})
+    track = _result_track({"track": scored, "errors": errors, "errors_mode": mode}, frame)
+    assert track["sidewalk_segment_id"].tolist() == ["a", "b", "b"]  # the segment its probability is of
+    assert track["segment_prob"].tolist() == [0.9, 0.6, 0.8]
+    assert track["accuracy_m"].tolist() == [2.0, 3.0, 4.0] and track["n_eff"].tolist() == [90, 80, 70]
+    bare = _result_track({"track": scored, "errors": errors[["est_segment"]], "errors_mode": None}, frame)
+    assert list(bare.columns) == ["t", "lat", "lon", "sidewalk_segment_id"]
+    assert bare["sidewalk_segment_id"].tolist() == ["a", "a", "b"]
 
 
 def test_cloud_every_keeps_fewer_clouds(runs, tmp_path):

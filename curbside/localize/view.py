@@ -4,8 +4,10 @@
 draws, over the map layers of the runs' map: each run's estimate track, its particle cloud at every
 footstep (``particles.npz``, from ``--save-particles``), the session's GNSS fixes with their accuracy
 circles and the ground truth when the session has waypoints. A time slider with play/pause steps
-through the walk; a panel shows, for each run, the sidewalk segment and its probability, the error
-against the ground truth, the effective sample size and the recoveries so far.
+through the walk; a panel (collapsible, and kept off the fitted walk) shows, for each run, the
+sidewalk segment in words ("Market Street, north side"; the raw id in its tooltip) and its probability,
+the error against the ground truth, the effective sample size and the recoveries so far. Runs of a
+known method are labelled as in the reports (:data:`curbside.evaluate.runner.METHOD_LABELS`).
 
 The page is self-contained: the vendored Leaflet and the data are inlined (see
 :mod:`curbside.osmseg.webmap`). Particle clouds travel as base64 int16 offsets from each footstep's
@@ -15,10 +17,10 @@ at about 3 MB per run.
 
 from __future__ import annotations
 
-import base64
 import html
 import json
 import logging
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -27,23 +29,23 @@ import pandas as pd
 import pyproj
 
 from curbside.errors import CurbsideInputError
-from curbside.evaluate.groundtruth import groundtruth_at
-from curbside.evaluate.metrics import format_waypoint_summary, waypoint_errors, waypoint_summary
+from curbside.evaluate.runner import METHOD_LABELS
 from curbside.io import atomic_path
 from curbside.localize.particle_store import ParticleClouds, read_particles
 from curbside.localize.session import Session
+from curbside.localize.view_data import SegmentNamer, run_data, session_data
 from curbside.osmseg.mapio import MapLayers, read_map
 from curbside.osmseg.plot import clip_to_bbox
 from curbside.osmseg.webmap import (
     asset_text,
     attribution,
-    bounds_js,
     class_features,
     class_overlay_js,
     leaflet_page,
     script_json,
+    sidewalk_places,
 )
-from curbside.projection import WGS84, LocalFrame
+from curbside.projection import LocalFrame
 
 log = logging.getLogger(__name__)
 
@@ -53,15 +55,11 @@ METHOD_COLOURS: dict[str, str] = {
 }
 #: Colours of further runs, in turn.
 EXTRA_COLOURS: tuple[str, ...] = ("#1f77b4", "#8c564b", "#e377c2", "#17becf", "#bcbd22", "#7f7f7f")
-#: Degrees per unit of the particle offsets sent to the page.
-PAGE_OFFSET_UNIT_DEG = 1e-6
-#: Metres of map kept around the tracks and the ground truth.
-MAP_MARGIN_M = 80.0
+#: Metres of map kept around the tracks and the ground truth (the fitted view leaves room for the panel
+#: beside the walk: that room shows map too).
+MAP_MARGIN_M = 150.0
 #: Pages larger than this (MB) get a warning: they take seconds to open.
 LARGE_PAGE_MB = 20.0
-#: Clouds of more particles are drawn thinned to about this many (every k-th particle): the page
-#: stays the size it had at the paper's N = 500, and a cloud of 500 dots shows its shape as well.
-MAX_DRAWN_PARTICLES = 500
 
 
 @dataclass
@@ -74,7 +72,7 @@ class ViewRun:
         Name in the legend and the panel.
     track
         ``t, lat, lon`` per footstep and, when known, ``n_eff``, ``recovered``, ``sidewalk_segment_id``,
-        ``segment_prob``.
+        ``segment_prob``, ``accuracy_m``.
     session
         The recording (GNSS fixes, waypoints), or ``None``.
     session_key
@@ -87,6 +85,9 @@ class ViewRun:
         The map the run was tracked on, or ``None``.
     recoveries
         Collapses of the particle cloud over the whole run.
+    segment_map
+        The map whose ``segment_id`` the track's ``sidewalk_segment_id`` names (it gives the street
+        names); ``None``: ``map_path``.
     """
 
     label: str
@@ -97,6 +98,12 @@ class ViewRun:
     particles: ParticleClouds | None = None
     map_path: str | None = None
     recoveries: int = 0
+    segment_map: str | None = None
+
+
+def method_label(mode: str) -> str:
+    """The reports' name of a method (:data:`~curbside.evaluate.runner.METHOD_LABELS`), else ``mode``."""
+    return METHOD_LABELS.get(mode, mode)
 
 
 def load_run(
@@ -116,7 +123,8 @@ def load_run(
     Returns
     -------
     ViewRun
-        Labelled by mode; :func:`label_runs` makes the labels of several runs distinct.
+        Labelled by method as in the reports (:func:`method_label`), else by folder name;
+        :func:`label_runs` makes the labels of several runs distinct.
 
     Raises
     ------
@@ -148,20 +156,22 @@ def load_run(
             hint = "" if session else " (pass --session if the session moved)"
             raise CurbsideInputError(exc.source, f"{exc.problem}{hint}") from None
     particles = read_particles(folder / "particles.npz") if (folder / "particles.npz").is_file() else None
+    mode = str(info.get("mode") or "")
     return ViewRun(
-        label=str(info.get("mode") or folder.name),
+        label=method_label(mode) if mode else folder.name,
         track=track,
         session=loaded,
         session_key=str(Path(session_src).resolve()) if session_src else "",
-        mode=str(info.get("mode") or ""),
+        mode=mode,
         particles=particles,
         map_path=str(map_path or info.get("map") or "") or None,
         recoveries=int(info.get("recoveries") or 0),
+        segment_map=str(info.get("map") or "") or None,
     )
 
 
 def label_runs(runs: list[ViewRun], names: list[str] | None = None) -> list[ViewRun]:
-    """Give every run a distinct label: the mode, then the map's name, then a number.
+    """Give every run a distinct label: the method's, then the map's name, then a number.
 
     Parameters
     ----------
@@ -197,110 +207,6 @@ def _colour(run: ViewRun, used: set[str]) -> str:
     return colour
 
 
-def _round(values: np.ndarray, decimals: int) -> list:
-    values = np.round(np.asarray(values, float), decimals)
-    return [None if not np.isfinite(v) else float(v) for v in values]
-
-
-def _b64(values: np.ndarray, dtype: str) -> str:
-    return base64.b64encode(np.ascontiguousarray(values, dtype=dtype).tobytes()).decode("ascii")
-
-
-def _cloud_data(clouds: ParticleClouds, every: int = 1) -> dict:
-    """Every ``every``-th cloud as base64 little-endian int16 micro-degree offsets from its mean, each
-    thinned to every k-th particle when it has more than :data:`MAX_DRAWN_PARTICLES`."""
-    to_wgs84 = pyproj.Transformer.from_crs(pyproj.CRS(clouds.crs), WGS84, always_xy=True)
-    stride = -(-clouds.n_particles // MAX_DRAWN_PARTICLES)
-    drawn = (slice(None, None, every), slice(None, None, stride))
-    lon, lat = to_wgs84.transform(clouds.x[drawn], clouds.y[drawn])
-    ref_lon, ref_lat = np.mean(lon, axis=1), np.mean(lat, axis=1)
-    limit = np.iinfo(np.int16).max
-    dlon = np.rint((lon - ref_lon[:, None]) / PAGE_OFFSET_UNIT_DEG)
-    dlat = np.rint((lat - ref_lat[:, None]) / PAGE_OFFSET_UNIT_DEG)
-    far = int(np.count_nonzero((np.abs(dlon) > limit) | (np.abs(dlat) > limit)))
-    if far:
-        log.warning("%d particle(s) more than 3 km from their cloud's mean are drawn at the edge", far)
-    out = {
-        "t": _round(clouds.t[::every], 3),
-        "n": lon.shape[1],
-        "n_total": clouds.n_particles,
-        "ref_lat": _round(ref_lat, 7),
-        "ref_lon": _round(ref_lon, 7),
-        "dlat": _b64(np.clip(dlat, -limit, limit), "<i2"),
-        "dlon": _b64(np.clip(dlon, -limit, limit), "<i2"),
-    }
-    if clouds.weight is not None:
-        weight = clouds.weight[drawn]
-        peak = np.maximum(weight.max(axis=1, keepdims=True), 1e-300)
-        out["alpha"] = _b64(np.rint(255 * weight / peak), "u1")
-    return out
-
-
-def _truth_errors(run: ViewRun) -> tuple[list | None, str | None]:
-    """Error against the ground truth at each footstep, and the waypoint-error summary line."""
-    waypoints = run.session.waypoints if run.session is not None else None
-    if waypoints is None or len(waypoints) < 2:
-        return None, None
-    track = run.track
-    frame = LocalFrame.around(float(waypoints["lon"].iat[0]), float(waypoints["lat"].iat[0]))
-    t = track["t"].to_numpy(float)
-    gx, gy = groundtruth_at(waypoints, t, frame)
-    ex, ey = frame.to_xy(track["lon"].to_numpy(float), track["lat"].to_numpy(float))
-    errors = _round(np.hypot(ex - gx, ey - gy), 2)
-    try:
-        summary = format_waypoint_summary(waypoint_summary(waypoint_errors(track, waypoints)))
-    except CurbsideInputError:
-        summary = None
-    return errors, summary
-
-
-def _run_data(run: ViewRun, colour: str, cloud_every: int = 1) -> dict:
-    track = run.track
-    errors, summary = _truth_errors(run)
-    recovered = np.zeros(len(track), int)
-    if "recovered" in track:
-        recovered = track["recovered"].fillna(0).to_numpy(int)
-    segments = None
-    if "sidewalk_segment_id" in track:
-        ids = track["sidewalk_segment_id"].astype(object)
-        segments = ids.where(ids.notna(), None).tolist()
-    return {
-        "label": run.label,
-        "colour": colour,
-        "session": run.session_key,
-        "t": _round(track["t"], 3),
-        "lat": _round(track["lat"], 7),
-        "lon": _round(track["lon"], 7),
-        "n_eff": _round(track["n_eff"], 1) if "n_eff" in track else None,
-        "recoveries_so_far": np.cumsum(recovered > 0).tolist(),
-        "recoveries": int(max(run.recoveries, int((recovered > 0).sum()))),
-        "segment": segments,
-        "segment_prob": _round(track["segment_prob"], 3) if "segment_prob" in track else None,
-        "accuracy_m": _round(track["accuracy_m"], 1) if "accuracy_m" in track else None,
-        "error_m": errors,
-        "waypoint_summary": summary,
-        "cloud": _cloud_data(run.particles, cloud_every) if run.particles is not None else None,
-    }
-
-
-def _session_data(session: Session, key: str) -> dict:
-    data: dict = {"key": key, "name": session.name, "gnss": None, "truth": None}
-    if session.gnss is not None and len(session.gnss):
-        g = session.gnss
-        acc = g["accuracy_m"].to_numpy(float)
-        valid = np.isfinite(acc) & (acc > 0)
-        data["gnss"] = {
-            "t": _round(g["t"][valid], 3),
-            "lat": _round(g["lat"][valid], 7),
-            "lon": _round(g["lon"][valid], 7),
-            "acc": _round(acc[valid], 1),
-        }
-    if session.waypoints is not None and len(session.waypoints) >= 2:
-        w = session.waypoints
-        data["truth"] = {"t": _round(w["t"], 3), "lat": _round(w["lat"], 7), "lon": _round(w["lon"], 7)}
-    return data
-
-
 def _extent(runs: list[ViewRun], margin_m: float = 0.0) -> tuple[float, float, float, float]:
     """WGS84 ``(west, south, east, north)`` of the tracks and ground truths, ``margin_m`` around."""
     lon = np.concatenate([r.track["lon"].to_numpy(float) for r in runs])
@@ -324,7 +230,8 @@ def _map_overlays(maps: dict[str, MapLayers], bbox: tuple[float, float, float, f
             log.warning("the map %s has nothing under the runs", name)
             continue
         prefix = f"{name}: " if len(maps) > 1 else ""
-        for cls, features in class_features(clipped).items():
+        places = sidewalk_places(layers)  # on the whole map: a segment at the edge keeps its street
+        for cls, features in class_features(clipped, places=places).items():
             if features:
                 statements.append(class_overlay_js(cls, features, prefix, visible=i == 0))
     return "\n".join(statements)
@@ -335,6 +242,7 @@ def view_page(
     maps: dict[str, MapLayers] | None = None,
     title: str | None = None,
     cloud_every: int = 1,
+    map_reader: Callable[[str], MapLayers] | None = None,
 ) -> str:
     """The replay page of one or more runs.
 
@@ -351,6 +259,9 @@ def view_page(
     cloud_every
         Keep the particle cloud of every ``cloud_every``-th footstep only (the slider shows the latest
         kept one): a long walk's page shrinks about that many times.
+    map_reader
+        Reads a map by path, for the street names of the runs' segments (default:
+        :func:`~curbside.osmseg.mapio.read_map`, once per map).
 
     Returns
     -------
@@ -362,20 +273,22 @@ def view_page(
     if maps is None:
         maps = maps_of(runs)
     used: set[str] = set()
-    run_data = [_run_data(run, _colour(run, used), cloud_every) for run in runs]
+    namer = SegmentNamer(map_reader or read_map)
+    runs_data = [run_data(run, _colour(run, used), cloud_every, namer) for run in runs]
     sessions = {}
     for run in runs:
         if run.session is not None and run.session_key not in sessions:
-            sessions[run.session_key] = _session_data(run.session, run.session_key)
+            sessions[run.session_key] = session_data(run.session, run.session_key)
     bbox = _extent(runs, MAP_MARGIN_M)
     names = sorted({s["name"] for s in sessions.values()}) or [r.label for r in runs]
     title = title or f"curbside replay: {', '.join(names)}"
-    data = {"runs": run_data, "sessions": list(sessions.values()), "title": title}
+    west, south, east, north = _extent(runs)
+    data = {"runs": runs_data, "sessions": list(sessions.values()), "title": title,
+            "bounds": [[south, west], [north, east]]}
     first = next(iter(maps.values())) if maps else None
     script = "\n".join(
         [
             _map_overlays(maps, bbox),
-            f"map.fitBounds({bounds_js(*_extent(runs))}, {{padding: [30, 30]}});",
             f"const VIEW = {script_json(data)};",
             asset_text("curbside-view.js"),
         ]
@@ -390,16 +303,27 @@ def view_page(
 
 
 def write_view(
-    runs: list[ViewRun], path: str | Path, maps: dict[str, MapLayers] | None = None, cloud_every: int = 1
+    runs: list[ViewRun],
+    path: str | Path,
+    maps: dict[str, MapLayers] | None = None,
+    cloud_every: int = 1,
+    map_reader: Callable[[str], MapLayers] | None = None,
 ) -> Path:
     """Write :func:`view_page` to an HTML file (atomically); warn when it is large.
+
+    Parameters
+    ----------
+    runs, maps, cloud_every, map_reader
+        See :func:`view_page`.
+    path
+        The page.
 
     Returns
     -------
     pathlib.Path
         ``path``.
     """
-    page = view_page(runs, maps, cloud_every=cloud_every)
+    page = view_page(runs, maps, cloud_every=cloud_every, map_reader=map_reader)
     path = Path(path)
     with atomic_path(path) as tmp:
         tmp.write_text(page, encoding="utf-8")
@@ -429,26 +353,59 @@ def _is_view_run(spec: dict, base: dict) -> bool:
     return all(spec[k] == base[k] for k in ("jaywalk_weight", "particles", "gnss_sigma_factor"))
 
 
-def runs_from_results(results: list[dict], base: dict) -> dict[str, list[ViewRun]]:
+def _result_track(result: dict, frame: LocalFrame) -> pd.DataFrame:
+    """A result's scored track back in lon/lat, with the panel's columns the result holds.
+
+    ``accuracy_m`` comes from ``errors``; the segment and its ``segment_prob`` from ``errors_mode``
+    when it has ``segment_prob`` (the posterior-mode estimate lies on the segment that probability is
+    of), else the segment from ``errors``; ``n_eff`` from wherever the runner put it.
+    """
+    scored = result["track"]
+    lon, lat = frame.to_lonlat(scored["x_m"].to_numpy(float), scored["y_m"].to_numpy(float))
+    track = pd.DataFrame({"t": scored["t"].to_numpy(float), "lat": lat, "lon": lon})
+    errors = result["errors"]
+    mode = result.get("errors_mode")
+    if mode is not None and "segment_prob" in mode and "est_segment" in mode:
+        track["sidewalk_segment_id"] = mode["est_segment"].to_numpy()
+        track["segment_prob"] = mode["segment_prob"].to_numpy(float)
+    elif "est_segment" in errors:
+        track["sidewalk_segment_id"] = errors["est_segment"].to_numpy()
+    if "accuracy_m" in errors:
+        track["accuracy_m"] = errors["accuracy_m"].to_numpy(float)
+    for table in (scored, errors, mode):
+        if table is not None and "n_eff" in table:
+            track["n_eff"] = table["n_eff"].to_numpy(float)
+            break
+    return track
+
+
+def runs_from_results(
+    results: list[dict], base: dict, map_reader: Callable[[str], MapLayers] | None = None
+) -> dict[str, list[ViewRun]]:
     """The viewer's runs of each session of an evaluation, at its base parameters.
 
     Parameters
     ----------
     results
         :func:`curbside.evaluate.runner.run_one` outputs: ``spec``, ``track`` (``t, x_m, y_m`` in the
-        scoring frame), ``errors`` (``est_segment``), ``recoveries`` and, when the runner kept them,
-        ``particles`` (packed, :mod:`curbside.localize.particle_store`).
+        scoring frame), ``errors`` (``est_segment``, ``accuracy_m``), ``errors_mode`` (``est_segment``,
+        ``segment_prob``), ``recoveries`` and, when the runner kept them, ``particles`` (packed,
+        :mod:`curbside.localize.particle_store`) and ``n_eff`` (in ``track`` or ``errors``).
     base
         The report's base parameters (``map``, ``jaywalk_weight``, ``particles``, ``gnss_sigma_factor``).
+    map_reader
+        Reads a map by path (default :func:`~curbside.osmseg.mapio.read_map`).
 
     Returns
     -------
     dict
-        Session folder name -> its runs, labelled (:func:`label_runs`).
+        Session folder name -> its runs, labelled as in the reports (:func:`method_label`, then the
+        map's name when the session's runs used several).
     """
     from curbside.localize.particle_store import unpack_particles
     from curbside.localize.session import read_session
 
+    read = map_reader or read_map
     sessions: dict[str, Session] = {}
     frames: dict[str, LocalFrame] = {}
     by_session: dict[str, list[ViewRun]] = {}
@@ -462,27 +419,23 @@ def runs_from_results(results: list[dict], base: dict) -> dict[str, list[ViewRun
         session = sessions[path]
         if spec["metrics_map"]:
             if spec["metrics_map"] not in frames:
-                frames[spec["metrics_map"]] = LocalFrame(pyproj.CRS(read_map(spec["metrics_map"]).crs))
+                frames[spec["metrics_map"]] = LocalFrame(pyproj.CRS(read(spec["metrics_map"]).crs))
             frame = frames[spec["metrics_map"]]
         else:  # the runner scores a run without a metrics map in the frame around the first waypoint
             first = session.waypoints.iloc[0]
             frame = LocalFrame.around(float(first["lon"]), float(first["lat"]))
-        scored = result["track"]
-        lon, lat = frame.to_lonlat(scored["x_m"].to_numpy(float), scored["y_m"].to_numpy(float))
-        track = pd.DataFrame({"t": scored["t"].to_numpy(float), "lat": lat, "lon": lon})
-        if "est_segment" in result["errors"]:
-            track["sidewalk_segment_id"] = result["errors"]["est_segment"].to_numpy()
         particles = result.get("particles")
         by_session.setdefault(Path(path).name, []).append(
             ViewRun(
-                label=spec["method"],
-                track=track,
+                label=method_label(spec["method"]),
+                track=_result_track(result, frame),
                 session=session,
                 session_key=str(Path(path).resolve()),
                 mode=spec["method"],
                 particles=unpack_particles(particles, path) if particles is not None else None,
                 map_path=spec["map_path"] if spec["method"] != "gnss" else None,
                 recoveries=int(result.get("recoveries", 0)),
+                segment_map=spec["metrics_map"] or "",
             )
         )
     for runs in by_session.values():
@@ -511,12 +464,14 @@ def write_session_views(results: list[dict], base: dict, out_dir: str | Path) ->
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     maps: dict[str, MapLayers] = {}
+
+    def read(path: str) -> MapLayers:
+        if path not in maps:
+            maps[path] = read_map(path)
+        return maps[path]
+
     pages = {}
-    for session, runs in runs_from_results(results, base).items():
-        shown = {}
-        for path in dict.fromkeys(r.map_path for r in runs if r.map_path):
-            if path not in maps:
-                maps[path] = read_map(path)
-            shown[Path(path).stem] = maps[path]
-        pages[session] = write_view(runs, out_dir / f"{session}.html", shown)
+    for session, runs in runs_from_results(results, base, read).items():
+        shown = {Path(p).stem: read(p) for p in dict.fromkeys(r.map_path for r in runs if r.map_path)}
+        pages[session] = write_view(runs, out_dir / f"{session}.html", shown, map_reader=read)
     return pages

@@ -1,10 +1,13 @@
 // curbside replay viewer. Runs after the page skeleton of curbside/osmseg/webmap.py has created `map`
 // (canvas renderer) and `layers` (the layer control), with `VIEW` = {runs, sessions, title} inlined by
-// curbside/localize/view.py. Times are seconds on the session clock.
+// curbside/localize/view.py (curbside/localize/view_data.py writes the runs and sessions). Times are
+// seconds on the session clock.
 
 const OFFSET_UNIT_DEG = 1e-6;
 const GNSS_COLOUR = "#1f77b4";
 const ui = {
+  panel: document.getElementById("panel"),
+  panelToggle: document.getElementById("panel-toggle"),
   title: document.getElementById("view-title"),
   clock: document.getElementById("clock"),
   rows: document.querySelector("#run-table tbody"),
@@ -126,6 +129,26 @@ const sessionViews = VIEW.sessions.map((s) => {
 });
 const sessionIndex = new Map(VIEW.sessions.map((s, i) => [s.key, i]));
 
+// The panel's columns that some run has (the others are left out) and the error column's heading.
+const COLUMNS = ["segment", "prob", "error", "neff", "recoveries"];
+const hasColumn = {
+  segment: VIEW.runs.some((r) => r.segment),
+  prob: VIEW.runs.some((r) => r.segment_prob),
+  error: VIEW.runs.some((r) => r.error_m || r.accuracy_m),
+  neff: VIEW.runs.some((r) => r.n_eff),
+  recoveries: true,
+};
+const hasError = VIEW.runs.some((r) => r.error_m), hasRadius = VIEW.runs.some((r) => r.accuracy_m);
+for (const th of document.querySelectorAll("#run-table th[data-col]")) th.hidden = !hasColumn[th.dataset.col];
+document.querySelector('#run-table th[data-col="error"]').textContent =
+  hasError && hasRadius ? "error / 68 % radius" : hasError ? "error" : "68 % radius";
+
+function errorText(r, k, accuracy) {
+  const error = r.error_m ? fmt(r.error_m[k], 1, " m") : "\u2014";
+  if (!hasRadius) return error;
+  return hasError ? `${error} / ${fmt(accuracy, 1, " m")}` : fmt(accuracy, 1, " m");
+}
+
 const runViews = VIEW.runs.map((r) => {
   const path = L.polyline(r.lat.map((lat, i) => [lat, r.lon[i]]).filter((p) => p[0] !== null),
     { color: r.colour, weight: 2, opacity: 0.75, interactive: false });
@@ -134,14 +157,16 @@ const runViews = VIEW.runs.map((r) => {
   // The radius that should hold the walker 68 % of the time (accuracy_m), around the estimate.
   const radius = L.circle([r.lat[0], r.lon[0]], { radius: 0, color: r.colour, weight: 1.5, dashArray: "4 3",
     fillOpacity: 0.06, interactive: false });
+  // The legend promises the 68 % radius only for a run that has one.
   layers.addOverlay(L.layerGroup([path, radius, marker]).addTo(map),
-    swatch(r.colour, `${r.label}: track, estimate and its 68 % radius`));
+    swatch(r.colour, `${r.label}: ${r.accuracy_m ? "track, estimate and its 68 % radius" : "track and estimate"}`));
   const view = { data: r, marker, radius, cloud: null, row: ui.rows.insertRow(),
     session: sessionIndex.get(r.session) };
   view.row.insertCell().innerHTML = swatch(r.colour, r.label);
-  view.cells = ["segment", "prob", "error", "neff", "recoveries"].map((name) => {
+  view.cells = COLUMNS.map((name) => {
     const cell = view.row.insertCell();
     if (name !== "segment") cell.className = "num";
+    cell.hidden = !hasColumn[name];
     return cell;
   });
   if (r.waypoint_summary) {
@@ -155,6 +180,7 @@ const runViews = VIEW.runs.map((r) => {
 function drawCloud(view) {
   return (ctx, target) => {
     const c = view.cloud;
+    if (!c) return;  // not decoded yet
     const k = lastAtOrBefore(c.t, state.time);
     if (k < 0) return;
     ctx.fillStyle = view.data.colour;
@@ -177,6 +203,17 @@ function drawCloud(view) {
     if (!c.alpha) ctx.fill();
     ctx.globalAlpha = 1;
   };
+}
+
+// The cloud layers and their legend entries exist from the start (the legend has its full height when
+// the view is fitted); the clouds are decoded after the first render.
+for (const view of runViews) {
+  const r = view.data;
+  if (!r.cloud) continue;
+  view.cloudLayer = new TimeCanvas(drawCloud(view), { pane: "clouds" }).addTo(map);
+  state.clouds.push(view.cloudLayer);
+  const drawn = r.cloud.n < r.cloud.n_total ? `, ${r.cloud.n} drawn` : "";
+  layers.addOverlay(view.cloudLayer, swatch(r.colour, `${r.label}: particles (N = ${r.cloud.n_total}${drawn})`));
 }
 
 // -- the timeline --------------------------------------------------------------------------------
@@ -220,13 +257,17 @@ function updateRun(view, t) {
   if (k < 0 || r.lat[k] === null) {
     view.marker.setStyle({ opacity: 0, fillOpacity: 0 });
     for (const cell of view.cells) cell.textContent = "\u2014";
+    segment.title = "";
     return;
   }
   view.marker.setLatLng([r.lat[k], r.lon[k]]).setStyle({ opacity: 1, fillOpacity: 1 });
   if (accuracy !== null) view.radius.setLatLng([r.lat[k], r.lon[k]]).setRadius(accuracy);
-  segment.textContent = r.segment ? (r.segment[k] ?? "\u2014") : "\u2014";
+  // The segment in words ("Market Street, north side"); its id (the map's segment_id) in the tooltip.
+  const id = r.segment ? r.segment[k] ?? null : null;
+  segment.textContent = id === null ? "\u2014" : (r.segment_names?.[id] ?? id);
+  segment.title = id === null ? "" : id;
   prob.textContent = r.segment_prob ? fmt(r.segment_prob[k], 2) : "\u2014";
-  error.textContent = `${r.error_m ? fmt(r.error_m[k], 1, " m") : "\u2014"} / ${fmt(accuracy, 1, " m")}`;
+  error.textContent = errorText(r, k, accuracy);
   neff.textContent = r.n_eff ? fmt(r.n_eff[k], 0) : "\u2014";
   recoveries.textContent = `${r.recoveries_so_far[k]} / ${r.recoveries}`;
   view.row.classList.toggle("recovered", k > 0 && r.recoveries_so_far[k] > r.recoveries_so_far[k - 1]);
@@ -290,6 +331,57 @@ document.addEventListener("keydown", (event) => {
 });
 setIndex(0);
 
+// -- the panel and the view ------------------------------------------------------------------------
+function setPanelOpen(open) {
+  ui.panel.classList.toggle("collapsed", !open);
+  ui.panelToggle.textContent = open ? "hide" : "show";
+  ui.panelToggle.setAttribute("aria-expanded", String(open));
+  ui.panelToggle.title = open ? "hide the table (the time stays)" : "show the table";
+}
+ui.panelToggle.addEventListener("click", () => setPanelOpen(ui.panel.classList.contains("collapsed")));
+
+// An element's box in map-container pixels ({left, top, right, bottom}).
+function boxOf(element) {
+  const r = element.getBoundingClientRect(), m = map.getContainer().getBoundingClientRect();
+  return { left: r.left - m.left, top: r.top - m.top, right: r.right - m.left, bottom: r.bottom - m.top };
+}
+const overlaps = (a, b) => a.left < b.right && b.left < a.right && a.top < b.bottom && b.top < a.bottom;
+
+// Fit the walk into the part of the map that the panel (with the zoom buttons, top left) and the layer
+// control (top right) leave free: beside, below or between them, whichever shows it largest.
+function fitView() {
+  const bounds = L.latLngBounds(VIEW.bounds);
+  const size = map.getSize();
+  const corner = (name) => map.getContainer().querySelector(`.leaflet-control-container .leaflet-${name}`);
+  const panel = boxOf(ui.panel), zoom = boxOf(corner("top.leaflet-left"));
+  const topLeft = { right: Math.max(panel.right, zoom.right), bottom: Math.max(panel.bottom, zoom.bottom) };
+  const legend = boxOf(corner("top.leaflet-right"));
+  const bottom = Math.max(30, size.y - Math.min(boxOf(corner("bottom.leaflet-left")).top,
+    boxOf(corner("bottom.leaflet-right")).top) + 6);
+  const m = 16;
+  const right = size.x - legend.left + m;
+  const candidates = [
+    [[topLeft.right + m, m], [right, bottom]],  // between the panel and the legend
+    [[m, Math.max(topLeft.bottom, legend.bottom) + m], [m, bottom]],  // below both
+    [[topLeft.right + m, legend.bottom + m], [m, bottom]],  // right of the panel, below the legend
+    [[m, topLeft.bottom + m], [right, bottom]],  // below the panel, left of the legend
+  ];
+  let best = null;
+  for (const [tl, br] of candidates) {
+    const free = L.point(size.x - tl[0] - br[0], size.y - tl[1] - br[1]);
+    if (free.x < 80 || free.y < 80) continue;
+    const zoom = map.getBoundsZoom(bounds, false, L.point(tl[0] + br[0], tl[1] + br[1]));
+    if (best === null || zoom > best.zoom) best = { zoom, tl, br };
+  }
+  if (best === null) best = { tl: [m, m], br: [m, bottom] };
+  map.fitBounds(bounds, { paddingTopLeft: best.tl, paddingBottomRight: best.br, animate: false });
+  return best;
+}
+
+// On a small screen the panel starts folded when it would cover the layer control.
+if (overlaps(boxOf(ui.panel), boxOf(layers.getContainer()))) setPanelOpen(false);
+const fitted = fitView();
+
 // First render: the map, tracks and fixes; then the clouds are decoded and the slider enabled.
 requestAnimationFrame(() => {
   performance.mark("curbside:first-render");
@@ -301,14 +393,10 @@ requestAnimationFrame(() => {
       dlat: int16sOf(r.cloud.dlat), dlon: int16sOf(r.cloud.dlon),
       alpha: r.cloud.alpha ? bytesOf(r.cloud.alpha) : null,
     };
-    const layer = new TimeCanvas(drawCloud(view), { pane: "clouds" }).addTo(map);
-    state.clouds.push(layer);
-    const drawn = r.cloud.n < r.cloud.n_total ? `, ${r.cloud.n} drawn` : "";
-    layers.addOverlay(layer, swatch(r.colour, `${r.label}: particles (N = ${r.cloud.n_total}${drawn})`));
   }
   setIndex(0);
   ui.slider.disabled = false;
   ui.play.disabled = false;
   performance.mark("curbside:slider-ready");
 });
-window.curbsideView = { timeline, state, setIndex, runs: runViews };
+window.curbsideView = { timeline, state, setIndex, runs: runViews, fitted, fitView, setPanelOpen };

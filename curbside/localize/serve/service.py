@@ -56,7 +56,7 @@ from curbside.localize.runconfig import RunConfig
 from curbside.localize.serve.configs import config_key, session_config
 from curbside.localize.serve.models import Estimate
 from curbside.localize.serve.store import TrackStore
-from curbside.localize.sidewalks import SidewalkPlace, sidewalk_places
+from curbside.osmseg.places import SidewalkPlace, sidewalk_places
 
 logger = logging.getLogger(__name__)
 
