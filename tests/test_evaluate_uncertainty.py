@@ -9,6 +9,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from curbside.evaluate.uncertainty import (
+    MIN_BOOTSTRAP_UNITS,
     SessionSamples,
     bootstrap_intervals,
     map_intervals,
@@ -134,7 +135,7 @@ def test_waypoint_intervals_pool_filter_seeds_by_trial():
             for t, n in (("a", 3), ("b", 5)) for m in ("fused", "old")]
     one_seed = {"fused": np.r_[1.0, 1, 1, 9, 9, 9, 9, 9], "old": np.r_[2.0, 2, 2, 9, 9, 9, 9, 9]}
     two_seeds = {m: np.r_[e, e] for m, e in one_seed.items()}
-    frame = waypoint_intervals(two_seeds, rows + rows, "fused", ("old",), n_resamples=200)
+    frame = waypoint_intervals(two_seeds, rows + rows, "fused", ("old",), n_resamples=200, min_units=2)
     diff = frame[frame["method"] == "fused - old"].set_index("metric")
     # The median moves off trial "b"'s 9 m only when "a" is drawn twice (p = 1/4): then fused is 1 m better.
     assert diff.at["euclid_median_m", "lo"] == -1.0 and diff.at["euclid_median_m", "hi"] == 0.0
@@ -164,10 +165,10 @@ def test_no_sidewalks_and_no_estimates_give_no_csa_and_n_a_cells(recwarn):
     from curbside.evaluate.report import interval_table
 
     rng = np.random.default_rng(6)
-    no_sidewalks = [_run(f"s{k}", np.zeros(30, bool), rng.gamma(2.0, 2.0, 30)) for k in range(3)]
+    no_sidewalks = [_run(f"s{k}", np.zeros(30, bool), rng.gamma(2.0, 2.0, 30)) for k in range(5)]
     for r in no_sidewalks:
         r["errors"] = r["errors"].drop(columns=["correct", "across_m"])
-    never_started = [_run(f"s{k}", np.zeros(30, bool), np.full(30, np.nan)) for k in range(3)]
+    never_started = [_run(f"s{k}", np.zeros(30, bool), np.full(30, np.nan)) for k in range(5)]
     for r in never_started:
         r["errors"]["missing"] = True
         r["errors"] = r["errors"].drop(columns=["correct", "across_m"])
@@ -178,3 +179,29 @@ def test_no_sidewalks_and_no_estimates_give_no_csa_and_n_a_cells(recwarn):
     md = interval_table(frame, "t", "n").markdown()
     assert "| GNSS | n/a | n/a |" in md
     assert not [w for w in recwarn if "All-NaN" in str(w.message)]
+
+
+@pytest.mark.parametrize("sessions", [1, MIN_BOOTSTRAP_UNITS - 1])
+def test_too_few_sessions_give_no_interval_and_say_why(sessions):
+    from curbside.evaluate.report import interval_table, records
+
+    rng = np.random.default_rng(7)
+    fused, paper = _runs(rng, 0.9, 1.0, sessions), _runs(rng, 0.6, 4.0, sessions)
+    frame = bootstrap_intervals({"paper": paper, "fused": fused}, n_resamples=100)
+    assert frame[["lo", "hi"]].isna().all().all() and frame["better_share"].isna().all()
+    assert frame["value"].notna().all()  # the point figures stay
+    plural = "session" if sessions == 1 else "sessions"
+    assert (frame["reason"] == f"{sessions} {plural}: an interval needs at least {MIN_BOOTSTRAP_UNITS} "
+            "sessions to resample").all()
+    row = records(frame)[0]
+    assert row["lo"] is None and row["hi"] is None and row["n_units"] == sessions
+    md = interval_table(frame, "t", "n").markdown()
+    assert f"| curbside fused - paper PF | n/a ({sessions} {plural}) |" in md and "[" not in md
+    assert f"fewer than {MIN_BOOTSTRAP_UNITS} sessions" in md
+
+
+def test_enough_sessions_give_intervals_and_no_reason():
+    frame = bootstrap_intervals({"fused": _runs(np.random.default_rng(8), 0.8, 2.0, MIN_BOOTSTRAP_UNITS)},
+                                n_resamples=100)
+    assert frame[["lo", "hi"]].notna().all().all() and frame["reason"].isna().all()
+    assert (frame["n_units"] == MIN_BOOTSTRAP_UNITS).all() and (frame["unit"] == "sessions").all()

@@ -155,3 +155,24 @@ def test_html_is_written_atomically(tmp_path, crossroads, monkeypatch):
     assert [p.name for p in tmp_path.iterdir()] == ["map.html"]
     save_html(crossroads, out)
     assert out.read_text(encoding="utf-8") == html_page(crossroads)
+
+
+def test_tooltip_names_the_street_and_its_compass_side(crossroads):
+    from curbside.osmseg.places import sidewalk_places
+
+    page = html_page(crossroads)
+    sidewalks = _overlays(page)[list(plot.CLASS_STYLE).index("sidewalk")]["features"]
+    shown = {f["properties"]["segment_id"]: f["properties"]["place"] for f in sidewalks}
+    expected = {k: place.label for k, place in sidewalk_places(crossroads).items()}
+    assert shown == expected  # the same words as the service and the replay page
+    assert {"Market Street, north side", "Market Street, south side", "unnamed street, west side"} <= set(
+        shown.values()
+    )
+    assert '["segment", "segment_id"], ["OSM side", "side"]' in page  # left/right kept, second
+    assert "of the way as drawn" in page and "props.place" in page
+
+
+def test_the_background_has_an_honest_legend_line(crossroads):
+    page = html_page(crossroads)
+    assert "free space (no building mapped in OSM)" in page
+    assert 'querySelector(".leaflet-control-layers-list").append(background)' in page

@@ -214,3 +214,45 @@ def test_written_map_renders_after_round_trip(tmp_path, crossroads):
     np.testing.assert_allclose(class_summary(again)["area_m2"], class_summary(layers)["area_m2"], rtol=1e-4)
     with pytest.raises(CurbsideInputError, match="unsupported output format"):
         render_map(again, tmp_path / "again.pdf")
+
+
+def test_png_legend_names_the_background_honestly_and_sits_outside_the_map(crossroads):
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    fig = Figure(figsize=(6, 6))
+    ax = plot.plot_map(read_map(crossroads), fig.add_axes((0.05, 0.05, 0.6, 0.85)))
+    labels = [t.get_text() for t in ax.get_legend().get_texts()]
+    assert "free space (no building mapped in OSM)" in labels and "free space" not in labels
+    renderer = FigureCanvasAgg(fig).get_renderer()
+    legend, frame = ax.get_legend().get_window_extent(renderer), ax.get_window_extent(renderer)
+    assert legend.x0 >= frame.x1  # beside the map, covering none of it
+
+
+def test_bbox_is_named_in_the_title(tmp_path, crossroads, monkeypatch):
+    layers = read_map(crossroads)
+    assert plot.map_title(layers) == "curbside map layers: hand-drawn test crossroads"
+    window = (-122.40512, 37.788, -122.399, 37.7921)
+    assert plot.map_title(layers, window) == (
+        "curbside map layers: hand-drawn test crossroads, bbox -122.40512, 37.788, -122.399, 37.7921"
+    )
+    lon, lat = layers.gdf.to_crs(4326).union_all().centroid.xy
+    window = (lon[0] - 0.001, lat[0] - 0.001, lon[0] + 0.001, lat[0] + 0.001)
+    titles = []
+    monkeypatch.setattr(plot, "plot_map", lambda _layers, ax, title=None: titles.append(title))
+    render_map(layers, tmp_path / "window.png", bbox=window)
+    assert titles == [plot.map_title(layers, window)] and "bbox" in titles[0]
+    assert "bbox" in render_map(layers, tmp_path / "w.html", bbox=window).read_text(encoding="utf-8")
+
+
+def test_a_window_keeps_the_compass_sides_found_on_the_whole_map(tmp_path):
+    layers = _layers([
+        ("street", shapely.box(0, 0, 100, 12), None),
+        ("sidewalk", shapely.box(0, 12, 100, 16), "Main St"),  # north of its street
+        ("building", shapely.box(0, 20, 100, 40), None),
+    ])
+    window = gpd.GeoSeries([shapely.box(X0 + 10, Y0 + 13, X0 + 90, Y0 + 30)], crs=UTM10).to_crs(4326)
+    out = render_map(layers, tmp_path / "window.html", bbox=tuple(window.total_bounds))
+    page = out.read_text(encoding="utf-8")
+    assert '"place":"Main St, north side"' in page  # its street is outside the window
+    assert '"class":"street"' not in page

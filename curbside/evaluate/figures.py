@@ -17,6 +17,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 import pandas as pd  # noqa: E402
+from matplotlib import patheffects  # noqa: E402
 from matplotlib.patches import Patch  # noqa: E402
 from mpl_toolkits.axes_grid1.anchored_artists import AnchoredSizeBar  # noqa: E402
 
@@ -183,54 +184,85 @@ def fig_tracks(
     return fig
 
 
+#: Colour of the GNSS fix and its accuracy circle in Fig. 3.
+FIX_COLOR = "#1f77b4"
+#: Half the side of a Fig. 3 panel (m), around the ground truth.
+PARTICLE_PANEL_HALF_M = 45.0
+
+
+def _fix_marker(ax: plt.Axes, fix: tuple[float, float, float], bounds: tuple[float, ...]) -> None:
+    """A GNSS fix, its accuracy circle and its label beside the circle (left of it near the right edge;
+    beside the dot when the circle is wider than a third of the panel), with a white halo."""
+    x, y, r = fix
+    x0, _, x1, _ = bounds
+    ax.add_patch(plt.Circle((x, y), r, color=FIX_COLOR, alpha=0.15, zorder=1))
+    ax.plot(x, y, "o", color=FIX_COLOR, ms=8, zorder=4)
+    gap = (r if r < (x1 - x0) / 3 else 0.0) + 0.02 * (x1 - x0)
+    right = x + gap + 0.22 * (x1 - x0) <= x1
+    ax.text(
+        x + gap if right else x - gap, y, f"GNSS fix\n\u00b1{r:.0f} m", fontsize=7, color="#0d3d66",
+        ha="left" if right else "right", va="center", zorder=6, clip_on=True,
+        path_effects=[patheffects.withStroke(linewidth=3, foreground="white")],
+    )
+
+
 def fig_particles(results: list[dict], layers: MapLayers | None, base: dict[str, Any]) -> plt.Figure | None:
-    """Fig. 3: particle clouds of every particle-filter method at the chosen moments of one session."""
+    """Fig. 3: particle clouds of every particle-filter method at the chosen moments of one session.
+
+    One row per moment, one column per method, every panel of a row the same square around the ground
+    truth: no cloud hides another. The GNSS fix of the moment is in every panel of its row.
+    """
     runs = [r for r in results if r["snapshots"]]
     if not runs:
         return None
     session = runs[0]["session"]
-    runs = [r for r in runs if r["session"] == session]
-    n = len(runs[0]["snapshots"])
-    fig, axes = plt.subplots(1, n, figsize=(5.6 * n, 6.4), squeeze=False)
-    for k, ax in enumerate(axes.ravel()):
-        gt_track = runs[0]["track"]
-        t = runs[0]["snapshots"][k]["t"]
-        i = int(np.argmin(np.abs(gt_track["t"].to_numpy() - t)))
+    by_method = {}
+    for r in runs:
+        if r["session"] == session:
+            by_method.setdefault(r["spec"]["method"], r)
+    methods = [m for m in METHODS if m in by_method]
+    first = by_method[methods[0]]
+    n = len(first["snapshots"])
+    half = PARTICLE_PANEL_HALF_M
+    fig, axes = plt.subplots(n, len(methods), figsize=(4.0 * len(methods), 4.1 * n + 0.95), squeeze=False)
+    gt_track = first["track"]
+    for k in range(n):
+        snap0 = first["snapshots"][k]
+        i = int(np.argmin(np.abs(gt_track["t"].to_numpy() - snap0["t"])))
         cx, cy = gt_track["gt_x_m"].iat[i], gt_track["gt_y_m"].iat[i]
-        draw_map(ax, layers, (cx - 45, cy - 45, cx + 45, cy + 45))
-        for r in runs:
-            snap = r["snapshots"][k]
-            m = r["spec"]["method"]
-            ax.scatter(snap["x"], snap["y"], s=2, alpha=0.5, color=METHOD_COLORS[m], zorder=3)
-        fix = runs[0]["snapshots"][k].get("fix")
-        if fix is not None:
-            ax.add_patch(plt.Circle(fix[:2], fix[2], color="#1f77b4", alpha=0.15, zorder=1))
-            ax.plot(*fix[:2], "o", color="#1f77b4", ms=9, zorder=4)
-            ax.text(
-                fix[0],
-                fix[1] + 2,
-                f"GNSS fix\n±{fix[2]:.0f} m",
-                fontsize=7,
-                ha="center",
-                zorder=4,
-                clip_on=True,
-            )
-        ax.plot(cx, cy, "k*", ms=12, zorder=5)
-        title = f"{session}, t = {t:.0f} s"
-        if fix is not None and max(abs(fix[0] - cx), abs(fix[1] - cy)) > 45:
-            title += f"\nGNSS fix {np.hypot(fix[0] - cx, fix[1] - cy):.0f} m away, off the panel"
-        ax.set_title(title, fontsize=10)
-    handles = _method_handles([r["spec"]["method"] for r in runs])
-    handles += [
-        plt.Line2D(
-            [], [], ls="", marker="o", ms=9, color="#1f77b4", label="GNSS fix (circle: reported accuracy)"
-        ),
-        plt.Line2D([], [], ls="", marker="*", ms=12, color="k", label="ground truth"),
-    ] + class_handles(layers)
+        bounds = (cx - half, cy - half, cx + half, cy + half)
+        fix = snap0.get("fix")
+        for ax, m in zip(axes[k], methods, strict=True):
+            draw_map(ax, layers, bounds)
+            snap = by_method[m]["snapshots"][k]
+            ax.scatter(snap["x"], snap["y"], s=3, alpha=0.6, color=METHOD_COLORS[m], linewidths=0, zorder=3)
+            if fix is not None:
+                _fix_marker(ax, fix, bounds)
+            ax.plot(cx, cy, "k*", ms=11, zorder=5)
+            if k == 0:
+                ax.set_title(METHOD_LABELS[m], fontsize=10, color=METHOD_COLORS[m], fontweight="bold")
+        row = f"t = {snap0['t']:.0f} s"
+        if fix is not None and max(abs(fix[0] - cx), abs(fix[1] - cy)) > half:
+            row += f"\nGNSS fix {np.hypot(fix[0] - cx, fix[1] - cy):.0f} m away, off the panel"
+        axes[k][0].set_ylabel(row, fontsize=9)
+    fix_handle = plt.Line2D([], [], ls="", marker="o", ms=9, color=FIX_COLOR,
+                            label="GNSS fix (circle: reported accuracy)")
+    truth = plt.Line2D([], [], ls="", marker="*", ms=12, color="k", label="ground truth")
+    handles = [*_method_handles(methods), fix_handle, truth, *class_handles(layers)]
     fig.legend(handles=handles, loc="lower center", ncol=4, fontsize=8, frameon=False)
-    fig.suptitle(f"Fig. 3  Particle clouds ({config_label(base)})")
-    fig.tight_layout(rect=(0, 0.09, 1, 0.95))
+    fig.suptitle(f"Fig. 3  Particle clouds, {session} ({config_label(base)})")
+    fig.tight_layout(rect=(0, 0.75 / fig.get_figheight(), 1, 1))
     return fig
+
+
+#: Fig. 4's error axis ends here (m); the share of each method's footsteps beyond it is in the legend.
+CDF_MAX_M = 60.0
+
+
+def _beyond(errors_m: np.ndarray, limit_m: float) -> str:
+    """``"10 % > 60 m"``: the share of ``errors_m`` beyond the axis (``"<1 %"`` for a few)."""
+    share = 100 * float(np.mean(errors_m > limit_m)) if len(errors_m) else 0.0
+    return f"{'<1' if 0 < share < 0.5 else f'{share:.0f}'} % > {limit_m:g} m"
 
 
 def _cdf_axes(ax, results: list[dict], base: dict[str, Any], title: str) -> None:
@@ -240,12 +272,14 @@ def _cdf_axes(ax, results: list[dict], base: dict[str, Any], title: str) -> None
             continue
         e = pd.concat(errs)
         e = np.sort(e.loc[~e["missing"], "euclid_m"].to_numpy())
-        ax.plot(e, np.arange(1, len(e) + 1) / len(e), color=METHOD_COLORS[m], label=METHOD_LABELS[m])
-    ax.set_xlabel("Euclidean error (m)")
+        label = f"{METHOD_LABELS[m]} ({_beyond(e, CDF_MAX_M)})"
+        ax.plot(e, np.arange(1, len(e) + 1) / len(e), color=METHOD_COLORS[m], label=label)
+    ax.set_xlabel(f"Euclidean error (m; axis cut at {CDF_MAX_M:g} m)")
     ax.set_ylabel("CDF")
-    ax.set_xlim(0, 60)
+    ax.set_xlim(0, CDF_MAX_M)
     ax.grid(alpha=0.3)
-    ax.legend(fontsize=8)
+    ax.legend(fontsize=8, loc="lower right", title=f"method (share beyond {CDF_MAX_M:g} m)",
+              title_fontsize=8)
     ax.set_title(title, fontsize=10)
 
 
@@ -352,7 +386,7 @@ def fig_reliability(rows: list[dict[str, Any]], base: dict[str, Any]) -> plt.Fig
     groups = list(dict.fromkeys(r["subset"] for r in rows))
     radius = any(r.get("accuracy_curve") for r in rows)
     width = max(6.0, 4.3 * len(groups) + 0.4)
-    fig, axes = plt.subplots(1 + radius, len(groups), figsize=(width, 5.3 + 4.6 * radius), squeeze=False)
+    fig, axes = plt.subplots(1 + radius, len(groups), figsize=(width, 6.1 + 5.4 * radius), squeeze=False)
     for k, group in enumerate(groups):
         in_group = [r for r in rows if r["subset"] == group]
         _segment_reliability_axes(axes[0][k], in_group, group)
@@ -368,6 +402,15 @@ def fig_reliability(rows: list[dict[str, Any]], base: dict[str, Any]) -> plt.Fig
     return fig
 
 
+#: Room beyond 0 and 1 on the reliability axes (a share of the unit), for the markers at 0 and 1.
+RELIABILITY_MARGIN = 0.06
+
+
+def _legend_below(ax: plt.Axes) -> None:
+    """The axes' legend under its x label, where it hides no marker."""
+    ax.legend(fontsize=7, loc="upper center", bbox_to_anchor=(0.5, -0.13), frameon=False)
+
+
 def _segment_reliability_axes(ax, rows: list[dict[str, Any]], group: str | None) -> None:
     for r in rows:
         bins = pd.DataFrame(r["bins"])
@@ -375,16 +418,19 @@ def _segment_reliability_axes(ax, rows: list[dict[str, Any]], group: str | None)
         ax.plot(bins["mean_prob"], bins["share_right"], "-", color=color, lw=1.2, alpha=0.8)
         area = 15 + 400 * bins["footsteps"] / r["footsteps"]
         ax.scatter(bins["mean_prob"], bins["share_right"], s=area, color=color,
-                   edgecolor="k", linewidth=0.4, alpha=0.85, zorder=3,
-                   label=f"{METHOD_LABELS[r['method']]} (error {r['calibration_error']:.3f})")
+                   edgecolor="k", linewidth=0.4, alpha=0.85, zorder=3, clip_on=False,
+                   label=f"{METHOD_LABELS[r['method']]} (calibration error {r['calibration_error']:.3f})")
     ax.plot([0, 1], [0, 1], ":", color="0.4", lw=1, label="probability = share right")
-    ax.set_xlim(0, 1.02)
-    ax.set_ylim(0, 1.02)
+    # room for the largest marker at probability and share 1 (they are not clipped either)
+    ax.set_xlim(-RELIABILITY_MARGIN, 1 + RELIABILITY_MARGIN)
+    ax.set_ylim(-RELIABILITY_MARGIN, 1 + RELIABILITY_MARGIN)
+    ax.set_xticks(np.linspace(0, 1, 6))
+    ax.set_yticks(np.linspace(0, 1, 6))
     ax.set_aspect("equal")
     ax.set_xlabel("segment_prob (mean over the bin)")
     ax.set_title(group if group is not None else "all walks")
     ax.grid(alpha=0.3)
-    ax.legend(fontsize=7, loc="upper left")
+    _legend_below(ax)
 
 
 def _radius_reliability_axes(ax, rows: list[dict[str, Any]]) -> None:
@@ -393,13 +439,13 @@ def _radius_reliability_axes(ax, rows: list[dict[str, Any]]) -> None:
         if curve.empty:
             continue
         ax.plot(curve["claimed"], curve["held"], "o-", color=METHOD_COLORS[r["method"]], lw=1.2, ms=5,
-                label=f"{METHOD_LABELS[r['method']]} (68 %: {r['accuracy_coverage']:.2f}, "
+                clip_on=False, label=f"{METHOD_LABELS[r['method']]} (68 %: {r['accuracy_coverage']:.2f}, "
                 f"median {r['accuracy_median_m']:.1f} m)")
     ax.plot([0, 1], [0, 1], ":", color="0.4", lw=1, label="claimed = held")
-    ax.axvline(0.68, color="0.6", lw=0.8)
+    ax.axvline(0.68, color="0.6", lw=0.8, label="0.68: the share accuracy_m claims")
     ax.set_title(f"accuracy_m (0.68), scaled with a t tail (\u03bd = {TAIL_DOF:g})", fontsize=10)
     ax.set_xlim(0.4, 1.0)
-    ax.set_ylim(0, 1.0)
+    ax.set_ylim(0, 1 + RELIABILITY_MARGIN / 2)
     ax.set_xlabel("share the radius claims")
     ax.grid(alpha=0.3)
-    ax.legend(fontsize=7, loc="upper left")
+    _legend_below(ax)

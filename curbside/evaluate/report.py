@@ -30,7 +30,7 @@ from curbside.evaluate.figures import (
 )
 from curbside.evaluate.metrics import METRIC_NAMES, MetricsConfig
 from curbside.evaluate.runner import METHOD_LABELS, METHODS, MODE_SUFFIX, pool
-from curbside.evaluate.uncertainty import map_intervals, subset_intervals
+from curbside.evaluate.uncertainty import MIN_BOOTSTRAP_UNITS, map_intervals, subset_intervals, unit_count
 from curbside.io import atomic_path, json_ready
 from curbside.localize.filter.config import MapConfig
 from curbside.osmseg.mapio import MapLayers
@@ -48,6 +48,20 @@ PAPER: dict[str, Any] = {
     "along_median_m": {"gnss": 6.2, "inertial": 11.3, "fused": 9.0},
     "across_median_m": {"gnss": 8.1, "inertial": 4.7, "fused": 3.1},
 }
+
+
+def paper_header(method: str) -> str:
+    """The header of a method's column beside the paper: what the parenthesised figure is. The paper has
+    no curbside fused; beside it stands the paper's own best, its GNSS+RoNIN+PF ("paper PF")."""
+    source = "paper's PF" if method == "fused" else "paper"
+    return f"{METHOD_LABELS[method]} ({source})"
+
+
+#: The note on the parentheses under the tables beside the paper.
+PAPER_NOTE = (
+    "In parentheses: the paper's figure for the same method on its real walks; under curbside fused, "
+    "which the paper does not have, the paper's GNSS+RoNIN+PF (paper PF) figure, the one to beat."
+)
 
 
 def paper_value(name: str, method: str, jaywalk_weight: float | None = None) -> float | None:
@@ -124,8 +138,11 @@ INTERVAL_HEADERS = {"csa": "CSA", "euclid_median_m": "median m", "euclid_p90_m":
 
 
 def _interval_cell(row: pd.Series) -> str:
-    """``value [lo, hi]``; a paired difference is signed and ends with the share of resamples better."""
+    """``value [lo, hi]``; a paired difference is signed and ends with the share of resamples better.
+    ``n/a (2 sessions)`` where there were too few sessions to resample (a ``reason``)."""
     digits = 2 if row["metric"] == "csa" else 1
+    if isinstance(row.get("reason"), str):
+        return f"n/a ({unit_count(int(row['n_units']), str(row['unit']))})"
     if not all(math.isfinite(row[k]) for k in ("value", "lo", "hi")):
         return "n/a"
     value, lo, hi = (round(row[k], digits) + 0.0 for k in ("value", "lo", "hi"))  # + 0.0: no "-0.00"
@@ -145,6 +162,10 @@ def interval_table(intervals: pd.DataFrame, title: str, note: str) -> Table:
         label = " - ".join(METHOD_LABELS.get(m, m) for m in part["method"].iat[0].split(" - "))
         rows.append([*(key[:-1] if groups else ()), label, *(_interval_cell(r) for _, r in cells.iterrows())])
     header = [*groups, "method", *(INTERVAL_HEADERS[m] for m in metrics)]
+    if "reason" in intervals and intervals["reason"].notna().any():
+        unit = intervals.loc[intervals["reason"].notna(), "unit"].iat[0]
+        note += (f" n/a (N {unit}): fewer than {MIN_BOOTSTRAP_UNITS} {unit}, too few to resample for an "
+                 "interval; the point figures are in the tables above.")
     return Table(title, header, rows, note)
 
 
@@ -172,7 +193,7 @@ MAP_INTERVAL_NOTE = (
 def paper_tables(pooled: pd.DataFrame, map_name: str, base: dict[str, Any]) -> list[Table]:
     """Tables 2, 3 and 4 of the paper for one map source, beside the paper's numbers."""
     methods = [m for m in METHODS if (pooled["method"] == m).any()]
-    header = [""] + [f"{METHOD_LABELS[m]} (paper)" for m in methods]
+    header = [""] + [paper_header(m) for m in methods]
     where = {"map": map_name, "particles": base["particles"], "gnss_sigma_factor": base["gnss_sigma_factor"]}
     rows2 = []
     for w in sorted(pooled.loc[pooled["method"] != "gnss", "jaywalk_weight"].unique()):
@@ -187,7 +208,7 @@ def paper_tables(pooled: pd.DataFrame, map_name: str, base: dict[str, Any]) -> l
             f"Table 2. Correct Sidewalk Assignment, map '{map_name}'",
             header,
             rows2,
-            "Pooled over all footsteps; GNSS does not depend on w. " + CROSSING_NOTE,
+            f"Pooled over all footsteps; GNSS does not depend on w. {PAPER_NOTE} {CROSSING_NOTE}",
         )
     ]
     w0 = base["jaywalk_weight"]
@@ -205,7 +226,7 @@ def paper_tables(pooled: pd.DataFrame, map_name: str, base: dict[str, Any]) -> l
                 ours = fmt_value(None if r is None else r[name], 1)
                 row.append(f"{ours} ({fmt_value(paper_value(name, m), 1)})")
             rows.append(row)
-        tables.append(Table(f"{title}, w = {w0:g}, map '{map_name}'", header, rows))
+        tables.append(Table(f"{title}, w = {w0:g}, map '{map_name}'", header, rows, PAPER_NOTE))
     rows = []
     for name in ("ate_m", "rte_m"):
         row = [name]

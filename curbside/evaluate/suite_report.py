@@ -38,6 +38,7 @@ from curbside.evaluate.report import (
     fmt_value,
     interval_table,
     json_ready,
+    paper_header,
     paper_value,
     records,
 )
@@ -108,9 +109,10 @@ def sweep_table(pooled: pd.DataFrame, subset: str) -> Table | None:
         rows.append(row)
     return Table(
         f"Table 2. Correct Sidewalk Assignment by jaywalk weight, {subset}",
-        ["", *(METHOD_LABELS[m] for m in methods)],
+        ["", *(paper_header(m) for m in methods)],
         rows,
-        "In parentheses: the paper's RoNIN+PF and GNSS+RoNIN+PF on its real walks. " + CROSSING_NOTE,
+        "In parentheses: the paper's RoNIN+PF and GNSS+RoNIN+PF on its real walks; under curbside fused, "
+        "which the paper does not have, its GNSS+RoNIN+PF (paper PF) figure. " + CROSSING_NOTE,
     )
 
 

@@ -11,6 +11,11 @@ The quantiles of a resample are computed on the footsteps sorted once, each coun
 its session was drawn (numpy's linear interpolation on that repeated sample, as the pooled tables
 use), so 1,000 resamples of a 20,000-footstep subset take well under a second. Intervals are
 percentile intervals; the point figures stay those of the pooled table.
+
+With fewer than :data:`MIN_BOOTSTRAP_UNITS` sessions (trials) there is no interval: one session
+resampled is always itself (a zero-width interval, "100 %" better), and two or three give only a
+handful of distinct resamples. Such rows keep their point figure, ``lo``, ``hi`` and ``better_share``
+are NaN (``null`` in ``metrics.json``) and ``reason`` says why.
 """
 
 from __future__ import annotations
@@ -29,6 +34,14 @@ INTERVAL_METRICS: dict[str, bool] = {
 }
 #: Methods compared with curbside fused (the issue's two baselines).
 BASELINES = ("paper", "gnss")
+#: The fewest sessions (or trials) resampled for an interval. Below it the resamples are too few and too
+#: alike for a percentile interval to mean anything (one session: always itself, a zero-width interval).
+MIN_BOOTSTRAP_UNITS = 5
+
+
+def unit_count(n: int, unit: str) -> str:
+    """``"1 session"``, ``"3 sessions"``: a count of the resampled units (``unit`` in the plural)."""
+    return f"{n} {unit[:-1] if n == 1 and unit.endswith('s') else unit}"
 
 
 @dataclass(frozen=True)
@@ -158,6 +171,7 @@ def bootstrap_intervals(
     seed: int = 0,
     reference: str = "fused",
     baselines: tuple[str, ...] = BASELINES,
+    min_units: int = MIN_BOOTSTRAP_UNITS,
 ) -> pd.DataFrame:
     """Percentile intervals of each method's metrics and of ``reference`` minus each baseline, paired.
 
@@ -169,18 +183,20 @@ def bootstrap_intervals(
         Bootstrap resamples, interval coverage, and the seed of the draws.
     reference, baselines
         ``reference`` is compared with each of ``baselines`` that is present.
+    min_units
+        The fewest sessions given an interval (see :func:`interval_rows`).
 
     Returns
     -------
     pandas.DataFrame
-        One row per (``method``, ``metric``): ``value`` (the pooled figure), ``lo``, ``hi``; difference
-        rows have ``method`` like ``"fused - paper"`` and also ``better_share``, the share of resamples
-        where ``reference`` is better.
+        One row per (``method``, ``metric``): ``value`` (the pooled figure), ``lo``, ``hi``, ``n_units``,
+        ``unit`` and ``reason``; difference rows have ``method`` like ``"fused - paper"`` and also
+        ``better_share``, the share of resamples where ``reference`` is better.
     """
     sessions = tuple(sorted({r["session"] for runs in runs_by_method.values() for r in runs}))
     samples = {method: SessionSamples.from_runs(runs, sessions) for method, runs in runs_by_method.items()}
     counts = session_draws(len(sessions), n_resamples, seed)
-    return interval_rows(samples, counts, reference, baselines, level)
+    return interval_rows(samples, counts, reference, baselines, level, min_units=min_units)
 
 
 def waypoint_intervals(
@@ -190,12 +206,13 @@ def waypoint_intervals(
     baselines: tuple[str, ...],
     n_resamples: int = 1000,
     seed: int = 0,
+    min_units: int = MIN_BOOTSTRAP_UNITS,
 ) -> pd.DataFrame:
     """:func:`bootstrap_intervals` for errors at surveyed waypoints, resampling whole trials.
 
     ``errors`` and ``rows`` are :func:`curbside.evaluate.benchmark.ipin_errors`' outputs (or several
     seeds' of them, concatenated in the same order): each method's errors trial by trial at the same
-    waypoints, and one row per trial and method.
+    waypoints, and one row per trial and method. ``min_units``: the fewest trials given an interval.
     """
     trials = tuple(dict.fromkeys(r["trial"] for r in rows))
     index = {t: k for k, t in enumerate(trials)}
@@ -206,7 +223,8 @@ def waypoint_intervals(
         method: SessionSamples.from_errors(np.asarray(e, float), owner, trials)
         for method, e in errors.items() if len(e) == len(owner)
     }
-    return interval_rows(samples, session_draws(len(trials), n_resamples, seed), reference, baselines)
+    counts = session_draws(len(trials), n_resamples, seed)
+    return interval_rows(samples, counts, reference, baselines, unit="trials", min_units=min_units)
 
 
 def interval_rows(
@@ -215,27 +233,38 @@ def interval_rows(
     reference: str,
     baselines: tuple[str, ...],
     level: float = 0.95,
+    unit: str = "sessions",
+    min_units: int = MIN_BOOTSTRAP_UNITS,
 ) -> pd.DataFrame:
     """Point figure and percentile interval per method and metric, then ``reference`` minus each
-    baseline (paired: every method on the same resampled ``counts``)."""
+    baseline (paired: every method on the same resampled ``counts``).
+
+    With fewer than ``min_units`` units (``counts.shape[1]``, named ``unit``) a row keeps its point
+    figure but ``lo``, ``hi`` and ``better_share`` are NaN and ``reason`` says why (else ``None``);
+    ``n_units`` and ``unit`` say what was resampled.
+    """
     tail = 100 * (1 - level) / 2
+    n_units = counts.shape[1]
+    reason = None
+    if n_units < min_units:
+        reason = f"{unit_count(n_units, unit)}: an interval needs at least {min_units} {unit} to resample"
     stats = {method: sample.statistics(counts) for method, sample in samples.items()}
     points = {method: sample.point() for method, sample in samples.items()}
     rows = []
     for method, by_metric in stats.items():
         for metric, draws in by_metric.items():
-            lo, hi = _interval(draws, tail)
+            lo, hi = _interval(draws, tail) if reason is None else (np.nan, np.nan)
             rows.append({"method": method, "metric": metric, "value": points[method][metric],
                          "lo": lo, "hi": hi})
     for base in (b for b in baselines if b in stats and reference in stats):
         for metric in (m for m in stats[reference] if m in stats[base]):
             diff = stats[reference][metric] - stats[base][metric]
-            lo, hi = _interval(diff, tail)
+            lo, hi = _interval(diff, tail) if reason is None else (np.nan, np.nan)
             better = np.mean(diff > 0) if INTERVAL_METRICS[metric] else np.mean(diff < 0)
             rows.append({"method": f"{reference} - {base}", "metric": metric,
                          "value": points[reference][metric] - points[base][metric], "lo": lo, "hi": hi,
-                         "better_share": float(better)})
-    return pd.DataFrame(rows)
+                         "better_share": float(better) if reason is None else np.nan})
+    return pd.DataFrame(rows).assign(n_units=n_units, unit=unit, reason=reason)
 
 
 def _interval(draws: np.ndarray, tail: float) -> tuple[float, float]:

@@ -22,7 +22,7 @@ from curbside import __version__
 from curbside.errors import CurbsideInputError
 from curbside.io import atomic_path
 from curbside.osmseg.mapio import MapLayers
-from curbside.osmseg.style import BACKGROUND, CLASS_STYLE, CONFLICT_COLOUR
+from curbside.osmseg.style import BACKGROUND, BACKGROUND_LABEL, CLASS_STYLE, CONFLICT_COLOUR
 from curbside.osmseg.webmap import (
     attribution,
     bounds_js,
@@ -30,6 +30,9 @@ from curbside.osmseg.webmap import (
     class_overlay_js,
     conflict_overlay_js,
     leaflet_page,
+    script_json,
+    sidewalk_places,
+    swatch_label,
 )
 from curbside.projection import WGS84
 
@@ -43,11 +46,33 @@ MIN_CONFLICT_AREA_M2 = 0.5
 FORMATS: dict[str, str] = {".png": "png", ".html": "html", ".htm": "html"}
 
 
-def _title(layers: MapLayers) -> str:
+def _degrees(value: float) -> str:
+    """A longitude or latitude as given, to at most 6 decimals (0.1 m)."""
+    return format(round(float(value), 6), ".10g")
+
+
+def map_title(layers: MapLayers, bbox: tuple[float, float, float, float] | None = None) -> str:
+    """``"curbside map layers: <source>"``, and the window shown when ``bbox`` is given.
+
+    Parameters
+    ----------
+    layers
+        The map (its ``source`` metadata names it).
+    bbox
+        The WGS84 ``(west, south, east, north)`` window drawn, if any.
+
+    Returns
+    -------
+    str
+        The title, e.g. ``"curbside map layers: sf.osm.bz2, bbox -122.408, 37.785, -122.403, 37.788"``.
+    """
     source = layers.meta.get("source")
     if isinstance(source, list):
         source = ", ".join(map(str, source))
-    return f"curbside map layers: {source}" if source else "curbside map layers"
+    title = f"curbside map layers: {source}" if source else "curbside map layers"
+    if bbox is not None:
+        title += ", bbox " + ", ".join(_degrees(v) for v in bbox)
+    return title
 
 
 def clip_to_bbox(layers: MapLayers, bbox: tuple[float, float, float, float]) -> MapLayers:
@@ -148,7 +173,7 @@ def plot_map(layers: MapLayers, ax: Axes, title: str | None = None) -> Axes:
             rows.geometry.plot(ax=ax, linewidth=0.0, **stripes)
             fill = {**fill, **stripes, "facecolor": style["facecolor"]}
         handles.append(Patch(**fill, label=f"{style['label']} ({len(rows):,})"))
-    handles.append(Patch(facecolor=BACKGROUND, edgecolor="#999999", linewidth=0.5, label="free space"))
+    handles.append(Patch(facecolor=BACKGROUND, edgecolor="#999999", linewidth=0.5, label=BACKGROUND_LABEL))
     conflict = sidewalk_under_buildings(layers)
     if len(conflict):
         conflict.plot(ax=ax, facecolor=CONFLICT_COLOUR, edgecolor="none", zorder=5)
@@ -167,16 +192,20 @@ def plot_map(layers: MapLayers, ax: Axes, title: str | None = None) -> Axes:
     for spine in ax.spines.values():
         spine.set_edgecolor("#999999")
     _scale_bar(ax, extent)
-    ax.legend(handles=handles, loc="upper right", fontsize=8, framealpha=0.9)
+    # outside the map, right of it: a legend over the polygons would hide them
+    ax.legend(handles=handles, loc="upper left", bbox_to_anchor=(1.01, 1.0), borderaxespad=0.0, fontsize=8,
+              frameon=False)
     ax.text(
         0.995, 0.005, attribution(layers), transform=ax.transAxes, ha="right", va="bottom", fontsize=7,
         bbox={"facecolor": "white", "edgecolor": "none", "alpha": 0.8, "pad": 1.5}, zorder=11,
     )
-    ax.set_title(title or _title(layers), fontsize=11)
+    ax.set_title(title or map_title(layers), fontsize=11)
     return ax
 
 
-def save_png(layers: MapLayers, path: str | Path, width_in: float = 12.0, dpi: int = 200) -> Path:
+def save_png(
+    layers: MapLayers, path: str | Path, width_in: float = 12.0, dpi: int = 200, title: str | None = None
+) -> Path:
     """Render the map to a PNG file (atomically).
 
     Parameters
@@ -186,9 +215,12 @@ def save_png(layers: MapLayers, path: str | Path, width_in: float = 12.0, dpi: i
     path
         Destination ``.png``.
     width_in
-        Figure width in inches; the height follows the map's aspect ratio.
+        Width of the map in inches; the height follows the map's aspect ratio. The legend, right of the
+        map, widens the image.
     dpi
         Resolution.
+    title
+        Title (default: :func:`map_title`).
 
     Returns
     -------
@@ -199,45 +231,69 @@ def save_png(layers: MapLayers, path: str | Path, width_in: float = 12.0, dpi: i
     aspect = (maxy - miny) / max(maxx - minx, 1e-9)
     fig = Figure(figsize=(width_in, min(max(width_in * aspect, 4.0), 2.5 * width_in) + 0.6), dpi=dpi)
     ax = fig.add_axes((0.01, 0.01, 0.98, 0.94))
-    plot_map(layers, ax)
+    plot_map(layers, ax, title)
     path = Path(path)
     with atomic_path(path) as tmp:
-        fig.savefig(tmp, format="png", facecolor="white", metadata={"Software": f"curbside {__version__}"})
+        fig.savefig(tmp, format="png", facecolor="white", bbox_inches="tight", pad_inches=0.1,
+                    metadata={"Software": f"curbside {__version__}"})
     log.info("wrote %s", path)
     return path
 
 
-def html_page(layers: MapLayers) -> str:
+def html_page(layers: MapLayers, title: str | None = None, places: dict[str, str] | None = None) -> str:
     """A self-contained interactive map page: plain Leaflet, inlined, with no tile server.
 
     The page loads nothing: the vendored Leaflet script and stylesheet (``curbside/data/web``) and the
     polygons are inlined, so it opens offline. Each class present is one toggleable overlay in an
-    expanded layer control; sidewalk segments show ``segment_id``, ``street`` and ``side`` in a tooltip
-    and thicken their outline under the pointer. Coordinates are rounded to
-    :data:`curbside.osmseg.webmap.COORDINATE_DECIMALS` for display. The attribution goes to Leaflet's
-    attribution control.
+    expanded layer control, under which a swatch says what the background is
+    (:data:`~curbside.osmseg.style.BACKGROUND_LABEL`); sidewalk segments show the street with its
+    compass side, ``segment_id`` and the OSM ``side`` in a tooltip and thicken their outline under the
+    pointer. Coordinates are rounded to :data:`curbside.osmseg.webmap.COORDINATE_DECIMALS` for display.
+    The attribution goes to Leaflet's attribution control.
 
     Parameters
     ----------
     layers
         The map.
+    title
+        Page title (default: :func:`map_title`).
+    places
+        The sidewalks' street and compass side (:func:`curbside.osmseg.webmap.sidewalk_places`), taken
+        on the whole map when ``layers`` is a window of it (default: taken on ``layers``).
 
     Returns
     -------
     str
         The HTML document.
     """
-    by_class = class_features(layers)
+    by_class = class_features(layers, places=places)
     west, south, east, north = layers.gdf.to_crs(WGS84).total_bounds
     script = "\n".join(class_overlay_js(cls, f) for cls, f in by_class.items() if f)
     conflict = sidewalk_under_buildings(layers)
     if len(conflict):
         script += "\n" + conflict_overlay_js(conflict)
+    script += "\n" + _background_legend_js()
     script += f"\nmap.fitBounds({bounds_js(west, south, east, north)});"
-    return leaflet_page(_title(layers), script, attribution_html=html.escape(attribution(layers)))
+    return leaflet_page(
+        title or map_title(layers), script, attribution_html=html.escape(attribution(layers)),
+        page_css=".background-legend { margin-top: 5px; padding-top: 5px; border-top: 1px solid #ddd; }",
+    )
 
 
-def save_html(layers: MapLayers, path: str | Path) -> Path:
+def _background_legend_js() -> str:
+    """A swatch of the background below the layer control's overlays (a legend line, not a layer)."""
+    label = swatch_label(BACKGROUND, "#999999", BACKGROUND_LABEL)
+    return (
+        'const background = document.createElement("div");\n'
+        'background.className = "background-legend";\n'
+        f"background.innerHTML = {script_json(label)};\n"
+        'layers.getContainer().querySelector(".leaflet-control-layers-list").append(background);'
+    )
+
+
+def save_html(
+    layers: MapLayers, path: str | Path, title: str | None = None, places: dict[str, str] | None = None
+) -> Path:
     """Write the self-contained interactive map of :func:`html_page` to an HTML file (atomically).
 
     Parameters
@@ -246,13 +302,15 @@ def save_html(layers: MapLayers, path: str | Path) -> Path:
         The map.
     path
         Destination ``.html``.
+    title, places
+        See :func:`html_page`.
 
     Returns
     -------
     pathlib.Path
         ``path``.
     """
-    page = html_page(layers)
+    page = html_page(layers, title, places)
     path = Path(path)
     with atomic_path(path) as tmp:
         tmp.write_text(page, encoding="utf-8")
@@ -288,7 +346,7 @@ def render_map(
     path
         ``.png`` or ``.html`` / ``.htm``.
     bbox
-        Optional WGS84 ``(west, south, east, north)`` window to show.
+        Optional WGS84 ``(west, south, east, north)`` window to show (named in the title).
 
     Returns
     -------
@@ -301,6 +359,8 @@ def render_map(
         Unsupported extension, or a bbox with nothing of the map in it.
     """
     fmt = output_format(path)
-    if bbox is not None:
-        layers = clip_to_bbox(layers, bbox)
-    return save_png(layers, path) if fmt == "png" else save_html(layers, path)
+    title = map_title(layers, bbox)
+    shown = layers if bbox is None else clip_to_bbox(layers, bbox)
+    if fmt == "png":
+        return save_png(shown, path, title=title)
+    return save_html(shown, path, title, places=sidewalk_places(layers))  # sides found on the whole map

@@ -21,8 +21,12 @@ CLASS_STYLE: dict[str, dict[str, object]] = {
 }
 #: Where a map's buildings stand on its own sidewalks (a map assembled from two sources).
 CONFLICT_COLOUR = "#d62728"
-#: Colour of the space no polygon covers (freely walkable).
+#: Colour of the space no polygon covers.
 BACKGROUND = "#f3efe6"
+#: Legend label of that space. No polygon means no building *mapped in OSM*, not open ground: where OSM
+#: lacks building outlines (the bundled extract's southern band, see ``docs/maps.md``) whole blocks are
+#: this colour.
+BACKGROUND_LABEL = "free space (no building mapped in OSM)"
 
 
 def stroke_colour(cls: str) -> str:

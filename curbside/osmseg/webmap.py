@@ -18,6 +18,7 @@ import shapely
 
 from curbside import __version__, settings
 from curbside.osmseg.mapio import MapLayers, to_geojson
+from curbside.osmseg.places import sidewalk_places as places_of
 from curbside.osmseg.style import BACKGROUND, CLASS_STYLE, CONFLICT_COLOUR, stroke_colour
 from curbside.projection import WGS84
 
@@ -47,7 +48,15 @@ def attribution(layers: MapLayers | None) -> str:
     return str(meta.get("attribution") or settings.osm_attribution)
 
 
-def class_features(layers: MapLayers, keep_properties: bool = False) -> dict[str, list[dict]]:
+def sidewalk_places(layers: MapLayers) -> dict[str, str]:
+    """``segment_id`` -> ``"Market Street, north side"`` for every sidewalk segment of a map
+    (:func:`curbside.osmseg.places.sidewalk_places`), for the tooltips."""
+    return {segment_id: place.label for segment_id, place in places_of(layers).items()}
+
+
+def class_features(
+    layers: MapLayers, keep_properties: bool = False, places: dict[str, str] | None = None
+) -> dict[str, list[dict]]:
     """The map's GeoJSON features by class, coordinates rounded to :data:`COORDINATE_DECIMALS`.
 
     Parameters
@@ -56,18 +65,26 @@ def class_features(layers: MapLayers, keep_properties: bool = False) -> dict[str
         The map.
     keep_properties
         Keep every feature's properties; by default only sidewalks keep theirs (the layer says the class).
+    places
+        :func:`sidewalk_places`, when ``layers`` is a window of a larger map: taken on the whole map, a
+        segment at the window's edge still finds its own carriageway outside the window. Default: those
+        of ``layers``.
 
     Returns
     -------
     dict
         ``{class: [feature, ...]}`` for every class of :data:`~curbside.osmseg.style.CLASS_STYLE`, in
-        drawing order.
+        drawing order. Sidewalks with a ``segment_id`` also get ``place``, their street and compass side
+        (:func:`sidewalk_places`), for the tooltip.
     """
     doc = to_geojson(layers, precision=COORDINATE_DECIMALS)
+    places = sidewalk_places(layers) if places is None else places
     by_class: dict[str, list[dict]] = {cls: [] for cls in CLASS_STYLE}
     for feature in doc["features"]:
         props = feature["properties"]
-        if not keep_properties and props["class"] != "sidewalk":
+        if props["class"] == "sidewalk" and props.get("segment_id") in places:
+            feature = {**feature, "properties": {**props, "place": places[props["segment_id"]]}}
+        elif not keep_properties and props["class"] != "sidewalk":
             feature = {**feature, "properties": {}}
         by_class[props["class"]].append(feature)
     return by_class
@@ -155,15 +172,20 @@ const map = L.map("map", {{preferCanvas: true, maxZoom: 22, zoomSnap: 0.25}});
 map.attributionControl.addAttribution({attribution});
 L.control.scale().addTo(map);
 const layers = L.control.layers(null, null, {{collapsed: false}}).addTo(map);
-const SEGMENT_FIELDS = [["segment", "segment_id"], ["street", "street"], ["side", "side"]];
+const SEGMENT_FIELDS = [["segment", "segment_id"], ["OSM side", "side"]];
 function segmentTable(layer) {{
-  const table = document.createElement("table");
+  const props = layer.feature.properties;
+  const box = document.createElement("div");
+  const place = box.appendChild(document.createElement("strong"));
+  place.textContent = props.place ?? props.street ?? "unnamed street";
+  const table = box.appendChild(document.createElement("table"));
   for (const [label, key] of SEGMENT_FIELDS) {{
     const row = table.insertRow();
     row.insertCell().textContent = label;
-    row.insertCell().textContent = layer.feature.properties[key] ?? "\\u2014";
+    const value = props[key] ?? "\\u2014";
+    row.insertCell().textContent = key === "side" && props[key] ? `${{value}} of the way as drawn` : value;
   }}
-  return table;
+  return box;
 }}
 function describeSegment(feature, layer) {{
   layer.bindTooltip(segmentTable, {{sticky: true}});
