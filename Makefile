@@ -46,7 +46,7 @@ benchmark: $(STAMP)
 		$(if $(wildcard $(SHARED)/datasf/*.topojson),--datasf-tiles $(wildcard $(SHARED)/datasf/*.topojson)) \
 		$(if $(wildcard $(SHARED)/ipin2023/ipin2023-t3.h5),--ipin $(SHARED)/ipin2023/ipin2023-t3.h5 \
 			--ipin-ronin benchmarks/weights/ronin_ms_only.pt) \
-		-o out/benchmark
+		-o out/benchmark-full
 
 bench: $(STAMP)
 	$(BIN)/python benchmarks/bench_osmseg.py

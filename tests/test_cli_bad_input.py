@@ -279,3 +279,33 @@ def test_a_benchmark_failing_before_it_writes_removes_the_folder_it_made(tmp_pat
     with pytest.raises(CurbsideInputError):
         suite.run_suite(out, suite.SuiteConfig(subsets=("open",)))
     assert json.loads((out / MARKER).read_text())["command"] == suite_output.COMMAND
+
+
+# -- messages that name what the user gave ------------------------------------------------------------
+
+
+def test_custom_route_options_with_a_named_route_are_refused(tmp_path, capsys):
+    argv = ["simulate", "--route", "path1", "--length-m", "50", "-o", str(tmp_path / "s")]
+    err = _input_error(capsys, argv)
+    assert "--route path1" in err and "--length-m" in err and "custom" in err
+    err = _usage_error(capsys, ["simulate", "--route", "custom", "--crossings", "-1", "-o", "out"])
+    assert "--crossings" in err
+
+
+def test_a_start_pose_off_the_map_names_the_trial_as_given_not_a_meta_json(tmp_path, capsys):
+    from serve_fixtures import TRIAL
+
+    err = _input_error(capsys, ["run", TRIAL, "--map", str(MAP), "-o", str(tmp_path / "run")])
+    assert f"{TRIAL}: start pose" in err and "meta.json" not in err
+    assert not (tmp_path / "run").exists()
+
+
+def test_a_velocity_source_that_needs_the_imu_says_so(tmp_path, capsys):
+    session = tmp_path / "walk"
+    session.mkdir()
+    velocity = {"t": [0.0, 1.0], "ve": [1.0, 1.0], "vn": [0.0, 0.0]}
+    fixes = {"t": [0.0, 1.0], "lat": [37.79, 37.79], "lon": [-122.40, -122.40], "accuracy_m": [5.0, 5.0]}
+    pd.DataFrame(velocity).to_csv(session / "velocity.csv", index=False)
+    pd.DataFrame(fixes).to_csv(session / "gnss.csv", index=False)
+    err = _input_error(capsys, ["run", str(session), "--velocity-source", "pdr", "-o", str(tmp_path / "run")])
+    assert "no imu.csv: --velocity-source pdr needs it" in err

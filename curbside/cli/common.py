@@ -39,12 +39,17 @@ def positive_int(text: str) -> int:
     return value
 
 
-def seed(text: str) -> int:
-    """argparse ``type``: a random seed, an integer >= 0 (numpy refuses negative seeds)."""
+def non_negative_int(text: str) -> int:
+    """argparse ``type``: an integer >= 0."""
     value = _int(text)
     if value < 0:
         raise argparse.ArgumentTypeError(f"must be a non-negative integer, got {value}")
     return value
+
+
+def seed(text: str) -> int:
+    """argparse ``type``: a random seed, an integer >= 0 (numpy refuses negative seeds)."""
+    return non_negative_int(text)
 
 
 def port(text: str) -> int:

@@ -29,7 +29,14 @@ import logging
 import os
 from pathlib import Path
 
-from curbside.cli.common import non_negative_float, positive_float, positive_int, seed, unit_interval
+from curbside.cli.common import (
+    non_negative_float,
+    non_negative_int,
+    positive_float,
+    positive_int,
+    seed,
+    unit_interval,
+)
 from curbside.errors import CurbsideInputError
 from curbside.evaluate.runner import METHODS
 from curbside.io import check_output_folder, output_folder
@@ -69,13 +76,14 @@ def _simulate(args: argparse.Namespace) -> int:
     from curbside.projection import LocalFrame
 
     names = [s.name for s in routes_mod.SF6]
+    _check_custom_options(args)
     if args.route == "custom":
         if args.start is None or args.length_m is None:
             raise CurbsideInputError("--route custom", "needs --start LON LAT and --length-m")
         osm = load_osm(args.osm)
         frame = LocalFrame(osm.crs)
         spec = routes_mod.RouteSpec(
-            "custom", tuple(args.start), args.length_m, args.crossings, args.jaywalks, "custom"
+            "custom", tuple(args.start), args.length_m, args.crossings or 0, args.jaywalks or 0, "custom"
         )
         route = routes_mod.generate_route(routes_mod.build_walk_graph(osm), spec, frame, args.seed)
     elif args.route in names:
@@ -92,6 +100,17 @@ def _simulate(args: argparse.Namespace) -> int:
         f"{route.jaywalks} jaywalks, {len(session.gnss)} GNSS fixes"
     )
     return 0
+
+
+def _check_custom_options(args: argparse.Namespace) -> None:
+    """Refuse the custom route's options with a named route: they would be silently ignored."""
+    given = [option for option, value in (("--start", args.start), ("--length-m", args.length_m),
+                                          ("--crossings", args.crossings), ("--jaywalks", args.jaywalks))
+             if value is not None]
+    if given and args.route != "custom":
+        raise CurbsideInputError(
+            f"--route {args.route}", f"{', '.join(given)} only shape a custom route (--route custom)"
+        )
 
 
 def _check_on_map(map_path: str, route, frame) -> None:
@@ -276,10 +295,10 @@ def _register_simulate(subparsers: argparse._SubParsersAction) -> None:
     sim.add_argument("--seed", type=seed, default=1, help="seed of one session (default: %(default)s)")
     sim.add_argument("--start", nargs=2, type=float, metavar=("LON", "LAT"), help="custom route: start")
     sim.add_argument("--length-m", type=positive_float, help="custom route: length in metres")
-    sim.add_argument("--crossings", type=int, default=0,
-                     help="custom route: crosswalk crossings (default: %(default)s)")
-    sim.add_argument("--jaywalks", type=int, default=0,
-                     help="custom route: crossings off crosswalks (default: %(default)s)")
+    sim.add_argument("--crossings", type=non_negative_int, default=None,
+                     help="custom route: crosswalk crossings (default: 0)")
+    sim.add_argument("--jaywalks", type=non_negative_int, default=None,
+                     help="custom route: crossings off crosswalks (default: 0)")
     sim.add_argument("--seeds", type=positive_int, default=3,
                      help="recordings per route for --benchmark (default: %(default)s)")
     sim.add_argument("--map", help="check the route against this map (extent, buildings)")
@@ -327,13 +346,15 @@ def _register_evaluate(subparsers: argparse._SubParsersAction) -> None:
                     help="particle weight on the street surface, in [0, 1]; the paper's sweep "
                     "(default: 0 0.4 1)")
     ev.add_argument("--particles", nargs="+", type=positive_int, default=[500],
-                    metavar="N", help="particle counts (default: 500)")
+                    metavar="N", help="particle counts, the same for every method, curbside fused included "
+                    "(default: 500, the paper's; localize run gives fused 2000)")
     ev.add_argument(
         "--gnss-sigma-factors",
         nargs="+",
         type=positive_float,
         metavar="F",
-        help="GNSS sigma = factor x accuracy (default: the filter's)",
+        help="GNSS sigma = factor x accuracy (default: each method's own, 0.66 for curbside fused, 1 for "
+        "the paper's method)",
     )
     ev.add_argument("--velocity-source", default="auto", choices=["auto", "file", "ronin", "pdr"],
                     help="auto: velocity.csv, else RoNIN on imu.csv, else PDR (default: %(default)s)")

@@ -35,7 +35,7 @@ from curbside.cli.common import (
 from curbside.errors import CurbsideInputError
 from curbside.evaluate.metrics import format_waypoint_summary, waypoint_errors, waypoint_summary
 from curbside.io import check_output_folder
-from curbside.localize.pipeline import resolve_config, track_session
+from curbside.localize.pipeline import check_on_map, resolve_config, track_session
 from curbside.localize.readers import read_any
 from curbside.localize.runconfig import MODES, VELOCITY_SOURCES, RunConfig
 from curbside.localize.track import write_track
@@ -81,6 +81,8 @@ def _run(args: argparse.Namespace) -> int:
     config = config.with_overrides(config_overrides(args))
     if args.lag_s is not None:
         config = config.with_overrides({"filter.smoother.lag_s": args.lag_s})
+    if layers is not None:  # named as the user gave the session (track_session knows its name only)
+        check_on_map(session, layers, config, folder=str(session_path), map_name=str(map_path))
     result = track_session(session, layers, config=config, save_particles=args.save_particles)
     run_info = {"session": _absolute(session_path), "map": _absolute(map_path) if map_path else None}
     summary = None
@@ -120,6 +122,9 @@ def _run(args: argparse.Namespace) -> int:
             f"{args.output}: the fixes trail the walker by a {lag['lag_s']:g} s lag ({how}): each fix "
             "is moved forward by the inertial motion that lag holds back (fix_lag.*)"
         )
+    elif lag is not None and lag["mode"] == "auto":
+        print(f"{args.output}: the fixes do not trail the walker (lag estimated from the recording: 0 s); "
+              "they are used as they are")
     configured = result.config.filter.map.wall_tolerance_m
     softer = result.wall_tolerance_m is not None and result.wall_tolerance_m > configured
     if softer or result.walkable_first:

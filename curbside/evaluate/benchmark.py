@@ -322,24 +322,6 @@ def benchmark_summary(report_dir: str | Path) -> str:
     return "\n".join(lines) + "\n"
 
 
-def demo_stage(ctx: Any) -> dict[str, Path]:
-    """A ``curbside.demo`` stage: a small benchmark on the demo's map, a short summary printed at the end.
-
-    The ``phone`` profile, test split, one seed per route: the six paper-like routes, four downtown
-    and two open ones (about 90 runs, a few minutes on 2 cores). The report goes to
-    ``ctx.out_dir/benchmark/report``.
-    """
-    from curbside.evaluate.suite import SuiteConfig, run_suite
-
-    map_path = Path(ctx.out_dir) / "map.geojson"
-    config = SuiteConfig(seeds=1, downtown_routes=4, open_routes=2)
-    paths = run_suite(
-        Path(ctx.out_dir) / "benchmark", config, map_path=map_path if map_path.is_file() else None, workers=2
-    )
-    print(benchmark_summary(paths["report"]), end="")
-    return {"benchmark_report_html": paths["report.html"], "benchmark_metrics_json": paths["metrics.json"]}
-
-
 def ipin_errors(
     h5: str | Path,
     trials: int | None = None,

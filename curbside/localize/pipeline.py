@@ -24,6 +24,7 @@ from __future__ import annotations
 import logging
 import math
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 import pandas as pd
@@ -235,7 +236,7 @@ def _check_extent(
         x, y = frame.to_xy(start.lon, start.lat)
         if not (xmin <= x <= xmax and ymin <= y <= ymax):
             raise CurbsideInputError(
-                f"{folder}/meta.json",
+                _session_file(folder, "meta.json"),
                 f"start pose ({start.lat:.6f}, {start.lon:.6f}) lies outside the map's extent{where}",
             )
     gnss = session.gnss
@@ -245,9 +246,15 @@ def _check_extent(
         near = (fx > xmin - tol) & (fx < xmax + tol) & (fy > ymin - tol) & (fy < ymax + tol)
         if not np.any(near):
             raise CurbsideInputError(
-                f"{folder}/gnss.csv",
+                _session_file(folder, "gnss.csv"),
                 f"the session lies outside the map's extent{where} (no fix near the map)",
             )
+
+
+def _session_file(folder: str, name: str) -> str:
+    """``folder/name`` when the session is a folder holding that file; else the session as given (an
+    HDF5 trial, a Sensor Logger export, a GPX file)."""
+    return f"{folder}/{name}" if Path(folder, name).is_file() else folder
 
 
 def valid_fixes(gnss: pd.DataFrame | None, frame: LocalFrame) -> tuple[np.ndarray, ...]:
@@ -268,6 +275,11 @@ def _velocity(session: Session, config: RunConfig, steps: np.ndarray | None) -> 
     if source == "file":
         raise CurbsideInputError(f"{session.name}/velocity.csv", "no velocity.csv in the session")
     if session.imu is None:
+        if session.velocity is not None:  # asked for RoNIN or PDR, which need the raw IMU
+            raise CurbsideInputError(
+                session.name, f"no imu.csv: --velocity-source {source} needs it (the session's velocity.csv "
+                "is used with --velocity-source auto or file)"
+            )
         raise CurbsideInputError(
             session.name, "no velocity.csv or imu.csv: the inertial, paper and fused modes need inertial data"
         )

@@ -232,7 +232,7 @@ def read_ms_indoor(path: str | Path, min_heading_consistency: float = 0.8, progr
         keys = [k for k in keys if isinstance(f[k], h5py.Group) and needed <= set(f[k])]
         if not keys:
             raise CurbsideInputError(path, "no /<site>/<floor>/<path>/{acce,gyro,rotvec,waypoints} groups")
-        for key in tqdm(keys, desc="ms-indoor", disable=not progress):
+        for key in tqdm(keys, desc="ms-indoor", disable=None if progress else True):
             g = f[key]
             acce, gyro, rv, wp = (g[n][...] for n in ("acce", "gyro", "rotvec", "waypoints"))
             n = min(len(acce), len(gyro), len(rv))
@@ -288,7 +288,7 @@ def read_ipin(path: str | Path, min_heading_consistency: float = 0.8, progress: 
     from curbside.localize.readers.ipin import list_trials, read_trial
 
     recordings = []
-    for trial in tqdm(list_trials(path), desc="ipin2023", disable=not progress):
+    for trial in tqdm(list_trials(path), desc="ipin2023", disable=None if progress else True):
         session = read_trial(path, trial)
         wp = session.waypoints
         if wp is None or len(wp) < 2:
@@ -346,7 +346,7 @@ def read_ronin_dir(root: str | Path, progress: bool = True) -> list[Recording]:
     folders = sorted(p.parent for p in root.rglob("data.hdf5"))
     if not folders:
         raise CurbsideInputError(root, "no */data.hdf5 (RoNIN layout) below this folder")
-    return [read_ronin_sequence(f) for f in tqdm(folders, desc="ronin", disable=not progress)]
+    return [read_ronin_sequence(f) for f in tqdm(folders, desc="ronin", disable=None if progress else True)]
 
 
 def save_recordings(recordings: Iterable[Recording], path: str | Path) -> Path:
@@ -474,7 +474,9 @@ def prepare_recordings(ms_indoor: str | Path | None = None, ipin: str | Path | N
     if ronin_dir is not None:
         recordings += read_ronin_dir(ronin_dir, progress=progress)
     if not recordings:
-        raise CurbsideInputError("--ms-indoor/--ipin/--ronin-h5", "no training data given")
+        raise CurbsideInputError(
+            "--ms-indoor/--ipin/--ronin-h5", "no recordings given (nor a --prepared file)"
+        )
     if prepared is not None and not Path(prepared).is_file():
         save_recordings(recordings, prepared)
     return recordings

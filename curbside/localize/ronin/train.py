@@ -243,7 +243,7 @@ def _train_epoch(model: nn.Module, optimiser: torch.optim.Optimizer, train_b: Wi
     model.train()
     total, seen = 0.0, 0
     bar = tqdm(range(0, n_draw, options.batch_size), desc=f"epoch {epoch + 1}/{options.epochs}",
-               disable=not progress, leave=False)
+               disable=None if progress else True, leave=False)
     for lo in bar:
         idx = order[lo : lo + options.batch_size]
         x, y = rotate_yaw(*train_b.batch(idx), angles[lo : lo + options.batch_size])
