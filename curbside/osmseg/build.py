@@ -26,6 +26,7 @@ from curbside import settings
 from curbside.configio import to_dict
 from curbside.errors import CurbsideInputError
 from curbside.osmseg.buildings import buildings as derive_buildings
+from curbside.osmseg.clipped import covered_bbox
 from curbside.osmseg.config import SegmentationConfig
 from curbside.osmseg.crosswalks import crosswalks as derive_crosswalks
 from curbside.osmseg.mapio import MapLayers
@@ -91,8 +92,14 @@ def load_osm(bbox: BBox | None, osm_file: str | Path | None) -> tuple[OsmData, B
     Returns
     -------
     (OsmData, bbox)
-        ``bbox`` is the area to clip to: the one asked for, else the bounds the file declares
-        (``<bounds>``, PBF header box), else None (the whole file).
+        ``bbox`` is the area to clip to: the one asked for (with a file that declares bounds, only
+        its part inside them: :func:`~curbside.osmseg.clipped.covered_bbox`), else the bounds the
+        file declares (``<bounds>``, PBF header box), else None (the whole file).
+
+    Raises
+    ------
+    CurbsideInputError
+        Bad bbox, or one that lies wholly outside the bounds the file declares.
     """
     if bbox is not None:
         bbox = check_bbox(bbox)
@@ -101,6 +108,10 @@ def load_osm(bbox: BBox | None, osm_file: str | Path | None) -> tuple[OsmData, B
         if bbox is None and osm.bounds is not None:
             log.info("clipping to the bounds %s declares: %s", osm.source, osm.bounds)
             return clip_to_bbox(osm, osm.bounds, READ_MARGIN_M), osm.bounds
+        if bbox is not None:
+            covered = covered_bbox(bbox, osm.bounds, str(osm_file))
+            if covered != bbox:
+                return clip_to_bbox(osm, covered, READ_MARGIN_M), covered
         return osm, bbox
     if bbox is None:
         bbox = settings.default_bbox
@@ -163,6 +174,28 @@ def derive_layers(osm: OsmData, config: SegmentationConfig | None = None) -> gpd
     return gdf[["class", "segment_id", "street", "side", "geometry"]]
 
 
+def _clip_layers(gdf: gpd.GeoDataFrame, window: shapely.Polygon, min_area_m2: float) -> gpd.GeoDataFrame:
+    """The layers cut to ``window``: single polygons of at least ``min_area_m2``."""
+    gdf = gdf.set_geometry(shapely.intersection(gdf.geometry.values, window))
+    gdf = gdf.explode(index_parts=False)
+    gdf = gdf[gdf.geom_type == "Polygon"]
+    gdf = gdf[gdf.area >= min_area_m2]
+    # A sidewalk cut in two by the bbox edge keeps one id per part.
+    dup = gdf["segment_id"].notna() & gdf["segment_id"].duplicated(keep=False)
+    gdf.loc[dup, "segment_id"] = (
+        gdf.loc[dup, "segment_id"] + "." + gdf[dup].groupby("segment_id").cumcount().astype(str)
+    )
+    return gdf
+
+
+def _extent(gdf: gpd.GeoDataFrame) -> BBox:
+    """(west, south, east, north) degrees of the layers' extent."""
+    minx, miny, maxx, maxy = gdf.total_bounds
+    corners_x, corners_y = np.array([minx, maxx, minx, maxx]), np.array([miny, miny, maxy, maxy])
+    lon, lat = LocalFrame(gdf.crs).to_lonlat(corners_x, corners_y)
+    return float(lon.min()), float(lat.min()), float(lon.max()), float(lat.max())
+
+
 def build_map(
     bbox: BBox | None = None,
     osm_file: str | Path | None = None,
@@ -186,14 +219,16 @@ def build_map(
     Returns
     -------
     MapLayers
-        Polygons in local UTM; ``meta`` holds ``source``, ``bbox``, ``osm_timestamp``,
-        ``generator``, ``attribution``, ``params`` (``config`` as a dict) and
+        Polygons in local UTM; ``meta`` holds ``source``, ``bbox`` (the area the map covers: with a
+        file, the bbox asked for clipped to the bounds the file declares, and then ``bbox_asked``
+        too), ``osm_timestamp``, ``generator``, ``attribution``, ``params`` (``config`` as a dict) and
         ``sidewalk_ways_in_buildings`` (:func:`~curbside.osmseg.streets.sidewalk_length_in_buildings`).
 
     Raises
     ------
     CurbsideInputError
-        Bad bbox, missing / unreadable / unsupported file, or an area without OSM data.
+        Bad bbox, missing / unreadable / unsupported file, a bbox wholly outside the bounds the
+        file declares, or an area without OSM data.
     """
     config = config or SegmentationConfig()
     osm, clip_bbox = load_osm(bbox, osm_file)
@@ -209,26 +244,18 @@ def build_map(
     if clip_bbox is not None:
         window = bbox_polygon(clip_bbox, osm.crs)
         sidewalk_lines = shapely.intersection(sidewalk_lines, window)
-        gdf = gdf.set_geometry(shapely.intersection(gdf.geometry.values, window))
-        gdf = gdf.explode(index_parts=False)
-        gdf = gdf[gdf.geom_type == "Polygon"]
-        gdf = gdf[gdf.area >= config.min_polygon_area_m2]
-        # A sidewalk cut in two by the bbox edge keeps one id per part.
-        dup = gdf["segment_id"].notna() & gdf["segment_id"].duplicated(keep=False)
-        gdf.loc[dup, "segment_id"] = (
-            gdf.loc[dup, "segment_id"] + "." + gdf[dup].groupby("segment_id").cumcount().astype(str)
-        )
+        gdf = _clip_layers(gdf, window, config.min_polygon_area_m2)
     gdf = gdf.reset_index(drop=True)
     if len(gdf) == 0:
         raise CurbsideInputError(source, f"no buildings or streets {where}")
     if clip_bbox is None:
-        minx, miny, maxx, maxy = gdf.total_bounds
-        corners_x, corners_y = np.array([minx, maxx, minx, maxx]), np.array([miny, miny, maxy, maxy])
-        lon, lat = LocalFrame(osm.crs).to_lonlat(corners_x, corners_y)
-        clip_bbox = (float(lon.min()), float(lat.min()), float(lon.max()), float(lat.max()))
+        clip_bbox = _extent(gdf)
+    asked = None if bbox is None else check_bbox(bbox)
     meta = {
         "source": osm.source,
         "bbox": [round(v, 7) for v in clip_bbox],
+        # With a file, the map covers only the part of the bbox asked for inside its bounds.
+        **({"bbox_asked": list(asked)} if asked is not None and asked != tuple(clip_bbox) else {}),
         "osm_timestamp": osm.timestamp,
         "generator": f"curbside {curbside.__version__}",
         "attribution": settings.osm_attribution,

@@ -25,6 +25,7 @@ import shapely
 from pyproj import CRS
 
 from curbside.errors import CurbsideInputError
+from curbside.osmseg.clipped import MissingNodes, agreed_area, closed_rings
 from curbside.projection import LocalFrame
 
 log = logging.getLogger(__name__)
@@ -156,8 +157,10 @@ def read_osm_file(
     A pass over relations (building multipolygons) and one streaming pass with node locations.
     Highway ways are cut where they refer to nodes the file lacks (an extract cut at its bounds):
     each run of two or more known nodes becomes its own line, so a road that leaves the extract and
-    comes back is not joined across the gap. A building ring with missing nodes is closed over the
-    nodes it has (its part inside the extract stays a building).
+    comes back is not joined across the gap. A building ring with missing nodes is closed along the
+    bounds the file declares, keeping what two guesses at its missing walls agree on
+    (:func:`~curbside.osmseg.clipped.closed_rings`), or dropped; a WARNING says how many ways lack
+    nodes.
 
     Parameters
     ----------
@@ -184,18 +187,17 @@ def read_osm_file(
     _check_path(path)
     with _osmium_errors(path):
         members, rel_tags, bounds = _building_relations(path)
-        elements = _read_elements(path, members)
+        elements = _read_elements(path, members, bounds)
     log.info(
         "read %s: %d ways, %d areas, %d nodes",
         path.name, len(elements.way_ids), len(elements.area_ids), len(elements.node_ids),
     )  # fmt: skip
-    every_xy = np.concatenate([np.reshape(c, (-1, 2)) for c in elements.coords()])
+    every_xy = np.reshape(np.array(elements.coords(), dtype=float), (-1, 2))
     if len(every_xy) == 0:
         raise CurbsideInputError(path, "no highways, buildings or crossings in this file")
     frame = LocalFrame.around(*((every_xy.min(0) + every_xy.max(0)) / 2)) if bbox is None else frame_for(bbox)
-    keys = frozenset(TAG_KEYS)
-    rel_ids, rel_tags, rel_polys = _assemble_relations(members, rel_tags, elements.member_runs, frame, keys)
-    way_xy, area_xy, node_xy = (np.array(c, dtype=float).reshape(-1, 2) for c in elements.coords())
+    way_xy = np.array(elements.way_coords, dtype=float).reshape(-1, 2)
+    node_xy = np.array(elements.node_coords, dtype=float).reshape(-1, 2)
     data = OsmData(
         ways=make_table(
             elements.way_ids,
@@ -203,12 +205,7 @@ def read_osm_file(
             elements.way_tags,
             frame.crs,
         ),
-        areas=make_table(
-            elements.area_ids + rel_ids,
-            np.concatenate([_rings_or_lines(area_xy, elements.area_lens, frame, closed=True), rel_polys]),
-            elements.area_tags + rel_tags,
-            frame.crs,
-        ),
+        areas=_area_table(elements, members, rel_tags, frame),
         nodes=make_table(
             elements.node_ids,
             shapely.points(np.column_stack(frame.to_xy(*node_xy.T))),
@@ -219,7 +216,37 @@ def read_osm_file(
         timestamp=_iso(elements.newest),
         bounds=bounds,
     )
+    elements.missing.warn(path.name)
     return data if bbox is None else clip_to_bbox(data, bbox, margin_m)
+
+
+def _area_table(
+    elements: _Elements,
+    members: dict[int, list[tuple[int, str]]],
+    rel_tags: dict[int, dict[str, str]],
+    frame: LocalFrame,
+) -> gpd.GeoDataFrame:
+    """Building areas: whole rings, then rings cut by the bounds, then multipolygon relations."""
+    rel_ids, rel_tags, rel_polys = _assemble_relations(
+        members, rel_tags, elements.member_runs, frame, frozenset(TAG_KEYS)
+    )
+    area_xy = np.array(elements.area_coords, dtype=float).reshape(-1, 2)
+    whole = _rings_or_lines(area_xy, elements.area_lens, frame, closed=True)
+    closures = []
+    for k in (0, 1):
+        rings = [pair[k] for pair in elements.cut_rings]
+        xy = np.array([c for ring in rings for c in ring], dtype=float).reshape(-1, 2)
+        closures.append(_rings_or_lines(xy, [len(ring) for ring in rings], frame, closed=True))
+    cut_polys = agreed_area(*closures) if elements.cut_rings else np.array([], dtype=object)
+    kept = ~shapely.is_empty(cut_polys)
+    if not kept.all():
+        elements.missing.drop("no area that both guesses agree on", int((~kept).sum()))
+    return make_table(
+        elements.area_ids + [i for i, k in zip(elements.cut_ids, kept, strict=True) if k] + rel_ids,
+        np.concatenate([whole, cut_polys[kept], rel_polys]),
+        elements.area_tags + [t for t, k in zip(elements.cut_tags, kept, strict=True) if k] + rel_tags,
+        frame.crs,
+    )
 
 
 @contextlib.contextmanager
@@ -249,12 +276,20 @@ class _Elements:
     #: Relation member way id -> its runs of known (lon, lat).
     member_runs: dict[int, list[list[tuple[float, float]]]] = field(default_factory=dict)
     newest: float = 0.0
+    #: Ways with missing nodes, counted.
+    missing: MissingNodes = field(default_factory=MissingNodes)
+    #: Building rings with missing nodes: id, tags, two closures along the bounds.
+    cut_ids: list[str] = field(default_factory=list)
+    cut_tags: list[dict[str, str]] = field(default_factory=list)
+    cut_rings: list[tuple[list[tuple[float, float]], list[tuple[float, float]]]] = field(default_factory=list)
 
-    def coords(self) -> tuple[list, list, list]:
-        return self.way_coords, self.area_coords, self.node_coords
+    def coords(self) -> list[tuple[float, float]]:
+        """Every (lon, lat) read."""
+        cut = [c for pair in self.cut_rings for c in pair[0]]
+        return self.way_coords + self.area_coords + self.node_coords + cut
 
 
-def _read_elements(path: Path, members: dict[int, list[tuple[int, str]]]) -> _Elements:
+def _read_elements(path: Path, members: dict[int, list[tuple[int, str]]], bounds: BBox | None) -> _Elements:
     """The streaming pass: highway ways, building ways, crossing nodes, member ways' coordinates."""
     out = _Elements()
     keys = frozenset(TAG_KEYS)
@@ -265,6 +300,8 @@ def _read_elements(path: Path, members: dict[int, list[tuple[int, str]]]) -> _El
             negative_nodes[obj.id] = (obj.location.lon, obj.location.lat)
         elif obj.is_way() and obj.id in members:
             out.member_runs[obj.id] = _known_runs(obj, negative_nodes)
+            if "building" not in obj.tags and "highway" not in obj.tags:  # else counted below
+                out.missing.members += _lacks_nodes(obj, negative_nodes)
         if not obj.tags:
             continue
         out.newest = max(out.newest, obj.timestamp.timestamp())
@@ -275,21 +312,46 @@ def _read_elements(path: Path, members: dict[int, list[tuple[int, str]]]) -> _El
                 out.node_coords.append((obj.location.lon, obj.location.lat))
         elif obj.is_way() and "highway" in obj.tags:
             way_tags = {t.k: t.v for t in obj.tags if t.k in keys}
+            out.missing.highways += _lacks_nodes(obj, negative_nodes)
             for run in _known_runs(obj, negative_nodes):
                 out.way_ids.append(obj.id)
                 out.way_tags.append(way_tags)
                 out.way_lens.append(len(run))
                 out.way_coords.extend(run)
         elif obj.is_way() and "building" in obj.tags and obj.is_closed():
-            # A ring cut by the extract's edge is closed across the gap: the part inside stays.
-            ring = [c for c in _locations(obj, negative_nodes) if c is not None]
-            if len(set(ring)) >= 3:
-                ring.append(ring[0])
+            ring = _building_ring(obj, negative_nodes, bounds, out)
+            if ring is not None:
                 out.area_ids.append(f"w{obj.id}")
                 out.area_tags.append({t.k: t.v for t in obj.tags if t.k in keys})
                 out.area_lens.append(len(ring))
                 out.area_coords.extend(ring)
     return out
+
+
+def _lacks_nodes(way: osmium.osm.Way, negative_nodes: dict[int, tuple[float, float]]) -> bool:
+    """Whether the way refers to a node the file lacks."""
+    return any(not n.location.valid() and n.ref not in negative_nodes for n in way.nodes)
+
+
+def _building_ring(
+    way: osmium.osm.Way, negative_nodes: dict[int, tuple[float, float]], bounds: BBox | None, out: _Elements
+) -> list[tuple[float, float]] | None:
+    """The closed (lon, lat) ring of a building way, ``None`` when it has none to give.
+
+    A ring with missing nodes gives none here: its two closures along the file's bounds
+    (:func:`~curbside.osmseg.clipped.closed_rings`) go to ``out.cut_rings``, or it is dropped.
+    """
+    locations = _locations(way, negative_nodes)
+    if None not in locations:
+        # The first node is repeated once more (as it always was): maps stay byte for byte the same.
+        return locations + [locations[0]] if len(set(locations)) >= 3 else None
+    out.missing.buildings.append(f"w{way.id}")
+    closures = closed_rings(locations, bounds, out.missing)
+    if closures is not None:
+        out.cut_ids.append(f"w{way.id}")
+        out.cut_tags.append({t.k: t.v for t in way.tags if t.k in TAG_KEYS})
+        out.cut_rings.append(closures)
+    return None
 
 
 def _locations(way: osmium.osm.Way, negative_nodes: dict[int, tuple[float, float]]) -> list:
@@ -410,5 +472,3 @@ def _padded_rows(row: np.ndarray, values: np.ndarray, n_rows: int) -> np.ndarray
 def _first_line(exc: BaseException) -> str:
     text = str(exc).strip().splitlines()
     return text[0] if text else type(exc).__name__
-
-
