@@ -164,7 +164,8 @@ def test_run_json_records_the_estimate_and_replays(tmp_path, monkeypatch, capsys
     assert json.loads((tmp_path / "d" / "run.json").read_text())["fix_lag"] == {"mode": "fixed", "lag_s": 1.5}
     assert "1.5 s lag (fix_lag.lag_s)" in capsys.readouterr().out
     _session(tmp_path / "prompt", 0.0)
-    assert localize_main(["run", str(tmp_path / "prompt"), "--fix-lag", "auto", "-o", str(tmp_path / "e")]) == 0
+    argv = ["run", str(tmp_path / "prompt"), "--fix-lag", "auto", "-o", str(tmp_path / "e")]
+    assert localize_main(argv) == 0
     assert "do not trail the walker (lag estimated from the recording: 0 s)" in capsys.readouterr().out
 
 

@@ -229,6 +229,23 @@ def test_import_datasf_cli_writes_a_map_compare_reads(tmp_path, tiles, capsys):
     assert table.loc["building", "iou"] == pytest.approx(1.0, abs=1e-3)
 
 
+def test_import_datasf_over_a_maps_streets_is_the_benchmarks_third_map(tmp_path, tiles, test_data, capsys):
+    from curbside.evaluate.benchmark import datasf_osm_map
+
+    streets = test_data / "evaluate" / "sf-path3.geojson"
+    out = tmp_path / "datasf-over-osm.geojson"
+    assert main(["import-datasf", *map(str, tiles), "--streets-from", str(streets), "-o", str(out)]) == 0
+    assert "sidewalk" in capsys.readouterr().out
+    combined, osm = read_map(out), read_map(streets)
+    buildings = combined.layer("building").geometry.to_crs(WGS84)
+    assert buildings.intersects(shapely.box(*osm.meta["bbox"])).all()
+    for cls in ("street", "crosswalk", "sidewalk"):
+        assert len(combined.layer(cls)) == len(osm.layer(cls))
+    assert "DataSF" in combined.meta["attribution"] and "OpenStreetMap" in combined.meta["attribution"]
+    same = datasf_osm_map(streets, tiles, tmp_path / "benchmark.geojson")
+    assert same.read_bytes() == out.read_bytes()
+
+
 def _truncated_tile(tmp_path, tiles):
     path = tmp_path / "tile.topojson"
     path.write_text(tiles[0].read_text()[:500])

@@ -11,7 +11,7 @@ from curbside.errors import CurbsideInputError
 from curbside.io import OVERWRITE_FILE_HELP, check_output_file
 from curbside.osmseg.build import check_bbox
 from curbside.osmseg.compare import compare_maps, format_comparison, write_comparison
-from curbside.osmseg.datasf import read_datasf
+from curbside.osmseg.datasf import over_streets_of, read_datasf
 from curbside.osmseg.mapio import read_map, write_map
 from curbside.osmseg.summary import class_summary, format_summary
 
@@ -36,10 +36,17 @@ def _import_datasf(args: argparse.Namespace) -> int:
     bbox = check_bbox(args.bbox) if args.bbox is not None else None
     if Path(args.output).suffix.lower() not in (".geojson", ".json"):
         raise CurbsideInputError(args.output, "the map is GeoJSON: name it .geojson")
-    check_output_file(args.output, args.overwrite, inputs=tuple(args.tiles))
+    inputs = (*args.tiles, args.streets_from) if args.streets_from else tuple(args.tiles)
+    check_output_file(args.output, args.overwrite, inputs=inputs)
+    streets = read_map(args.streets_from) if args.streets_from else None
+    if streets is not None and bbox is None and streets.meta.get("bbox"):
+        bbox = tuple(streets.meta["bbox"])
     layers = read_datasf(args.tiles, bbox=bbox, fill_holes=args.fill_holes)
+    if streets is not None:
+        layers = over_streets_of(layers, streets)
     write_map(layers, args.output)
-    print(format_summary(class_summary(layers).loc[["building"]]))
+    summary = class_summary(layers)
+    print(format_summary(summary if streets is not None else summary.loc[["building"]]))
     log.info("wrote %s", args.output)
     return 0
 
@@ -62,12 +69,19 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "import-datasf",
         help="convert DataSF building-footprint TopoJSON tiles to a building-only map",
         description="Read DataSF 2013 building footprints (TopoJSON tiles) into a map GeoJSON with the "
-        "building class only, e.g. for `osmseg compare map.geojson datasf.geojson`.",
+        "building class only, e.g. for `osmseg compare map.geojson datasf.geojson`; with --streets-from, "
+        "over another map's streets and sidewalks, a whole map to track on.",
     )
     datasf.add_argument("tiles", nargs="+", metavar="TILE", help="TopoJSON tile(s)")
     add_bbox_option(datasf, "keep the footprints that intersect this WGS84 box")
     datasf.add_argument(
         "--fill-holes", action="store_true", help="drop inner rings (light wells, courtyards)"
+    )
+    datasf.add_argument(
+        "--streets-from",
+        metavar="MAP",
+        help="keep this map's streets, crosswalks and sidewalks under the DataSF buildings (the "
+        "map-source comparison's third map; default bbox: MAP's)",
     )
     datasf.add_argument("-o", "--output", required=True, help="output map GeoJSON")
     datasf.add_argument("--overwrite", action="store_true", help=OVERWRITE_FILE_HELP)

@@ -16,7 +16,6 @@ from typing import Any, NamedTuple
 import numpy as np
 import pandas as pd
 
-from curbside import settings
 from curbside.errors import CurbsideInputError
 from curbside.evaluate.groundtruth import groundtruth_at, waypoints_xy
 from curbside.evaluate.report import INTERVAL_NOTE, Table, interval_table, write_report
@@ -197,24 +196,12 @@ def datasf_osm_map(osm_map: str | Path, tiles: list[str | Path], out_path: str |
     out_path
         Where to write the combined GeoJSON.
     """
-    import geopandas as gpd
-    import pandas as pd
-
-    from curbside.osmseg.datasf import read_datasf
-    from curbside.osmseg.mapio import MapLayers
+    from curbside.osmseg.datasf import over_streets_of, read_datasf
 
     osm = read_map(osm_map)
     bbox = osm.meta.get("bbox")
-    buildings = read_datasf(tiles, bbox=tuple(bbox) if bbox else None).gdf.to_crs(osm.crs)
-    rest = osm.gdf[osm.gdf["class"] != "building"]
-    gdf = gpd.GeoDataFrame(pd.concat([buildings, rest], ignore_index=True), crs=osm.crs)
-    meta = {
-        **osm.meta,
-        "source": "DataSF 2013 buildings + " + str(osm.meta.get("source", "OSM")),
-        "attribution": "Buildings: DataSF 2013 (ODC PDDL); streets and sidewalks: "
-        + str(osm.meta.get("attribution") or settings.osm_attribution),
-    }
-    return write_map(MapLayers(gdf, meta), out_path)
+    buildings = read_datasf(tiles, bbox=tuple(bbox) if bbox else None)
+    return write_map(over_streets_of(buildings, osm), out_path)
 
 
 def run_benchmark(

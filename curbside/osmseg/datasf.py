@@ -28,7 +28,7 @@ import geopandas as gpd
 import numpy as np
 import shapely
 
-from curbside import __version__
+from curbside import __version__, settings
 from curbside.errors import CurbsideInputError
 from curbside.osmseg.mapio import MapLayers
 from curbside.projection import WGS84, utm_crs_for
@@ -166,3 +166,34 @@ def read_datasf(
                    "duplicate_iou": duplicate_iou, "min_area_m2": min_area_m2},
     }
     return MapLayers(gdf.reset_index(drop=True), meta)
+
+
+def over_streets_of(buildings: MapLayers, streets_map: MapLayers) -> MapLayers:
+    """DataSF's buildings with another map's streets, crosswalks and sidewalks: the map-source comparison's
+    third map (the OSM map with its buildings replaced).
+
+    Parameters
+    ----------
+    buildings
+        :func:`read_datasf`'s map.
+    streets_map
+        A map of the curbside schema (``osmseg build``): every class but ``building`` is kept.
+
+    Returns
+    -------
+    MapLayers
+        In ``streets_map``'s CRS, its ``bbox`` kept, ``source`` and ``attribution`` naming both sources.
+    """
+    import pandas as pd
+
+    rest = streets_map.gdf[streets_map.gdf["class"] != "building"]
+    gdf = gpd.GeoDataFrame(
+        pd.concat([buildings.gdf.to_crs(streets_map.crs), rest], ignore_index=True), crs=streets_map.crs
+    )
+    meta = {
+        **streets_map.meta,
+        "source": "DataSF 2013 buildings + " + str(streets_map.meta.get("source", "OSM")),
+        "attribution": "Buildings: DataSF 2013 (ODC PDDL); streets and sidewalks: "
+        + str(streets_map.meta.get("attribution") or settings.osm_attribution),
+    }
+    return MapLayers(gdf, meta)
