@@ -9,4 +9,4 @@ Stages, one sub-package each:
 Map data © OpenStreetMap contributors (ODbL 1.0).
 """
 
-__version__ = "0.1.0"
+__version__ = "0.2.0.dev0"

@@ -114,7 +114,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument("--host", default="127.0.0.1", help="address to listen on (default 127.0.0.1)")
     parser.add_argument("--port", type=port, default=8750, help="port (default 8750)")
     parser.add_argument(
-        "--data-dir", help=f"where tracks of ended sessions go, under tracks/ (default {settings.data_dir})"
+        "--data-dir",
+        help=f"where tracks of ended sessions go, under tracks/ (default $CURBSIDE_DATA_DIR, else "
+        f"{settings.data_dir})",
     )
     parser.add_argument(
         "--token-file",
