@@ -322,3 +322,17 @@ def test_list_of_a_zip_of_zips_is_an_error_like_convert(tmp_path, capsys):
     assert listed == converted
     assert listed == (f"localize: error: {outer}: not a Sensor Logger export: it holds zip files (a.zip), "
                       "not CSVs; unpack them and give the folder, or give each zip")
+
+
+def test_a_short_gravity_stream_cuts_the_imu_instead_of_holding_its_last_value(tmp_path, caplog):
+    folder = _android(tmp_path)
+    total, user = pd.read_csv(folder / "TotalAcceleration.csv"), pd.read_csv(folder / "Accelerometer.csv")
+    gravity = total.copy()
+    gravity[["x", "y", "z"]] = total[["x", "y", "z"]] - user[["x", "y", "z"]]
+    gravity[gravity["seconds_elapsed"] < 4.5].to_csv(folder / "Gravity.csv", index=False)
+    (folder / "TotalAcceleration.csv").unlink()  # gravity must come from Gravity.csv
+    with caplog.at_level(logging.WARNING):
+        imu = read_sensorlogger(folder).imu
+    assert imu["t"].max() < 4.5
+    [line] = [m for m in _warnings(caplog) if "Gravity.csv covers" in m]
+    assert "imu.csv cut to it" in line

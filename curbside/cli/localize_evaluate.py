@@ -292,7 +292,8 @@ def _register_simulate(subparsers: argparse._SubParsersAction) -> None:
     what = sim.add_mutually_exclusive_group(required=True)
     what.add_argument("--route", help="one benchmark route (path1 .. path6), or 'custom'")
     what.add_argument("--benchmark", choices=["sf6"], help="all six routes, --seeds recordings each")
-    sim.add_argument("--seed", type=seed, default=1, help="seed of one session (default: %(default)s)")
+    sim.add_argument("--seed", type=seed, default=1,
+                     help="session seed: which walk is simulated (default: %(default)s)")
     sim.add_argument("--start", nargs=2, type=float, metavar=("LON", "LAT"), help="custom route: start")
     sim.add_argument("--length-m", type=positive_float, help="custom route: length in metres")
     sim.add_argument("--crossings", type=non_negative_int, default=None,
@@ -300,7 +301,7 @@ def _register_simulate(subparsers: argparse._SubParsersAction) -> None:
     sim.add_argument("--jaywalks", type=non_negative_int, default=None,
                      help="custom route: crossings off crosswalks (default: 0)")
     sim.add_argument("--seeds", type=positive_int, default=3,
-                     help="recordings per route for --benchmark (default: %(default)s)")
+                     help="sessions (simulated recordings) per route for --benchmark (default: %(default)s)")
     sim.add_argument("--map", help="check the route against this map (extent, buildings)")
     sim.add_argument("--osm", help="OSM extract for heights and footways (default: the bundled one)")
     sim.add_argument("--imu", action="store_true", help="also write imu.csv (100 Hz phone IMU)")
@@ -407,7 +408,8 @@ def _register_benchmark(subparsers: argparse._SubParsersAction) -> None:
     bench.add_argument("--particles", type=positive_int, default=500,
                        help="particles of the paper's method and RoNIN+PF (default 500, the paper's); "
                        "curbside fused runs with its own default (2000)")
-    bench.add_argument("--seed", type=seed, default=0, help="filter seed (default 0)")
+    bench.add_argument("--seed", type=seed, default=0,
+                       help="filter seed (the sessions' seeds are fixed by --split; default 0)")
     bench.add_argument("--filter-seeds", type=positive_int, default=1, metavar="N",
                        help="run every filter with N seeds from --seed on and pool them (less noisy "
                        "figures and checks, N times the tracking time; default 1)")

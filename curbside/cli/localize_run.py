@@ -236,13 +236,14 @@ def _add_method_options(parser: argparse.ArgumentParser) -> None:
         "fused (curbside's; the default)",
     )
     parser.add_argument(
-        "--particles", type=positive_int, default=None,
+        "--particles", type=positive_int, default=None, metavar="N",
         help="number of particles (default 2000; 500 with --mode paper, the paper's)"
     )
     parser.add_argument(
         "--jaywalk-weight",
         type=unit_interval,
         default=None,
+        metavar="W",
         help="particle weight in [0, 1] on street surface outside crosswalks (default 0.4); a step across "
         "the street weighs at least filter.map.crossing_weight (0.7; not with --mode paper)",
     )

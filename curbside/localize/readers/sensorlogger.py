@@ -49,7 +49,7 @@ from scipy.spatial.transform import Rotation
 
 from curbside.errors import CurbsideInputError
 from curbside.localize.readers._export import check_same_clock, find_recordings, open_export
-from curbside.localize.readers._resample import interp_quaternions, merge_imu, report_gaps
+from curbside.localize.readers._resample import MAX_SILENT_CUT_S, interp_quaternions, merge_imu, report_gaps
 from curbside.localize.readers._tidy import (
     MAX_WAYPOINT_DISTANCE_M,
     STANDARD_GRAVITY,
@@ -187,9 +187,16 @@ def _specific_force(streams, label: str, quat: pd.DataFrame | None, device: _Dev
     t = user["t"].to_numpy()
     if "Gravity.csv" in streams:
         gravity = _xyz(streams["Gravity.csv"], f"{label}/Gravity.csv", _ACC)
-        report_gaps(gravity["t"].to_numpy(), f"{label}/Gravity.csv", "filled by interpolation in imu.csv")
+        g_t = gravity["t"].to_numpy()
+        report_gaps(g_t, f"{label}/Gravity.csv", "filled by interpolation in imu.csv")
+        inside = (t >= g_t[0]) & (t <= g_t[-1])  # gravity is not extrapolated: the phone may have turned
+        lost_s = float(max(g_t[0] - t[0], 0.0) + max(t[-1] - g_t[-1], 0.0))
+        if lost_s > MAX_SILENT_CUT_S:
+            logger.warning("%s/Gravity.csv covers t=%.1f-%.1f s of the accelerometer's %.1f-%.1f s: imu.csv "
+                           "cut to it (%.1f s lost)", label, g_t[0], g_t[-1], t[0], t[-1], lost_s)
+        user = user[inside].reset_index(drop=True)
         for col in _ACC:
-            user[col] = user[col] + np.interp(t, gravity["t"].to_numpy(), gravity[col].to_numpy())
+            user[col] = user[col] + np.interp(t[inside], g_t, gravity[col].to_numpy())
         return user, True
     if _includes_gravity(user, source):
         return user, True
