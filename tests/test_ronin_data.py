@@ -115,7 +115,7 @@ def test_prepared_recordings_round_trip(tmp_path):
 
 
 def test_prepare_without_sources_is_an_input_error():
-    with pytest.raises(CurbsideInputError, match="no training data"):
+    with pytest.raises(CurbsideInputError, match="no recordings given"):
         data.prepare_recordings()
 
 

@@ -85,7 +85,7 @@ def test_train_command_end_to_end(windows, tmp_path, capsys):
     assert out.is_file() and out.with_suffix(".json").is_file()
     assert load_model(out).config.arch == "compact"
     assert localize_main(["train-ronin", "-o", str(out)]) == 2
-    assert "no training data" in capsys.readouterr().err
+    assert "no recordings given" in capsys.readouterr().err
     if not torch.cuda.is_available():
         assert localize_main(["train-ronin", "--device", "cuda", "-o", str(out)]) == 2
         assert "CUDA" in capsys.readouterr().err
