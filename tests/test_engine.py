@@ -213,7 +213,7 @@ def test_run_json_replays_the_same_track_byte_for_byte(tmp_path, monkeypatch):
         __import__("json").loads((tmp_path / "b" / "run.json").read_text())["config"]
     )
     assert replayed.filter.gnss.sigma_factor == 1.2 and replayed.engine == EngineConfig(
-        fix_association="once"
+        fix_association="once", velocity_source="file"  # the replay keeps the source the run resolved
     )
     assert replayed.filter.n_particles == 300 and replayed.seed == 5
 

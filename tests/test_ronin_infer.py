@@ -87,3 +87,16 @@ def test_shipped_model_on_a_held_out_ipin_trial(shared_data):
     ex = np.interp(wp["t"], v["t"], est[:, 0]) + x[0]
     ey = np.interp(wp["t"], v["t"], est[:, 1]) + y[0]
     assert np.median(np.hypot(ex - x, ey - y)) < 0.1 * path
+
+
+def test_ronin_on_a_simulated_imu_is_warned_about(caplog):
+    import logging
+
+    from curbside.localize.session import Session, warn_if_simulated_imu
+
+    with caplog.at_level(logging.WARNING):
+        warn_if_simulated_imu(Session(name="real", meta={"start": {}}), "real/imu.csv")
+        assert not caplog.records
+        warn_if_simulated_imu(Session(name="walk", meta={"simulation": {"route": "path1"}}), "walk/imu.csv")
+    [record] = caplog.records
+    assert "walk/imu.csv is simulated" in record.getMessage() and "velocity.csv" in record.getMessage()

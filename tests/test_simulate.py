@@ -301,3 +301,15 @@ def test_unknown_profile_is_refused():
 
     with pytest.raises(CurbsideInputError, match="unknown profile"):
         sim.SimulationConfig(profile="pocket")
+
+
+def test_a_route_that_cannot_be_drawn_says_what_it_must_satisfy(sf):
+    from curbside.errors import CurbsideInputError
+    from curbside.evaluate import routes
+
+    route_list, frame, osm = sf
+    spec = routes.RouteSpec("custom", route_list[0].spec.start_lonlat, 6000.0, 0, 0, "custom")
+    with pytest.raises(CurbsideInputError) as info:
+        routes.generate_route(routes.build_walk_graph(osm), spec, frame, seed=1, max_attempts=50)
+    assert "no route found in 50 random walks" in info.value.problem
+    assert "within 320 m of its start" in info.value.problem and "exactly 0 crosswalk(s)" in info.value.problem

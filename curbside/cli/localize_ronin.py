@@ -29,7 +29,7 @@ def _ronin(args: argparse.Namespace) -> int:
     out = Path(args.output) if args.output else Path(args.session) / "velocity.csv"
     if out.suffix.lower() != ".csv":
         raise CurbsideInputError(out, "the velocity is a CSV file: name it .csv")
-    from curbside.localize.session import COLUMNS, read_session
+    from curbside.localize.session import COLUMNS, read_session, warn_if_simulated_imu
 
     session_files = [Path(args.session) / f"{kind}.csv" for kind in COLUMNS if kind != "velocity"]
     inputs = (*session_files, Path(args.session) / "meta.json", *([args.weights] if args.weights else []))
@@ -40,6 +40,7 @@ def _ronin(args: argparse.Namespace) -> int:
     if session.imu is None:
         raise CurbsideInputError(Path(args.session) / "imu.csv", "no such file: RoNIN needs imu.csv")
     imu_path = Path(args.session) / "imu.csv"
+    warn_if_simulated_imu(session, str(imu_path))
     velocity = ronin_velocity(session.imu, load_model(args.weights), _stream_config(args),
                               source=str(imu_path))
     with atomic_path(out) as tmp:

@@ -32,10 +32,11 @@ from curbside.cli.common import (
     seed,
     unit_interval,
 )
+from curbside.cli.run_replay import check_replayed_inputs, input_record, replay_config
 from curbside.errors import CurbsideInputError
 from curbside.evaluate.metrics import format_waypoint_summary, waypoint_errors, waypoint_summary
 from curbside.io import check_output_folder
-from curbside.localize.pipeline import check_on_map, resolve_config, track_session
+from curbside.localize.pipeline import TrackResult, check_on_map, resolve_config, track_session
 from curbside.localize.readers import read_any
 from curbside.localize.runconfig import MODES, VELOCITY_SOURCES, RunConfig
 from curbside.localize.track import write_track
@@ -66,9 +67,13 @@ def _run(args: argparse.Namespace) -> int:
             "localize run", "give a SESSION (or --config with a run.json that names one)"
         )
     map_path = args.map if args.map is not None else info.get("map")
+    if args.config:
+        check_replayed_inputs(info, args.config, session_path, map_path)
+        config = replay_config(info, config, args.config, args.mode, args.velocity_source)
     session = read_any(session_path)
     layers = read_map(map_path) if map_path else None
     mode = args.mode if (args.mode or config is not None) else "fused"
+    save_particles = args.save_particles or bool(info.get("save_particles"))
     config = resolve_config(
         config,
         mode,
@@ -83,8 +88,10 @@ def _run(args: argparse.Namespace) -> int:
         config = config.with_overrides({"filter.smoother.lag_s": args.lag_s})
     if layers is not None:  # named as the user gave the session (track_session knows its name only)
         check_on_map(session, layers, config, folder=str(session_path), map_name=str(map_path))
-    result = track_session(session, layers, config=config, save_particles=args.save_particles)
-    run_info = {"session": _absolute(session_path), "map": _absolute(map_path) if map_path else None}
+    result = track_session(session, layers, config=config, save_particles=save_particles)
+    run_info = {"session": _absolute(session_path), "map": _absolute(map_path) if map_path else None,
+                "save_particles": save_particles,
+                "inputs": input_record(session_path, map_path, result.velocity_source)}
     summary = None
     if session.waypoints is not None:
         run_info["waypoint_error"], scored = _waypoint_score(
@@ -92,17 +99,23 @@ def _run(args: argparse.Namespace) -> int:
         )
         summary = run_info["waypoint_error"] if scored else None
     write_track(result, args.output, run_info, overwrite=args.overwrite)
+    _print_summary(args.output, result, summary)
+    return 0
+
+
+def _print_summary(output: str, result: TrackResult, summary: dict | None) -> None:
+    """What the run did, in a few lines: updates, motion models, fix lag, soft walls, waypoint error."""
     track = result.track
     span = track["t"].iat[-1] - track["t"].iat[0] if len(track) else 0.0
     print(
-        f"{args.output}: {len(track)} updates over {span:.1f} s, mode {result.mode}, "
+        f"{output}: {len(track)} updates over {span:.1f} s, mode {result.mode}, "
         f"velocity {result.velocity_source or '-'}, steps {result.step_source}, "
         f"{result.recoveries} recoveries"
         + (f", {result.heading_corrections} heading corrections" if result.heading_corrections else "")
     )
     if result.unseen_velocity_from_s is not None:
         print(
-            f"{args.output}: from t = {result.unseen_velocity_from_s:.1f} s, the motion model for a velocity "
+            f"{output}: from t = {result.unseen_velocity_from_s:.1f} s, the motion model for a velocity "
             "model new to the phone or the place (--unseen-velocity)"
         )
     familiar = result.familiar_velocity
@@ -111,7 +124,7 @@ def _run(args: argparse.Namespace) -> int:
         change = 100 * (familiar["median_speed_change"] or 0.0)
         window = result.config.familiar_velocity.window_s
         print(
-            f"{args.output}: the velocity's speed changes by {change:.1f} % from one {window:g} s window to "
+            f"{output}: the velocity's speed changes by {change:.1f} % from one {window:g} s window to "
             f"the next ({familiar['samples']} samples, {familiar['verdict']}): "
             f"{100 * share:.0f} % of the track follows the calm motion model (--familiar-velocity)"
         )
@@ -119,11 +132,11 @@ def _run(args: argparse.Namespace) -> int:
     if lag is not None and lag["lag_s"] > 0:
         how = "estimated from the recording" if lag["mode"] == "auto" else "fix_lag.lag_s"
         print(
-            f"{args.output}: the fixes trail the walker by a {lag['lag_s']:g} s lag ({how}): each fix "
+            f"{output}: the fixes trail the walker by a {lag['lag_s']:g} s lag ({how}): each fix "
             "is moved forward by the inertial motion that lag holds back (fix_lag.*)"
         )
     elif lag is not None and lag["mode"] == "auto":
-        print(f"{args.output}: the fixes do not trail the walker (lag estimated from the recording: 0 s); "
+        print(f"{output}: the fixes do not trail the walker (lag estimated from the recording: 0 s); "
               "they are used as they are")
     configured = result.config.filter.map.wall_tolerance_m
     softer = result.wall_tolerance_m is not None and result.wall_tolerance_m > configured
@@ -132,13 +145,12 @@ def _run(args: argparse.Namespace) -> int:
             "its sidewalks and crosswalks count where they overlap, and " if result.walkable_first else ""
         )
         print(
-            f"{args.output}: the map's buildings stand on part of its sidewalks (another source or year "
+            f"{output}: the map's buildings stand on part of its sidewalks (another source or year "
             f"than its streets, or misaligned?): {overlap}walls are soft by "
             f"{result.wall_tolerance_m:g} m (filter.map.conflict_*)"
         )
     if summary is not None:
-        print(f"{args.output}: {format_waypoint_summary(summary)}")
-    return 0
+        print(f"{output}: {format_waypoint_summary(summary)}")
 
 
 def _waypoints_source(session_path: str) -> str:

@@ -372,7 +372,13 @@ def generate_route(
         pts, kinds = _simplify(pts, kinds)
         log.debug("%s: accepted walk %d (covered %.0f%%)", spec.name, attempt, 100 * covered)
         return Route(spec, pts, kinds, n_cross, n_jay, float(covered), seed, attempt)
-    raise CurbsideInputError(spec.name, f"no route found in {max_attempts} random walks")
+    counts = "exactly" if exact_counts else "at most"
+    raise CurbsideInputError(
+        spec.name,
+        f"no route found in {max_attempts} random walks: a route of {spec.length_m:g} m must stay within "
+        f"{spec.radius_m:g} m of its start, use no street twice and cross {counts} {spec.crossings} "
+        f"crosswalk(s) and {spec.jaywalks} street(s) off them; ask for a shorter route or other counts",
+    )
 
 
 def _runs(kinds: np.ndarray, kind: str) -> int:

@@ -37,7 +37,7 @@ from curbside.localize.filter.tracker import Tracker
 from curbside.localize.fix_lag import estimate_fix_lag
 from curbside.localize.raster import MapRaster, load_or_build_raster
 from curbside.localize.runconfig import MODES, VELOCITY_SOURCES, RunConfig
-from curbside.localize.session import Session
+from curbside.localize.session import Session, warn_if_simulated_imu
 from curbside.localize.streams import DisplacementIntegrator
 from curbside.osmseg.mapio import MapLayers
 from curbside.projection import LocalFrame
@@ -288,6 +288,7 @@ def _velocity(session: Session, config: RunConfig, steps: np.ndarray | None) -> 
             from curbside.localize.ronin.infer import ronin_velocity
 
             source_name = f"{session.name}/imu.csv"
+            warn_if_simulated_imu(session, source_name)
             velocity = ronin_velocity(session.imu, config=config.engine.ronin, source=source_name)
             return velocity, "ronin"
         except (ImportError, CurbsideInputError) as exc:
@@ -573,19 +574,18 @@ def sidewalk_segments_at(map_layers: MapLayers, x: np.ndarray, y: np.ndarray) ->
 
 
 def _stack_snapshots(engine: SessionEngine, track: pd.DataFrame, frame: LocalFrame) -> dict[str, np.ndarray]:
-    """Snapshots as ``(K, N)`` float32 arrays, positions relative to the first estimate."""
+    """Snapshots as ``(K, N)`` float32 arrays, positions relative to the first estimate (the engine's list is
+    emptied as they are copied)."""
     origin = np.array([track["x_m"].iat[0], track["y_m"].iat[0]])
-    snaps = np.stack(engine.snapshots)  # (K, 5, N): x, y, theta, scale, weight
-    out = {
-        "t": track["t"].to_numpy(),
-        "x": (snaps[:, 0] - origin[0]).astype(np.float32),
-        "y": (snaps[:, 1] - origin[1]).astype(np.float32),
-        "theta": snaps[:, 2].astype(np.float32),
-        "scale": snaps[:, 3].astype(np.float32),
-        "origin": origin,
-        "crs": np.array(frame.crs.to_wkt()),
-    }
-    weight = snaps[:, 4]
+    snaps = engine.snapshots  # K arrays (5, N): x, y, theta, scale, weight
+    shape = (len(snaps), snaps[0].shape[1])
+    fields = {name: np.empty(shape, np.float32) for name in ("x", "y", "theta", "scale")}
+    weight = np.empty(shape)
+    for k in range(shape[0]):  # copied one update at a time, each freed once copied: a long walk's
+        snap, snaps[k] = snaps[k], None  # snapshots are not held twice
+        fields["x"][k], fields["y"][k] = snap[0] - origin[0], snap[1] - origin[1]
+        fields["theta"][k], fields["scale"][k], weight[k] = snap[2], snap[3], snap[4]
+    out = {"t": track["t"].to_numpy(), **fields, "origin": origin, "crs": np.array(frame.crs.to_wkt())}
     if not np.allclose(weight, weight[:, :1], rtol=0, atol=1e-12):
         # Without resampling at every update, particles killed by the map stay, with no weight.
         out["weight"] = weight

@@ -9,6 +9,7 @@ raises :class:`~curbside.errors.CurbsideInputError` (one line, naming the file) 
 from __future__ import annotations
 
 import json
+import logging
 from collections.abc import Collection
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -19,6 +20,8 @@ import pandas as pd
 
 from curbside.errors import CurbsideInputError
 from curbside.io import output_folder
+
+logger = logging.getLogger(__name__)
 
 #: Required and optional columns per file, in SPEC order.
 COLUMNS: dict[str, tuple[tuple[str, ...], tuple[str, ...]]] = {
@@ -87,6 +90,20 @@ class Session:
         if not ts:
             raise ValueError(f"session {self.name!r} holds no data")
         return float(min(t[0] for t in ts)), float(max(t[-1] for t in ts))
+
+
+def warn_if_simulated_imu(session: Session, source: str) -> None:
+    """Log a WARNING before RoNIN reads a simulated session's ``imu.csv``.
+
+    The simulator's phone IMU (``localize simulate --imu``) models what the footstep detector and PDR
+    need (gait accelerations, the hand's orientation), not the signal a network trained on real phones
+    reads: RoNIN's velocity on it is off by about 100 degrees at the median (docs/evaluate.md). The
+    session's ``velocity.csv`` is the simulator's stand-in for RoNIN.
+    """
+    if "simulation" in session.meta:
+        logger.warning("%s is simulated: its IMU is made for the footstep detector and PDR, and RoNIN's "
+                       "velocity on it is far off (about 100 deg); use the session's velocity.csv "
+                       "(--velocity-source file) or PDR", source)
 
 
 def validate_table(kind: str, table: pd.DataFrame, source: str | Path) -> pd.DataFrame:
