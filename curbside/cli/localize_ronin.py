@@ -42,7 +42,7 @@ def _ronin(args: argparse.Namespace) -> int:
     imu_path = Path(args.session) / "imu.csv"
     warn_if_simulated_imu(session, str(imu_path))
     velocity = ronin_velocity(session.imu, load_model(args.weights), _stream_config(args),
-                              source=str(imu_path))
+                              source=str(imu_path), progress=True)
     with atomic_path(out) as tmp:
         velocity.to_csv(tmp, index=False, float_format="%.6f")
     note_written(out, "localize ronin")

@@ -18,6 +18,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 import torch
+from tqdm.auto import tqdm
 
 from curbside import settings
 from curbside.errors import CurbsideInputError
@@ -138,7 +139,9 @@ def _state_dict_mismatch(expected: dict[str, torch.Tensor], state: dict[str, tor
     return "; ".join(problems)
 
 
-def infer_windows(model: RoninResNet, windows: np.ndarray, batch_size: int | None = None) -> np.ndarray:
+def infer_windows(
+    model: RoninResNet, windows: np.ndarray, batch_size: int | None = None, progress: bool = False
+) -> np.ndarray:
     """Velocities of windows from any number of sessions, each independent of the others.
 
     The windows go through the model in batches of one fixed shape, the last one zero-padded. On
@@ -156,6 +159,8 @@ def infer_windows(model: RoninResNet, windows: np.ndarray, batch_size: int | Non
         ``(K, 6, window)`` float32, e.g. from :meth:`RoninStream.take_windows`.
     batch_size
         The fixed batch shape (default :attr:`RoninStreamConfig.batch_size`).
+    progress
+        A progress bar over the batches on a terminal (for a command's long single inference).
 
     Returns
     -------
@@ -170,7 +175,8 @@ def infer_windows(model: RoninResNet, windows: np.ndarray, batch_size: int | Non
     out = np.empty((len(windows), cfg.out_dim), dtype=np.float32)
     batch = np.zeros((batch_size, cfg.in_channels, cfg.window), dtype=np.float32)
     with torch.inference_mode():
-        for lo in range(0, len(windows), batch_size):
+        starts = range(0, len(windows), batch_size)
+        for lo in tqdm(starts, desc="RoNIN", unit="batch", disable=None if progress else True, leave=False):
             n = min(batch_size, len(windows) - lo)
             batch[:n] = windows[lo : lo + n]
             batch[n:] = 0.0
@@ -179,7 +185,8 @@ def infer_windows(model: RoninResNet, windows: np.ndarray, batch_size: int | Non
 
 
 def ronin_velocity(imu_df: pd.DataFrame, model: RoninResNet | str | Path | None = None,
-                   config: RoninStreamConfig | None = None, source: str = "imu.csv") -> pd.DataFrame:
+                   config: RoninStreamConfig | None = None, source: str = "imu.csv",
+                   progress: bool = False) -> pd.DataFrame:
     """World-frame horizontal walking velocity from an ``imu.csv`` table.
 
     The batch entry point of the streaming path: the whole table is pushed through one
@@ -201,6 +208,8 @@ def ronin_velocity(imu_df: pd.DataFrame, model: RoninResNet | str | Path | None 
         model's).
     source
         File name used in messages.
+    progress
+        A progress bar over the inference on a terminal (``localize ronin``).
 
     Returns
     -------
@@ -225,7 +234,7 @@ def ronin_velocity(imu_df: pd.DataFrame, model: RoninResNet | str | Path | None 
     if not len(t_mid):
         raise CurbsideInputError(source, f"no stretch of IMU data without gaps lasts one "
                                          f"{config.window / config.rate_hz:g} s window")
-    velocity = infer_windows(model, windows, config.batch_size)
+    velocity = infer_windows(model, windows, config.batch_size, progress)
     return pd.DataFrame({"t": t_mid, "ve": velocity[:, 0], "vn": velocity[:, 1]})
 
 
