@@ -46,6 +46,15 @@ def cache_root() -> Path:
     return Path(settings.cache_dir).expanduser()
 
 
+def file_digest(path: str | Path) -> bytes:
+    """SHA-256 of a file's bytes, read in chunks."""
+    digest = hashlib.sha256()
+    with open(path, "rb") as fh:
+        while chunk := fh.read(_CHUNK):
+            digest.update(chunk)
+    return digest.digest()
+
+
 def content_key(*parts: object) -> str:
     """SHA-256 hex digest of ``parts``, for naming a cache entry.
 
@@ -64,11 +73,7 @@ def content_key(*parts: object) -> str:
     digest = hashlib.sha256()
     for part in parts:
         if isinstance(part, Path):
-            sub = hashlib.sha256()
-            with part.open("rb") as fh:
-                while chunk := fh.read(_CHUNK):
-                    sub.update(chunk)
-            data = b"file:" + sub.digest()
+            data = b"file:" + file_digest(part)
         elif isinstance(part, bytes | bytearray | memoryview):
             data = b"bytes:" + bytes(part)
         elif isinstance(part, np.ndarray):

@@ -6,6 +6,7 @@ from __future__ import annotations
 import json
 import logging
 import shutil
+from pathlib import Path
 
 import pandas as pd
 import pytest
@@ -81,3 +82,14 @@ def test_a_moved_session_is_named_with_the_way_out(recorded, capsys):
     assert "no such file or folder (the session" in err and "give where it is now: SESSION" in err
     assert main(["run", str(tmp / "moved"), "--config", str(run_json), "-o", str(tmp / "found")]) == 0
     assert (tmp / "found" / "track.csv").read_bytes() == (tmp / "run" / "track.csv").read_bytes()
+
+
+def test_a_sensor_logger_folder_is_fingerprinted_by_its_own_files(tmp_path):
+    from curbside.cli.run_replay import changed_inputs, input_record
+
+    export = tmp_path / "export"
+    shutil.copytree(Path(__file__).parent / "data" / "sessions" / "sensorlogger-android", export)
+    before = input_record(str(export), None)
+    assert {"TotalAcceleration.csv", "Gyroscope.csv", "Location.csv"} <= set(before["session_sha256"])
+    (export / "Location.csv").write_text((export / "Location.csv").read_text().replace(",7.0,", ",8.0,", 1))
+    assert changed_inputs(before, input_record(str(export), None), None) == ["Location.csv"]

@@ -312,4 +312,5 @@ def test_a_route_that_cannot_be_drawn_says_what_it_must_satisfy(sf):
     with pytest.raises(CurbsideInputError) as info:
         routes.generate_route(routes.build_walk_graph(osm), spec, frame, seed=1, max_attempts=50)
     assert "no route found in 50 random walks" in info.value.problem
-    assert "within 320 m of its start" in info.value.problem and "exactly 0 crosswalk(s)" in info.value.problem
+    problem = info.value.problem
+    assert "within 320 m of its start" in problem and "exactly 0 crosswalk(s)" in problem

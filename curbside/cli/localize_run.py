@@ -32,7 +32,7 @@ from curbside.cli.common import (
     seed,
     unit_interval,
 )
-from curbside.cli.run_replay import check_replayed_inputs, input_record, replay_config
+from curbside.cli.run_replay import add_weights, check_replayed_inputs, input_record, replay_config
 from curbside.errors import CurbsideInputError
 from curbside.evaluate.metrics import format_waypoint_summary, waypoint_errors, waypoint_summary
 from curbside.io import check_output_folder
@@ -67,8 +67,9 @@ def _run(args: argparse.Namespace) -> int:
             "localize run", "give a SESSION (or --config with a run.json that names one)"
         )
     map_path = args.map if args.map is not None else info.get("map")
+    inputs = input_record(session_path, map_path)
     if args.config:
-        check_replayed_inputs(info, args.config, session_path, map_path)
+        check_replayed_inputs(info, args.config, session_path, map_path, inputs)
         config = replay_config(info, config, args.config, args.mode, args.velocity_source)
     session = read_any(session_path)
     layers = read_map(map_path) if map_path else None
@@ -91,7 +92,7 @@ def _run(args: argparse.Namespace) -> int:
     result = track_session(session, layers, config=config, save_particles=save_particles)
     run_info = {"session": _absolute(session_path), "map": _absolute(map_path) if map_path else None,
                 "save_particles": save_particles,
-                "inputs": input_record(session_path, map_path, result.velocity_source)}
+                "inputs": add_weights(inputs, result.velocity_source)}
     summary = None
     if session.waypoints is not None:
         run_info["waypoint_error"], scored = _waypoint_score(

@@ -11,7 +11,7 @@ from curbside.errors import CurbsideInputError
 from curbside.io import OVERWRITE_FILE_HELP, check_output_file
 from curbside.osmseg.build import check_bbox
 from curbside.osmseg.compare import compare_maps, format_comparison, write_comparison
-from curbside.osmseg.datasf import over_streets_of, read_datasf
+from curbside.osmseg.datasf import read_datasf, read_datasf_over
 from curbside.osmseg.mapio import read_map, write_map
 from curbside.osmseg.summary import class_summary, format_summary
 
@@ -38,15 +38,13 @@ def _import_datasf(args: argparse.Namespace) -> int:
         raise CurbsideInputError(args.output, "the map is GeoJSON: name it .geojson")
     inputs = (*args.tiles, args.streets_from) if args.streets_from else tuple(args.tiles)
     check_output_file(args.output, args.overwrite, inputs=inputs)
-    streets = read_map(args.streets_from) if args.streets_from else None
-    if streets is not None and bbox is None and streets.meta.get("bbox"):
-        bbox = tuple(streets.meta["bbox"])
-    layers = read_datasf(args.tiles, bbox=bbox, fill_holes=args.fill_holes)
-    if streets is not None:
-        layers = over_streets_of(layers, streets)
+    if args.streets_from:
+        layers = read_datasf_over(args.tiles, read_map(args.streets_from), bbox, fill_holes=args.fill_holes)
+    else:
+        layers = read_datasf(args.tiles, bbox=bbox, fill_holes=args.fill_holes)
     write_map(layers, args.output)
     summary = class_summary(layers)
-    print(format_summary(summary if streets is not None else summary.loc[["building"]]))
+    print(format_summary(summary if args.streets_from else summary.loc[["building"]]))
     log.info("wrote %s", args.output)
     return 0
 

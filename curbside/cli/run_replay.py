@@ -11,60 +11,58 @@ quietly running RoNIN) and ``--save-particles``.
 
 from __future__ import annotations
 
-import hashlib
 import logging
 from pathlib import Path
 from typing import Any
 
 from curbside import settings
+from curbside.cache import file_digest
 from curbside.errors import CurbsideInputError
 from curbside.localize.runconfig import RunConfig
-from curbside.localize.session import COLUMNS
 
 logger = logging.getLogger(__name__)
-
-#: The files of a session folder a run reads.
-SESSION_FILES = tuple(f"{kind}.csv" for kind in COLUMNS) + ("meta.json",)
 
 
 def file_sha256(path: str | Path) -> str:
     """SHA-256 of a file's bytes, as hex."""
-    digest = hashlib.sha256()
-    with open(path, "rb") as fh:
-        for block in iter(lambda: fh.read(1 << 20), b""):
-            digest.update(block)
-    return digest.hexdigest()
+    return file_digest(path).hex()
 
 
-def input_record(session_path: str, map_path: str | None, velocity_source: str | None) -> dict[str, Any]:
-    """``run.json``'s ``inputs``: SHA-256 of the session's files, the map and the RoNIN weights used.
+def input_record(session_path: str, map_path: str | None) -> dict[str, Any]:
+    """``run.json``'s ``inputs``: SHA-256 of the session's files and of the map (see :func:`add_weights`).
 
     Parameters
     ----------
     session_path
-        A session folder, or a recording file (``FILE.h5::TRIAL``, a Sensor Logger zip, a GPX file).
+        A session folder (the files in it, a Sensor Logger export's CSVs included; not its sub-folders,
+        which may hold runs, nor hidden files such as the output marker), or a recording file
+        (``FILE.h5::TRIAL``, a Sensor Logger zip, a GPX file).
     map_path
         The map, if any.
-    velocity_source
-        What made the run's velocity (``file``, ``ronin``, ``pdr``); the weights are recorded for ``ronin``.
     """
     source = Path(str(session_path).partition("::")[0])
     if source.is_dir():
-        session = {name: file_sha256(source / name) for name in SESSION_FILES if (source / name).is_file()}
+        files = sorted(p for p in source.iterdir() if p.is_file() and not p.name.startswith("."))
+        session = {p.name: file_sha256(p) for p in files}
     else:
         session = {source.name: file_sha256(source)} if source.is_file() else {}
     record: dict[str, Any] = {"session_sha256": session}
     if map_path:
         record["map_sha256"] = file_sha256(map_path)
-    if velocity_source == "ronin":
-        weights = Path(settings.ronin_default_weights)
-        record["ronin_weights"] = {"path": str(weights), "sha256": file_sha256(weights)}
     return record
 
 
-def changed_inputs(recorded: dict[str, Any], session_path: str, map_path: str | None) -> list[str]:
-    """The inputs whose bytes differ from those ``recorded`` (``run.json``'s ``inputs``)."""
-    now = input_record(session_path, map_path, "ronin" if "ronin_weights" in recorded else None)
+def add_weights(record: dict[str, Any], velocity_source: str | None) -> dict[str, Any]:
+    """``record`` with the RoNIN weights' path and SHA-256 when RoNIN made the run's velocity."""
+    if velocity_source != "ronin":
+        return record
+    weights = Path(settings.ronin_default_weights)
+    return {**record, "ronin_weights": {"path": str(weights), "sha256": file_sha256(weights)}}
+
+
+def changed_inputs(recorded: dict[str, Any], now: dict[str, Any], map_path: str | None) -> list[str]:
+    """The inputs whose bytes differ between ``recorded`` (``run.json``'s ``inputs``) and ``now``."""
+    now = add_weights(now, "ronin" if "ronin_weights" in recorded else None)
     before, after = recorded.get("session_sha256", {}), now["session_sha256"]
     changed = [name for name in sorted(set(before) | set(after)) if before.get(name) != after.get(name)]
     if recorded.get("map_sha256") != now.get("map_sha256"):
@@ -96,9 +94,10 @@ def replay_config(info: dict[str, Any], config: RunConfig, run_json: str, mode: 
 
 
 def check_replayed_inputs(
-    info: dict[str, Any], run_json: str, session_path: str, map_path: str | None
+    info: dict[str, Any], run_json: str, session_path: str, map_path: str | None, now: dict[str, Any]
 ) -> None:
-    """Raise when a path ``run.json`` names is gone; warn when an input's bytes changed since the run."""
+    """Raise when a path ``run.json`` names is gone; warn when an input's bytes differ from ``now``
+    (:func:`input_record` of the replay's inputs) since the run."""
     for key, option in (("session", "SESSION"), ("map", "--map MAP")):
         path = info.get(key)
         if path and path in (session_path, map_path) and not Path(str(path).partition("::")[0]).exists():
@@ -108,7 +107,7 @@ def check_replayed_inputs(
     recorded = info.get("inputs")
     if not isinstance(recorded, dict):
         return  # written before run.json recorded its inputs
-    changed = changed_inputs(recorded, session_path, map_path)
+    changed = changed_inputs(recorded, now, map_path)
     if changed:
         logger.warning("%s: replaying on inputs that changed since the run (%s): the track will differ from "
                        "the recorded one", run_json, ", ".join(changed))

@@ -196,12 +196,9 @@ def datasf_osm_map(osm_map: str | Path, tiles: list[str | Path], out_path: str |
     out_path
         Where to write the combined GeoJSON.
     """
-    from curbside.osmseg.datasf import over_streets_of, read_datasf
+    from curbside.osmseg.datasf import read_datasf_over
 
-    osm = read_map(osm_map)
-    bbox = osm.meta.get("bbox")
-    buildings = read_datasf(tiles, bbox=tuple(bbox) if bbox else None)
-    return write_map(over_streets_of(buildings, osm), out_path)
+    return write_map(read_datasf_over(tiles, read_map(osm_map)), out_path)
 
 
 def run_benchmark(

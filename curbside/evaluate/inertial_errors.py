@@ -273,6 +273,9 @@ def measure_ipin(
     rows, all_legs = [], []
     for name in names:
         session = read_trial(h5, name)
+        if session.waypoints is None:
+            log.warning("%s: no surveyed waypoints to measure against; skipped", name)
+            continue
         if source == "ronin":
             from curbside.localize.ronin.infer import ronin_velocity
 

@@ -30,6 +30,7 @@ exactly what :func:`pdr_velocity` gives for the whole recording.
 from __future__ import annotations
 
 import argparse
+import logging
 import math
 import sys
 from dataclasses import dataclass
@@ -44,6 +45,8 @@ from curbside.evaluate import metrics
 from curbside.localize.readers import ipin
 from curbside.localize.steps import StepConfig, detect_steps, fir_centered, lowpass_taps
 from curbside.projection import LocalFrame
+
+logger = logging.getLogger(__name__)
 
 #: Device-frame axis whose horizontal projection is the walking direction (see the module docstring).
 FORWARD_AXIS = np.array([0.0, 1.0, -1.0])
@@ -328,6 +331,9 @@ def evaluate_ipin(
     for name in tqdm(names, desc="PDR", unit="trial", disable=not sys.stderr.isatty()):
         session = ipin.read_trial(path, name)
         wp = session.waypoints
+        if wp is None or len(wp) < 2:
+            logger.warning("%s: no surveyed waypoints to score PDR against; skipped", name)
+            continue
         t0, t1 = float(wp["t"].iat[0]), float(wp["t"].iat[-1])
         steps = detect_steps(session.imu)
         velocity = pdr_velocity(session.imu, steps, config)

@@ -43,7 +43,7 @@ from curbside.osmseg.webmap import (
     class_overlay_js,
     leaflet_page,
     script_json,
-    sidewalk_places,
+    sidewalk_labels,
 )
 from curbside.projection import LocalFrame
 
@@ -230,7 +230,7 @@ def _map_overlays(maps: dict[str, MapLayers], bbox: tuple[float, float, float, f
             log.warning("the map %s has nothing under the runs", name)
             continue
         prefix = f"{name}: " if len(maps) > 1 else ""
-        places = sidewalk_places(layers)  # on the whole map: a segment at the edge keeps its street
+        places = sidewalk_labels(layers)  # on the whole map: a segment at the edge keeps its street
         for cls, features in class_features(clipped, places=places).items():
             if features:
                 statements.append(class_overlay_js(cls, features, prefix, visible=i == 0))

@@ -27,7 +27,7 @@ from curbside.evaluate.metrics import format_waypoint_summary, waypoint_errors, 
 from curbside.localize.particle_store import ParticleClouds
 from curbside.localize.session import Session
 from curbside.osmseg.mapio import MapLayers
-from curbside.osmseg.places import sidewalk_places
+from curbside.osmseg.webmap import sidewalk_labels
 from curbside.projection import WGS84, LocalFrame
 
 if TYPE_CHECKING:
@@ -118,11 +118,10 @@ class SegmentNamer:
             return {}
         if map_path not in self._labels:
             try:
-                places = sidewalk_places(self._read(map_path))
+                self._labels[map_path] = sidewalk_labels(self._read(map_path))
             except (CurbsideInputError, OSError) as exc:
                 log.warning("no street names for the segments of %s (%s)", map_path, exc)
-                places = {}
-            self._labels[map_path] = {sid: place.label for sid, place in places.items()}
+                self._labels[map_path] = {}
         return self._labels[map_path]
 
     def of(self, segments: list | None, map_path: str | None) -> dict[str, str] | None:

@@ -197,3 +197,17 @@ def over_streets_of(buildings: MapLayers, streets_map: MapLayers) -> MapLayers:
         + str(streets_map.meta.get("attribution") or settings.osm_attribution),
     }
     return MapLayers(gdf, meta)
+
+
+def read_datasf_over(
+    tiles: str | os.PathLike | Iterable[str | os.PathLike],
+    streets_map: MapLayers,
+    bbox: tuple[float, float, float, float] | None = None,
+    *,
+    fill_holes: bool = False,
+) -> MapLayers:
+    """DataSF's buildings read over ``streets_map`` (:func:`over_streets_of`), within ``bbox`` (default:
+    the map's own)."""
+    if bbox is None and streets_map.meta.get("bbox"):
+        bbox = tuple(streets_map.meta["bbox"])
+    return over_streets_of(read_datasf(tiles, bbox=bbox, fill_holes=fill_holes), streets_map)

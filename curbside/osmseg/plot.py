@@ -31,7 +31,7 @@ from curbside.osmseg.webmap import (
     conflict_overlay_js,
     leaflet_page,
     script_json,
-    sidewalk_places,
+    sidewalk_labels,
     swatch_label,
 )
 from curbside.projection import WGS84
@@ -258,7 +258,7 @@ def html_page(layers: MapLayers, title: str | None = None, places: dict[str, str
     title
         Page title (default: :func:`map_title`).
     places
-        The sidewalks' street and compass side (:func:`curbside.osmseg.webmap.sidewalk_places`), taken
+        The sidewalks' street and compass side (:func:`curbside.osmseg.webmap.sidewalk_labels`), taken
         on the whole map when ``layers`` is a window of it (default: taken on ``layers``).
 
     Returns
@@ -363,4 +363,4 @@ def render_map(
     shown = layers if bbox is None else clip_to_bbox(layers, bbox)
     if fmt == "png":
         return save_png(shown, path, title=title)
-    return save_html(shown, path, title, places=sidewalk_places(layers))  # sides found on the whole map
+    return save_html(shown, path, title, places=sidewalk_labels(layers))  # sides found on the whole map

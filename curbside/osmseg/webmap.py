@@ -18,7 +18,7 @@ import shapely
 
 from curbside import __version__, settings
 from curbside.osmseg.mapio import MapLayers, to_geojson
-from curbside.osmseg.places import sidewalk_places as places_of
+from curbside.osmseg.places import sidewalk_places
 from curbside.osmseg.style import BACKGROUND, CLASS_STYLE, CONFLICT_COLOUR, stroke_colour
 from curbside.projection import WGS84
 
@@ -48,10 +48,10 @@ def attribution(layers: MapLayers | None) -> str:
     return str(meta.get("attribution") or settings.osm_attribution)
 
 
-def sidewalk_places(layers: MapLayers) -> dict[str, str]:
+def sidewalk_labels(layers: MapLayers) -> dict[str, str]:
     """``segment_id`` -> ``"Market Street, north side"`` for every sidewalk segment of a map
     (:func:`curbside.osmseg.places.sidewalk_places`), for the tooltips."""
-    return {segment_id: place.label for segment_id, place in places_of(layers).items()}
+    return {segment_id: place.label for segment_id, place in sidewalk_places(layers).items()}
 
 
 def class_features(
@@ -66,7 +66,7 @@ def class_features(
     keep_properties
         Keep every feature's properties; by default only sidewalks keep theirs (the layer says the class).
     places
-        :func:`sidewalk_places`, when ``layers`` is a window of a larger map: taken on the whole map, a
+        :func:`sidewalk_labels`, when ``layers`` is a window of a larger map: taken on the whole map, a
         segment at the window's edge still finds its own carriageway outside the window. Default: those
         of ``layers``.
 
@@ -75,10 +75,10 @@ def class_features(
     dict
         ``{class: [feature, ...]}`` for every class of :data:`~curbside.osmseg.style.CLASS_STYLE`, in
         drawing order. Sidewalks with a ``segment_id`` also get ``place``, their street and compass side
-        (:func:`sidewalk_places`), for the tooltip.
+        (:func:`sidewalk_labels`), for the tooltip.
     """
     doc = to_geojson(layers, precision=COORDINATE_DECIMALS)
-    places = sidewalk_places(layers) if places is None else places
+    places = sidewalk_labels(layers) if places is None else places
     by_class: dict[str, list[dict]] = {cls: [] for cls in CLASS_STYLE}
     for feature in doc["features"]:
         props = feature["properties"]

@@ -167,3 +167,16 @@ def far_from_fixes(waypoints: pd.DataFrame, gnss: pd.DataFrame | None,
     h = np.sin((lat2 - lat1) / 2) ** 2 + np.cos(lat1) * np.cos(lat2) * np.sin((lon2 - lon1) / 2) ** 2
     nearest = 2 * _EARTH_RADIUS_M * np.arcsin(np.sqrt(np.clip(h.min(axis=1), 0.0, 1.0)))
     return nearest > max_m
+
+
+def drop_far_waypoints(waypoints: pd.DataFrame, gnss: pd.DataFrame | None, source: str | PathLike,
+                       what: str, fixes: str) -> pd.DataFrame:
+    """``waypoints`` without those farther than :data:`MAX_WAYPOINT_DISTANCE_M` from every fix, with one
+    WARNING naming them (``what``: how the source calls them, e.g. ``"<wpt>"``; ``fixes``: its fixes)."""
+    far = far_from_fixes(waypoints, gnss)
+    if far.any():
+        listed = ", ".join(f"({lat:.5f}, {lon:.5f}) at t={t:.1f} s"
+                           for t, lat, lon in waypoints.loc[far, ["t", "lat", "lon"]].itertuples(index=False))
+        logger.warning("%s: dropped %d %s more than %.0f km from every %s: %s", source, int(far.sum()), what,
+                       MAX_WAYPOINT_DISTANCE_M / 1000, fixes, listed)
+    return waypoints[~far].reset_index(drop=True)

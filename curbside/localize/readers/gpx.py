@@ -26,7 +26,7 @@ import gpxpy.gpx
 import pandas as pd
 
 from curbside.errors import CurbsideInputError
-from curbside.localize.readers._tidy import MAX_WAYPOINT_DISTANCE_M, far_from_fixes, tidy_table
+from curbside.localize.readers._tidy import drop_far_waypoints, tidy_table
 from curbside.localize.session import Session
 
 logger = logging.getLogger(__name__)
@@ -99,14 +99,7 @@ def _one_fix_per_stamp(track: pd.DataFrame, path: Path) -> pd.DataFrame:
 
 def _near_fixes(waypoints: pd.DataFrame, gnss: pd.DataFrame, path: Path) -> pd.DataFrame | None:
     """Drop (with a warning naming them) the waypoints farther than 5 km from every fix."""
-    far = far_from_fixes(waypoints, gnss)
-    if not far.any():
-        return waypoints
-    listed = ", ".join(f"({lat:.5f}, {lon:.5f}) at t={t:.1f} s"
-                       for t, lat, lon in waypoints.loc[far, ["t", "lat", "lon"]].itertuples(index=False))
-    logger.warning("%s: dropped %d <wpt> more than %.0f km from every track point: %s", path, int(far.sum()),
-                   MAX_WAYPOINT_DISTANCE_M / 1000, listed)
-    kept = waypoints[~far].reset_index(drop=True)
+    kept = drop_far_waypoints(waypoints, gnss, path, "<wpt>", "track point")
     return kept if len(kept) else None
 
 

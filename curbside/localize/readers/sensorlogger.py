@@ -54,6 +54,7 @@ from curbside.localize.readers._tidy import (
     MAX_WAYPOINT_DISTANCE_M,
     STANDARD_GRAVITY,
     accelerometer_ms2,
+    drop_far_waypoints,
     far_from_fixes,
     tidy_table,
 )
@@ -386,12 +387,7 @@ def _route_waypoints(taps: pd.DataFrame, route: Path, gnss: pd.DataFrame | None)
         km = MAX_WAYPOINT_DISTANCE_M / 1000
         raise CurbsideInputError(route, f"none of its {len(table)} point(s) lies within {km:.0f} km of a "
                                  "GNSS fix (the route of another walk?)")
-    if far.any():
-        listed = ", ".join(f"({lat:.5f}, {lon:.5f}) at t={t:.1f} s" for t, lat, lon in
-                           table.loc[far, ["t", "lat", "lon"]].itertuples(index=False))
-        logger.warning("%s: dropped %d point(s) more than %.0f km from every GNSS fix: %s", route,
-                       int(far.sum()), MAX_WAYPOINT_DISTANCE_M / 1000, listed)
-    return table[~far].reset_index(drop=True)
+    return drop_far_waypoints(table, gnss, route, "point(s)", "GNSS fix")
 
 
 def _waypoints(streams, label: str, route: str | Path | None, meta: dict,
