@@ -295,7 +295,9 @@ def _register_simulate(subparsers: argparse._SubParsersAction) -> None:
     sim.add_argument("--seed", type=seed, default=1,
                      help="session seed: which walk is simulated (default: %(default)s)")
     sim.add_argument("--start", nargs=2, type=float, metavar=("LON", "LAT"), help="custom route: start")
-    sim.add_argument("--length-m", type=positive_float, help="custom route: length in metres")
+    sim.add_argument("--length-m", type=positive_float,
+                     help="custom route: length in metres (it stays within 320 m of its start and uses no "
+                     "street twice: about 2 km at most)")
     sim.add_argument("--crossings", type=non_negative_int, default=None,
                      help="custom route: crosswalk crossings (default: 0)")
     sim.add_argument("--jaywalks", type=non_negative_int, default=None,
@@ -304,7 +306,9 @@ def _register_simulate(subparsers: argparse._SubParsersAction) -> None:
                      help="sessions (simulated recordings) per route for --benchmark (default: %(default)s)")
     sim.add_argument("--map", help="check the route against this map (extent, buildings)")
     sim.add_argument("--osm", help="OSM extract for heights and footways (default: the bundled one)")
-    sim.add_argument("--imu", action="store_true", help="also write imu.csv (100 Hz phone IMU)")
+    sim.add_argument("--imu", action="store_true",
+                     help="also write imu.csv (100 Hz phone IMU, made for the footstep detector and PDR; "
+                     "RoNIN cannot read it)")
     sim.add_argument("--no-velocity", action="store_true", help="do not write velocity.csv")
     sim.add_argument(
         "--profile",
