@@ -450,3 +450,14 @@ def test_a_session_without_ground_truth_is_refused_naming_its_file(tmp_path, cap
     pd.DataFrame({"t": [0.0], "lat": [37.79], "lon": [-122.4]}).to_csv(copy / "waypoints.csv", index=False)
     needle = f"{copy / 'waypoints.csv'}: ground truth needs at least two waypoints; it holds 1"
     _fails(capsys, argv, needle, out)
+
+
+def test_worker_processes_start_with_ctrl_c_ignored_and_the_handler_comes_back():
+    import signal
+
+    from curbside.evaluate.runner import _workers_ignore_ctrl_c
+
+    before = signal.getsignal(signal.SIGINT)
+    with _workers_ignore_ctrl_c():
+        assert signal.getsignal(signal.SIGINT) is signal.SIG_IGN  # what the spawned workers inherit
+    assert signal.getsignal(signal.SIGINT) is before

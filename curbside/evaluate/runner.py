@@ -14,8 +14,12 @@ particles (``gnss``) or without sidewalks in the filter's map both estimates are
 
 from __future__ import annotations
 
+import contextlib
 import functools
 import logging
+import signal
+import threading
+from collections.abc import Iterator
 from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any
@@ -269,15 +273,16 @@ def run_all(
 
     cluster = None
     if scheduler is None:
-        cluster = LocalCluster(
-            n_workers=workers,
-            threads_per_worker=1,
-            processes=True,
-            # no dashboard; the scheduler's HTTP routes on a free port, not 8787 (often taken)
-            dashboard_address=":0",
-            scheduler_kwargs={"dashboard": False},
-            silence_logs=logging.WARNING,
-        )
+        with _workers_ignore_ctrl_c():
+            cluster = LocalCluster(
+                n_workers=workers,
+                threads_per_worker=1,
+                processes=True,
+                # no dashboard; the scheduler's HTTP routes on a free port, not 8787 (often taken)
+                dashboard_address=":0",
+                scheduler_kwargs={"dashboard": False},
+                silence_logs=logging.WARNING,
+            )
         client = Client(cluster)
         client.run(_quiet_heartbeat_at_shutdown)
     else:
@@ -308,6 +313,20 @@ class HeartbeatAtShutdown(logging.Filter):
 
     def filter(self, record: logging.LogRecord) -> bool:
         return "during heartbeat" not in record.getMessage()
+
+
+@contextlib.contextmanager
+def _workers_ignore_ctrl_c() -> Iterator[None]:
+    """Start worker processes with SIGINT ignored (they inherit it): Ctrl-C then stops the command
+    alone, which closes its workers, instead of printing every worker's KeyboardInterrupt traceback."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    previous = signal.signal(signal.SIGINT, signal.SIG_IGN)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, previous)
 
 
 def _quiet_heartbeat_at_shutdown() -> None:
