@@ -182,12 +182,18 @@ def test_no_sidewalks_and_no_estimates_give_no_csa_and_n_a_cells(recwarn):
 
 
 @pytest.mark.parametrize("sessions", [1, MIN_BOOTSTRAP_UNITS - 1])
-def test_too_few_sessions_give_no_interval_and_say_why(sessions):
+def test_too_few_sessions_give_no_interval_and_say_why(sessions, monkeypatch):
     from curbside.evaluate.report import interval_table, records
+    from curbside.evaluate.uncertainty import SessionSamples
 
+    resampled_rows = []
+    statistics = SessionSamples.statistics
+    monkeypatch.setattr(SessionSamples, "statistics",
+                        lambda self, counts: resampled_rows.append(len(counts)) or statistics(self, counts))
     rng = np.random.default_rng(7)
     fused, paper = _runs(rng, 0.9, 1.0, sessions), _runs(rng, 0.6, 4.0, sessions)
     frame = bootstrap_intervals({"paper": paper, "fused": fused}, n_resamples=100)
+    assert max(resampled_rows) == 1  # the point figures only: no resample computed and thrown away
     assert frame[["lo", "hi"]].isna().all().all() and frame["better_share"].isna().all()
     assert frame["value"].notna().all()  # the point figures stay
     plural = "session" if sessions == 1 else "sessions"

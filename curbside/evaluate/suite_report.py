@@ -33,6 +33,7 @@ from curbside.evaluate.report import (
     CROSSING_NOTE,
     INTERVAL_NOTE,
     MAP_INTERVAL_NOTE,
+    PAPER_NOTE,
     Table,
     confidence_table,
     fmt_value,
@@ -111,8 +112,7 @@ def sweep_table(pooled: pd.DataFrame, subset: str) -> Table | None:
         f"Table 2. Correct Sidewalk Assignment by jaywalk weight, {subset}",
         ["", *(paper_header(m) for m in methods)],
         rows,
-        "In parentheses: the paper's RoNIN+PF and GNSS+RoNIN+PF on its real walks; under curbside fused, "
-        "which the paper does not have, its GNSS+RoNIN+PF (paper PF) figure. " + CROSSING_NOTE,
+        f"{PAPER_NOTE} {CROSSING_NOTE}",
     )
 
 

@@ -248,6 +248,8 @@ def interval_rows(
     reason = None
     if n_units < min_units:
         reason = f"{unit_count(n_units, unit)}: an interval needs at least {min_units} {unit} to resample"
+    if reason is not None:
+        counts = counts[:0]  # nothing to resample: the point figures alone
     stats = {method: sample.statistics(counts) for method, sample in samples.items()}
     points = {method: sample.point() for method, sample in samples.items()}
     rows = []
@@ -260,10 +262,12 @@ def interval_rows(
         for metric in (m for m in stats[reference] if m in stats[base]):
             diff = stats[reference][metric] - stats[base][metric]
             lo, hi = _interval(diff, tail) if reason is None else (np.nan, np.nan)
-            better = np.mean(diff > 0) if INTERVAL_METRICS[metric] else np.mean(diff < 0)
+            better = np.nan
+            if reason is None:
+                better = float(np.mean(diff > 0) if INTERVAL_METRICS[metric] else np.mean(diff < 0))
             rows.append({"method": f"{reference} - {base}", "metric": metric,
                          "value": points[reference][metric] - points[base][metric], "lo": lo, "hi": hi,
-                         "better_share": float(better) if reason is None else np.nan})
+                         "better_share": better})
     return pd.DataFrame(rows).assign(n_units=n_units, unit=unit, reason=reason)
 
 
