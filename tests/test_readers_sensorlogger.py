@@ -224,9 +224,14 @@ def test_standardised_ios_orientation_follows_the_magnetometer(caplog):
 
 
 def test_wrong_frame_is_reported(tmp_path, caplog):
-    """An iOS export read as Android (no Metadata.csv): the check sees north 90 deg off and says so."""
-    path = _rewrite_zip(SESSIONS / "sensorlogger-ios.zip", tmp_path / "nometa.zip",
-                        lambda name, table: None if name == "Metadata.csv" else table)
+    """A world frame a quarter turn off (iOS export): the check sees north 90 deg off and says so."""
+    def turn(name, table):
+        if name == "Orientation.csv":
+            quarter_turn = Rotation.from_euler("z", 90, degrees=True)
+            table[QUAT] = (quarter_turn * Rotation.from_quat(table[QUAT])).as_quat()
+        return table
+
+    path = _rewrite_zip(SESSIONS / "sensorlogger-ios.zip", tmp_path / "turned.zip", turn)
     with caplog.at_level(logging.WARNING):
         session = read_any(path)
     assert abs(session.meta["magnetic_north_deg"]) == pytest.approx(90.0, abs=0.5)

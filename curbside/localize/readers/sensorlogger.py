@@ -25,6 +25,14 @@ them and lists the real exports this reader was run on):
   iOS export against the magnetic field (docs/sessions.md); with ``Magnetometer.csv`` present the
   reader repeats that check on every export (``meta["magnetic_north_deg"]``) and, for standardised
   iOS exports, whose world frame is undocumented, follows it;
+- the platform (and with it the sign and the world frame) comes from ``Metadata.csv``. An export
+  without it (users re-zip only the CSVs they think matter) is not taken for Android: the reader
+  infers the platform from, strongest first, the accelerometer sign found against the orientation
+  (iOS's is never Android's), ``TotalAcceleration.csv`` (Android only), an
+  ``AccelerometerUncalibrated.csv`` in g (iOS), magnetic north in the orientation's frame (near 0:
+  ENU; near +90 deg: NWU) and the iOS 1.10-1.11 ``Orientation.csv`` column order, logs what it found
+  and what disagreed, and records it in ``meta["platform_inferred_from"]``. Without any cue it
+  assumes Android frames (warning);
 - ``Location.csv``: ``latitude,longitude,horizontalAccuracy`` (m, ~1 sigma) -> ``gnss.csv``;
   (0, 0) fixes are dropped;
 - ``Annotation.csv``: taps. A tap is a waypoint when its text is ``"lat,lon"``, or when a route file
@@ -78,33 +86,36 @@ _UNCALIBRATED = {"AccelerometerUncalibrated.csv": ("TotalAcceleration.csv", "Acc
 _ACCELEROMETERS = ("TotalAcceleration.csv", "Accelerometer.csv", "AccelerometerUncalibrated.csv")
 _GYROSCOPES = ("Gyroscope.csv", "GyroscopeUncalibrated.csv")
 _QUAT = ["qx", "qy", "qz", "qw"]
+#: ``Orientation.csv`` columns, and their order in iOS 1.10 and 1.11 (Android: ``qz,qy,qx,qw,roll,...``).
+_ORIENTATION_COLUMNS = frozenset({*_QUAT, "roll", "pitch", "yaw"})
+_IOS_1_1X_ORIENTATION = ("yaw", "qx", "qz", "roll", "qw", "qy", "pitch")
 _ACC = ("ax", "ay", "az")
 
 
 @dataclass
 class _Device:
-    """What ``Metadata.csv`` says about the phone and the export."""
+    """What ``Metadata.csv`` says about the phone and the export; ``known`` is False when it names no
+    platform, which is then inferred from the data (:func:`_settle_device`)."""
 
     platform: str = "android"
     standardised: bool = False
     meta: dict = field(default_factory=dict)
+    known: bool = True
 
 
 def _device(table: pd.DataFrame | None, label: str) -> _Device:
     if table is None or table.empty or "platform" not in table.columns:
-        logger.warning("%s: no Metadata.csv platform; assuming Android frames", label)
-        return _Device()
+        return _Device(known=False)
     row = table.iloc[0]
+    columns = {"export_version": "version", "app_version": "appVersion", "device": "device name"}
+    meta = {key: str(row[col]).strip() for key, col in columns.items()
+            if col in table.columns and pd.notna(row[col])}
     platform = str(row["platform"]).strip().lower()
     if platform not in ("android", "ios"):
-        logger.warning("%s: Metadata.csv platform %r unknown; assuming Android frames", label, platform)
-        platform = "android"
+        logger.warning("%s: Metadata.csv platform %r unknown; inferred from the data", label, platform)
+        return _Device(meta=meta, known=False)
     standardised = str(row.get("standardisation", "false")).strip().lower() in ("true", "1", "yes")
-    meta = {"platform": platform, "standardised": standardised}
-    for key, col in (("export_version", "version"), ("app_version", "appVersion"), ("device", "device name")):
-        if col in table.columns and pd.notna(row[col]):
-            meta[key] = str(row[col]).strip()
-    return _Device(platform, standardised, meta)
+    return _Device(platform, standardised, {"platform": platform, "standardised": standardised, **meta})
 
 
 def _read_streams(export) -> dict[str, pd.DataFrame]:
@@ -155,7 +166,8 @@ def _xyz(table: pd.DataFrame, source: str, cols: tuple[str, str, str]) -> pd.Dat
     return tidy_table(table, source, ["t", *cols])
 
 
-def _orientation(streams, label: str, device: _Device) -> pd.DataFrame | None:
+def _orientation(streams, label: str) -> pd.DataFrame | None:
+    """The quaternions as exported (normalised); the iOS world frame is turned later, in :func:`_imu`."""
     table = streams.get("Orientation.csv")
     if table is None:
         return None
@@ -165,8 +177,6 @@ def _orientation(streams, label: str, device: _Device) -> pd.DataFrame | None:
         raise CurbsideInputError(f"{label}/Orientation.csv", f"qx,qy,qz,qw are not unit quaternions "
                                  f"(norms {norm.min():.2f}-{norm.max():.2f})")
     quat[_QUAT] = quat[_QUAT].to_numpy() / norm[:, None]
-    if device.platform == "ios":
-        quat[_QUAT] = (NWU_TO_ENU * Rotation.from_quat(quat[_QUAT].to_numpy())).as_quat()
     return quat
 
 
@@ -178,8 +188,8 @@ def _includes_gravity(acce: pd.DataFrame, source: str) -> bool:
     return True
 
 
-def _specific_force(streams, label: str, quat: pd.DataFrame | None, device: _Device):
-    """Accelerometer including gravity, and whether its sign is still the export's (else Android's)."""
+def _specific_force(streams, label: str) -> tuple[pd.DataFrame, bool]:
+    """The accelerometer, and whether it includes gravity (else gravity is still to be restored)."""
     for name in ("TotalAcceleration.csv", "AccelerometerUncalibrated.csv"):
         if name in streams:  # both include gravity; the raw one is read only when the others are absent
             return _xyz(streams[name], f"{label}/{name}", _ACC), True
@@ -199,18 +209,17 @@ def _specific_force(streams, label: str, quat: pd.DataFrame | None, device: _Dev
         for col in _ACC:
             user[col] = user[col] + np.interp(t[inside], g_t, gravity[col].to_numpy())
         return user, True
-    if _includes_gravity(user, source):
-        return user, True
-    if quat is None:
-        raise CurbsideInputError(source, "acceleration without gravity, and no TotalAcceleration.csv, "
-                                 "Gravity.csv or Orientation.csv to restore it")
-    # Gravity from the attitude: "up" in the device frame is g along the world z axis seen from the phone.
-    q = interp_quaternions(t, quat["t"].to_numpy(), quat[_QUAT].to_numpy())
+    return user, _includes_gravity(user, source)
+
+
+def _restore_gravity(user: pd.DataFrame, quat: pd.DataFrame, sign: float, label: str) -> pd.DataFrame:
+    """Android-signed acceleration: ``sign`` times the gravity-free ``user``, plus gravity from ``quat``."""
+    # "Up" in the device frame is g along the world z axis seen from the phone.
+    q = interp_quaternions(user["t"].to_numpy(), quat["t"].to_numpy(), quat[_QUAT].to_numpy())
     up = Rotation.from_quat(q).inv().apply([0.0, 0.0, STANDARD_GRAVITY])
-    sign = _metadata_sign(device)
     user[list(_ACC)] = sign * user[list(_ACC)].to_numpy() + up
     logger.warning("%s: no Gravity.csv; gravity restored from Orientation.csv", label)
-    return user, False
+    return user
 
 
 def _metadata_sign(device: _Device) -> float:
@@ -272,20 +281,95 @@ def magnetic_north_deg(imu: pd.DataFrame, magnetometer: pd.DataFrame) -> float |
     return float(np.degrees(np.arctan2(east, north)))
 
 
-def _check_north(imu: pd.DataFrame, streams, label: str, device: _Device, meta: dict) -> None:
+def _north_quarter(north: float) -> float | None:
+    """The nearest multiple of 90 deg to an azimuth of north, when within the tolerance of it."""
+    snapped = 90.0 * round(north / 90.0)
+    return snapped if abs(north - snapped) < NORTH_TOLERANCE_DEG else None
+
+
+def _uncalibrated_in_g(streams, export) -> bool:
+    """Whether ``AccelerometerUncalibrated.csv`` logs in g (iOS without standardisation; Android: m/s^2)."""
+    name = "AccelerometerUncalibrated.csv"
+    try:
+        table = streams[name] if name in streams else export.read(name)
+    except CurbsideInputError:  # only a cue: a file the reader does not need must not stop it
+        return False
+    if table is None or not {"x", "y", "z"} <= set(table.columns):
+        return False
+    xyz = table[["x", "y", "z"]].apply(pd.to_numeric, errors="coerce").dropna().to_numpy()
+    block = min(25, len(xyz))  # block means, as accelerometer_ms2: gravity dominates them
+    if block == 0:
+        return False
+    means = xyz[: len(xyz) // block * block].reshape(-1, block, 3).mean(axis=1)
+    return 0.8 <= float(np.median(np.linalg.norm(means, axis=1))) <= 1.2
+
+
+def _platform_cues(streams, export, frame: pd.DataFrame | None, sign: float | None,
+                   mag: pd.DataFrame | None) -> list[tuple[str, str]]:
+    """What in the data shows the platform, strongest first: ``(platform, the evidence)``.
+
+    ``frame``: ``t`` and the quaternions as exported (device to world, not turned); ``sign``: the
+    accelerometer sign found against them (``None`` when not measured).
+    """
+    cues = []
+    if sign is not None:  # iOS without standardisation has the opposite sign; Android never does
+        cues.append(("ios", "acceleration in iOS's sign convention (gravity reads -9.8 m/s^2 up)") if sign < 0
+                    else ("android", "acceleration in Android's sign convention (also a standardised iOS's)"))
+    if "TotalAcceleration.csv" in streams:
+        cues.append(("android", "TotalAcceleration.csv (iOS writes none)"))
+    if _uncalibrated_in_g(streams, export):
+        cues.append(("ios", "AccelerometerUncalibrated.csv in g"))
+    north = None if frame is None or mag is None else magnetic_north_deg(frame, mag)
+    quarter = None if north is None else _north_quarter(north)
+    if quarter == 0:
+        cues.append(("android", f"magnetic north at {round(north):+d} deg in the orientation's frame "
+                     "(East-North-Up)"))
+    elif quarter == 90:  # an x-north frame read as East-North-Up shows north on its x axis: east
+        cues.append(("ios", f"magnetic north at {round(north):+d} deg in the orientation's frame "
+                     "(North-West-Up)"))
+    orientation = streams.get("Orientation.csv", pd.DataFrame())
+    columns = tuple(c for c in orientation.columns if c in _ORIENTATION_COLUMNS)
+    if columns == _IOS_1_1X_ORIENTATION:
+        cues.append(("ios", f"Orientation.csv columns in iOS 1.10-1.11 order ({','.join(columns)})"))
+    return cues
+
+
+def _settle_device(device: _Device, streams, export, frame: pd.DataFrame | None, sign: float | None,
+                   mag: pd.DataFrame | None, meta: dict) -> _Device:
+    """``device``, or when ``Metadata.csv`` names no platform the strongest cue's (logged, in ``meta``)."""
+    if device.known:
+        return device
+    label = export.label
+    cues = _platform_cues(streams, export, frame, sign, mag)
+    if not cues:
+        logger.warning("%s: no Metadata.csv platform, and no cue to it in the data; assuming Android frames",
+                       label)
+        return _Device()
+    platform = cues[0][0]
+    agree = [why for p, why in cues if p == platform]
+    against = [why for p, why in cues if p != platform]
+    frames = "orientation North-West-Up, turned into ENU" if platform == "ios" else "orientation in ENU"
+    logger.log(logging.INFO if len(agree) > 1 and not against else logging.WARNING,
+               "%s: no Metadata.csv platform; %s inferred (%s) from %s%s", label,
+               "iOS" if platform == "ios" else "Android", frames, "; ".join(agree),
+               f"; against it: {'; '.join(against)}" if against else "")
+    meta.update(platform=platform, platform_inferred_from=agree)
+    return _Device(platform)
+
+
+def _check_north(imu: pd.DataFrame, mag: pd.DataFrame | None, label: str, device: _Device,
+                 meta: dict) -> None:
     """Compare the world frame's north with magnetic north; for standardised iOS exports, follow it."""
-    if "Magnetometer.csv" not in streams:
+    if mag is None:
         if device.platform == "ios" and device.standardised:
             logger.warning("%s: standardised iOS export without Magnetometer.csv; orientation assumed in "
                            "CoreMotion's x-north frame (unverified for standardised exports)", label)
         return
-    mag = _xyz(streams["Magnetometer.csv"], f"{label}/Magnetometer.csv", ("mx", "my", "mz"))
     north = magnetic_north_deg(imu, mag)
     if north is None:
         return
-    snapped = 90.0 * round(north / 90.0)
-    turned = snapped != 0 and abs(north - snapped) < NORTH_TOLERANCE_DEG
-    if device.platform == "ios" and device.standardised and turned:
+    snapped = _north_quarter(north)
+    if device.platform == "ios" and device.standardised and snapped:
         # A world frame turned by +phi about up shows north at -phi: turning by the azimuth undoes it.
         turn = Rotation.from_euler("z", snapped, degrees=True)
         imu[_QUAT] = (turn * Rotation.from_quat(imu[_QUAT].to_numpy())).as_quat()
@@ -312,7 +396,8 @@ def _report_uncalibrated(streams, label: str) -> None:
                    "Gravity, Gyroscope, Orientation) in Sensor Logger", label, missing, ", ".join(raw), bias)
 
 
-def _imu(streams, label: str, device: _Device, meta: dict) -> pd.DataFrame | None:
+def _imu(streams, export, device: _Device, meta: dict) -> pd.DataFrame | None:
+    label = export.label
     acc_name = next((n for n in _ACCELEROMETERS if n in streams), None)
     gyro_name = next((n for n in _GYROSCOPES if n in streams), None)
     if acc_name is None or gyro_name is None:
@@ -322,28 +407,40 @@ def _imu(streams, label: str, device: _Device, meta: dict) -> pd.DataFrame | Non
                            label, ", ".join(present))
         return None
     _report_uncalibrated(streams, label)
-    quat = _orientation(streams, label, device)
-    acce, export_sign = _specific_force(streams, label, quat, device)
+    quat = _orientation(streams, label)
+    mag = None
+    if "Magnetometer.csv" in streams:
+        mag = _xyz(streams["Magnetometer.csv"], f"{label}/Magnetometer.csv", ("mx", "my", "mz"))
+    acce, with_gravity = _specific_force(streams, label)
+    if not with_gravity:
+        if quat is None:
+            raise CurbsideInputError(f"{label}/Accelerometer.csv", "acceleration without gravity, and no "
+                                     "TotalAcceleration.csv, Gravity.csv or Orientation.csv to restore it")
+        device = _settle_device(device, streams, export, quat, None, mag, meta)  # restoring needs the sign
+        acce = _restore_gravity(acce, quat, _metadata_sign(device), label)
     acce = accelerometer_ms2(acce, f"{label}/{acc_name}")
     gyro = _xyz(streams[gyro_name], f"{label}/{gyro_name}", ("gx", "gy", "gz"))
     names = (f"{label}/{acc_name}", f"{label}/{gyro_name}", f"{label}/Orientation.csv")
     imu = merge_imu(acce, gyro, quat, label, names)
-    sign, invert = 1.0, False
-    if quat is not None and export_sign:
+    sign = None
+    if quat is not None and with_gravity:
         sign, invert = _gravity_convention(imu, label)
-    elif export_sign:
+        if invert:
+            logger.info("%s: orientation is world-to-device; inverted", label)
+            imu[_QUAT] = Rotation.from_quat(imu[_QUAT].to_numpy()).inv().as_quat()
+    device = _settle_device(device, streams, export, None if quat is None else imu, sign, mag, meta)
+    if sign is None and with_gravity:
         sign = _metadata_sign(device)
-    if sign < 0:
+    if sign is not None and sign < 0:
         logger.info("%s: acceleration in the iOS sign convention; negated", label)
         imu[list(_ACC)] *= -1.0
-    if invert:
-        logger.info("%s: orientation is world-to-device; inverted", label)
-        imu[_QUAT] = Rotation.from_quat(imu[_QUAT].to_numpy()).inv().as_quat()
     if quat is None:
         logger.warning("%s: no Orientation.csv; imu.csv has no quaternion (heading from it is unavailable)",
                        label)
-    else:
-        _check_north(imu, streams, label, device, meta)
+        return imu
+    if device.platform == "ios":  # the world frame turned, after any inversion: NWU -> ENU
+        imu[_QUAT] = (NWU_TO_ENU * Rotation.from_quat(imu[_QUAT].to_numpy())).as_quat()
+    _check_north(imu, mag, label, device, meta)
     return imu
 
 
@@ -469,7 +566,7 @@ def read_sensorlogger(src: str | Path, route: str | Path | None = None) -> Sessi
     if not streams:
         raise CurbsideInputError(label, "export has no data: every motion and location file is empty")
     _one_clock(streams, export, metadata, meta)
-    imu = _imu(streams, label, device, meta)
+    imu = _imu(streams, export, device, meta)
     gnss = _gnss(streams, label)
     waypoints = _waypoints(streams, label, route, meta, gnss)
     if imu is None and gnss is None:
