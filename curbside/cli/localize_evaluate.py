@@ -85,7 +85,8 @@ def _simulate(args: argparse.Namespace) -> int:
         spec = routes_mod.RouteSpec(
             "custom", tuple(args.start), args.length_m, args.crossings or 0, args.jaywalks or 0, "custom"
         )
-        route = routes_mod.generate_route(routes_mod.build_walk_graph(osm), spec, frame, args.seed)
+        route = routes_mod.generate_route(routes_mod.build_walk_graph(osm), spec, frame, args.seed,
+                                         progress=True)
     elif args.route in names:
         route_list, frame, osm = sf6_routes(load_osm(args.osm))
         route = route_list[names.index(args.route)]
@@ -171,7 +172,7 @@ def _check_sessions(sessions: list[Path], maps: dict, methods: list[str]) -> Non
             )
         for path, layers in maps.items():
             for config in configs:
-                check_on_map(session, layers, config, folder=str(folder), map_name=path)
+                check_on_map(session, layers, config, map_name=path)
 
 
 def _evaluate(args: argparse.Namespace) -> int:

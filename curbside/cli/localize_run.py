@@ -36,7 +36,7 @@ from curbside.cli.run_replay import add_weights, check_replayed_inputs, input_re
 from curbside.errors import CurbsideInputError
 from curbside.evaluate.metrics import format_waypoint_summary, waypoint_errors, waypoint_summary
 from curbside.io import check_output_folder
-from curbside.localize.pipeline import TrackResult, check_on_map, resolve_config, track_session
+from curbside.localize.pipeline import TrackResult, resolve_config, track_session
 from curbside.localize.readers import read_any
 from curbside.localize.runconfig import MODES, VELOCITY_SOURCES, RunConfig
 from curbside.localize.track import write_track
@@ -87,9 +87,7 @@ def _run(args: argparse.Namespace) -> int:
     config = config.with_overrides(config_overrides(args))
     if args.lag_s is not None:
         config = config.with_overrides({"filter.smoother.lag_s": args.lag_s})
-    if layers is not None:  # named as the user gave the session (track_session knows its name only)
-        check_on_map(session, layers, config, folder=str(session_path), map_name=str(map_path))
-    result = track_session(session, layers, config=config, save_particles=save_particles)
+    result = track_session(session, layers, config=config, save_particles=save_particles, progress=True)
     run_info = {"session": _absolute(session_path), "map": _absolute(map_path) if map_path else None,
                 "save_particles": save_particles,
                 "inputs": add_weights(inputs, result.velocity_source)}

@@ -16,11 +16,13 @@ import argparse
 import logging
 from pathlib import Path
 
+from tqdm.auto import tqdm
+
 from curbside.cli.common import positive_int
 from curbside.errors import CurbsideInputError
 from curbside.io import OVERWRITE_FILE_HELP, check_output_file
-from curbside.localize.view import label_runs, load_run, maps_of, write_view
-from curbside.osmseg.mapio import read_map
+from curbside.localize.view import ViewRun, label_runs, load_run, maps_of, write_view
+from curbside.localize.view_data import SegmentNamer
 
 log = logging.getLogger(__name__)
 
@@ -29,10 +31,21 @@ def _view(args: argparse.Namespace) -> int:
     if Path(args.output).suffix.lower() not in (".html", ".htm"):
         raise CurbsideInputError(args.output, "the viewer is an HTML page: name it .html")
     check_output_file(args.output, args.overwrite, inputs=(args.map,) if args.map else ())
-    runs = [load_run(folder, args.session, args.map) for folder in args.runs]
-    label_runs(runs, args.labels)
-    maps = {Path(args.map).stem: read_map(args.map)} if args.map else maps_of(runs)
-    path = write_view(runs, args.output, maps, cloud_every=args.cloud_every)
+    # One bar over the slow steps, on a terminal only: each run (its session and clouds), the maps, the page.
+    with tqdm(total=len(args.runs) + 2, desc="localize view: reading runs", unit="step", leave=False,
+              disable=None) as bar:
+        runs: list[ViewRun] = []
+        for folder in args.runs:
+            runs.append(load_run(folder, args.session, args.map))
+            bar.update()
+        label_runs(runs, args.labels)
+        bar.set_description("localize view: reading maps")
+        namer = SegmentNamer()
+        maps = {Path(args.map).stem: namer.read(args.map)} if args.map else maps_of(runs, namer.read)
+        bar.update()
+        bar.set_description("localize view: writing the page")
+        path = write_view(runs, args.output, maps, cloud_every=args.cloud_every, namer=namer)
+        bar.update()
     clouds = sum(r.particles is not None for r in runs)
     print(
         f"{path}: {len(runs)} run(s), {clouds} with particle clouds, "

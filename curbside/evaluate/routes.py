@@ -21,6 +21,7 @@ from dataclasses import dataclass, field
 import networkx as nx
 import numpy as np
 import shapely
+from tqdm.auto import tqdm
 
 from curbside.errors import CurbsideInputError
 from curbside.evaluate.osmsource import OsmSource
@@ -317,6 +318,7 @@ def generate_route(
     max_attempts: int = 20000,
     accept: Callable[[np.ndarray], bool] | None = None,
     exact_counts: bool = True,
+    progress: bool = False,
 ) -> Route:
     """Draw a route that satisfies ``spec`` (deterministic for a given seed).
 
@@ -337,6 +339,9 @@ def generate_route(
         (e.g. "under open sky").
     exact_counts
         ``False``: ``spec.crossings`` and ``spec.jaywalks`` are maxima, not exact counts.
+    progress
+        A progress bar over the random walks on a terminal (a command's one route: a hard request takes
+        a minute to fail).
 
     Raises
     ------
@@ -350,7 +355,9 @@ def generate_route(
     starts = nodes[d <= spec.start_radius_m]
     if len(starts) == 0:
         raise CurbsideInputError(spec.name, "no walkable footway near the requested start")
-    for attempt in range(1, max_attempts + 1):
+    attempts = tqdm(range(1, max_attempts + 1), desc=f"{spec.name}: route search", unit="walk",
+                    disable=None if progress else True, leave=False)
+    for attempt in attempts:
         walk = _walk_once(wg, spec, int(rng.choice(starts)), rng)
         if walk is None:
             continue

@@ -24,7 +24,6 @@ from __future__ import annotations
 import logging
 import math
 from dataclasses import dataclass
-from pathlib import Path
 
 import numpy as np
 import pandas as pd
@@ -32,6 +31,7 @@ import pyproj
 import shapely
 
 from curbside.errors import CurbsideInputError
+from curbside.localize import input_warnings
 from curbside.localize.engine import Row, SessionEngine, StartPose, require_rows
 from curbside.localize.filter.tracker import Tracker
 from curbside.localize.fix_lag import estimate_fix_lag
@@ -172,7 +172,7 @@ def _frame_for(session: Session, map_layers: MapLayers | None) -> LocalFrame:
         return LocalFrame.around(start["lon"], start["lat"])
     if session.gnss is not None and len(session.gnss):
         return LocalFrame.around(float(session.gnss["lon"].median()), float(session.gnss["lat"].median()))
-    raise CurbsideInputError(session.name, "no start pose in meta.json and no gnss.csv: nowhere to start")
+    raise CurbsideInputError(session.source, "no start pose in meta.json and no gnss.csv: nowhere to start")
 
 
 def _start_of(session: Session) -> tuple[StartPose | None, float | None]:
@@ -186,7 +186,7 @@ def _start_of(session: Session) -> tuple[StartPose | None, float | None]:
         start = StartPose(float(pose["lat"]), float(pose["lon"]), float(pose["heading_deg"]), t)
     except (KeyError, TypeError, ValueError):
         raise CurbsideInputError(
-            f"{session.name}/meta.json", "start needs numeric lat, lon, heading_deg"
+            session.file_source("meta.json"), "start needs numeric lat, lon, heading_deg"
         ) from None
     return start, t
 
@@ -196,7 +196,6 @@ def check_on_map(
     map_layers: MapLayers,
     config: RunConfig | None = None,
     *,
-    folder: str | None = None,
     map_name: str | None = None,
 ) -> None:
     """Raise unless the session lies on the map: the check :func:`track_session` makes first.
@@ -210,8 +209,8 @@ def check_on_map(
     config
         The run's configuration (whether it uses the start pose; the extent tolerance); default
         :class:`RunConfig`'s.
-    folder, map_name
-        How messages name the session (default its name) and the map (default "the map").
+    map_name
+        How messages name the map (default "the map"; the session is named by its ``source``).
 
     Raises
     ------
@@ -222,21 +221,20 @@ def check_on_map(
     start, _ = _start_of(session)
     pose = start if config.use_start_pose else None
     _check_extent(session, map_layers, _frame_for(session, map_layers), pose,
-                  config.engine.extent_tolerance_m, folder=folder, map_name=map_name)
+                  config.engine.extent_tolerance_m, map_name=map_name)
 
 
 def _check_extent(
     session: Session, layers: MapLayers, frame: LocalFrame, start: StartPose | None, tolerance_m: float,
-    *, folder: str | None = None, map_name: str | None = None,
+    *, map_name: str | None = None,
 ) -> None:
-    folder = folder or session.name
     where = f" ({map_name})" if map_name else ""
     xmin, ymin, xmax, ymax = layers.gdf.total_bounds
     if start is not None:
         x, y = frame.to_xy(start.lon, start.lat)
         if not (xmin <= x <= xmax and ymin <= y <= ymax):
             raise CurbsideInputError(
-                _session_file(folder, "meta.json"),
+                session.file_source("meta.json"),
                 f"start pose ({start.lat:.6f}, {start.lon:.6f}) lies outside the map's extent{where}",
             )
     gnss = session.gnss
@@ -246,15 +244,9 @@ def _check_extent(
         near = (fx > xmin - tol) & (fx < xmax + tol) & (fy > ymin - tol) & (fy < ymax + tol)
         if not np.any(near):
             raise CurbsideInputError(
-                _session_file(folder, "gnss.csv"),
+                session.file_source("gnss.csv"),
                 f"the session lies outside the map's extent{where} (no fix near the map)",
             )
-
-
-def _session_file(folder: str, name: str) -> str:
-    """``folder/name`` when the session is a folder holding that file; else the session as given (an
-    HDF5 trial, a Sensor Logger export, a GPX file)."""
-    return f"{folder}/{name}" if Path(folder, name).is_file() else folder
 
 
 def valid_fixes(gnss: pd.DataFrame | None, frame: LocalFrame) -> tuple[np.ndarray, ...]:
@@ -267,29 +259,34 @@ def valid_fixes(gnss: pd.DataFrame | None, frame: LocalFrame) -> tuple[np.ndarra
     return gnss["t"].to_numpy(float)[ok], np.atleast_1d(x), np.atleast_1d(y), acc[ok]
 
 
-def _velocity(session: Session, config: RunConfig, steps: np.ndarray | None) -> tuple[pd.DataFrame, str]:
-    """The session's world-frame velocity and its source name (see the module docstring)."""
+def _velocity(
+    session: Session, config: RunConfig, steps: np.ndarray | None, progress: bool = False
+) -> tuple[pd.DataFrame, str]:
+    """The session's world-frame velocity and its source name (see the module docstring); ``progress``: a
+    progress bar over RoNIN's inference on a terminal."""
     source = config.engine.velocity_source
     if source in ("auto", "file") and session.velocity is not None:
         return session.velocity, "file"
     if source == "file":
-        raise CurbsideInputError(f"{session.name}/velocity.csv", "no velocity.csv in the session")
+        raise CurbsideInputError(session.file_source("velocity.csv"), "no velocity.csv in the session")
     if session.imu is None:
         if session.velocity is not None:  # asked for RoNIN or PDR, which need the raw IMU
             raise CurbsideInputError(
-                session.name, f"no imu.csv: --velocity-source {source} needs it (the session's velocity.csv "
-                "is used with --velocity-source auto or file)"
+                session.source, f"no imu.csv: --velocity-source {source} needs it (the session's "
+                "velocity.csv is used with --velocity-source auto or file)"
             )
         raise CurbsideInputError(
-            session.name, "no velocity.csv or imu.csv: the inertial, paper and fused modes need inertial data"
+            session.source, "no velocity.csv or imu.csv: the inertial, paper and fused modes need inertial "
+            "data"
         )
     if source in ("auto", "ronin"):
         try:
             from curbside.localize.ronin.infer import ronin_velocity
 
-            source_name = f"{session.name}/imu.csv"
+            source_name = session.file_source("imu.csv")
             warn_if_simulated_imu(session, source_name)
-            velocity = ronin_velocity(session.imu, config=config.engine.ronin, source=source_name)
+            velocity = ronin_velocity(session.imu, config=config.engine.ronin, source=source_name,
+                                      progress=progress)
             return velocity, "ronin"
         except (ImportError, CurbsideInputError) as exc:
             if source == "ronin":
@@ -306,53 +303,14 @@ def _steps(session: Session, config: RunConfig) -> tuple[np.ndarray | None, str]
     if source in ("auto", "file") and session.steps is not None:
         return session.steps["t"].to_numpy(float), "file"
     if source == "file":
-        raise CurbsideInputError(f"{session.name}/steps.csv", "no steps.csv in the session")
+        raise CurbsideInputError(session.file_source("steps.csv"), "no steps.csv in the session")
     if source in ("auto", "detect") and session.imu is not None:
         from curbside.localize.steps import detect_steps
 
         return np.asarray(detect_steps(session.imu, config.engine.steps), float), "detected"
     if source == "detect":
-        raise CurbsideInputError(f"{session.name}/imu.csv", "no imu.csv to detect footsteps in")
+        raise CurbsideInputError(session.file_source("imu.csv"), "no imu.csv to detect footsteps in")
     return None, "cadence"
-
-
-def _report_gnss_holds(session: Session, config: RunConfig) -> None:
-    gnss = session.gnss
-    if gnss is None or len(gnss) < 2:
-        return
-    gaps = np.diff(gnss["t"].to_numpy(float))
-    long = gaps[gaps > config.engine.interp_max_gap_s]
-    if len(long):
-        logger.warning(
-            "%s: %d GNSS gap(s) longer than %g s (longest %.0f s): the gnss track holds the last fix "
-            "through them",
-            session.name,
-            len(long),
-            config.engine.interp_max_gap_s,
-            long.max(),
-        )
-
-
-def _report_unanchored_inertial(session: Session, config: RunConfig, start: StartPose | None) -> None:
-    if config.mode == "inertial" and (start is None or not config.use_start_pose):
-        logger.warning(
-            "%s: no start pose: the inertial track starts at the first usable GNSS fix with its heading "
-            "unknown (spread over the full circle), so it is anchored only by that fix and the map; add a "
-            "start pose (lat, lon, heading_deg) to meta.json for an inertial track from a known start",
-            session.name,
-        )
-
-
-def _report_unusable_fixes(session: Session) -> None:
-    gnss = session.gnss
-    if gnss is None or len(gnss) == 0:
-        return
-    accuracy = gnss["accuracy_m"].to_numpy(float)
-    if not np.any(np.isfinite(accuracy) & (accuracy > 0)):
-        logger.warning(
-            "%s/gnss.csv: none of its %d fixes reports a usable accuracy (a positive accuracy_m): the walk "
-            "is tracked as if it had no GNSS", session.name, len(gnss),
-        )
 
 
 def track_session(
@@ -367,6 +325,7 @@ def track_session(
     velocity_source: str | None = None,
     use_start_pose: bool | None = None,
     save_particles: bool = False,
+    progress: bool = False,
 ) -> TrackResult:
     """Track one session with one method.
 
@@ -385,6 +344,9 @@ def track_session(
         ``engine.velocity_source`` and ``use_start_pose``.
     save_particles
         Keep a particle snapshot per update in :attr:`TrackResult.snapshots`.
+    progress
+        A progress bar over RoNIN's inference on a terminal (a command's single run; off for runs in a
+        batch, which have a bar of their own).
 
     Raises
     ------
@@ -396,18 +358,18 @@ def track_session(
                             velocity_source=velocity_source, use_start_pose=use_start_pose)
     frame = _frame_for(session, map_layers)
     start, t_begin = _start_of(session)
-    _report_unanchored_inertial(session, config, start)
-    _report_unusable_fixes(session)
+    input_warnings.report_unanchored_inertial(session, config, start)
+    input_warnings.report_unusable_fixes(session)
     if map_layers is not None:
         pose = start if config.use_start_pose else None
         _check_extent(session, map_layers, frame, pose, config.engine.extent_tolerance_m)
     steps, step_source = _steps(session, config)
     velocity, velocity_source = None, None
     if config.mode != "gnss":
-        velocity, velocity_source = _velocity(session, config, steps)
+        velocity, velocity_source = _velocity(session, config, steps, progress)
         if len(velocity) < 2:
             raise CurbsideInputError(
-                session.name, f"the {velocity_source} velocity has fewer than two samples"
+                session.source, f"the {velocity_source} velocity has fewer than two samples"
             )
     fix_lag = _fix_lag(session, config, frame, velocity, velocity_source == "pdr")
     engine = SessionEngine(
@@ -427,10 +389,11 @@ def track_session(
         engine.push_steps(steps, math.inf)
     engine.push_gnss(session.gnss)
     engine.finish()
-    require_rows(engine.rows, session.name)
+    require_rows(engine.rows, session.source)
     if config.mode == "gnss":
-        _report_gnss_holds(session, config)
-    result = _result(session.name, engine, frame, map_layers, (velocity_source, step_source), save_particles)
+        input_warnings.report_gnss_holds(session, config)
+    sources = (velocity_source, step_source)
+    result = _result(session.source, engine, frame, map_layers, sources, save_particles)
     result.fix_lag = fix_lag
     return result
 
@@ -456,7 +419,7 @@ def _fix_lag(
         logger.info(
             "%s: the fixes trail the inertial track by a %.0f s lag (residual %.2f m against %.2f m "
             "without): each fix is moved forward by the motion that lag holds back (fix_lag.mode = auto)",
-            session.name, estimate.lag_s, estimate.residual_m[estimate.lag_s], estimate.residual_m[0.0],
+            session.source, estimate.lag_s, estimate.residual_m[estimate.lag_s], estimate.residual_m[0.0],
         )
     return estimate.to_dict()
 

@@ -46,6 +46,9 @@ class Session:
     ----------
     name
         Folder name or an identifier.
+    source
+        The session as the user gave it (a folder path, ``FILE.h5::TRIAL``, an export), for messages;
+        default ``name``. See :meth:`file_source`.
     imu
         ``t,ax,ay,az,gx,gy,gz[,qx,qy,qz,qw]``: phone frame, m/s^2 with gravity, rad/s; ``q`` the
         device-to-world (game rotation vector) quaternion.
@@ -62,12 +65,23 @@ class Session:
     """
 
     name: str = "session"
+    source: str = ""
     imu: pd.DataFrame | None = None
     velocity: pd.DataFrame | None = None
     steps: pd.DataFrame | None = None
     gnss: pd.DataFrame | None = None
     waypoints: pd.DataFrame | None = None
     meta: dict[str, Any] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        self.source = self.source or self.name
+
+    def file_source(self, file_name: str) -> str:
+        """How messages name one of the session's files: ``SOURCE/FILE`` for a session folder, else the
+        session as given (an HDF5 trial, a Sensor Logger export, a GPX file, a session in memory)."""
+        folder = Path(self.source)
+        spec_folder = folder.is_dir() and any((folder / f"{kind}.csv").is_file() for kind in COLUMNS)
+        return str(folder / file_name) if spec_folder else self.source
 
     def tables(self) -> dict[str, pd.DataFrame]:
         """The tables that are present, by file stem."""
@@ -180,6 +194,7 @@ def read_session(folder: str | Path, kinds: Collection[str] | None = None) -> Se
     Returns
     -------
     Session
+        Named by the folder's name; its ``source`` is the folder's path, for messages.
 
     Raises
     ------
@@ -189,7 +204,7 @@ def read_session(folder: str | Path, kinds: Collection[str] | None = None) -> Se
     folder = Path(folder)
     if not folder.is_dir():
         raise CurbsideInputError(folder, "no such session folder")
-    session = Session(name=folder.name)
+    session = Session(name=folder.name, source=str(folder))
     for kind in COLUMNS:
         path = folder / f"{kind}.csv"
         if path.is_file() and (kinds is None or kind in kinds):

@@ -43,7 +43,6 @@ from curbside.osmseg.webmap import (
     class_overlay_js,
     leaflet_page,
     script_json,
-    sidewalk_labels,
 )
 from curbside.projection import LocalFrame
 
@@ -221,7 +220,9 @@ def _extent(runs: list[ViewRun], margin_m: float = 0.0) -> tuple[float, float, f
     return lon.min() - pad_lon, lat.min() - pad_lat, lon.max() + pad_lon, lat.max() + pad_lat
 
 
-def _map_overlays(maps: dict[str, MapLayers], bbox: tuple[float, float, float, float]) -> str:
+def _map_overlays(
+    maps: dict[str, MapLayers], bbox: tuple[float, float, float, float], namer: SegmentNamer
+) -> str:
     statements = []
     for i, (name, layers) in enumerate(maps.items()):
         try:
@@ -230,7 +231,7 @@ def _map_overlays(maps: dict[str, MapLayers], bbox: tuple[float, float, float, f
             log.warning("the map %s has nothing under the runs", name)
             continue
         prefix = f"{name}: " if len(maps) > 1 else ""
-        places = sidewalk_labels(layers)  # on the whole map: a segment at the edge keeps its street
+        places = namer.places(layers)  # on the whole map: a segment at the edge keeps its street
         for cls, features in class_features(clipped, places=places).items():
             if features:
                 statements.append(class_overlay_js(cls, features, prefix, visible=i == 0))
@@ -242,7 +243,7 @@ def view_page(
     maps: dict[str, MapLayers] | None = None,
     title: str | None = None,
     cloud_every: int = 1,
-    map_reader: Callable[[str], MapLayers] | None = None,
+    namer: SegmentNamer | None = None,
 ) -> str:
     """The replay page of one or more runs.
 
@@ -259,9 +260,9 @@ def view_page(
     cloud_every
         Keep the particle cloud of every ``cloud_every``-th footstep only (the slider shows the latest
         kept one): a long walk's page shrinks about that many times.
-    map_reader
-        Reads a map by path, for the street names of the runs' segments (default:
-        :func:`~curbside.osmseg.mapio.read_map`, once per map).
+    namer
+        Reads the maps and names their segments in words, each once (the pages of a report share one);
+        default: a new :class:`~curbside.localize.view_data.SegmentNamer`.
 
     Returns
     -------
@@ -270,10 +271,10 @@ def view_page(
     """
     if not runs:
         raise CurbsideInputError("RUN", "no runs to show")
+    namer = namer or SegmentNamer()
     if maps is None:
-        maps = maps_of(runs)
+        maps = maps_of(runs, namer.read)
     used: set[str] = set()
-    namer = SegmentNamer(map_reader or read_map)
     runs_data = [run_data(run, _colour(run, used), cloud_every, namer) for run in runs]
     sessions = {}
     for run in runs:
@@ -288,7 +289,7 @@ def view_page(
     first = next(iter(maps.values())) if maps else None
     script = "\n".join(
         [
-            _map_overlays(maps, bbox),
+            _map_overlays(maps, bbox, namer),
             f"const VIEW = {script_json(data)};",
             asset_text("curbside-view.js"),
         ]
@@ -307,13 +308,13 @@ def write_view(
     path: str | Path,
     maps: dict[str, MapLayers] | None = None,
     cloud_every: int = 1,
-    map_reader: Callable[[str], MapLayers] | None = None,
+    namer: SegmentNamer | None = None,
 ) -> Path:
     """Write :func:`view_page` to an HTML file (atomically); warn when it is large.
 
     Parameters
     ----------
-    runs, maps, cloud_every, map_reader
+    runs, maps, cloud_every, namer
         See :func:`view_page`.
     path
         The page.
@@ -323,7 +324,7 @@ def write_view(
     pathlib.Path
         ``path``.
     """
-    page = view_page(runs, maps, cloud_every=cloud_every, map_reader=map_reader)
+    page = view_page(runs, maps, cloud_every=cloud_every, namer=namer)
     path = Path(path)
     with atomic_path(path) as tmp:
         tmp.write_text(page, encoding="utf-8")
@@ -335,12 +336,13 @@ def write_view(
     return path
 
 
-def maps_of(runs: list[ViewRun]) -> dict[str, MapLayers]:
-    """The distinct maps of the runs, read once each, by file stem (or path when stems collide)."""
+def maps_of(runs: list[ViewRun], read: Callable[[str], MapLayers] = read_map) -> dict[str, MapLayers]:
+    """The distinct maps of the runs, read once each (with ``read``), by file stem (or path when stems
+    collide)."""
     paths = list(dict.fromkeys(r.map_path for r in runs if r.map_path))
     stems = [Path(p).stem for p in paths]
     names = stems if len(set(stems)) == len(stems) else paths
-    return {name: read_map(p) for name, p in zip(names, paths, strict=True)}
+    return {name: read(p) for name, p in zip(names, paths, strict=True)}
 
 
 # -- the pages of `localize evaluate`'s report ----------------------------------------------------------
@@ -463,15 +465,9 @@ def write_session_views(results: list[dict], base: dict, out_dir: str | Path) ->
     """
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
-    maps: dict[str, MapLayers] = {}
-
-    def read(path: str) -> MapLayers:
-        if path not in maps:
-            maps[path] = read_map(path)
-        return maps[path]
-
+    namer = SegmentNamer()  # every map read and named once for all the pages
     pages = {}
-    for session, runs in runs_from_results(results, base, read).items():
-        shown = {Path(p).stem: read(p) for p in dict.fromkeys(r.map_path for r in runs if r.map_path)}
-        pages[session] = write_view(runs, out_dir / f"{session}.html", shown, map_reader=read)
+    for session, runs in runs_from_results(results, base, namer.read).items():
+        shown = {Path(p).stem: namer.read(p) for p in dict.fromkeys(r.map_path for r in runs if r.map_path)}
+        pages[session] = write_view(runs, out_dir / f"{session}.html", shown, namer=namer)
     return pages

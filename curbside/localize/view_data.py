@@ -15,6 +15,7 @@ from __future__ import annotations
 import base64
 import logging
 from collections.abc import Callable
+from pathlib import Path
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -26,7 +27,7 @@ from curbside.evaluate.groundtruth import groundtruth_at
 from curbside.evaluate.metrics import format_waypoint_summary, waypoint_errors, waypoint_summary
 from curbside.localize.particle_store import ParticleClouds
 from curbside.localize.session import Session
-from curbside.osmseg.mapio import MapLayers
+from curbside.osmseg.mapio import MapLayers, read_map
 from curbside.osmseg.webmap import sidewalk_labels
 from curbside.projection import WGS84, LocalFrame
 
@@ -100,29 +101,48 @@ def truth_errors(run: ViewRun) -> tuple[list | None, str | None]:
 
 
 class SegmentNamer:
-    """Names sidewalk segments in words ("Market Street, north side"), reading each map once.
+    """Reads each map once and names its sidewalk segments in words once ("Market Street, north side"):
+    a page's map layers and its panel share them, and so do the pages of a report.
 
     Parameters
     ----------
     read
-        Reads a map by path (:func:`curbside.osmseg.mapio.read_map`, or a cache of maps already read).
+        Reads a map by path (default :func:`curbside.osmseg.mapio.read_map`).
     """
 
-    def __init__(self, read: Callable[[str], MapLayers]) -> None:
-        self._read = read
-        self._labels: dict[str, dict[str, str]] = {}
+    def __init__(self, read: Callable[[str], MapLayers] | None = None) -> None:
+        self._read = read or read_map
+        self._maps: dict[str, MapLayers] = {}
+        self._places: list[tuple[MapLayers, dict[str, str]]] = []
+        self._unreadable: set[str] = set()
+
+    def read(self, map_path: str) -> MapLayers:
+        """The map at ``map_path``, read on the first call only (by absolute path)."""
+        key = str(Path(map_path).resolve())
+        if key not in self._maps:
+            self._maps[key] = self._read(map_path)
+        return self._maps[key]
+
+    def places(self, layers: MapLayers) -> dict[str, str]:
+        """``segment_id`` -> label of every sidewalk segment of ``layers`` (:func:`sidewalk_labels`, worked
+        out on the first call for these layers only)."""
+        for known, places in self._places:
+            if known is layers:
+                return places
+        places = sidewalk_labels(layers)
+        self._places.append((layers, places))
+        return places
 
     def labels(self, map_path: str | None) -> dict[str, str]:
         """``segment_id`` -> label of every sidewalk segment of a map (empty when it cannot be read)."""
-        if not map_path:
+        if not map_path or map_path in self._unreadable:
             return {}
-        if map_path not in self._labels:
-            try:
-                self._labels[map_path] = sidewalk_labels(self._read(map_path))
-            except (CurbsideInputError, OSError) as exc:
-                log.warning("no street names for the segments of %s (%s)", map_path, exc)
-                self._labels[map_path] = {}
-        return self._labels[map_path]
+        try:
+            return self.places(self.read(map_path))
+        except (CurbsideInputError, OSError) as exc:
+            log.warning("no street names for the segments of %s (%s)", map_path, exc)
+            self._unreadable.add(map_path)
+            return {}
 
     def of(self, segments: list | None, map_path: str | None) -> dict[str, str] | None:
         """The labels of the segments a run visits (``None`` without segments or names)."""

@@ -85,6 +85,7 @@ def read_any(src: str | Path, *, route: str | Path | None = None) -> Session:
     Returns
     -------
     Session
+        Its ``source`` is ``src`` as given, for messages.
 
     Raises
     ------
@@ -103,6 +104,7 @@ def read_any(src: str | Path, *, route: str | Path | None = None) -> Session:
         session = gpx.read_gpx(src)
     else:
         session = _read_h5(src)
+    session.source = str(src)
     # Foreign readers repair what they can; the session schema (e.g. lat/lon ranges) is checked here.
     for stem, table in session.tables().items():
         setattr(session, stem, validate_table(stem, table, f"{src} ({stem})"))

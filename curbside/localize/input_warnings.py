@@ -1,0 +1,59 @@
+"""The warnings :func:`~curbside.localize.pipeline.track_session` gives about a session's inputs: what it
+tracks through, but not as the user may expect (a held fix, an unanchored start, fixes it cannot use).
+
+Each names the session as the user gave it (:attr:`~curbside.localize.session.Session.source`).
+"""
+
+from __future__ import annotations
+
+import logging
+
+import numpy as np
+
+from curbside.localize.engine import StartPose
+from curbside.localize.runconfig import RunConfig
+from curbside.localize.session import Session
+
+logger = logging.getLogger(__name__)
+
+
+def report_gnss_holds(session: Session, config: RunConfig) -> None:
+    """Warn of GNSS gaps longer than ``engine.interp_max_gap_s``, which the ``gnss`` track holds through."""
+    gnss = session.gnss
+    if gnss is None or len(gnss) < 2:
+        return
+    gaps = np.diff(gnss["t"].to_numpy(float))
+    long = gaps[gaps > config.engine.interp_max_gap_s]
+    if len(long):
+        logger.warning(
+            "%s: %d GNSS gap(s) longer than %g s (longest %.0f s): the gnss track holds the last fix "
+            "through them",
+            session.source,
+            len(long),
+            config.engine.interp_max_gap_s,
+            long.max(),
+        )
+
+
+def report_unanchored_inertial(session: Session, config: RunConfig, start: StartPose | None) -> None:
+    """Warn when an ``inertial`` track has no start pose to start from, only a fix and the map."""
+    if config.mode == "inertial" and (start is None or not config.use_start_pose):
+        logger.warning(
+            "%s: no start pose: the inertial track starts at the first usable GNSS fix with its heading "
+            "unknown (spread over the full circle), so it is anchored only by that fix and the map; add a "
+            "start pose (lat, lon, heading_deg) to meta.json for an inertial track from a known start",
+            session.source,
+        )
+
+
+def report_unusable_fixes(session: Session) -> None:
+    """Warn when no fix reports a usable accuracy: the walk is then tracked as if it had no GNSS."""
+    gnss = session.gnss
+    if gnss is None or len(gnss) == 0:
+        return
+    accuracy = gnss["accuracy_m"].to_numpy(float)
+    if not np.any(np.isfinite(accuracy) & (accuracy > 0)):
+        logger.warning(
+            "%s: none of its %d fixes reports a usable accuracy (a positive accuracy_m): the walk "
+            "is tracked as if it had no GNSS", session.file_source("gnss.csv"), len(gnss),
+        )
