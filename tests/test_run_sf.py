@@ -16,10 +16,12 @@ import numpy as np
 import pandas as pd
 import pytest
 import shapely
+from test_run import in_buildings
 
 from curbside import settings
+from curbside.localize.particle_store import unpack_particles
 from curbside.localize.pipeline import track_session
-from curbside.localize.raster import BUILDING, rasterize_map
+from curbside.localize.raster import rasterize_map
 from curbside.localize.runconfig import RunConfig
 from curbside.localize.session import read_session
 from curbside.osmseg.mapio import read_map
@@ -100,11 +102,10 @@ def test_fused_keeps_the_right_sidewalk_of_mission_street(tmp_path, monkeypatch,
     assert np.median(fused_err) < 0.5 * np.median(gnss_err)
     assert (results["fused"].track["sidewalk_segment_id"] == WALKED).mean() > 0.8
     assert (results["gnss"].track["sidewalk_segment_id"] == WALKED).mean() < 0.3
-    snaps = results["fused"].snapshots
+    clouds = unpack_particles(results["fused"].snapshots)
     raster = rasterize_map(sf_map)
-    codes = raster.codes_at(snaps["x"] + snaps["origin"][0], snaps["y"] + snaps["origin"][1])
-    alive = snaps["weight"] > 0 if "weight" in snaps else np.ones(codes.shape, bool)
-    assert ((codes >= BUILDING) & alive).mean(axis=1).max() < 0.01
+    alive = clouds.weight > 0 if clouds.weight is not None else np.ones(clouds.x.shape, bool)
+    assert (in_buildings(raster, clouds.x, clouds.y) & alive).mean(axis=1).max() < 0.01
 
 
 def phone_heading_error_deg(t: np.ndarray) -> np.ndarray:

@@ -16,7 +16,6 @@ import pandas as pd
 import pyproj
 
 from curbside.cli.localize import main as localize_main
-from curbside.localize.particle_store import pack_snapshots, write_particles
 from curbside.projection import LocalFrame
 
 FRAME = LocalFrame(pyproj.CRS(32610))
@@ -64,13 +63,5 @@ def write_runs(root: Path, map_path: Path, modes: tuple[str, ...] = ("gnss", "fu
         args = ["run", str(session_dir), "--map", str(map_path), "--mode", mode, "--particles", "100",
                 "--save-particles", "-o", str(out)]
         assert localize_main(args) == 0
-        npz = out / "particles.npz"
-        if npz.is_file():
-            with np.load(npz) as stored:
-                snapshots = {k: stored[k] for k in stored.files}
-            if "format" not in snapshots:
-                track = pd.read_csv(out / "track.csv")
-                packed = pack_snapshots(snapshots, track["x_m"].to_numpy(), track["y_m"].to_numpy())
-                write_particles(packed, npz)
         folders.append(out)
     return folders

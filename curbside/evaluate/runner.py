@@ -32,6 +32,7 @@ from tqdm.auto import tqdm
 from curbside.errors import CurbsideInputError
 from curbside.evaluate import metrics
 from curbside.evaluate.groundtruth import groundtruth_at
+from curbside.localize.particle_store import unpack_particles
 from curbside.localize.session import Session, read_session
 from curbside.osmseg.mapio import MapLayers, read_map
 from curbside.projection import LocalFrame
@@ -195,15 +196,15 @@ def _clouds_at(
     """The particle clouds nearest ``spec.snapshot_times``, in the metrics frame, with the fix then."""
     if snap is None:
         return []
-    ox, oy = snap["origin"]
+    stored = unpack_particles(snap)
     clouds = []
     for want in spec.snapshot_times:
-        k = int(np.argmin(np.abs(snap["t"] - want)))
-        px, py = snap["x"][k] + ox, snap["y"][k] + oy
+        k = int(np.argmin(np.abs(stored.t - want)))
+        px, py = stored.x[k], stored.y[k]
         if layers is not None and spec.metrics_map and _map(spec.metrics_map).crs != layers.crs:
             lon, lat = LocalFrame(pyproj.CRS(layers.crs)).to_lonlat(px, py)
             px, py = frame.to_xy(lon, lat)
-        t = float(snap["t"][k])
+        t = float(stored.t[k])
         clouds.append({"t": t, "x": np.asarray(px, np.float32), "y": np.asarray(py, np.float32),
                        "fix": _fix_at(session.gnss, t, frame)})
     return clouds

@@ -55,6 +55,7 @@ from curbside.errors import CurbsideInputError
 from curbside.localize.filter.particles import SCALE, THETA, X, Y
 from curbside.localize.filter.tracker import Tracker
 from curbside.localize.fix_lag import LagCompensator
+from curbside.localize.particle_store import CloudRecorder
 from curbside.localize.raster import MapRaster
 from curbside.localize.runconfig import RunConfig
 from curbside.localize.streams import DisplacementIntegrator, FixStore, StepTimes
@@ -144,7 +145,8 @@ class SessionEngine:
     cadence
         Footsteps come from a fixed cadence (no step file and no IMU).
     save_particles
-        Keep a copy of the particles' ``x, y, theta, scale`` and weights at each update (:attr:`snapshots`).
+        Pack the particles' ``x, y, theta, scale`` and weights at each update, around its estimate, into
+        :attr:`snapshots` (a :class:`~curbside.localize.particle_store.CloudRecorder`).
     step_means_velocity
         The velocity rows are per-step means (PDR), not samples (see
         :class:`~curbside.localize.streams.DisplacementIntegrator`).
@@ -204,7 +206,7 @@ class SessionEngine:
         #: Moves each fix forward by the inertial motion its lag holds back (``None``: no lag).
         self.lag = LagCompensator(fix_lag_s) if fix_lag_s > 0 and self.tracker is not None else None
         self.rows: list[Row] = []
-        self.snapshots: list[np.ndarray] | None = [] if save_particles else None
+        self.snapshots: CloudRecorder | None = CloudRecorder(frame.crs.to_wkt()) if save_particles else None
         self._s = _State()
 
     def _new_tracker(self, config: RunConfig, raster: MapRaster | None) -> Tracker:
@@ -507,8 +509,8 @@ class SessionEngine:
             )
         )
         if self.snapshots is not None:
-            particles = self.tracker.particles
-            self.snapshots.append(np.vstack([particles.state[[X, Y, THETA, SCALE]], particles.weights]))
+            state, weights = self.tracker.particles.state, self.tracker.particles.weights
+            self.snapshots.add(e.t, e.x, e.y, state[X], state[Y], state[THETA], state[SCALE], weights)
         if self.tracker.smoother is not None:
             self._fill_smoothed(self.tracker.take_smoothed())
         if self.shadow is not None and self.shadow.smoother is not None:

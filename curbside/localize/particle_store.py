@@ -21,6 +21,9 @@ member                    shape, type  meaning
 The rounding errors are at most 5 cm, 0.05 degrees and 0.00005. An offset beyond the int16 range is
 clipped (a particle more than 3.2 km from the estimate; a warning says how many). With the paper's
 resampling at every footstep the weights are uniform and are not stored.
+
+A run packs each footstep's cloud as soon as it is taken (:class:`CloudRecorder`), so that it holds
+9 bytes per particle and footstep while it walks (18 kB a footstep at N = 2000), not floats.
 """
 
 from __future__ import annotations
@@ -28,6 +31,7 @@ from __future__ import annotations
 import logging
 import zipfile
 import zlib
+from collections import Counter
 from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
@@ -49,6 +53,11 @@ THETA_UNIT_DEG = 0.1
 SCALE_UNIT = 1e-4
 _INT16 = np.iinfo(np.int16)
 _UINT16 = np.iinfo(np.uint16)
+#: Footsteps a :class:`CloudRecorder` has room for at first (it doubles that when it is full).
+FIRST_STEPS = 256
+#: The members a :class:`CloudRecorder` holds, and their types.
+_STORED = {"dx_dm": np.int16, "dy_dm": np.int16, "theta_ddeg": np.int16, "scale_e4": np.uint16,
+           "weight_u8": np.uint8}
 
 
 @dataclass
@@ -85,11 +94,10 @@ class ParticleClouds:
         return int(self.x.shape[1])
 
 
-def _fixed(values: np.ndarray, unit: float, info: np.iinfo, what: str) -> np.ndarray:
+def _fixed(values: np.ndarray, unit: float, info: np.iinfo, clipped: Counter[str], what: str) -> np.ndarray:
+    """``values`` in ``unit`` steps as ``info.dtype``, clipped to its range (counted in ``clipped[what]``)."""
     scaled = np.rint(np.asarray(values, np.float64) / unit)
-    clipped = int(np.count_nonzero((scaled < info.min) | (scaled > info.max)))
-    if clipped:
-        log.warning("%d %s value(s) out of the stored range were clipped", clipped, what)
+    clipped[what] += int(np.count_nonzero((scaled < info.min) | (scaled > info.max)))
     return np.clip(scaled, info.min, info.max).astype(info.dtype)
 
 
@@ -138,32 +146,70 @@ def pack_particles(
     ref_x_m, ref_y_m = np.asarray(ref_x_m, np.float64), np.asarray(ref_y_m, np.float64)
     if x.shape != y.shape or x.shape[0] != len(t) or ref_x_m.shape != t.shape or ref_y_m.shape != t.shape:
         raise ValueError(f"shapes disagree: t {t.shape}, x {x.shape}, y {y.shape}, ref {ref_x_m.shape}")
-    packed = {
-        "format": np.array(FORMAT),
-        "t": t,
-        "ref_x_m": ref_x_m,
-        "ref_y_m": ref_y_m,
-        "dx_dm": _fixed(x - ref_x_m[:, None], OFFSET_UNIT_M, _INT16, "particle x offset"),
-        "dy_dm": _fixed(y - ref_y_m[:, None], OFFSET_UNIT_M, _INT16, "particle y offset"),
-        "crs": np.array(str(crs)),
-    }
-    if theta_rad is not None:
-        wrapped = (np.degrees(np.asarray(theta_rad, np.float64)) + 180.0) % 360.0 - 180.0
-        packed["theta_ddeg"] = _fixed(wrapped, THETA_UNIT_DEG, _INT16, "heading drift")
-    if scale is not None:
-        packed["scale_e4"] = _fixed(scale, SCALE_UNIT, _UINT16, "speed scale")
-    if weight is not None:
-        w = np.asarray(weight, np.float64)
-        peak = np.maximum(w.max(axis=1, keepdims=True), np.finfo(float).tiny)
-        packed["weight_u8"] = np.rint(255.0 * w / peak).astype(np.uint8)
+    clipped: Counter[str] = Counter()
+    packed = _assemble(
+        t,
+        ref_x_m,
+        ref_y_m,
+        crs,
+        _fixed(x - ref_x_m[:, None], OFFSET_UNIT_M, _INT16, clipped, "particle x offset"),
+        _fixed(y - ref_y_m[:, None], OFFSET_UNIT_M, _INT16, clipped, "particle y offset"),
+        None if theta_rad is None else _fixed_theta(theta_rad, clipped),
+        None if scale is None else _fixed(scale, SCALE_UNIT, _UINT16, clipped, "speed scale"),
+        None if weight is None else _weight_u8(weight),
+    )
+    _warn_clipped(clipped)
     for name in ("theta_ddeg", "scale_e4", "weight_u8"):
         if name in packed and packed[name].shape != x.shape:
             raise ValueError(f"{name} has shape {packed[name].shape}, expected {x.shape}")
     return packed
 
 
+def _fixed_theta(theta_rad: np.ndarray, clipped: Counter[str]) -> np.ndarray:
+    wrapped = (np.degrees(np.asarray(theta_rad, np.float64)) + 180.0) % 360.0 - 180.0
+    return _fixed(wrapped, THETA_UNIT_DEG, _INT16, clipped, "heading drift")
+
+
+def _weight_u8(weight: np.ndarray) -> np.ndarray:
+    w = np.asarray(weight, np.float64)
+    peak = np.maximum(w.max(axis=-1, keepdims=True), np.finfo(float).tiny)
+    return np.rint(255.0 * w / peak).astype(np.uint8)
+
+
+def _warn_clipped(clipped: Counter[str]) -> None:
+    for what, count in clipped.items():
+        if count:
+            log.warning("%d %s value(s) out of the stored range were clipped", count, what)
+
+
+def _assemble(
+    t: np.ndarray,
+    ref_x_m: np.ndarray,
+    ref_y_m: np.ndarray,
+    crs: str,
+    dx_dm: np.ndarray,
+    dy_dm: np.ndarray,
+    theta_ddeg: np.ndarray | None,
+    scale_e4: np.ndarray | None,
+    weight_u8: np.ndarray | None,
+) -> dict[str, np.ndarray]:
+    """The members in the order they are written (the order is part of the file's bytes)."""
+    packed = {
+        "format": np.array(FORMAT),
+        "t": np.asarray(t, np.float64),
+        "ref_x_m": np.asarray(ref_x_m, np.float64),
+        "ref_y_m": np.asarray(ref_y_m, np.float64),
+        "dx_dm": dx_dm,
+        "dy_dm": dy_dm,
+        "crs": np.array(str(crs)),
+    }
+    optional = {"theta_ddeg": theta_ddeg, "scale_e4": scale_e4, "weight_u8": weight_u8}
+    return packed | {name: values for name, values in optional.items() if values is not None}
+
+
 def pack_snapshots(snapshots: dict[str, np.ndarray], ref_x_m: np.ndarray, ref_y_m: np.ndarray) -> dict:
-    """Pack the float32 snapshots of :class:`curbside.localize.pipeline.TrackResult`.
+    """Pack float32 snapshots: the ``particles.npz`` of curbside versions before :data:`FORMAT` (runs now
+    pack as they walk, with :class:`CloudRecorder`, into the same bytes).
 
     Parameters
     ----------
@@ -190,6 +236,114 @@ def pack_snapshots(snapshots: dict[str, np.ndarray], ref_x_m: np.ndarray, ref_y_
         scale=snapshots.get("scale"),
         weight=snapshots.get("weight"),
     )
+
+
+class CloudRecorder:
+    """A run's particle clouds, each packed as soon as it is taken (``localize run --save-particles``).
+
+    The clouds are held in the int16/uint16/uint8 form of the module's table, 9 bytes per particle and
+    footstep, not as floats; each member in one array that grows by doubling (its rows not yet written
+    take no memory). :meth:`packed` hands out views of them, no copy: the arrays of :func:`pack_particles`,
+    byte for byte those that :func:`pack_snapshots` gives for the float32 snapshots (relative to the first
+    estimate) that earlier versions held until the end of the walk.
+
+    Parameters
+    ----------
+    crs
+        WKT of the metric CRS of the particles.
+    """
+
+    def __init__(self, crs: str) -> None:
+        self.crs = str(crs)
+        self._t: list[float] = []
+        self._ref_m: list[tuple[float, float]] = []
+        self._origin_m = (0.0, 0.0)
+        self._held: dict[str, np.ndarray] = {}
+        self._uniform = True
+        self._clipped: Counter[str] = Counter()
+
+    def __len__(self) -> int:
+        return len(self._t)
+
+    @property
+    def nbytes(self) -> int:
+        """Bytes of the rows written so far."""
+        return sum(len(self) * held[0].nbytes for held in self._held.values())
+
+    def add(
+        self,
+        t: float,
+        ref_x_m: float,
+        ref_y_m: float,
+        x: np.ndarray,
+        y: np.ndarray,
+        theta_rad: np.ndarray,
+        scale: np.ndarray,
+        weight: np.ndarray,
+    ) -> None:
+        """Pack one footstep's cloud.
+
+        Parameters
+        ----------
+        t
+            Footstep time, s.
+        ref_x_m, ref_y_m
+            The estimate at this footstep (the offsets' origin), metres in ``crs``.
+        x, y
+            ``(N,)`` particle positions, metres in ``crs``.
+        theta_rad, scale, weight
+            ``(N,)`` heading drift (rad), speed scale and weights.
+        """
+        k = len(self._t)
+        if not k:
+            self._origin_m = (float(ref_x_m), float(ref_y_m))
+        rows, clipped = self._rows(k, len(x)), self._clipped
+        (ox, oy), ref = self._origin_m, {"x": float(ref_x_m), "y": float(ref_y_m)}
+        for axis, values, origin in (("x", x, ox), ("y", y, oy)):
+            # Through float32 relative to the first estimate, as the snapshots were once held until the end
+            # of the walk: the file keeps the bytes it had then.
+            held = (np.asarray(values, np.float64) - origin).astype(np.float32)
+            offset = held.astype(np.float64) + origin - ref[axis]
+            what = f"particle {axis} offset"
+            rows[f"d{axis}_dm"][:] = _fixed(offset, OFFSET_UNIT_M, _INT16, clipped, what)
+        rows["theta_ddeg"][:] = _fixed_theta(np.asarray(theta_rad, np.float32), clipped)
+        held_scale = np.asarray(scale, np.float32)
+        rows["scale_e4"][:] = _fixed(held_scale, SCALE_UNIT, _UINT16, clipped, "speed scale")
+        w = np.asarray(weight, np.float64)
+        self._uniform = self._uniform and bool(np.allclose(w, w[:1], rtol=0, atol=1e-12))
+        rows["weight_u8"][:] = _weight_u8(w)
+        self._t.append(float(t))
+        self._ref_m.append((float(ref_x_m), float(ref_y_m)))
+
+    def _rows(self, k: int, n: int) -> dict[str, np.ndarray]:
+        """Row ``k`` of each member, its array grown when it is full."""
+        for name, dtype in _STORED.items():
+            held = self._held.get(name)
+            if held is None or len(held) == k:
+                grown = np.empty((max(2 * k, FIRST_STEPS), n), dtype)
+                if held is not None:
+                    grown[:k] = held  # the old array goes once no view that packed() gave holds it
+                self._held[name] = grown
+        return {name: held[k] for name, held in self._held.items()}
+
+    def packed(self) -> dict[str, np.ndarray]:
+        """The arrays of :func:`pack_particles` for the footsteps so far: views of the recorder's, which
+        later footsteps leave as they are.
+
+        Raises
+        ------
+        ValueError
+            No footstep yet.
+        """
+        k = len(self._t)
+        if not k:
+            raise ValueError("no particle cloud recorded")
+        _warn_clipped(self._clipped)
+        self._clipped.clear()
+        held = {name: values[:k] for name, values in self._held.items()}
+        ref_m = np.array(self._ref_m, np.float64)
+        return _assemble(self._t, ref_m[:, 0], ref_m[:, 1], self.crs, held["dx_dm"], held["dy_dm"],
+                         held["theta_ddeg"], held["scale_e4"], None if self._uniform else held["weight_u8"])
 
 
 def unpack_particles(packed: Mapping[str, np.ndarray], source: str = "particles") -> ParticleClouds:

@@ -102,10 +102,10 @@ class TrackResult:
         Whether the map's sidewalks and crosswalks won over its buildings (``filter.map.conflict_*``;
         ``None`` without a map).
     snapshots
-        With ``save_particles``: ``t`` ``(K,)``, ``x``, ``y`` ``(K, N)`` float32 metres relative to
-        ``origin``, ``theta`` and ``scale`` ``(K, N)`` float32, ``origin`` ``(2,)``, ``crs`` (WKT), and
-        ``weight`` ``(K, N)`` when the weights are not all uniform (particles killed by the map keep
-        their place, with no weight, until the next resampling).
+        With ``save_particles``: the cloud at each update, packed as it was taken: the arrays of
+        ``particles.npz`` (:mod:`curbside.localize.particle_store`; ``unpack_particles`` reads them), with
+        ``weight_u8`` when the weights are not all uniform (particles killed by the map keep their place,
+        with no weight, until the next resampling).
     """
 
     track: pd.DataFrame
@@ -465,7 +465,7 @@ def _result(
         segments=tracker is not None and tracker.segments is not None,
         smoothed=tracker is not None and tracker.smoother is not None,
     )
-    snapshots = _stack_snapshots(engine, track, frame) if save_particles and tracker is not None else None
+    snapshots = engine.snapshots.packed() if save_particles and tracker is not None else None
     return TrackResult(
         track,
         engine.config,
@@ -533,25 +533,6 @@ def sidewalk_segments_at(map_layers: MapLayers, x: np.ndarray, y: np.ndarray) ->
         return out
     point_idx, poly_idx = sidewalks.sindex.query(shapely.points(x, y), predicate="within")
     out[point_idx[::-1]] = sidewalks["segment_id"].to_numpy()[poly_idx[::-1]]  # first match wins
-    return out
-
-
-def _stack_snapshots(engine: SessionEngine, track: pd.DataFrame, frame: LocalFrame) -> dict[str, np.ndarray]:
-    """Snapshots as ``(K, N)`` float32 arrays, positions relative to the first estimate (the engine's list is
-    emptied as they are copied)."""
-    origin = np.array([track["x_m"].iat[0], track["y_m"].iat[0]])
-    snaps = engine.snapshots  # K arrays (5, N): x, y, theta, scale, weight
-    shape = (len(snaps), snaps[0].shape[1])
-    fields = {name: np.empty(shape, np.float32) for name in ("x", "y", "theta", "scale")}
-    weight = np.empty(shape)
-    for k in range(shape[0]):  # copied one update at a time, each freed once copied: a long walk's
-        snap, snaps[k] = snaps[k], None  # snapshots are not held twice
-        fields["x"][k], fields["y"][k] = snap[0] - origin[0], snap[1] - origin[1]
-        fields["theta"][k], fields["scale"][k], weight[k] = snap[2], snap[3], snap[4]
-    out = {"t": track["t"].to_numpy(), **fields, "origin": origin, "crs": np.array(frame.crs.to_wkt())}
-    if not np.allclose(weight, weight[:, :1], rtol=0, atol=1e-12):
-        # Without resampling at every update, particles killed by the map stay, with no weight.
-        out["weight"] = weight
     return out
 
 

@@ -15,7 +15,7 @@ import pandas as pd
 
 from curbside import __version__
 from curbside.io import json_ready, output_folder
-from curbside.localize.particle_store import pack_snapshots, write_particles
+from curbside.localize.particle_store import write_particles
 from curbside.localize.pipeline import TrackResult
 
 #: Decimal places of lon/lat in ``track.geojson`` (1e-7 degree is about 1 cm).
@@ -71,8 +71,8 @@ def write_track(
     write are never touched).
 
     Files: ``track.csv`` (one row per update), ``track.geojson``, ``run.json`` and, when the result holds
-    snapshots, ``particles.npz`` (``t``, ``x``, ``y``, ``theta``, ``scale`` per update; x/y relative to
-    ``origin``). ``run.json`` holds ``run_info`` (the session and map paths...), what the run used and
+    snapshots, ``particles.npz`` (the cloud at each update, packed: :mod:`curbside.localize.particle_store`).
+    ``run.json`` holds ``run_info`` (the session and map paths...), what the run used and
     produced, and the whole run configuration under ``config``: ``localize run --config run.json``
     replays the run from it.
 
@@ -118,7 +118,5 @@ def write_track(
         (tmp / "track.geojson").write_text(json.dumps(doc, separators=(",", ":")), encoding="utf-8")
         (tmp / "run.json").write_text(json.dumps(info, indent=2), encoding="utf-8")
         if result.snapshots is not None:
-            track = result.track
-            packed = pack_snapshots(result.snapshots, track["x_m"].to_numpy(), track["y_m"].to_numpy())
-            write_particles(packed, tmp / "particles.npz")
+            write_particles(result.snapshots, tmp / "particles.npz")
     return out_dir

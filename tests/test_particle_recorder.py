@@ -1,0 +1,195 @@
+"""``--save-particles`` packs each footstep's cloud as it is taken: compact while the walk runs, and the
+same ``particles.npz``, byte for byte, as packing the float32 snapshots of the whole walk at its end."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from test_run import block_layers, write_walk
+from viewer_fixtures import CROSSROADS, write_session
+
+from curbside.localize.engine import SessionEngine
+from curbside.localize.particle_store import (
+    CloudRecorder,
+    pack_particles,
+    pack_snapshots,
+    read_particles,
+    write_particles,
+)
+from curbside.localize.pipeline import _frame_for, _start_of
+from curbside.localize.raster import rasterize_map
+from curbside.localize.runconfig import RunConfig
+from curbside.localize.session import read_session
+
+UTM10N = "EPSG:32610"
+#: Bytes a recorder may hold per particle and footstep: int16 x, y, heading, uint16 scale, uint8 weight.
+PACKED_BYTES = 9
+
+
+def packed_at_the_end(clouds: list[np.ndarray], t, ref_x_m, ref_y_m, crs: str) -> dict[str, np.ndarray]:
+    """How a run packed its clouds before: float32 snapshots relative to the first estimate, all packed
+    once the walk was over. ``clouds``: one ``(5, N)`` array (x, y, theta, scale, weight) per footstep."""
+    stack = np.stack(clouds)
+    origin = np.array([ref_x_m[0], ref_y_m[0]])
+    snapshots = {
+        "t": np.asarray(t, np.float64),
+        "x": (stack[:, 0] - origin[0]).astype(np.float32),
+        "y": (stack[:, 1] - origin[1]).astype(np.float32),
+        "theta": stack[:, 2].astype(np.float32),
+        "scale": stack[:, 3].astype(np.float32),
+        "origin": origin,
+        "crs": np.array(crs),
+    }
+    weight = stack[:, 4]
+    if not np.allclose(weight, weight[:, :1], rtol=0, atol=1e-12):
+        snapshots["weight"] = weight
+    return pack_snapshots(snapshots, np.asarray(ref_x_m, np.float64), np.asarray(ref_y_m, np.float64))
+
+
+def walk_clouds(n_steps: int, n: int, uniform: bool, seed: int = 0):
+    """A 3 km walk's clouds, some offsets on the half-decimetre ties that float32 rounding decides."""
+    rng = np.random.default_rng(seed)
+    t = 0.5 * np.arange(n_steps)
+    ref_x = 552_000.0 + np.linspace(0.0, 3000.0, n_steps)
+    ref_y = 4_182_000.0 + 40.0 * np.sin(np.arange(n_steps) / 7.0)
+    clouds = []
+    for k in range(n_steps):
+        dx = rng.normal(0.0, 3.0, n)
+        dx[: n // 4] = (rng.integers(-30, 30, n // 4) + 0.5) * 0.1  # ties
+        theta = rng.uniform(-4.0, 4.0, n)  # wraps
+        scale = rng.uniform(0.7, 1.3, n)
+        weight = np.full(n, 1.0 / n) if uniform else rng.dirichlet(np.ones(n)) * (rng.random(n) > 0.2)
+        clouds.append(np.vstack([ref_x[k] + dx, ref_y[k] + rng.normal(0.0, 2.0, n), theta, scale, weight]))
+    return t, ref_x, ref_y, clouds
+
+
+def recorded(t, ref_x, ref_y, clouds) -> CloudRecorder:
+    recorder = CloudRecorder(UTM10N)
+    for k, cloud in enumerate(clouds):
+        recorder.add(t[k], ref_x[k], ref_y[k], *cloud)
+    return recorder
+
+
+def npz_bytes(packed: dict[str, np.ndarray], path) -> bytes:
+    return write_particles(packed, path).read_bytes()
+
+
+@pytest.mark.parametrize("uniform", [True, False])
+def test_packing_each_footstep_writes_the_file_that_packing_at_the_end_wrote(tmp_path, uniform):
+    t, ref_x, ref_y, clouds = walk_clouds(40, 200, uniform)
+    before = packed_at_the_end(clouds, t, ref_x, ref_y, UTM10N)
+    now = recorded(t, ref_x, ref_y, clouds).packed()
+    assert list(now) == list(before) and ("weight_u8" in now) is not uniform
+    for name in before:
+        assert now[name].dtype == before[name].dtype and now[name].shape == before[name].shape, name
+        np.testing.assert_array_equal(now[name], before[name], err_msg=name)
+    assert npz_bytes(now, tmp_path / "now.npz") == npz_bytes(before, tmp_path / "before.npz")
+    # The ties make the float32 detour matter: packing the float64 positions directly differs.
+    stack = np.stack(clouds)
+    direct = pack_particles(t, stack[:, 0], stack[:, 1], ref_x, ref_y, UTM10N)
+    assert not np.array_equal(direct["dx_dm"], before["dx_dm"])
+
+
+def test_the_recorder_holds_integers_only_and_nothing_of_the_floats_it_was_given():
+    t, ref_x, ref_y, clouds = walk_clouds(300, 500, uniform=False)  # past the first growth
+    recorder = recorded(t, ref_x, ref_y, clouds)
+    expected = packed_at_the_end(clouds, t, ref_x, ref_y, UTM10N)
+    for cloud in clouds:
+        cloud[:] = np.nan  # the caller's particles move on
+    held = list(recorder._held.values())
+    assert len(held) == 5 and all(values.dtype.kind in "iu" for values in held)
+    assert len(recorder) == 300 and recorder.nbytes == PACKED_BYTES * 500 * 300
+    assert sum(values.nbytes for values in held) <= 2 * PACKED_BYTES * 500 * 300  # room for twice as many
+    packed = recorder.packed()
+    for name in expected:
+        np.testing.assert_array_equal(packed[name], expected[name], err_msg=name)
+    for name in ("dx_dm", "dy_dm", "theta_ddeg", "scale_e4", "weight_u8"):
+        assert np.shares_memory(packed[name], recorder._held[name]), f"{name} was copied"
+
+
+def test_packing_twice_or_adding_after_packing_still_gives_the_whole_walk():
+    t, ref_x, ref_y, clouds = walk_clouds(300, 50, uniform=False)
+    expected = packed_at_the_end(clouds, t, ref_x, ref_y, UTM10N)
+    recorder = recorded(t[:250], ref_x[:250], ref_y[:250], clouds[:250])
+    first = recorder.packed()
+    for k in range(250, 300):
+        recorder.add(t[k], ref_x[k], ref_y[k], *clouds[k])
+    for packed in (recorder.packed(), recorder.packed()):
+        for name in expected:
+            np.testing.assert_array_equal(packed[name], expected[name], err_msg=name)
+    for name in first:  # the first views are left as they were
+        want = expected[name][:250] if expected[name].ndim else expected[name]
+        np.testing.assert_array_equal(first[name], want, err_msg=name)
+
+
+def test_an_offset_out_of_range_warns_once_with_the_count(caplog):
+    t, ref_x, ref_y, clouds = walk_clouds(5, 50, uniform=True)
+    clouds[2][0, :3] = ref_x[2] + 4000.0
+    clouds[4][0, :2] = ref_x[4] - 4000.0
+    packed = recorded(t, ref_x, ref_y, clouds).packed()
+    warnings = [r.getMessage() for r in caplog.records if "clipped" in r.getMessage()]
+    assert warnings == ["5 particle x offset value(s) out of the stored range were clipped"]
+    assert packed["dx_dm"][2, :3].tolist() == [32767] * 3
+
+
+def test_a_recorder_without_footsteps_says_so():
+    with pytest.raises(ValueError, match="no particle cloud"):
+        CloudRecorder(UTM10N).packed()
+
+
+class _KeepsTheFloats(CloudRecorder):
+    """Also keeps each footstep's floats, as the engine did before."""
+
+    def __init__(self, crs: str) -> None:
+        super().__init__(crs)
+        self.floats: list[np.ndarray] = []
+
+    def add(self, t, ref_x_m, ref_y_m, x, y, theta_rad, scale, weight) -> None:
+        self.floats.append(np.vstack([x, y, theta_rad, scale, weight]))
+        super().add(t, ref_x_m, ref_y_m, x, y, theta_rad, scale, weight)
+
+
+@pytest.mark.parametrize("mode", ["fused", "paper"])
+def test_a_run_packs_its_clouds_as_it_walks_into_the_old_bytes(tmp_path, mode):
+    session = read_session(write_walk(tmp_path / "walk", duration_s=20.0))
+    start, t_begin = _start_of(session)
+    frame = _frame_for(session, block_layers())
+    config = RunConfig.for_mode(mode, seed=2).with_overrides({"filter.n_particles": 300})
+    engine = SessionEngine(config, frame, rasterize_map(block_layers(), 0.5), start=start, t_begin=t_begin,
+                           save_particles=True)
+    assert isinstance(engine.snapshots, CloudRecorder)
+    spy = engine.snapshots = _KeepsTheFloats(engine.snapshots.crs)
+    engine.push_velocity(session.velocity["t"].to_numpy(), session.velocity[["ve", "vn"]].to_numpy())
+    engine.push_steps(session.steps["t"].to_numpy(), float(session.steps["t"].iat[-1]))
+    engine.push_gnss(session.gnss)
+    engine.finish()
+    k = len(engine.rows)
+    assert len(spy) == k > 20 and spy.nbytes == PACKED_BYTES * 300 * k
+    t = np.array([r.t for r in engine.rows])
+    ref_x, ref_y = np.array([r.x for r in engine.rows]), np.array([r.y for r in engine.rows])
+    before = packed_at_the_end(spy.floats, t, ref_x, ref_y, frame.crs.to_wkt())
+    now = spy.packed()
+    assert npz_bytes(now, tmp_path / "now.npz") == npz_bytes(before, tmp_path / "before.npz")
+    clouds = read_particles(tmp_path / "now.npz")
+    assert clouds.x.shape == (k, 300)
+    x, y, theta_rad, scale, _ = spy.floats[-1]
+    assert np.abs(clouds.x[-1] - x).max() <= 0.05 + 1e-6 and np.abs(clouds.y[-1] - y).max() <= 0.05 + 1e-6
+    assert clouds.scale is not None and np.abs(clouds.scale[-1] - scale).max() <= 5e-5 + 1e-9
+    turn_deg = (clouds.theta_deg[-1] - np.degrees(theta_rad) + 180.0) % 360.0 - 180.0
+    assert np.abs(turn_deg).max() <= 0.05 + 1e-6
+
+
+def test_the_evaluation_keeps_the_clouds_nearest_the_asked_times(tmp_path):
+    from curbside.evaluate.runner import RunSpec, run_one
+
+    session = write_session(tmp_path / "walk")
+    spec = RunSpec(str(session), "fused", str(CROSSROADS), "osm", str(CROSSROADS), particles=100,
+                   snapshot_times=(10.0, 40.2))
+    result = run_one(spec)
+    track = result["track"].set_index("t")
+    assert [c["t"] for c in result["snapshots"]] == pytest.approx([9.9, 40.15])  # footsteps every 0.55 s
+    for cloud in result["snapshots"]:
+        assert cloud["x"].dtype == np.float32 and cloud["x"].shape == cloud["y"].shape == (100,)
+        # the metrics frame is the map's: the cloud lies around the scored estimate
+        est = track.loc[cloud["t"]]
+        assert abs(np.median(cloud["x"]) - est["x_m"]) < 3.0 and abs(np.median(cloud["y"]) - est["y_m"]) < 3.0
