@@ -31,7 +31,7 @@ from curbside.osmseg.config import SegmentationConfig
 from curbside.osmseg.crosswalks import crosswalks as derive_crosswalks
 from curbside.osmseg.mapio import MapLayers
 from curbside.osmseg.overlay import polygons_only, subtract
-from curbside.osmseg.reader import OsmData, bbox_polygon, clip_to_bbox, read_osm_file
+from curbside.osmseg.reader import OsmData, bbox_polygon, clip_to_bbox, declared_bounds, read_osm_file
 from curbside.osmseg.sidewalks import sidewalk_segments
 from curbside.osmseg.streets import carriageways, mapped_sidewalks, sidewalk_length_in_buildings
 from curbside.projection import LocalFrame
@@ -99,19 +99,20 @@ def load_osm(bbox: BBox | None, osm_file: str | Path | None) -> tuple[OsmData, B
     Raises
     ------
     CurbsideInputError
-        Bad bbox, or one that lies wholly outside the bounds the file declares.
+        Bad bbox, or one that lies wholly outside the bounds the file declares (found from the
+        file's header before any element is read).
     """
     if bbox is not None:
         bbox = check_bbox(bbox)
     if osm_file is not None:
+        # The header says what the file covers: a bbox outside it is refused before reading.
+        covered = None if bbox is None else covered_bbox(bbox, declared_bounds(osm_file), str(osm_file))
         osm = read_osm_file(osm_file, bbox)
         if bbox is None and osm.bounds is not None:
             log.info("clipping to the bounds %s declares: %s", osm.source, osm.bounds)
             return clip_to_bbox(osm, osm.bounds, READ_MARGIN_M), osm.bounds
-        if bbox is not None:
-            covered = covered_bbox(bbox, osm.bounds, str(osm_file))
-            if covered != bbox:
-                return clip_to_bbox(osm, covered, READ_MARGIN_M), covered
+        if covered is not None and covered != bbox:
+            return clip_to_bbox(osm, covered, READ_MARGIN_M), covered
         return osm, bbox
     if bbox is None:
         bbox = settings.default_bbox

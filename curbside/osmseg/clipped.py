@@ -101,11 +101,14 @@ def closed_rings(
     the known node ``b`` becomes: ``a``, where the wall from ``a`` leaves the bounds, the corners on
     the shorter way round them, where the wall to ``b`` comes back, ``b``. Where a wall leaves is
     unknown; the two closures guess it two ways: towards the nearest point of the bounds (exact for
-    walls at right angles to them), and at right angles to the known wall before ``a`` (after ``b``),
-    on the side that reaches the bounds sooner (exact for rectangular corners). Ring by ring on seven
-    simple cuts of the bundled extract, each alone drew building over 9 % and 14 % of the true area
-    wrongly; what both call building (:func:`agreed_area`), over 1.4 %, missing 16 % of it (the
-    chord over the known nodes: 1.4 % and 53 %).
+    walls at right angles to them), and at right angles to the known wall before ``a`` (after ``b``)
+    turning the way the ring goes round, so that the corner is convex (exact for rectangular
+    corners); where that wall would cross one of the ring's known walls, ``a`` is no convex corner
+    and the wall goes straight on (exact for a node in the middle of a wall). What both call building
+    is kept (:func:`agreed_area`). Ring by ring on 46 simple cuts of the bundled extract (789 rings),
+    that draws building over 1.5 % of the true area wrongly and misses 15 % of it; turned towards the
+    nearer side of the known wall instead of the convex one (the rule before), 4.3 % and 13 %; the
+    chord over the known nodes, 0.5 % and 43 %.
 
     Parameters
     ----------
@@ -120,9 +123,9 @@ def closed_rings(
     Returns
     -------
     tuple or None
-        (towards the nearest point, at right angles): closed rings, first point repeated last, inside
-        the bounds. ``None`` when the ring cannot be closed soundly: the file declares no bounds, a
-        known node lies outside them, or fewer than two of its nodes are known.
+        (towards the nearest point, square to the known walls): closed rings, first point repeated
+        last, inside the bounds. ``None`` when the ring cannot be closed soundly: the file declares no
+        bounds, a known node lies outside them, or fewer than two of its nodes are known.
     """
     ring = locations[:-1]
     known = [loc for loc in ring if loc is not None]
@@ -136,12 +139,17 @@ def closed_rings(
         box = _Box(bounds)
         start = next(i for i, loc in enumerate(ring) if loc is not None and ring[i - 1] is None)
         ring = ring[start:] + ring[:start]
-        return _close(ring, box, square=False), _close(ring, box, square=True)
+        near = _close(ring, box)
+        return near, _close(ring, box, _Walls(box, ring, near))
     return None
 
 
-def _close(ring: list[LonLat | None], box: _Box, *, square: bool) -> list[LonLat]:
-    """Close every gap of ``ring`` (which starts with a known node after a gap) along ``box``."""
+def _close(ring: list[LonLat | None], box: _Box, walls: _Walls | None = None) -> list[LonLat]:
+    """Close every gap of ``ring`` (which starts with a known node after a gap) along ``box``.
+
+    Without ``walls`` the lost walls leave towards the nearest point of the bounds; with them, square
+    to the known walls beside the gap (:meth:`_Box.exit`).
+    """
     n = len(ring)
     out: list[LonLat] = []
     for i, loc in enumerate(ring):
@@ -149,9 +157,34 @@ def _close(ring: list[LonLat | None], box: _Box, *, square: bool) -> list[LonLat
             out.append(loc)
         elif ring[i - 1] is not None:  # the first missing node of a gap
             j = next(j for j in range(i, i + n) if ring[j % n] is not None)
-            before, after = (ring[i - 2], ring[(j + 1) % n]) if square else (None, None)
-            out.extend(box.path(box.exit(ring[i - 1], before), box.exit(ring[j % n], after)))
+            if walls is None:
+                leave, back = box.exit(ring[i - 1]), box.exit(ring[j % n])
+            else:
+                leave = box.exit(ring[i - 1], ring[i - 2], walls, turn=walls.turn)
+                back = box.exit(ring[j % n], ring[(j + 1) % n], walls, turn=-walls.turn)
+            out.extend(box.path(leave, back))
     return out + [out[0]]
+
+
+class _Walls:
+    """The known walls of a ring with missing nodes (in :class:`_Box` coordinates), and its turn.
+
+    ``turn`` is +1 where ``near`` (the ring closed towards the nearest points of the bounds) goes
+    round counter-clockwise, -1 clockwise, 0 where it encloses no area.
+    """
+
+    def __init__(self, box: _Box, ring: list[LonLat | None], near: list[LonLat]) -> None:
+        xy = np.array([box.xy(loc) for loc in near])
+        x, y = xy[:, 0] - xy[:, 0].mean(), xy[:, 1] - xy[:, 1].mean()
+        self.turn = int(np.sign(np.dot(x, np.roll(y, -1)) - np.dot(np.roll(x, -1), y)))
+        pairs = zip(ring, ring[1:] + ring[:1], strict=True)
+        self.segments = [(box.xy(p), box.xy(q)) for p, q in pairs if p is not None and q is not None]
+
+    def crossed(self, start: tuple[float, float], end: tuple[float, float]) -> bool:
+        """Whether the wall from the known node ``start`` to ``end`` crosses a known wall not at ``start``."""
+        others = [seg for seg in self.segments if start not in seg]
+        wall = shapely.LineString([start, end])
+        return bool(others) and shapely.intersects(wall, shapely.MultiLineString(others))
 
 
 def agreed_area(near: np.ndarray, square: np.ndarray) -> np.ndarray:
@@ -199,11 +232,15 @@ class _Box:
     def lonlat(self, x: float, y: float) -> LonLat:
         return self.bounds[0] + x / self.k, self.bounds[1] + y
 
-    def exit(self, loc: LonLat, before: LonLat | None) -> float:
+    def exit(
+        self, loc: LonLat, before: LonLat | None = None, walls: _Walls | None = None, turn: int = 0
+    ) -> float:
         """Where a wall from ``loc`` leaves the bounds, as a position along them (see :meth:`along`).
 
-        Towards the nearest point of the bounds; with ``before`` (the known node on the other side of
-        ``loc``), at right angles to the wall from ``before`` to ``loc``, whichever side is nearer.
+        Towards the nearest point of the bounds. With ``before`` (the known node on the other side of
+        ``loc``), at right angles to the wall from ``before`` to ``loc``, turning left (``turn`` +1)
+        or right (-1); where that wall would cross one of ``walls``, straight on; where that would too,
+        or ``turn`` is 0, at right angles on the side that reaches the bounds sooner.
         """
         x, y = self.xy(loc)
         rays = [(0.0, -1.0), (1.0, 0.0), (0.0, 1.0), (-1.0, 0.0)]
@@ -212,6 +249,11 @@ class _Box:
             if (bx, by) != (x, y):
                 dx, dy = x - bx, y - by
                 rays = [(-dy, dx), (dy, -dx)]
+                guesses = [rays[0] if turn > 0 else rays[1], (dx, dy)] if walls is not None and turn else []
+                for ray in guesses:
+                    t, s = self._hit(x, y, *ray)
+                    if not walls.crossed((x, y), self._point(x, y, ray, t)):
+                        return s
         return min(self._hit(x, y, dx, dy) for dx, dy in rays)[1]
 
     def _hit(self, x: float, y: float, dx: float, dy: float) -> tuple[float, float]:
@@ -223,6 +265,11 @@ class _Box:
             (self.h - y) / dy if dy > 0 else -y / dy if dy < 0 else math.inf,
         )
         return t, self.along(min(max(x + t * dx, 0.0), self.w), min(max(y + t * dy, 0.0), self.h))
+
+    def _point(self, x: float, y: float, ray: tuple[float, float], t: float) -> tuple[float, float]:
+        """The point at distance ``t`` along the ray from (x, y), held inside the bounds."""
+        norm = math.hypot(*ray)
+        return min(max(x + t * ray[0] / norm, 0.0), self.w), min(max(y + t * ray[1] / norm, 0.0), self.h)
 
     def along(self, x: float, y: float) -> float:
         """Position of a point of the bounds, counter-clockwise from the south-west corner."""

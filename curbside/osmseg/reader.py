@@ -146,6 +146,35 @@ def _check_path(path: Path) -> None:
         )
 
 
+def declared_bounds(path: str | Path) -> BBox | None:
+    """The bounds an OSM file declares, from its header alone (no element is read).
+
+    Parameters
+    ----------
+    path
+        ``.osm``, ``.osm.bz2``, ``.osm.gz`` or ``.osm.pbf``.
+
+    Returns
+    -------
+    tuple or None
+        (west, south, east, north) degrees of the ``<bounds>`` element or PBF header box; ``None``
+        when the file declares none.
+
+    Raises
+    ------
+    CurbsideInputError
+        Missing file, unsupported extension, or a header osmium cannot parse.
+    """
+    path = Path(path)
+    _check_path(path)
+    with _osmium_errors(path):
+        reader = osmium.io.Reader(str(path), osmium.osm.osm_entity_bits.NOTHING)
+        try:
+            return _header_bounds(reader.header())
+        finally:
+            reader.close()
+
+
 def read_osm_file(
     path: str | Path,
     bbox: tuple[float, float, float, float] | None = None,
@@ -296,52 +325,63 @@ def _read_elements(path: Path, members: dict[int, list[tuple[int, str]]], bounds
     # osmium's location index holds only positive ids; extracts and editors use negative ones too.
     negative_nodes: dict[int, tuple[float, float]] = {}
     for obj in osmium.FileProcessor(str(path)).with_locations():
-        if obj.is_node() and obj.id < 0 and obj.location.valid():
-            negative_nodes[obj.id] = (obj.location.lon, obj.location.lat)
-        elif obj.is_way() and obj.id in members:
-            out.member_runs[obj.id] = _known_runs(obj, negative_nodes)
-            if "building" not in obj.tags and "highway" not in obj.tags:  # else counted below
-                out.missing.members += _lacks_nodes(obj, negative_nodes)
-        if not obj.tags:
-            continue
-        out.newest = max(out.newest, obj.timestamp.timestamp())
+        if obj.tags:
+            out.newest = max(out.newest, obj.timestamp.timestamp())
         if obj.is_node():
+            if obj.id < 0 and obj.location.valid():
+                negative_nodes[obj.id] = (obj.location.lon, obj.location.lat)
             if obj.tags.get("highway") in _NODE_HIGHWAY_VALUES and obj.location.valid():
                 out.node_ids.append(obj.id)
                 out.node_tags.append({t.k: t.v for t in obj.tags if t.k in keys})
                 out.node_coords.append((obj.location.lon, obj.location.lat))
-        elif obj.is_way() and "highway" in obj.tags:
-            way_tags = {t.k: t.v for t in obj.tags if t.k in keys}
-            out.missing.highways += _lacks_nodes(obj, negative_nodes)
-            for run in _known_runs(obj, negative_nodes):
-                out.way_ids.append(obj.id)
-                out.way_tags.append(way_tags)
-                out.way_lens.append(len(run))
-                out.way_coords.extend(run)
-        elif obj.is_way() and "building" in obj.tags and obj.is_closed():
-            ring = _building_ring(obj, negative_nodes, bounds, out)
-            if ring is not None:
-                out.area_ids.append(f"w{obj.id}")
-                out.area_tags.append({t.k: t.v for t in obj.tags if t.k in keys})
-                out.area_lens.append(len(ring))
-                out.area_coords.extend(ring)
+        elif obj.is_way():
+            _add_way(obj, negative_nodes, obj.id in members, bounds, out)
     return out
 
 
-def _lacks_nodes(way: osmium.osm.Way, negative_nodes: dict[int, tuple[float, float]]) -> bool:
-    """Whether the way refers to a node the file lacks."""
-    return any(not n.location.valid() and n.ref not in negative_nodes for n in way.nodes)
+def _add_way(
+    way: osmium.osm.Way,
+    negative_nodes: dict[int, tuple[float, float]],
+    is_member: bool,
+    bounds: BBox | None,
+    out: _Elements,
+) -> None:
+    """Collect a way the derivation uses (highway, building ring, relation member), walking its nodes once."""
+    highway = "highway" in way.tags
+    building = not highway and "building" in way.tags and way.is_closed()
+    if not (is_member or highway or building):
+        return
+    locations = _locations(way, negative_nodes)
+    lacks_nodes = None in locations
+    if is_member:
+        out.member_runs[way.id] = _known_runs(locations)
+        if "building" not in way.tags and not highway:  # else counted below
+            out.missing.members += lacks_nodes
+    if highway:
+        way_tags = {t.k: t.v for t in way.tags if t.k in TAG_KEYS}
+        out.missing.highways += lacks_nodes
+        for run in _known_runs(locations):
+            out.way_ids.append(way.id)
+            out.way_tags.append(way_tags)
+            out.way_lens.append(len(run))
+            out.way_coords.extend(run)
+    elif building:
+        ring = _building_ring(way, locations, bounds, out)
+        if ring is not None:
+            out.area_ids.append(f"w{way.id}")
+            out.area_tags.append({t.k: t.v for t in way.tags if t.k in TAG_KEYS})
+            out.area_lens.append(len(ring))
+            out.area_coords.extend(ring)
 
 
 def _building_ring(
-    way: osmium.osm.Way, negative_nodes: dict[int, tuple[float, float]], bounds: BBox | None, out: _Elements
+    way: osmium.osm.Way, locations: list, bounds: BBox | None, out: _Elements
 ) -> list[tuple[float, float]] | None:
     """The closed (lon, lat) ring of a building way, ``None`` when it has none to give.
 
     A ring with missing nodes gives none here: its two closures along the file's bounds
     (:func:`~curbside.osmseg.clipped.closed_rings`) go to ``out.cut_rings``, or it is dropped.
     """
-    locations = _locations(way, negative_nodes)
     if None not in locations:
         # The first node is repeated once more (as it always was): maps stay byte for byte the same.
         return locations + [locations[0]] if len(set(locations)) >= 3 else None
@@ -365,10 +405,10 @@ def _locations(way: osmium.osm.Way, negative_nodes: dict[int, tuple[float, float
     return out
 
 
-def _known_runs(way: osmium.osm.Way, negative_nodes: dict[int, tuple[float, float]]) -> list:
-    """The way's (lon, lat) split where a node is missing: runs of two or more known nodes."""
+def _known_runs(locations: list) -> list:
+    """A way's (lon, lat) (:func:`_locations`) split where a node is missing: runs of two or more."""
     runs: list[list[tuple[float, float]]] = [[]]
-    for loc in _locations(way, negative_nodes):
+    for loc in locations:
         if loc is not None:
             runs[-1].append(loc)
         elif runs[-1]:
@@ -411,10 +451,7 @@ def _building_relations(
     members: dict[int, list[tuple[int, str]]] = {}
     rel_tags: dict[int, dict[str, str]] = {}
     processor = osmium.FileProcessor(str(path), osmium.osm.RELATION)
-    box = processor.header.box()
-    bounds = None
-    if box.valid() and box.bottom_left.lon < box.top_right.lon and box.bottom_left.lat < box.top_right.lat:
-        bounds = (box.bottom_left.lon, box.bottom_left.lat, box.top_right.lon, box.top_right.lat)
+    bounds = _header_bounds(processor.header)
     for rel in processor:
         if rel.tags.get("type") != "multipolygon" or "building" not in rel.tags:
             continue
@@ -423,6 +460,14 @@ def _building_relations(
                 members.setdefault(m.ref, []).append((rel.id, m.role))
         rel_tags[rel.id] = dict(rel.tags)
     return members, rel_tags, bounds
+
+
+def _header_bounds(header: osmium.io.Header) -> BBox | None:
+    """A file header's (west, south, east, north), ``None`` when it has no valid box."""
+    box = header.box()
+    if box.valid() and box.bottom_left.lon < box.top_right.lon and box.bottom_left.lat < box.top_right.lat:
+        return box.bottom_left.lon, box.bottom_left.lat, box.top_right.lon, box.top_right.lat
+    return None
 
 
 def _assemble_relations(
