@@ -80,11 +80,14 @@ def _turn_world(degrees: float) -> Edit:
     return edit
 
 
-def _same_reading(with_meta: Path, without: Path):
-    """Read both; the platform, quaternions and acceleration must agree. Returns the one without."""
+def _same_reading(with_meta: Path, without: Path, platform: bool = True):
+    """Read both; the platform (unless ``platform`` is False), quaternions and acceleration must
+    agree. Returns the one without."""
     expected = read_sensorlogger(with_meta)
     inferred = read_sensorlogger(without)
-    assert inferred.meta["platform"] == expected.meta["platform"]
+    if platform:
+        assert inferred.meta["platform"] == expected.meta["platform"]
+        assert inferred.meta["standardised"] == expected.meta["standardised"]
     assert inferred.imu["t"].equals(expected.imu["t"])
     np.testing.assert_allclose(inferred.imu[ACC], expected.imu[ACC], atol=1e-9)
     if "qx" in expected.imu.columns:
@@ -187,36 +190,51 @@ def test_android_stays_android_when_the_magnetometer_points_east(tmp_path, caplo
         session = _same_reading(with_meta, without)
     assert session.meta["platform"] == "android"
     assert session.meta["platform_inferred_from"] == [
-        "acceleration in Android's sign convention (also a standardised iOS's)",
+        "acceleration in Android's sign convention (Android, or standardised iOS)",
         "TotalAcceleration.csv (iOS writes none)"]
     [line] = _inference_lines(caplog)
     assert line.levelno == logging.WARNING and "against it: magnetic north at +90 deg" in line.getMessage()
 
 
-@pytest.mark.parametrize("fixture", ["sensorlogger-android-v2.zip", "sensorlogger-android-1.12.zip",
-                                     "sensorlogger-ios-standardised.zip"])
+@pytest.mark.parametrize("fixture", ["sensorlogger-android-v2.zip", "sensorlogger-android-1.12.zip"])
 def test_other_fixtures_read_the_same_without_metadata(tmp_path, fixture):
-    """Android exports stay Android; a standardised iOS export (Android signs, East-North-Up) reads as
-    Android frames, giving the quaternions its Metadata.csv gives (the label is the one difference)."""
     with_meta, without = _pair(tmp_path, fixture)
-    if "standardised" not in fixture:
+    session = _same_reading(with_meta, without)
+    assert session.meta["platform"] == "android" and session.meta["platform_inferred_from"]
+
+
+def test_standardised_ios_in_enu_reads_as_android_frames_without_metadata(tmp_path):
+    """A standardised iOS export whose orientation is East-North-Up (the fixture's): Android signs and
+    a north at 0 deg read as Android frames, giving the quaternions its Metadata.csv gives (the label
+    is the one difference)."""
+    with_meta, without = _pair(tmp_path, "sensorlogger-ios-standardised.zip")
+    inferred = _same_reading(with_meta, without, platform=False)
+    assert read_sensorlogger(with_meta).meta["platform"] == "ios"
+    assert (inferred.meta["platform"], inferred.meta["standardised"]) == ("android", False)
+
+
+def test_standardised_ios_in_nwu_reads_the_same_without_metadata(tmp_path, caplog):
+    """A standardised iOS export whose orientation is CoreMotion's North-West-Up: its Android sign
+    allows Android or standardised iOS, and the magnetometer (north at +90 deg) picks the latter, so
+    the frame is turned into ENU as with Metadata.csv. It was read 90 deg off: the sign alone decided."""
+    with_meta, without = _pair(tmp_path, "sensorlogger-ios-standardised.zip", _turn_world(-90.0))
+    with caplog.at_level(logging.INFO, logger=reader_logger.name):
         session = _same_reading(with_meta, without)
-        assert session.meta["platform"] == "android" and session.meta["platform_inferred_from"]
-        return
-    expected, inferred = read_sensorlogger(with_meta), read_sensorlogger(without)
-    assert (expected.meta["platform"], inferred.meta["platform"]) == ("ios", "android")
-    error = Rotation.from_quat(inferred.imu[QUAT].to_numpy()) * Rotation.from_quat(
-        expected.imu[QUAT].to_numpy()).inv()
-    assert np.degrees(error.magnitude()).max() < 1e-6
-    np.testing.assert_allclose(inferred.imu[ACC], expected.imu[ACC], atol=1e-9)
+    assert (session.meta["platform"], session.meta["standardised"]) == ("ios", True)
+    assert session.meta["magnetic_north_deg"] == pytest.approx(0.0, abs=0.5)
+    assert [cue.split(" (")[0] for cue in session.meta["platform_inferred_from"]] == [
+        "acceleration in Android's sign convention", "magnetic north at +90 deg in the orientation's frame"]
+    [line] = _inference_lines(caplog)
+    assert "standardised iOS inferred (orientation North-West-Up, turned into ENU" in line.getMessage()
 
 
 def test_without_any_cue_android_frames_are_assumed_and_said(tmp_path, caplog):
-    """No orientation, no TotalAcceleration.csv, no raw accelerometer: nothing shows the platform."""
+    """No orientation, no TotalAcceleration.csv, no raw accelerometer: nothing shows the platform, and
+    ``meta`` claims none (it said "android")."""
     with_meta, without = _pair(tmp_path, "sensorlogger-android-v2.zip", _drop("Orientation.csv"))
     with caplog.at_level(logging.INFO, logger=reader_logger.name):
-        session = _same_reading(with_meta, without)
-    assert session.meta["platform"] == "android" and "platform_inferred_from" not in session.meta
+        session = _same_reading(with_meta, without, platform=False)
+    assert not {"platform", "standardised", "platform_inferred_from"} & set(session.meta)
     [line] = _inference_lines(caplog)
     assert line.levelno == logging.WARNING
     assert "no cue to it in the data; assuming Android frames" in line.getMessage()

@@ -159,6 +159,43 @@ def test_motion_files_without_rows_give_a_gnss_only_session(tmp_path):
     assert session.imu is None and len(session.gnss) == 5
 
 
+@pytest.mark.parametrize("metadata", [True, False], ids=["with-metadata", "without-metadata"])
+def test_gnss_only_export_claims_a_platform_only_from_metadata(tmp_path, metadata):
+    """Without an IMU no frame needs the platform: without Metadata.csv none is recorded (it said
+    "android")."""
+    folder = tmp_path / "export"
+    folder.mkdir()
+    names = ("Location.csv", "Metadata.csv") if metadata else ("Location.csv",)
+    for name in names:
+        shutil.copy(SESSIONS / "sensorlogger-android" / name, folder / name)
+    session = read_any(folder)
+    assert session.imu is None and len(session.gnss) == 5
+    assert session.meta.get("platform") == ("android" if metadata else None)
+    assert "platform_inferred_from" not in session.meta
+
+
+def _text_magnetometer(folder: Path) -> None:
+    """A Magnetometer.csv on the orientation's clock whose z column is text."""
+    clock = pd.read_csv(folder / "Orientation.csv")[["time", "seconds_elapsed"]]
+    clock.assign(z="n/a", y=20.0, x=5.0).to_csv(folder / "Magnetometer.csv", index=False)
+
+
+@pytest.mark.parametrize("metadata", [True, False], ids=["with-metadata", "without-metadata"])
+def test_malformed_magnetometer_matters_only_against_an_orientation(tmp_path, metadata):
+    """The magnetometer is read only to check (or infer) the orientation's frame: without
+    Orientation.csv a broken one is not read (it refused the export); with one it is refused."""
+    folder = _android_copy(tmp_path)
+    _text_magnetometer(folder)
+    if not metadata:
+        (folder / "Metadata.csv").unlink()
+    with pytest.raises(CurbsideInputError, match="Magnetometer.csv"):
+        read_sensorlogger(folder)
+    (folder / "Orientation.csv").unlink()
+    session = read_sensorlogger(folder)
+    assert "qx" not in session.imu.columns and len(session.imu) > 200
+    assert "magnetic_north_deg" not in session.meta
+
+
 def _two_recordings_zip(tmp_path: Path) -> Path:
     path = tmp_path / "two.zip"
     with zipfile.ZipFile(path, "w") as zf:

@@ -28,11 +28,12 @@ them and lists the real exports this reader was run on):
 - the platform (and with it the sign and the world frame) comes from ``Metadata.csv``. An export
   without it (users re-zip only the CSVs they think matter) is not taken for Android: the reader
   infers the platform from, strongest first, the accelerometer sign found against the orientation
-  (iOS's is never Android's), ``TotalAcceleration.csv`` (Android only), an
-  ``AccelerometerUncalibrated.csv`` in g (iOS), magnetic north in the orientation's frame (near 0:
-  ENU; near +90 deg: NWU) and the iOS 1.10-1.11 ``Orientation.csv`` column order, logs what it found
-  and what disagreed, and records it in ``meta["platform_inferred_from"]``. Without any cue it
-  assumes Android frames (warning);
+  (iOS's, or Android's, which a standardised iOS export shares), ``TotalAcceleration.csv`` (Android
+  only), an ``AccelerometerUncalibrated.csv`` in g (iOS), magnetic north in the orientation's frame
+  (near 0: ENU; near +90 deg: NWU, which with Android's sign means a standardised iOS export) and the
+  iOS 1.10-1.11 ``Orientation.csv`` column order (:mod:`._platform`), logs what it found and what
+  disagreed, and records it in ``meta["platform_inferred_from"]``. Without any cue it assumes
+  Android frames (warning) and records no platform;
 - ``Location.csv``: ``latitude,longitude,horizontalAccuracy`` (m, ~1 sigma) -> ``gnss.csv``;
   (0, 0) fixes are dropped;
 - ``Annotation.csv``: taps. A tap is a waypoint when its text is ``"lat,lon"``, or when a route file
@@ -48,7 +49,6 @@ session and one without motion files a GNSS-only session.
 from __future__ import annotations
 
 import logging
-from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -57,6 +57,15 @@ from scipy.spatial.transform import Rotation
 
 from curbside.errors import CurbsideInputError
 from curbside.localize.readers._export import check_same_clock, find_recordings, open_export
+from curbside.localize.readers._platform import (
+    NORTH_TOLERANCE_DEG,
+    Device,
+    device_from_metadata,
+    magnetic_north_deg,
+    metadata_sign,
+    north_quarter,
+    settle_device,
+)
 from curbside.localize.readers._resample import MAX_SILENT_CUT_S, interp_quaternions, merge_imu, report_gaps
 from curbside.localize.readers._tidy import (
     MAX_WAYPOINT_DISTANCE_M,
@@ -73,10 +82,6 @@ logger = logging.getLogger(__name__)
 #: iOS world frame (x north, y west, z up) to East-North-Up: +90 degrees about the vertical.
 NWU_TO_ENU = Rotation.from_euler("z", 90.0, degrees=True)
 
-#: Largest angle (deg) between magnetic north in the world frame and the frame's north still taken as
-#: agreement: declination (up to ~20 deg in populated places) plus indoor disturbance.
-NORTH_TOLERANCE_DEG = 35.0
-
 _MOTION_FILES = ("TotalAcceleration.csv", "Accelerometer.csv", "Gravity.csv", "Gyroscope.csv",
                  "Orientation.csv", "Magnetometer.csv")
 #: Raw sensors, read only in place of missing calibrated ones: ``{file: the calibrated files it replaces}``.
@@ -86,36 +91,7 @@ _UNCALIBRATED = {"AccelerometerUncalibrated.csv": ("TotalAcceleration.csv", "Acc
 _ACCELEROMETERS = ("TotalAcceleration.csv", "Accelerometer.csv", "AccelerometerUncalibrated.csv")
 _GYROSCOPES = ("Gyroscope.csv", "GyroscopeUncalibrated.csv")
 _QUAT = ["qx", "qy", "qz", "qw"]
-#: ``Orientation.csv`` columns, and their order in iOS 1.10 and 1.11 (Android: ``qz,qy,qx,qw,roll,...``).
-_ORIENTATION_COLUMNS = frozenset({*_QUAT, "roll", "pitch", "yaw"})
-_IOS_1_1X_ORIENTATION = ("yaw", "qx", "qz", "roll", "qw", "qy", "pitch")
 _ACC = ("ax", "ay", "az")
-
-
-@dataclass
-class _Device:
-    """What ``Metadata.csv`` says about the phone and the export; ``known`` is False when it names no
-    platform, which is then inferred from the data (:func:`_settle_device`)."""
-
-    platform: str = "android"
-    standardised: bool = False
-    meta: dict = field(default_factory=dict)
-    known: bool = True
-
-
-def _device(table: pd.DataFrame | None, label: str) -> _Device:
-    if table is None or table.empty or "platform" not in table.columns:
-        return _Device(known=False)
-    row = table.iloc[0]
-    columns = {"export_version": "version", "app_version": "appVersion", "device": "device name"}
-    meta = {key: str(row[col]).strip() for key, col in columns.items()
-            if col in table.columns and pd.notna(row[col])}
-    platform = str(row["platform"]).strip().lower()
-    if platform not in ("android", "ios"):
-        logger.warning("%s: Metadata.csv platform %r unknown; inferred from the data", label, platform)
-        return _Device(meta=meta, known=False)
-    standardised = str(row.get("standardisation", "false")).strip().lower() in ("true", "1", "yes")
-    return _Device(platform, standardised, {"platform": platform, "standardised": standardised, **meta})
 
 
 def _read_streams(export) -> dict[str, pd.DataFrame]:
@@ -222,11 +198,6 @@ def _restore_gravity(user: pd.DataFrame, quat: pd.DataFrame, sign: float, label:
     return user
 
 
-def _metadata_sign(device: _Device) -> float:
-    """Accelerometer sign that turns the export's convention into Android's, from the metadata alone."""
-    return -1.0 if device.platform == "ios" and not device.standardised else 1.0
-
-
 def _gravity_convention(imu: pd.DataFrame, source: str) -> tuple[float, bool]:
     """Accelerometer sign and quaternion direction that put gravity on +z (up) in the world frame.
 
@@ -246,118 +217,7 @@ def _gravity_convention(imu: pd.DataFrame, source: str) -> tuple[float, bool]:
     return (1.0 if up > 0 else -1.0), invert
 
 
-def magnetic_north_deg(imu: pd.DataFrame, magnetometer: pd.DataFrame) -> float | None:
-    """Azimuth (deg, clockwise from the world frame's north) of the horizontal magnetic field.
-
-    The field measured in the phone frame is rotated into the world frame by ``imu``'s quaternions and
-    averaged as unit vectors. In a correct East-North-Up frame it points to magnetic north: the local
-    declination (a few degrees in most places) plus magnetic disturbance.
-
-    Parameters
-    ----------
-    imu
-        ``t`` and ``qx,qy,qz,qw`` (device to ENU).
-    magnetometer
-        ``t,mx,my,mz`` in the phone frame (any unit).
-
-    Returns
-    -------
-    float or None
-        In (-180, 180]; ``None`` when the two do not overlap or the field is vertical.
-    """
-    t = imu["t"].to_numpy()
-    mt = magnetometer["t"].to_numpy()
-    keep = (t >= mt[0]) & (t <= mt[-1])
-    if keep.sum() < 2:
-        return None
-    m = np.column_stack([np.interp(t[keep], mt, magnetometer[c].to_numpy()) for c in ("mx", "my", "mz")])
-    world = Rotation.from_quat(imu.loc[keep, _QUAT].to_numpy()).apply(m)
-    horizontal = np.linalg.norm(world[:, :2], axis=1)
-    good = horizontal > 1e-6
-    if not good.any():
-        return None
-    unit = world[good, :2] / horizontal[good, None]
-    east, north = unit.mean(axis=0)
-    return float(np.degrees(np.arctan2(east, north)))
-
-
-def _north_quarter(north: float) -> float | None:
-    """The nearest multiple of 90 deg to an azimuth of north, when within the tolerance of it."""
-    snapped = 90.0 * round(north / 90.0)
-    return snapped if abs(north - snapped) < NORTH_TOLERANCE_DEG else None
-
-
-def _uncalibrated_in_g(streams, export) -> bool:
-    """Whether ``AccelerometerUncalibrated.csv`` logs in g (iOS without standardisation; Android: m/s^2)."""
-    name = "AccelerometerUncalibrated.csv"
-    try:
-        table = streams[name] if name in streams else export.read(name)
-    except CurbsideInputError:  # only a cue: a file the reader does not need must not stop it
-        return False
-    if table is None or not {"x", "y", "z"} <= set(table.columns):
-        return False
-    xyz = table[["x", "y", "z"]].apply(pd.to_numeric, errors="coerce").dropna().to_numpy()
-    block = min(25, len(xyz))  # block means, as accelerometer_ms2: gravity dominates them
-    if block == 0:
-        return False
-    means = xyz[: len(xyz) // block * block].reshape(-1, block, 3).mean(axis=1)
-    return 0.8 <= float(np.median(np.linalg.norm(means, axis=1))) <= 1.2
-
-
-def _platform_cues(streams, export, frame: pd.DataFrame | None, sign: float | None,
-                   mag: pd.DataFrame | None) -> list[tuple[str, str]]:
-    """What in the data shows the platform, strongest first: ``(platform, the evidence)``.
-
-    ``frame``: ``t`` and the quaternions as exported (device to world, not turned); ``sign``: the
-    accelerometer sign found against them (``None`` when not measured).
-    """
-    cues = []
-    if sign is not None:  # iOS without standardisation has the opposite sign; Android never does
-        cues.append(("ios", "acceleration in iOS's sign convention (gravity reads -9.8 m/s^2 up)") if sign < 0
-                    else ("android", "acceleration in Android's sign convention (also a standardised iOS's)"))
-    if "TotalAcceleration.csv" in streams:
-        cues.append(("android", "TotalAcceleration.csv (iOS writes none)"))
-    if _uncalibrated_in_g(streams, export):
-        cues.append(("ios", "AccelerometerUncalibrated.csv in g"))
-    north = None if frame is None or mag is None else magnetic_north_deg(frame, mag)
-    quarter = None if north is None else _north_quarter(north)
-    if quarter == 0:
-        cues.append(("android", f"magnetic north at {round(north):+d} deg in the orientation's frame "
-                     "(East-North-Up)"))
-    elif quarter == 90:  # an x-north frame read as East-North-Up shows north on its x axis: east
-        cues.append(("ios", f"magnetic north at {round(north):+d} deg in the orientation's frame "
-                     "(North-West-Up)"))
-    orientation = streams.get("Orientation.csv", pd.DataFrame())
-    columns = tuple(c for c in orientation.columns if c in _ORIENTATION_COLUMNS)
-    if columns == _IOS_1_1X_ORIENTATION:
-        cues.append(("ios", f"Orientation.csv columns in iOS 1.10-1.11 order ({','.join(columns)})"))
-    return cues
-
-
-def _settle_device(device: _Device, streams, export, frame: pd.DataFrame | None, sign: float | None,
-                   mag: pd.DataFrame | None, meta: dict) -> _Device:
-    """``device``, or when ``Metadata.csv`` names no platform the strongest cue's (logged, in ``meta``)."""
-    if device.known:
-        return device
-    label = export.label
-    cues = _platform_cues(streams, export, frame, sign, mag)
-    if not cues:
-        logger.warning("%s: no Metadata.csv platform, and no cue to it in the data; assuming Android frames",
-                       label)
-        return _Device()
-    platform = cues[0][0]
-    agree = [why for p, why in cues if p == platform]
-    against = [why for p, why in cues if p != platform]
-    frames = "orientation North-West-Up, turned into ENU" if platform == "ios" else "orientation in ENU"
-    logger.log(logging.INFO if len(agree) > 1 and not against else logging.WARNING,
-               "%s: no Metadata.csv platform; %s inferred (%s) from %s%s", label,
-               "iOS" if platform == "ios" else "Android", frames, "; ".join(agree),
-               f"; against it: {'; '.join(against)}" if against else "")
-    meta.update(platform=platform, platform_inferred_from=agree)
-    return _Device(platform)
-
-
-def _check_north(imu: pd.DataFrame, mag: pd.DataFrame | None, label: str, device: _Device,
+def _check_north(imu: pd.DataFrame, mag: pd.DataFrame | None, label: str, device: Device,
                  meta: dict) -> None:
     """Compare the world frame's north with magnetic north; for standardised iOS exports, follow it."""
     if mag is None:
@@ -368,7 +228,7 @@ def _check_north(imu: pd.DataFrame, mag: pd.DataFrame | None, label: str, device
     north = magnetic_north_deg(imu, mag)
     if north is None:
         return
-    snapped = _north_quarter(north)
+    snapped = north_quarter(north)
     if device.platform == "ios" and device.standardised and snapped:
         # A world frame turned by +phi about up shows north at -phi: turning by the azimuth undoes it.
         turn = Rotation.from_euler("z", snapped, degrees=True)
@@ -396,7 +256,7 @@ def _report_uncalibrated(streams, label: str) -> None:
                    "Gravity, Gyroscope, Orientation) in Sensor Logger", label, missing, ", ".join(raw), bias)
 
 
-def _imu(streams, export, device: _Device, meta: dict) -> pd.DataFrame | None:
+def _imu(streams, export, device: Device, meta: dict) -> pd.DataFrame | None:
     label = export.label
     acc_name = next((n for n in _ACCELEROMETERS if n in streams), None)
     gyro_name = next((n for n in _GYROSCOPES if n in streams), None)
@@ -409,15 +269,15 @@ def _imu(streams, export, device: _Device, meta: dict) -> pd.DataFrame | None:
     _report_uncalibrated(streams, label)
     quat = _orientation(streams, label)
     mag = None
-    if "Magnetometer.csv" in streams:
+    if quat is not None and "Magnetometer.csv" in streams:  # of use only against an orientation
         mag = _xyz(streams["Magnetometer.csv"], f"{label}/Magnetometer.csv", ("mx", "my", "mz"))
     acce, with_gravity = _specific_force(streams, label)
     if not with_gravity:
         if quat is None:
             raise CurbsideInputError(f"{label}/Accelerometer.csv", "acceleration without gravity, and no "
                                      "TotalAcceleration.csv, Gravity.csv or Orientation.csv to restore it")
-        device = _settle_device(device, streams, export, quat, None, mag, meta)  # restoring needs the sign
-        acce = _restore_gravity(acce, quat, _metadata_sign(device), label)
+        device = settle_device(device, streams, export, quat, None, mag, meta)  # restoring needs the sign
+        acce = _restore_gravity(acce, quat, metadata_sign(device), label)
     acce = accelerometer_ms2(acce, f"{label}/{acc_name}")
     gyro = _xyz(streams[gyro_name], f"{label}/{gyro_name}", ("gx", "gy", "gz"))
     names = (f"{label}/{acc_name}", f"{label}/{gyro_name}", f"{label}/Orientation.csv")
@@ -428,9 +288,9 @@ def _imu(streams, export, device: _Device, meta: dict) -> pd.DataFrame | None:
         if invert:
             logger.info("%s: orientation is world-to-device; inverted", label)
             imu[_QUAT] = Rotation.from_quat(imu[_QUAT].to_numpy()).inv().as_quat()
-    device = _settle_device(device, streams, export, None if quat is None else imu, sign, mag, meta)
+    device = settle_device(device, streams, export, None if quat is None else imu, sign, mag, meta)
     if sign is None and with_gravity:
-        sign = _metadata_sign(device)
+        sign = metadata_sign(device)
     if sign is not None and sign < 0:
         logger.info("%s: acceleration in the iOS sign convention; negated", label)
         imu[list(_ACC)] *= -1.0
@@ -540,7 +400,8 @@ def read_sensorlogger(src: str | Path, route: str | Path | None = None) -> Sessi
     -------
     Session
         ``imu`` (accelerometer + gyroscope, with the quaternion when there is an orientation),
-        ``gnss``, ``waypoints`` and ``meta`` (source, platform, device, app and export version,
+        ``gnss``, ``waypoints`` and ``meta`` (source; platform and standardisation, when
+        ``Metadata.csv`` names them or the data shows them; device, app and export version,
         ``t0_unix_s``, ``magnetic_north_deg``, annotations).
 
     Raises
@@ -554,12 +415,11 @@ def read_sensorlogger(src: str | Path, route: str | Path | None = None) -> Sessi
     label = export.label
     try:
         metadata = export.read("Metadata.csv")
-    except CurbsideInputError as exc:  # the data can still be read; frames fall back to Android's
+    except CurbsideInputError as exc:  # the data can still be read; the platform is inferred from it
         logger.warning("%s (ignored)", exc)
         metadata = None
-    device = _device(metadata, label)
-    meta: dict = {"source": {"format": "sensorlogger", "file": export.src.name}, "platform": device.platform,
-                  **device.meta}
+    device = device_from_metadata(metadata, label)
+    meta: dict = {"source": {"format": "sensorlogger", "file": export.src.name}, **device.meta}
     if export.folder != ".":
         meta["source"]["recording"] = export.folder
     streams = _read_streams(export)
