@@ -16,19 +16,22 @@ import pytest
 from serve_fixtures import TRIAL
 from viewer_fixtures import CROSSROADS, write_session
 
+from curbside.cli import localize_run
 from curbside.cli.localize import main as localize_main
 from curbside.errors import CurbsideInputError
 from curbside.evaluate import routes
 from curbside.evaluate.osmsource import load_osm
 from curbside.localize import pipeline, view_data
 from curbside.localize.pipeline import track_session
-from curbside.localize.readers import read_any
+from curbside.localize.readers import ipin, read_any
 from curbside.localize.session import Session, read_session
 from curbside.osmseg import webmap
 from curbside.osmseg.mapio import read_map
 from curbside.projection import LocalFrame
 
 NESTED = "data/walks/w1"
+SESSIONS = Path(__file__).parent / "data" / "sessions"
+IPIN = SESSIONS / "ipin2023-cut.h5"
 
 
 class _Terminal(io.StringIO):
@@ -108,6 +111,52 @@ def test_run_is_refused_naming_the_session_as_given_with_the_extent_checked_once
     monkeypatch.setattr(pipeline, "_check_extent", lambda *a, **k: checks.append(1) or check(*a, **k))
     assert localize_main(["run", NESTED, "--map", str(CROSSROADS), "--mode", "gnss", "-o", "out"]) == 0
     assert len(checks) == 1  # the pipeline's own check; the command no longer repeats it
+
+
+def test_a_refused_run_names_the_map_and_says_nothing_else_first(nested, tmp_path, capsys, caplog):
+    far = _far_map(tmp_path)
+    argv = ["run", NESTED, "--map", str(far), "--mode", "inertial", "--no-start-pose", "-o", "out"]
+    with caplog.at_level(logging.WARNING):
+        assert localize_main(argv) == 2
+    err = capsys.readouterr().err
+    assert err == (f"localize: error: {NESTED}/gnss.csv: the session lies outside the map's extent ({far}) "
+                   "(no fix near the map)\n")
+    assert not [r for r in caplog.records if r.levelno == logging.WARNING]  # no warning before the refusal
+    with pytest.raises(CurbsideInputError, match=re.escape("extent (far.geojson)")):
+        track_session(read_session(NESTED), read_map(far), "gnss", map_name="far.geojson")
+
+
+def test_waypoints_that_cannot_be_scored_name_an_export_as_given(tmp_path, monkeypatch, caplog):
+    export = str(SESSIONS / "sensorlogger-android")  # a folder, but no waypoints.csv in it
+
+    def unscorable(*_args, **_kwargs):
+        raise CurbsideInputError("track", "too short")
+
+    monkeypatch.setattr(localize_run, "waypoint_errors", unscorable)
+    assert localize_main(["run", export, "--mode", "gnss", "-o", str(tmp_path / "out")]) == 0
+    warned = [r.getMessage() for r in caplog.records if "at waypoints" in r.getMessage()]
+    assert warned == [f"{export}: error at waypoints not scored (too short); the track is written without it"]
+
+
+def test_a_session_is_still_made_positionally():
+    imu = pd.DataFrame({"t": [0.0, 0.01], "ax": 0.0, "ay": 0.0, "az": 9.8, "gx": 0.0, "gy": 0.0, "gz": 0.0})
+    session = Session("w1", imu)
+    assert session.imu is imu and session.source == "w1"
+    assert Session("w1", source="data/w1").source == "data/w1"
+
+
+def test_convert_all_names_a_trial_as_file_and_trial(tmp_path, monkeypatch, capsys):
+    read_trial = ipin.read_trial
+
+    def without_imu(path, name):
+        session = read_trial(path, name)
+        session.imu = None
+        return session
+
+    monkeypatch.setattr(ipin, "read_trial", without_imu)
+    assert localize_main(["convert", str(IPIN), str(tmp_path / "all"), "--all", "--steps"]) == 2
+    trial = ipin.list_trials(IPIN)[0]
+    assert capsys.readouterr().err.startswith(f"localize: error: {IPIN}::{trial}: --steps/--pdr need IMU")
 
 
 def test_source_is_the_session_as_loaded_or_its_name():

@@ -33,17 +33,15 @@ from curbside.localize.session import Session, write_session
 from curbside.localize.steps import detect_steps
 
 
-def add_derived(session: Session, steps: bool, pdr: bool, source: str | None = None) -> Session:
+def add_derived(session: Session, steps: bool, pdr: bool) -> Session:
     """Add ``steps`` (detected footsteps) and/or ``velocity`` (PDR) tables computed from ``imu``.
 
     Parameters
     ----------
     session
-        The session read from ``source``.
+        The session; errors name its ``source`` (the recording as the user named it).
     steps, pdr
         Which tables to add.
-    source
-        The recording as the user named it, for error messages (the session name when ``None``).
 
     Raises
     ------
@@ -52,7 +50,7 @@ def add_derived(session: Session, steps: bool, pdr: bool, source: str | None = N
     """
     if not (steps or pdr):
         return session
-    source = session.name if source is None else source
+    source = session.source
     if session.imu is None:
         raise CurbsideInputError(source, "--steps/--pdr need IMU data, and this source has none")
     if pdr and not {"qx", "qy", "qz", "qw"} <= set(session.imu.columns):
@@ -110,12 +108,14 @@ def _convert(args: argparse.Namespace) -> int:
         lines: list[str] = []
         with output_folder(dst, command, overwrite=args.overwrite) as tmp:
             for name in tqdm(trials, desc="convert", unit="trial", disable=not sys.stderr.isatty()):
-                session = add_derived(ipin.read_trial(path, name), args.steps, args.pdr, f"{path}::{name}")
+                session = ipin.read_trial(path, name)
+                session.source = f"{path}::{name}"
+                session = add_derived(session, args.steps, args.pdr)
                 write_session(session, tmp / session.name, command="localize convert")
                 lines += summary_lines(session, dst / session.name)
         print("\n".join(lines))
         return 0
-    session = add_derived(read_any(args.src, route=args.route), args.steps, args.pdr, str(args.src))
+    session = add_derived(read_any(args.src, route=args.route), args.steps, args.pdr)
     write_session(session, dst, overwrite=args.overwrite, command="localize convert")
     print("\n".join(summary_lines(session, dst)))
     return 0

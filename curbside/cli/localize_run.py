@@ -87,14 +87,15 @@ def _run(args: argparse.Namespace) -> int:
     config = config.with_overrides(config_overrides(args))
     if args.lag_s is not None:
         config = config.with_overrides({"filter.smoother.lag_s": args.lag_s})
-    result = track_session(session, layers, config=config, save_particles=save_particles, progress=True)
+    result = track_session(session, layers, config=config, save_particles=save_particles, progress=True,
+                           map_name=str(map_path) if map_path else None)
     run_info = {"session": _absolute(session_path), "map": _absolute(map_path) if map_path else None,
                 "save_particles": save_particles,
                 "inputs": add_weights(inputs, result.velocity_source)}
     summary = None
     if session.waypoints is not None:
         run_info["waypoint_error"], scored = _waypoint_score(
-            result.track, session.waypoints, _waypoints_source(session_path)
+            result.track, session.waypoints, session.file_source("waypoints.csv")
         )
         summary = run_info["waypoint_error"] if scored else None
     write_track(result, args.output, run_info, overwrite=args.overwrite)
@@ -150,11 +151,6 @@ def _print_summary(output: str, result: TrackResult, summary: dict | None) -> No
         )
     if summary is not None:
         print(f"{output}: {format_waypoint_summary(summary)}")
-
-
-def _waypoints_source(session_path: str) -> str:
-    """Where a session's waypoints come from, for messages: its ``waypoints.csv`` or the recording."""
-    return str(Path(session_path) / "waypoints.csv") if Path(session_path).is_dir() else str(session_path)
 
 
 def _waypoint_score(track: pd.DataFrame, waypoints: pd.DataFrame, source: str) -> tuple[dict, bool]:

@@ -198,7 +198,8 @@ def check_on_map(
     *,
     map_name: str | None = None,
 ) -> None:
-    """Raise unless the session lies on the map: the check :func:`track_session` makes first.
+    """Raise unless the session lies on the map: the check :func:`track_session` makes first, before any
+    warning about its inputs.
 
     Parameters
     ----------
@@ -222,6 +223,19 @@ def check_on_map(
     pose = start if config.use_start_pose else None
     _check_extent(session, map_layers, _frame_for(session, map_layers), pose,
                   config.engine.extent_tolerance_m, map_name=map_name)
+
+
+def _check_inputs(
+    session: Session, map_layers: MapLayers | None, config: RunConfig, frame: LocalFrame,
+    start: StartPose | None, map_name: str | None,
+) -> None:
+    """Refuse a session off the map, then warn about weak inputs: a refusal comes alone, not after a
+    warning about a run that never happens."""
+    if map_layers is not None:
+        pose = start if config.use_start_pose else None
+        _check_extent(session, map_layers, frame, pose, config.engine.extent_tolerance_m, map_name=map_name)
+    input_warnings.report_unanchored_inertial(session, config, start)
+    input_warnings.report_unusable_fixes(session)
 
 
 def _check_extent(
@@ -326,6 +340,7 @@ def track_session(
     use_start_pose: bool | None = None,
     save_particles: bool = False,
     progress: bool = False,
+    map_name: str | None = None,
 ) -> TrackResult:
     """Track one session with one method.
 
@@ -347,6 +362,8 @@ def track_session(
     progress
         A progress bar over RoNIN's inference on a terminal (a command's single run; off for runs in a
         batch, which have a bar of their own).
+    map_name
+        How messages name the map, e.g. its path (default: "the map" alone).
 
     Raises
     ------
@@ -358,11 +375,7 @@ def track_session(
                             velocity_source=velocity_source, use_start_pose=use_start_pose)
     frame = _frame_for(session, map_layers)
     start, t_begin = _start_of(session)
-    input_warnings.report_unanchored_inertial(session, config, start)
-    input_warnings.report_unusable_fixes(session)
-    if map_layers is not None:
-        pose = start if config.use_start_pose else None
-        _check_extent(session, map_layers, frame, pose, config.engine.extent_tolerance_m)
+    _check_inputs(session, map_layers, config, frame, start, map_name)
     steps, step_source = _steps(session, config)
     velocity, velocity_source = None, None
     if config.mode != "gnss":
@@ -373,14 +386,8 @@ def track_session(
             )
     fix_lag = _fix_lag(session, config, frame, velocity, velocity_source == "pdr")
     engine = SessionEngine(
-        config,
-        frame,
-        _raster_for(map_layers, config),
-        start=start,
-        t_begin=t_begin,
-        cadence=steps is None,
-        save_particles=save_particles,
-        step_means_velocity=velocity_source == "pdr",
+        config, frame, _raster_for(map_layers, config), start=start, t_begin=t_begin, cadence=steps is None,
+        save_particles=save_particles, step_means_velocity=velocity_source == "pdr",
         fix_lag_s=None if fix_lag is None else float(fix_lag["lag_s"]),
     )
     if velocity is not None:

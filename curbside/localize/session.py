@@ -48,7 +48,7 @@ class Session:
         Folder name or an identifier.
     source
         The session as the user gave it (a folder path, ``FILE.h5::TRIAL``, an export), for messages;
-        default ``name``. See :meth:`file_source`.
+        default ``name``; keyword-only. See :meth:`file_source`.
     imu
         ``t,ax,ay,az,gx,gy,gz[,qx,qy,qz,qw]``: phone frame, m/s^2 with gravity, rad/s; ``q`` the
         device-to-world (game rotation vector) quaternion.
@@ -65,7 +65,7 @@ class Session:
     """
 
     name: str = "session"
-    source: str = ""
+    source: str = field(default="", kw_only=True)
     imu: pd.DataFrame | None = None
     velocity: pd.DataFrame | None = None
     steps: pd.DataFrame | None = None
