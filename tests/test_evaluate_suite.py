@@ -13,7 +13,10 @@ from curbside.cli.localize import main
 from curbside.errors import CurbsideInputError
 from curbside.evaluate import criteria, suite
 from curbside.evaluate import simulate as sim
+from curbside.evaluate.figures import is_base
+from curbside.evaluate.report import PAPER_NOTE
 from curbside.evaluate.runner import run_all
+from curbside.evaluate.suite_report import figure_base, sweep_table, write_suite_report
 from curbside.localize.filter import FilterConfig
 from curbside.localize.session import write_session
 from curbside.osmseg.mapio import read_map
@@ -110,8 +113,6 @@ def test_report_has_tables_checks_and_figures(sessions, tmp_path):
     per_session = suite.pooled_by_subset(results, ("session",))
     assert set(pooled["subset"]) == {"paper6", "open"}
     checks = criteria.done_when(pooled, per_session, 0.4)
-    from curbside.evaluate.suite_report import write_suite_report
-
     run_info = {"suite": {}, "simulation": sim.SimulationConfig(profile="phone").as_dict(), "workers": 1}
     paths = write_suite_report(
         results,
@@ -132,6 +133,8 @@ def test_report_has_tables_checks_and_figures(sessions, tmp_path):
     assert "Done when (issue 9)" in md and "| fused beats the paper's method on CSA | paper6 |" in md
     assert "paper PF" in md and "curbside fused" in md and "Per session, open" in md
     assert "Table 2. Correct Sidewalk Assignment by jaywalk weight, paper6" in md
+    table2_note = sweep_table(pooled, "paper6").note
+    assert PAPER_NOTE in table2_note and table2_note in md  # the evaluation report's note, word for word
     assert "Simulation profile 'phone'" in md and "OpenStreetMap" in md
     assert "How sure: 95 % intervals" in md and "| open | curbside fused - GNSS |" in md
     assert "filter seeds 0-1 pooled" in md
@@ -139,9 +142,6 @@ def test_report_has_tables_checks_and_figures(sessions, tmp_path):
     fused_open = pooled.query("subset == 'open' and method == 'fused'")
     assert fused_open["n_runs"].iat[0] == 2  # both seeds of the one session pool into one row
     # the figures show every method at its own particle count (fused runs with more than the paper's)
-    from curbside.evaluate.figures import is_base
-    from curbside.evaluate.suite_report import figure_base
-
     shown = {r["spec"]["method"] for r in results if is_base(r, figure_base(config))}
     assert shown == {"gnss", "inertial", "paper", "fused"}
     assert config.particles_of("fused") != config.particles_of("paper")

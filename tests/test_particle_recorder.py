@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from test_run import block_layers, write_walk
+from test_run import KeepsTheFloats, block_layers, write_walk
 from viewer_fixtures import CROSSROADS, write_session
 
 from curbside.localize.engine import SessionEngine
@@ -14,6 +14,8 @@ from curbside.localize.particle_store import (
     pack_particles,
     pack_snapshots,
     read_particles,
+    select_footsteps,
+    unpack_particles,
     write_particles,
 )
 from curbside.localize.pipeline import _frame_for, _start_of
@@ -29,6 +31,12 @@ PACKED_BYTES = 9
 def packed_at_the_end(clouds: list[np.ndarray], t, ref_x_m, ref_y_m, crs: str) -> dict[str, np.ndarray]:
     """How a run packed its clouds before: float32 snapshots relative to the first estimate, all packed
     once the walk was over. ``clouds``: one ``(5, N)`` array (x, y, theta, scale, weight) per footstep."""
+    snapshots = float32_snapshots(clouds, t, ref_x_m, ref_y_m, crs)
+    return pack_snapshots(snapshots, np.asarray(ref_x_m, np.float64), np.asarray(ref_y_m, np.float64))
+
+
+def float32_snapshots(clouds: list[np.ndarray], t, ref_x_m, ref_y_m, crs: str) -> dict[str, np.ndarray]:
+    """The float32 snapshots that runs held, and wrote as ``particles.npz``, before :data:`FORMAT`."""
     stack = np.stack(clouds)
     origin = np.array([ref_x_m[0], ref_y_m[0]])
     snapshots = {
@@ -43,7 +51,7 @@ def packed_at_the_end(clouds: list[np.ndarray], t, ref_x_m, ref_y_m, crs: str) -
     weight = stack[:, 4]
     if not np.allclose(weight, weight[:, :1], rtol=0, atol=1e-12):
         snapshots["weight"] = weight
-    return pack_snapshots(snapshots, np.asarray(ref_x_m, np.float64), np.asarray(ref_y_m, np.float64))
+    return snapshots
 
 
 def walk_clouds(n_steps: int, n: int, uniform: bool, seed: int = 0):
@@ -98,7 +106,7 @@ def test_the_recorder_holds_integers_only_and_nothing_of_the_floats_it_was_given
         cloud[:] = np.nan  # the caller's particles move on
     held = list(recorder._held.values())
     assert len(held) == 5 and all(values.dtype.kind in "iu" for values in held)
-    assert len(recorder) == 300 and recorder.nbytes == PACKED_BYTES * 500 * 300
+    assert len(recorder) == 300 and sum(values[0].nbytes for values in held) == PACKED_BYTES * 500
     assert sum(values.nbytes for values in held) <= 2 * PACKED_BYTES * 500 * 300  # room for twice as many
     packed = recorder.packed()
     for name in expected:
@@ -137,18 +145,6 @@ def test_a_recorder_without_footsteps_says_so():
         CloudRecorder(UTM10N).packed()
 
 
-class _KeepsTheFloats(CloudRecorder):
-    """Also keeps each footstep's floats, as the engine did before."""
-
-    def __init__(self, crs: str) -> None:
-        super().__init__(crs)
-        self.floats: list[np.ndarray] = []
-
-    def add(self, t, ref_x_m, ref_y_m, x, y, theta_rad, scale, weight) -> None:
-        self.floats.append(np.vstack([x, y, theta_rad, scale, weight]))
-        super().add(t, ref_x_m, ref_y_m, x, y, theta_rad, scale, weight)
-
-
 @pytest.mark.parametrize("mode", ["fused", "paper"])
 def test_a_run_packs_its_clouds_as_it_walks_into_the_old_bytes(tmp_path, mode):
     session = read_session(write_walk(tmp_path / "walk", duration_s=20.0))
@@ -158,13 +154,13 @@ def test_a_run_packs_its_clouds_as_it_walks_into_the_old_bytes(tmp_path, mode):
     engine = SessionEngine(config, frame, rasterize_map(block_layers(), 0.5), start=start, t_begin=t_begin,
                            save_particles=True)
     assert isinstance(engine.snapshots, CloudRecorder)
-    spy = engine.snapshots = _KeepsTheFloats(engine.snapshots.crs)
+    spy = engine.snapshots = KeepsTheFloats(engine.snapshots.crs)
     engine.push_velocity(session.velocity["t"].to_numpy(), session.velocity[["ve", "vn"]].to_numpy())
     engine.push_steps(session.steps["t"].to_numpy(), float(session.steps["t"].iat[-1]))
     engine.push_gnss(session.gnss)
     engine.finish()
     k = len(engine.rows)
-    assert len(spy) == k > 20 and spy.nbytes == PACKED_BYTES * 300 * k
+    assert len(spy) == k > 20 and sum(values[0].nbytes for values in spy._held.values()) == PACKED_BYTES * 300
     t = np.array([r.t for r in engine.rows])
     ref_x, ref_y = np.array([r.x for r in engine.rows]), np.array([r.y for r in engine.rows])
     before = packed_at_the_end(spy.floats, t, ref_x, ref_y, frame.crs.to_wkt())
@@ -179,13 +175,39 @@ def test_a_run_packs_its_clouds_as_it_walks_into_the_old_bytes(tmp_path, mode):
     assert np.abs(turn_deg).max() <= 0.05 + 1e-6
 
 
-def test_the_evaluation_keeps_the_clouds_nearest_the_asked_times(tmp_path):
+@pytest.mark.parametrize("form", ["uniform", "weighted", "float32 snapshots"])
+def test_the_footsteps_selected_unpack_as_those_of_the_whole_walk(form):
+    t, ref_x, ref_y, clouds = walk_clouds(30, 100, uniform=form == "uniform")
+    if form == "float32 snapshots":
+        packed = float32_snapshots(clouds, t, ref_x, ref_y, UTM10N)
+    else:
+        packed = recorded(t, ref_x, ref_y, clouds).packed()
+    rows = [29, 3, 3, 0]
+    every, selected = unpack_particles(packed), unpack_particles(select_footsteps(packed, rows))
+    assert selected.crs == every.crs and (selected.weight is None) is (form == "uniform")
+    for name in ("t", "x", "y", "theta_deg", "scale", "weight"):
+        if getattr(every, name) is not None:
+            np.testing.assert_array_equal(getattr(selected, name), getattr(every, name)[rows], err_msg=name)
+    with pytest.raises(IndexError):
+        select_footsteps(packed, [30])
+
+
+def test_the_evaluation_keeps_the_clouds_nearest_the_asked_times(tmp_path, monkeypatch):
+    from curbside.evaluate import runner
     from curbside.evaluate.runner import RunSpec, run_one
 
+    unpacked_footsteps = []
+
+    def unpack_spy(packed, *args):
+        unpacked_footsteps.append(len(packed["t"]))
+        return unpack_particles(packed, *args)
+
+    monkeypatch.setattr(runner, "unpack_particles", unpack_spy)
     session = write_session(tmp_path / "walk")
     spec = RunSpec(str(session), "fused", str(CROSSROADS), "osm", str(CROSSROADS), particles=100,
                    snapshot_times=(10.0, 40.2))
     result = run_one(spec)
+    assert unpacked_footsteps == [2]  # those two, not the walk's 147: a long walk's take seconds and GBs
     track = result["track"].set_index("t")
     assert [c["t"] for c in result["snapshots"]] == pytest.approx([9.9, 40.15])  # footsteps every 0.55 s
     for cloud in result["snapshots"]:

@@ -10,6 +10,8 @@ from __future__ import annotations
 
 import json
 import math
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 
 import geopandas as gpd
@@ -21,7 +23,8 @@ import shapely
 from curbside import settings
 from curbside.cli.localize import main as localize_main
 from curbside.errors import CurbsideInputError
-from curbside.localize.particle_store import unpack_particles
+from curbside.localize import engine as engine_module
+from curbside.localize.particle_store import CloudRecorder, unpack_particles
 from curbside.localize.pipeline import track_session
 from curbside.localize.raster import BUILDING, rasterize_map
 from curbside.localize.runconfig import RunConfig
@@ -116,8 +119,45 @@ def errors_m(track: pd.DataFrame) -> np.ndarray:
 # -- the three modes on the map -------------------------------------------------------------------------
 
 
+class KeepsTheFloats(CloudRecorder):
+    """A particle recorder that also keeps each footstep's cloud as the engine gave it, in floats."""
+
+    def __init__(self, crs: str) -> None:
+        super().__init__(crs)
+        #: One ``(5, N)`` array a footstep: x, y, theta (rad), scale, weight.
+        self.floats: list[np.ndarray] = []
+
+    def add(self, t, ref_x_m, ref_y_m, x, y, theta_rad, scale, weight) -> None:
+        self.floats.append(np.vstack([x, y, theta_rad, scale, weight]))
+        super().add(t, ref_x_m, ref_y_m, x, y, theta_rad, scale, weight)
+
+
+@contextmanager
+def keeping_the_floats() -> Iterator[list[KeepsTheFloats]]:
+    """While open, each run's particle recorder is a :class:`KeepsTheFloats`; the list gets them in turn."""
+    made: list[KeepsTheFloats] = []
+
+    def recorder(crs: str) -> KeepsTheFloats:
+        made.append(KeepsTheFloats(crs))
+        return made[-1]
+
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setattr(engine_module, "CloudRecorder", recorder)
+        yield made
+
+
+def tracked_keeping_the_floats(session, layers, mode: str, seed: int):
+    """``track_session`` with the particles saved, and its clouds as floats, ``(K, 5, N)`` (see
+    :class:`KeepsTheFloats`)."""
+    with keeping_the_floats() as made:
+        result = track_session(session, layers, mode, seed=seed, save_particles=True)
+    (recorder,) = made
+    return result, np.stack(recorder.floats)
+
+
 @pytest.fixture(scope="module")
 def walk_results(tmp_path_factory):
+    """``{seed: {mode: TrackResult, "floats": {mode: (K, 5, N) clouds}}}``."""
     tmp = tmp_path_factory.mktemp("walks")
     settings_cache = settings.cache_dir
     settings.cache_dir = tmp / "cache"
@@ -126,10 +166,10 @@ def walk_results(tmp_path_factory):
         out = {}
         for seed in (0, 1):
             session = read_session(write_walk(tmp / f"walk{seed}", seed=seed))
-            out[seed] = {
-                mode: track_session(session, layers, mode, seed=seed, save_particles=mode != "gnss")
-                for mode in ("gnss", "inertial", "fused")
-            }
+            out[seed] = {"gnss": track_session(session, layers, "gnss", seed=seed), "floats": {}}
+            for mode in ("inertial", "fused"):
+                result, out[seed]["floats"][mode] = tracked_keeping_the_floats(session, layers, mode, seed)
+                out[seed][mode] = result
         return out
     finally:
         settings.cache_dir = settings_cache
@@ -151,22 +191,27 @@ def test_fused_beats_gnss_and_stays_on_the_right_sidewalk(walk_results, seed):
     np.testing.assert_array_equal(gnss_track[["mode_lat", "mode_lon"]], gnss_track[["lat", "lon"]])
 
 
-def in_buildings(raster, x: np.ndarray, y: np.ndarray, slack_m: float = 0.05) -> np.ndarray:
-    """Whether particles stored at ``x, y`` (rounded to 0.1 m, particle_store) were in a building however
-    they were rounded: the cells under the four corners of the rounding square are all buildings."""
-    offsets = [(sx, sy) for sx in (-slack_m, slack_m) for sy in (-slack_m, slack_m)]
-    return np.logical_and.reduce([raster.codes_at(x + sx, y + sy) >= BUILDING for sx, sy in offsets])
-
-
 def test_particles_never_stay_in_buildings(walk_results):
     raster = rasterize_map(block_layers(), 0.5)
     for mode in ("inertial", "fused"):
-        clouds = unpack_particles(walk_results[0][mode].snapshots)
-        x, y = clouds.x, clouds.y
-        alive = clouds.weight > 0 if clouds.weight is not None else np.ones(x.shape, bool)
-        inside = in_buildings(raster, x, y) & alive
-        assert inside.mean(axis=1).max() == 0.0 and alive.mean(axis=1).min() > 0.3
+        floats = walk_results[0]["floats"][mode]  # as the filter held them
+        x, y, alive = floats[:, 0], floats[:, 1], floats[:, 4] > 0
+        in_building = (raster.codes_at(x, y) >= BUILDING) & alive
+        assert in_building.mean(axis=1).max() == 0.0 and alive.mean(axis=1).min() > 0.3
         assert x.shape == (len(walk_results[0][mode].track), 2000)  # the default N
+
+
+def test_the_stored_clouds_are_the_filters_rounded(walk_results):
+    for mode in ("inertial", "fused"):
+        floats, result = walk_results[0]["floats"][mode], walk_results[0][mode]
+        clouds = unpack_particles(result.snapshots)
+        assert clouds.x.shape == floats[:, 0].shape == (len(result.track), 2000)
+        np.testing.assert_array_equal(clouds.t, result.track["t"].to_numpy())
+        for stored, given in ((clouds.x, floats[:, 0]), (clouds.y, floats[:, 1])):
+            assert np.abs(stored - given).max() <= 0.05 + 1e-4  # decimetres, through float32 offsets
+        # map-killed particles keep their place with no weight, and are stored with none
+        assert clouds.weight is not None and (floats[:, 4] == 0).any()
+        assert (clouds.weight[floats[:, 4] == 0] == 0).all()
 
 
 def test_drift_state_learns_the_inertial_heading_error(walk_results):

@@ -16,12 +16,12 @@ import numpy as np
 import pandas as pd
 import pytest
 import shapely
-from test_run import in_buildings
+from test_run import tracked_keeping_the_floats
 
 from curbside import settings
 from curbside.localize.particle_store import unpack_particles
 from curbside.localize.pipeline import track_session
-from curbside.localize.raster import rasterize_map
+from curbside.localize.raster import BUILDING, rasterize_map
 from curbside.localize.runconfig import RunConfig
 from curbside.localize.session import read_session
 from curbside.osmseg.mapio import read_map
@@ -91,8 +91,8 @@ def test_fused_keeps_the_right_sidewalk_of_mission_street(tmp_path, monkeypatch,
     monkeypatch.setattr(settings, "cache_dir", tmp_path / "cache")
     folder, a, u, speed = write_sf_walk(tmp_path / "walk", sf_map, seed)
     session = read_session(folder)
-    results = {m: track_session(session, sf_map, m, seed=seed, save_particles=m == "fused")
-               for m in ("gnss", "fused")}
+    results = {"gnss": track_session(session, sf_map, "gnss", seed=seed)}
+    results["fused"], floats = tracked_keeping_the_floats(session, sf_map, "fused", seed)
 
     def errors(track):
         truth = a + np.outer(speed * track["t"].to_numpy(), u)
@@ -102,10 +102,12 @@ def test_fused_keeps_the_right_sidewalk_of_mission_street(tmp_path, monkeypatch,
     assert np.median(fused_err) < 0.5 * np.median(gnss_err)
     assert (results["fused"].track["sidewalk_segment_id"] == WALKED).mean() > 0.8
     assert (results["gnss"].track["sidewalk_segment_id"] == WALKED).mean() < 0.3
-    clouds = unpack_particles(results["fused"].snapshots)
-    raster = rasterize_map(sf_map)
-    alive = clouds.weight > 0 if clouds.weight is not None else np.ones(clouds.x.shape, bool)
-    assert (in_buildings(raster, clouds.x, clouds.y) & alive).mean(axis=1).max() < 0.01
+    codes = rasterize_map(sf_map).codes_at(floats[:, 0], floats[:, 1])  # the clouds as the filter held them
+    alive = floats[:, 4] > 0
+    assert ((codes >= BUILDING) & alive).mean(axis=1).max() < 0.01
+    clouds = unpack_particles(results["fused"].snapshots)  # and as stored
+    assert clouds.x.shape == codes.shape == (len(results["fused"].track), 2000)
+    assert np.abs(np.stack([clouds.x, clouds.y], axis=1) - floats[:, :2]).max() <= 0.05 + 1e-4  # decimetres
 
 
 def phone_heading_error_deg(t: np.ndarray) -> np.ndarray:

@@ -2,8 +2,8 @@
 
 The walker goes east along the north sidewalks of the crossroads fixture (``tests/data/maps``), across
 the north crosswalk, for about 80 s; GNSS is biased 6 m south with 2 m noise. The runs are tracked
-by ``localize run`` at N = 100; a ``particles.npz`` in the float32 snapshot form is packed with
-:mod:`curbside.localize.particle_store` (what ``localize run`` will write itself).
+by ``localize run --save-particles`` at N = 100, which writes each particle filter run's ``particles.npz``
+itself (:mod:`curbside.localize.particle_store`).
 """
 
 from __future__ import annotations

@@ -32,7 +32,7 @@ from tqdm.auto import tqdm
 from curbside.errors import CurbsideInputError
 from curbside.evaluate import metrics
 from curbside.evaluate.groundtruth import groundtruth_at
-from curbside.localize.particle_store import unpack_particles
+from curbside.localize.particle_store import select_footsteps, unpack_particles
 from curbside.localize.session import Session, read_session
 from curbside.osmseg.mapio import MapLayers, read_map
 from curbside.projection import LocalFrame
@@ -196,15 +196,15 @@ def _clouds_at(
     """The particle clouds nearest ``spec.snapshot_times``, in the metrics frame, with the fix then."""
     if snap is None:
         return []
-    stored = unpack_particles(snap)
+    t_s = np.asarray(snap["t"], np.float64)
+    nearest = [int(np.argmin(np.abs(t_s - want))) for want in spec.snapshot_times]
+    # Only these footsteps are unpacked: all of a 59-min walk's at N = 2000 took 2 s and 620 MB.
+    stored = unpack_particles(select_footsteps(snap, nearest))
     clouds = []
-    for want in spec.snapshot_times:
-        k = int(np.argmin(np.abs(stored.t - want)))
-        px, py = stored.x[k], stored.y[k]
+    for t, px, py in zip(stored.t.tolist(), stored.x, stored.y, strict=True):
         if layers is not None and spec.metrics_map and _map(spec.metrics_map).crs != layers.crs:
             lon, lat = LocalFrame(pyproj.CRS(layers.crs)).to_lonlat(px, py)
             px, py = frame.to_xy(lon, lat)
-        t = float(stored.t[k])
         clouds.append({"t": t, "x": np.asarray(px, np.float32), "y": np.asarray(py, np.float32),
                        "fix": _fix_at(session.gnss, t, frame)})
     return clouds

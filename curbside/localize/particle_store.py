@@ -58,6 +58,8 @@ FIRST_STEPS = 256
 #: The members a :class:`CloudRecorder` holds, and their types.
 _STORED = {"dx_dm": np.int16, "dy_dm": np.int16, "theta_ddeg": np.int16, "scale_e4": np.uint16,
            "weight_u8": np.uint8}
+#: The members with a row per footstep, in either format that :func:`unpack_particles` reads.
+_PER_FOOTSTEP = ("t", "ref_x_m", "ref_y_m", *_STORED, "x", "y", "theta", "scale", "weight")
 
 
 @dataclass
@@ -265,11 +267,6 @@ class CloudRecorder:
     def __len__(self) -> int:
         return len(self._t)
 
-    @property
-    def nbytes(self) -> int:
-        """Bytes of the rows written so far."""
-        return sum(len(self) * held[0].nbytes for held in self._held.values())
-
     def add(
         self,
         t: float,
@@ -344,6 +341,33 @@ class CloudRecorder:
         ref_m = np.array(self._ref_m, np.float64)
         return _assemble(self._t, ref_m[:, 0], ref_m[:, 1], self.crs, held["dx_dm"], held["dy_dm"],
                          held["theta_ddeg"], held["scale_e4"], None if self._uniform else held["weight_u8"])
+
+
+def select_footsteps(packed: Mapping[str, np.ndarray], rows: np.ndarray | list[int]) -> dict[str, np.ndarray]:
+    """The footsteps ``rows`` of packed clouds, still packed, so that only they are unpacked.
+
+    ``unpack_particles(select_footsteps(packed, rows))`` is ``unpack_particles(packed)`` at ``rows``, for
+    both formats that :func:`unpack_particles` reads, without turning the other footsteps into floats.
+
+    Parameters
+    ----------
+    packed
+        The arrays of :func:`pack_particles` (or the float32 snapshots of earlier versions).
+    rows
+        Footstep indices, in any order, repeats allowed.
+
+    Returns
+    -------
+    dict of numpy.ndarray
+        The same members, those with a row per footstep cut to ``rows``.
+
+    Raises
+    ------
+    IndexError
+        A row beyond the footsteps.
+    """
+    rows = np.asarray(rows, np.intp)
+    return {name: values[rows] if name in _PER_FOOTSTEP else values for name, values in packed.items()}
 
 
 def unpack_particles(packed: Mapping[str, np.ndarray], source: str = "particles") -> ParticleClouds:
