@@ -39,6 +39,7 @@ from curbside.localize.live_input import (
     IMU_COLUMNS,
     IMU_QUAT_COLUMNS,
     LiveLimits,
+    accel_norms,
     check_gnss,
     check_imu,
     check_time_value,
@@ -122,6 +123,9 @@ class LiveSession:
         self.imu_columns: tuple[str, ...] | None = None
         self.last_imu_t = -math.inf
         self.last_gnss_t = -math.inf
+        self.first_t = math.inf  # the first row's time, either stream
+        self._recent_norms = np.zeros(0)  # |a| of the latest IMU rows, for the gravity check
+        self._usable_fixes = self._unusable_fixes = 0
         self.finished = False
         #: Why the session cannot go on (its IMU stream proved unusable), or ``None``.
         self.failed: str | None = None
@@ -205,7 +209,7 @@ class LiveSession:
                     "imu",
                     "the columns changed from one batch to the next (the quaternion in some, not others)",
                 )
-            check_imu(imu, self.last_imu_t, self.limits)
+            check_imu(imu, self.last_imu_t, self.limits, recent_norms=self._recent_norms)
         warnings: list[str] = []
         if gnss is not None:
             check_gnss(gnss, self.last_gnss_t, self.limits)
@@ -214,14 +218,24 @@ class LiveSession:
             self._push_imu(imu, tuple(imu_columns))
         if gnss is not None and len(gnss):
             self._push_gnss(gnss)
+        for rows in (imu, gnss):
+            if rows is not None and len(rows):
+                self.first_t = min(self.first_t, float(rows[0, 0]))
         return warnings
 
     def _timely_fixes(self, gnss: np.ndarray, imu: np.ndarray | None) -> tuple[np.ndarray, list[str]]:
-        """The fixes that can still be used; the rest dropped with a warning. Checks the clock."""
+        """The fixes that can still be used; the rest dropped with a warning. Checks the clock.
+
+        A fix far ahead of the IMU is refused only where the fixes' own clock jumps there too (another
+        clock, or a glitch that would block the fixes after it): when the IMU stops (a phone app in the
+        background) and fixes go on a second apart, they are taken, as ``localize run`` takes them.
+        """
         imu_t = imu[-1, 0] if imu is not None else self.last_imu_t
+        skew = self.limits.max_clock_skew_s
+        jump = np.diff(np.concatenate([[self.last_gnss_t], gnss[:, 0]]))
         ahead = gnss[:, 0] - imu_t
-        if math.isfinite(imu_t) and (ahead > self.limits.max_clock_skew_s).any():
-            row = int(np.argmax(ahead > self.limits.max_clock_skew_s))
+        if math.isfinite(imu_t) and ((ahead > skew) & ~(jump <= skew)).any():
+            row = int(np.argmax((ahead > skew) & ~(jump <= skew)))
             raise CurbsideInputError(
                 f"gnss[{row}].t",
                 f"{float(gnss[row, 0])!r} is {ahead[row]:.0f} s ahead of the IMU (one clock for both "
@@ -272,6 +286,8 @@ class LiveSession:
                 raise
         self.imu_columns = columns
         self.last_imu_t = float(imu[-1, 0])
+        window = self.limits.gravity_window_rows
+        self._recent_norms = np.concatenate([self._recent_norms, accel_norms(imu[-window:])])[-window:]
         if self.steps is not None:
             found = self.steps.push(imu[:, 0], imu[:, 1:4], imu[:, 4:7])
             if len(found):
@@ -279,6 +295,9 @@ class LiveSession:
 
     def _push_gnss(self, gnss: np.ndarray) -> None:
         self.last_gnss_t = float(gnss[-1, 0])
+        usable = int((gnss[:, 3] > 0).sum())  # NaN compares False: an invalid fix
+        self._usable_fixes += usable
+        self._unusable_fixes += len(gnss) - usable
         if self.frame is None:
             self.frame = LocalFrame.around(float(gnss[0, 2]), float(gnss[0, 1]))
             self._make_engine()
@@ -362,6 +381,39 @@ class LiveSession:
             tail = self.steps.finish()
             if len(tail):
                 self._step_times.append(tail)
+
+    def notices(self) -> list[str]:
+        """What keeps the estimate from answering for now, in a line each: the filter waits for IMU rows
+        (none yet, or none for :attr:`LiveLimits.stall_warning_s` of data while fixes come) or, without a
+        start pose, for a first usable fix; or the estimate lies off the map."""
+        if self.finished or self.failed or not math.isfinite(self.first_t):
+            return []
+        out = []
+        wait_s = self.limits.stall_warning_s
+        imu_since = self.last_imu_t if math.isfinite(self.last_imu_t) else self.first_t
+        behind_s = self.received_until - imu_since
+        if (self.ronin is not None or self.steps is not None) and behind_s > wait_s:
+            needs = "footsteps and velocities come" if self.ronin is not None else "footsteps come"
+            if math.isfinite(self.last_imu_t):
+                out.append(f"no IMU rows for the last {behind_s:.0f} s of data: the estimate waits for them")
+            else:
+                out.append(
+                    f"no IMU rows in {behind_s:.0f} s of data: the estimate waits for them ({needs} from the "
+                    "IMU; without one, use mode gnss with engine.step_source cadence)"
+                )
+        span_s = self.received_until - self.first_t
+        if not self.rows and self.start is None and self._usable_fixes == 0 and span_s > wait_s:
+            out.append(
+                f"no usable fix in {span_s:.0f} s of data ({self._unusable_fixes} without a positive "
+                "accuracy_m) and no start pose: the filter starts at the first usable fix"
+            )
+        if self.rows and self._extent is not None:
+            row = self.rows[-1]
+            xmin, ymin, xmax, ymax = self._extent
+            off_m = math.hypot(max(0.0, xmin - row.x, row.x - xmax), max(0.0, ymin - row.y, row.y - ymax))
+            if off_m > self.config.engine.extent_tolerance_m:
+                out.append(f"the estimate lies {off_m:.0f} m outside the map's extent: no sidewalk there")
+        return out
 
     @property
     def rows(self) -> list[Row]:

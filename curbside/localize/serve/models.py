@@ -4,6 +4,9 @@ Rows are keyed by the SPEC's column names and carry the SPEC's units: ``imu`` ro
 (``t`` s, ``ax, ay, az`` m/s² with gravity, ``gx, gy, gz`` rad/s, optionally the device-to-world
 quaternion ``qx, qy, qz, qw``), ``gnss`` rows are ``gnss.csv`` rows (``t`` s, ``lat, lon`` WGS84
 degrees, ``accuracy_m`` metres, null or <= 0 for an invalid fix). Both streams share one clock.
+
+Values are taken as their JSON types (strict): a number for a number (an integer is one), ``true`` or
+``false`` for ``end``; ``"9.81"`` or ``true`` where a number belongs is refused, not read as 9.81 or 1.
 """
 
 from __future__ import annotations
@@ -19,7 +22,7 @@ from curbside.localize.live import GNSS_COLUMNS, IMU_COLUMNS, IMU_QUAT_COLUMNS
 MAX_IMU_ROWS = 12_000
 MAX_GNSS_ROWS = 240
 
-_ROW = ConfigDict(extra="forbid", allow_inf_nan=False)
+_ROW = ConfigDict(extra="forbid", allow_inf_nan=False, strict=True)
 
 
 class ImuRow(BaseModel):
@@ -63,7 +66,7 @@ class GnssRow(BaseModel):
 class Samples(BaseModel):
     """A batch of rows of one session, each stream in time order, after every row sent before."""
 
-    model_config = ConfigDict(extra="forbid")
+    model_config = ConfigDict(extra="forbid", strict=True)
     imu: list[ImuRow] = Field(default_factory=list, max_length=MAX_IMU_ROWS)
     gnss: list[GnssRow] = Field(default_factory=list, max_length=MAX_GNSS_ROWS)
     end: bool = Field(False, description="WebSocket only: end the session after this batch")
@@ -104,7 +107,7 @@ class StartPose(BaseModel):
 class NewSession(BaseModel):
     """``POST /sessions``: an optional start pose and run-configuration overrides."""
 
-    model_config = ConfigDict(extra="forbid")
+    model_config = ConfigDict(extra="forbid", strict=True)
     start: StartPose | None = None
     config: dict[str, Any] = Field(
         default_factory=dict,

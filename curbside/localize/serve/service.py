@@ -24,7 +24,9 @@ chunk-invariant: a session's track is the one ``localize run`` computes for its 
 
 A session ends with :meth:`TrackingService.end` (``DELETE``), after ``idle_timeout_s`` without a
 request, or when the service stops; once its last windows are back, its track is written under
-``DATA_DIR/tracks`` (:class:`~curbside.localize.serve.store.TrackStore`). If finishing it fails (a bug),
+``DATA_DIR/tracks`` (:class:`~curbside.localize.serve.store.TrackStore`) by a third thread, so that
+formatting a long track holds no other session up; the session answers 409 until its track is written
+and its ``DELETE`` is answered. If finishing it fails (a bug),
 it ends all the same, with the track it has so far: no request waits for good, nor does the shutdown.
 """
 
@@ -34,7 +36,6 @@ import asyncio
 import contextlib
 import gc
 import logging
-import math
 import secrets
 import time
 from collections import deque
@@ -53,8 +54,8 @@ from curbside.localize.engine import StartPose
 from curbside.localize.live import IMU_COLUMNS, IMU_QUAT_COLUMNS, InferenceQueue, LiveLimits, LiveSession
 from curbside.localize.pipeline import resolve_config
 from curbside.localize.runconfig import RunConfig
+from curbside.localize.serve.answers import estimate_of
 from curbside.localize.serve.configs import config_key, session_config
-from curbside.localize.serve.models import Estimate
 from curbside.localize.serve.store import TrackStore
 from curbside.osmseg.places import SidewalkPlace, sidewalk_places
 
@@ -132,10 +133,6 @@ class _Op:
     error: Exception | None = None
 
 
-#: Every field of an estimate; those without a value are null.
-_ESTIMATE_FIELDS = tuple(Estimate.model_fields)
-
-
 #: Longest a tick spends on requests before it answers them and lets the event loop read more (s).
 TICK_BUDGET_S = 0.02
 #: Longest the shutdown waits for the open sessions to end and save their tracks (s).
@@ -144,10 +141,6 @@ STOP_WAIT_S = 60.0
 
 def _now_iso() -> str:
     return datetime.now(timezone.utc).isoformat(timespec="seconds")
-
-
-def _finite(value: float) -> float | None:
-    return float(value) if value is not None and math.isfinite(value) else None
 
 
 class TrackingService:
@@ -163,7 +156,8 @@ class TrackingService:
     Raises
     ------
     CurbsideInputError
-        Unreadable map, bad overrides in ``config``.
+        Unreadable map, bad overrides in ``config`` (among them values no session may have: more than
+        ``max_particles`` particles).
     """
 
     def __init__(self, config: ServiceConfig, model=None) -> None:
@@ -173,6 +167,12 @@ class TrackingService:
 
         self.config = config
         self.base = self._base_config(config.mode)
+        try:  # what the service imposes on every session must hold for its own configuration
+            session_config({}, self._base_config, self.base.filter.map, config.max_particles)
+        except CurbsideInputError as exc:
+            key = exc.source.removeprefix("config.")
+            problem = f"{exc.problem} (every session would be refused)"
+            raise CurbsideInputError(f"--set {key}", problem) from None
         self.map_layers = read_map(config.map_path) if config.map_path else None
         self.places: dict[str, SidewalkPlace] = {}
         self.raster = None
@@ -189,7 +189,10 @@ class TrackingService:
         self.tick_seconds = 0.0
         self._ops: deque[_Op] = deque()
         self._ending: list[_Op] = []  # waiting for their last RoNIN windows
+        self._writing: list[_Op] = []  # their tracks being written
+        self._written: list[_Op] = []  # to be answered
         self._inference_executor = ThreadPoolExecutor(1, thread_name_prefix="curbside-ronin")
+        self._io_executor = ThreadPoolExecutor(1, thread_name_prefix="curbside-tracks")
         self._inference: asyncio.Future | None = None
         self._inferred: tuple | None = None
         self._wake: asyncio.Event | None = None
@@ -243,7 +246,7 @@ class TrackingService:
         for entry in list(self.sessions.values()):
             if not entry.ending:
                 self._submit_end(entry, "shutdown")
-        ending = {op.future for op in (*self._ops, *self._ending) if op.kind == "end"}
+        ending = {op.future for op in (*self._ops, *self._ending, *self._writing) if op.kind == "end"}
         if ending and not all(task.done() for task in self._tasks):
             _, late = await asyncio.wait(ending, timeout=STOP_WAIT_S)
             if late:
@@ -251,11 +254,12 @@ class TrackingService:
         for task in self._tasks:
             task.cancel()
         await asyncio.gather(*self._tasks, return_exceptions=True)
-        for op in (*self._ops, *self._ending):
+        self._io_executor.shutdown(wait=True)  # a track being written is finished
+        for op in (*self._ops, *self._ending, *self._writing, *self._written):
             if not op.future.done():
                 op.future.set_exception(ServiceError(503, "the service is stopping"))
         self._ops.clear()
-        self._ending = []
+        self._ending, self._writing, self._written = [], [], []
         self._inference_executor.shutdown(wait=True)
 
     # -- requests -----------------------------------------------------------------------------------
@@ -336,7 +340,7 @@ class TrackingService:
         """The session's latest estimate (fields of :class:`~curbside.localize.serve.models.Estimate`)."""
         entry = self.entry(session_id)
         entry.last_seen = time.monotonic()
-        return self._estimate(entry)
+        return estimate_of(entry.live, self.places)
 
     async def end(self, session_id: str, reason: str = "deleted") -> dict[str, Any]:
         """End a session: finish the filter, save the track; return a summary (``TrackSummary``)."""
@@ -361,7 +365,7 @@ class TrackingService:
     async def _worker(self) -> None:
         loop = asyncio.get_running_loop()
         while True:
-            if not self._ops and not self._inferred:
+            if not self._ops and not self._inferred and not self._written:
                 timeout = None
                 if self._inference is None and self.queue.pending and self._pending_since is not None:
                     timeout = max(0.0, self._pending_since + self.config.inference_wait_s - time.monotonic())
@@ -370,12 +374,13 @@ class TrackingService:
             self._wake.clear()
             inferred, self._inferred = self._inferred, None
             ops: list[_Op] = []
+            written, self._written = self._written, []
             t0 = time.perf_counter()
             try:
-                answered = self._tick(ops, inferred)
+                answered = self._tick(ops, inferred) + written
             except Exception as exc:  # a bug: answer every request rather than hang them
                 logger.exception("tick failed")
-                answered = ops + self._ending
+                answered = ops + self._ending + written
                 self._ending = []
                 for op in answered:
                     op.error = op.error or exc
@@ -458,19 +463,42 @@ class TrackingService:
             if op.kind == "end":  # finishing its streams failed: it ends now, with what it has
                 op.error = self._abandon(op.entry, op.reason, op.error)
             elif op.error is None:
-                op.result = self._estimate(op.entry, op.result)
+                op.result = estimate_of(op.entry.live, self.places, op.result)
         for op in list(self._ending):
             live = op.entry.live
             if not live.drained:
                 continue  # its last windows are at the inference thread
             self._ending.remove(op)
-            answered.append(op)
             try:
-                op.result = self._save(op.entry, op.reason)
+                self._write(op)
             except Exception as exc:
                 logger.exception("session %s: saving its track failed", live.name)
                 op.error = exc
+                answered.append(op)
         return answered
+
+    def _write(self, op: _Op) -> None:
+        """Write an ended session's track on the I/O thread (an hour's walk takes half a second to
+        format, which would hold every other session up); its request is answered once it is written."""
+        summary, result, info = self._track(op.entry, op.reason)
+        op.result = summary
+        if result is None:
+            self._written.append(op)
+            return
+        future = asyncio.get_running_loop().run_in_executor(
+            self._io_executor, self.store.save, op.entry.id, result, info
+        )
+        self._writing.append(op)
+
+        def done(f: asyncio.Future) -> None:
+            self._writing.remove(op)
+            op.error = f.exception()
+            if op.error is not None:
+                logger.error("session %s: saving its track failed", op.entry.live.name, exc_info=op.error)
+            self._written.append(op)
+            self._wake.set()
+
+        future.add_done_callback(done)
 
     def _abandon(self, entry: _Entry, reason: str, error: Exception) -> ServiceError:
         """End a session whose streams could not be finished: save its track so far; the reply's error."""
@@ -488,22 +516,28 @@ class TrackingService:
         return ServiceError(422 if client else 500, detail)
 
     def _save(self, entry: _Entry, reason: str) -> dict[str, Any]:
+        summary, result, info = self._track(entry, reason)
+        if result is not None:
+            self.store.save(entry.id, result, info)
+        return summary
+
+    def _track(self, entry: _Entry, reason: str) -> tuple[dict[str, Any], Any, dict[str, Any]]:
+        """An ended session's summary (``TrackSummary``), track (``None`` without any update) and
+        ``run.json`` service record."""
         live = entry.live
         self.queue.drop(live)
         result = live.result()
         rows = live.rows
-        if result is not None:
-            info = {
-                "map": self.config.map_path,
-                "created": entry.created,
-                "ended": _now_iso(),
-                "reason": reason,
-                "start": None if live.start is None else vars(live.start),
-                "failed": live.failed,
-            }
-            self.store.save(entry.id, result, info)
+        info = {
+            "map": self.config.map_path,
+            "created": entry.created,
+            "ended": _now_iso(),
+            "reason": reason,
+            "start": None if live.start is None else vars(live.start),
+            "failed": live.failed,
+        }
         logger.info("session %s ended (%s): %d updates", live.name, reason, len(rows))
-        return {
+        summary = {
             "key": self.store.key(entry.id),
             "reason": reason,
             "updates": len(rows),
@@ -512,46 +546,7 @@ class TrackingService:
             "recoveries": live.recoveries,
             "saved": result is not None,
         }
-
-    def _estimate(self, entry: _Entry, warnings: list[str] | None = None) -> dict[str, Any]:
-        live = entry.live
-        rows = live.rows
-        warnings = list(warnings or [])
-        if live.failed:
-            warnings.append(f"the session cannot go on: {live.failed}")
-        out: dict[str, Any] = dict.fromkeys(_ESTIMATE_FIELDS)
-        out.update(
-            {
-                "status": "failed" if live.failed else "tracking" if rows else "starting",
-                "recoveries": live.recoveries,
-                "unseen_velocity_from_s": None if live.engine is None else live.engine.unseen_velocity_from_s,
-                "updates": len(rows),
-                "data_until": _finite(live.received_until),
-                "warnings": warnings,
-            }
-        )
-        if not rows:
-            return out
-        row = rows[-1]
-        lon, lat = live.frame.to_lonlat(row.x, row.y)
-        place = self.places.get(row.segment_id) if row.segment_id else None
-        out.update(
-            t=row.t,
-            lat=float(lat),
-            lon=float(lon),
-            accuracy_m=_finite(row.accuracy_m),
-            segment_id=row.segment_id,
-            segment_prob=_finite(row.segment_prob),
-            street=place.street if place else None,
-            side=place.side if place else None,
-            place=place.label if place else None,
-            n_eff=_finite(row.n_eff),
-            motion=row.motion or None,
-            update=row.kind,
-            gnss_used=bool(row.fix_used),
-            lag_s=_finite(live.received_until - row.t),
-        )
-        return out
+        return summary, result, info
 
     async def _expire(self) -> None:
         period = max(0.05, min(self.config.idle_timeout_s / 4.0, 10.0))

@@ -11,6 +11,7 @@ from __future__ import annotations
 import hashlib
 import json
 import logging
+import threading
 from pathlib import Path
 from typing import Any
 
@@ -26,6 +27,10 @@ TRACK_FILES = ("track.csv", "track.geojson", "run.json")
 class TrackStore:
     """The tracks folder (created when missing).
 
+    The listing is read from disk once, when the store is made, and kept up to date by :meth:`save`:
+    reading every ``run.json`` at each ``GET /tracks`` took 0.6 s with 5,000 tracks, with every live
+    session waiting. :meth:`save` may run on another thread than :meth:`list`.
+
     Parameters
     ----------
     root
@@ -35,6 +40,12 @@ class TrackStore:
     def __init__(self, root: str | Path) -> None:
         self.root = Path(root)
         self.root.mkdir(parents=True, exist_ok=True)
+        self._lock = threading.Lock()
+        self._listing: dict[str, dict[str, Any]] = {}
+        for folder in sorted(p for p in self.root.iterdir() if p.is_dir()):
+            info = _read_json(folder / "run.json")
+            if info is not None:
+                self._listing[folder.name] = _listed(folder.name, info)
 
     @staticmethod
     def key(session_id: str) -> str:
@@ -53,7 +64,11 @@ class TrackStore:
                 "t_end": float(track["t"].iat[-1]) if len(track) else None,
             },
         }
-        return write_track(result, self.root / key, info)
+        folder = write_track(result, self.root / key, info)
+        listed = _listed(key, _read_json(folder / "run.json") or {})
+        with self._lock:
+            self._listing[key] = listed
+        return folder
 
     def folder(self, session_id: str) -> Path | None:
         """The track folder of a session id, ``None`` when there is none."""
@@ -67,25 +82,24 @@ class TrackStore:
 
     def list(self) -> list[dict[str, Any]]:
         """Every stored track, oldest end first: key, reason, created, ended, mode, updates, t range."""
-        out = []
-        for folder in sorted(p for p in self.root.iterdir() if p.is_dir()):
-            info = _read_json(folder / "run.json")
-            if info is None:
-                continue
-            service = info.get("service") or {}
-            out.append(
-                {
-                    "key": folder.name,
-                    "reason": service.get("reason"),
-                    "created": service.get("created"),
-                    "ended": service.get("ended"),
-                    "mode": info.get("mode"),
-                    "updates": info.get("rows"),
-                    "t_start": service.get("t_start"),
-                    "t_end": service.get("t_end"),
-                }
-            )
-        return sorted(out, key=lambda item: item["ended"] or "")
+        with self._lock:
+            out = list(self._listing.values())
+        return sorted(out, key=lambda item: (item["ended"] or "", item["key"]))
+
+
+def _listed(key: str, info: dict[str, Any]) -> dict[str, Any]:
+    """A track's entry in the listing, from its ``run.json``."""
+    service = info.get("service") or {}
+    return {
+        "key": key,
+        "reason": service.get("reason"),
+        "created": service.get("created"),
+        "ended": service.get("ended"),
+        "mode": info.get("mode"),
+        "updates": info.get("rows"),
+        "t_start": service.get("t_start"),
+        "t_end": service.get("t_end"),
+    }
 
 
 def _read_json(path: Path) -> dict[str, Any] | None:
