@@ -53,6 +53,7 @@ from curbside.errors import CurbsideInputError
 from curbside.io import atomic_path, open_h5
 from curbside.localize.imu import world_frame_segments
 from curbside.localize.pdr import forward_heading_vectors
+from curbside.localize.ronin.provenance import check_prepared_sources, source_records
 
 logger = logging.getLogger(__name__)
 
@@ -124,15 +125,15 @@ def _hash_fraction(name: str) -> float:
 def split_of(name: str, source: str) -> str:
     """The split of a recording: ``"test"``, ``"val"`` or ``"train"``.
 
-    MS paths: a hash of the path id puts 15 % in test and 7 % in validation. IPIN trials: every
-    ``repetition04`` is test, the rest train. RoNIN sequences: 15 % test by the same hash.
+    MS paths and RoNIN sequences: a hash of the path id (sequence folder name) puts 15 % in test and
+    7 % in validation. IPIN trials: every ``repetition04`` is test, the rest train (no validation).
     """
     if source == "ipin":
         return "test" if IPIN_TEST_MARK in name else "train"
     u = _hash_fraction(name.rsplit("/", 1)[-1])
     if u < MS_TEST_FRACTION:
         return "test"
-    if source == "ms" and u < MS_TEST_FRACTION + MS_VAL_FRACTION:
+    if u < MS_TEST_FRACTION + MS_VAL_FRACTION:
         return "val"
     return "train"
 
@@ -349,8 +350,10 @@ def read_ronin_dir(root: str | Path, progress: bool = True) -> list[Recording]:
     return [read_ronin_sequence(f) for f in tqdm(folders, desc="ronin", disable=None if progress else True)]
 
 
-def save_recordings(recordings: Iterable[Recording], path: str | Path) -> Path:
-    """Store prepared recordings in one compressed ``.npz`` (atomically), for re-use and transport."""
+def save_recordings(recordings: Iterable[Recording], path: str | Path,
+                    sources: list[dict] | None = None) -> Path:
+    """Store prepared recordings in one compressed ``.npz`` (atomically), for re-use and transport,
+    with the :func:`~curbside.localize.ronin.provenance.source_records` they were read from."""
     recordings = list(recordings)
     index = [{"name": r.name, "source": r.source, "split": r.split, "n": len(r.t), "m": len(r.positions)}
              for r in recordings]
@@ -359,6 +362,7 @@ def save_recordings(recordings: Iterable[Recording], path: str | Path) -> Path:
         "features": np.concatenate([r.features for r in recordings]).astype(np.float32),
         "positions": np.concatenate([r.positions for r in recordings]),
         "index": np.frombuffer(json.dumps(index).encode(), dtype=np.uint8),
+        "sources": np.frombuffer(json.dumps(sources or []).encode(), dtype=np.uint8),
     }
     with atomic_path(path) as tmp, open(tmp, "wb") as fh:
         np.savez_compressed(fh, **arrays)
@@ -380,6 +384,15 @@ def load_recordings(path: str | Path) -> list[Recording]:
         i += e["n"]
         j += e["m"]
     return out
+
+
+def prepared_sources(path: str | Path) -> list[dict] | None:
+    """The sources a :func:`save_recordings` file records (``None``: an older file without them)."""
+    try:
+        with np.load(path) as z:
+            return json.loads(z["sources"].tobytes().decode()) if "sources" in z.files else None
+    except (OSError, KeyError, ValueError) as exc:
+        raise CurbsideInputError(path, f"not a prepared RoNIN dataset ({exc})") from None
 
 
 @dataclass
@@ -439,7 +452,8 @@ class WindowSet:
 
 def prepare_recordings(ms_indoor: str | Path | None = None, ipin: str | Path | None = None,
                        ronin_dir: str | Path | None = None, prepared: str | Path | None = None,
-                       progress: bool = True, keep_imu: Iterable[str] = ()) -> list[Recording]:
+                       progress: bool = True, keep_imu: Iterable[str] = (),
+                       sources: list[dict] | None = None) -> list[Recording]:
     """Read every given source, or a previously prepared ``.npz`` when ``prepared`` exists.
 
     Parameters
@@ -447,11 +461,15 @@ def prepare_recordings(ms_indoor: str | Path | None = None, ipin: str | Path | N
     ms_indoor, ipin, ronin_dir
         Sources (see the module docstring); any may be ``None``.
     prepared
-        Cache of :func:`save_recordings`: loaded when it exists, written after reading otherwise.
+        Cache of :func:`save_recordings`: loaded when it exists (and was made from the sources
+        given, if any), written after reading otherwise.
     progress
         Show progress bars.
     keep_imu
         Splits whose recordings keep their raw ``imu`` table (ignores ``prepared``, which holds none).
+    sources
+        :func:`~curbside.localize.ronin.provenance.source_records` of the given sources, when the
+        caller has them already (computed otherwise).
 
     Returns
     -------
@@ -460,10 +478,14 @@ def prepare_recordings(ms_indoor: str | Path | None = None, ipin: str | Path | N
     Raises
     ------
     CurbsideInputError
-        No source given and no prepared file; a source is missing or malformed.
+        No source given and no prepared file; a prepared file made from other sources; a source is
+        missing or malformed.
     """
     keep_imu = tuple(keep_imu)
+    if sources is None:
+        sources = source_records(ms_indoor, ipin, ronin_dir)
     if prepared is not None and Path(prepared).is_file() and not keep_imu:
+        check_prepared_sources(prepared, prepared_sources(prepared), sources)
         logger.info("using prepared recordings %s", prepared)
         return load_recordings(prepared)
     recordings: list[Recording] = []
@@ -478,5 +500,5 @@ def prepare_recordings(ms_indoor: str | Path | None = None, ipin: str | Path | N
             "--ms-indoor/--ipin/--ronin-h5", "no recordings given (nor a --prepared file)"
         )
     if prepared is not None and not Path(prepared).is_file():
-        save_recordings(recordings, prepared)
+        save_recordings(recordings, prepared, sources)
     return recordings

@@ -33,8 +33,10 @@ from __future__ import annotations
 
 import logging
 from dataclasses import asdict
+from pathlib import Path
 
 import numpy as np
+from tqdm.auto import tqdm
 
 from curbside.localize.imu import WorldSamples
 from curbside.localize.ronin.data import Recording
@@ -162,7 +164,7 @@ def pdr_trajectory(recording: Recording, t_c: np.ndarray, start: np.ndarray) -> 
 
 
 def evaluate_recordings(recordings: list[Recording], model: RoninResNet, with_pdr: bool = True,
-                        config: RoninStreamConfig | None = None) -> dict:
+                        config: RoninStreamConfig | None = None, progress: bool = False) -> dict:
     """Per-recording and summary figures for RoNIN (and PDR) on ``recordings``.
 
     Parameters
@@ -175,6 +177,8 @@ def evaluate_recordings(recordings: list[Recording], model: RoninResNet, with_pd
         Also evaluate the PDR baseline.
     config
         Stream parameters (stride, batch size); default :class:`RoninStreamConfig`.
+    progress
+        A progress bar over the recordings on a terminal.
 
     Returns
     -------
@@ -182,7 +186,7 @@ def evaluate_recordings(recordings: list[Recording], model: RoninResNet, with_pd
         ``{"model": config, "recordings": {name: {method: metrics}}, "summary": {source: {method: ...}}}``.
     """
     per: dict[str, dict] = {}
-    for rec in recordings:
+    for rec in tqdm(recordings, desc="ronin-eval", unit="recording", disable=None if progress else True):
         t_c, est, truth = ronin_trajectory(model, rec, config)
         if len(t_c) < 2:
             logger.info("%s: shorter than a window over its ground-truth span, skipped", rec.name)
@@ -222,9 +226,27 @@ def summarise(per: dict[str, dict]) -> dict:
 
 
 def format_summary(report: dict) -> str:
-    """A plain-text table of the summary (printed by ``localize ronin-eval``)."""
-    lines = [f"{'source':<6} {'method':<6} {'n':>4} {'dist ratio med [IQR]':>22} {'speed err':>9} "
-             f"{'ATE med':>8} {'RTE med':>8} {'ATE raw':>8} {'wp err med':>10}"]
+    """A plain-text table of the summary (printed by ``localize ronin-eval``).
+
+    When the report names them (``weights``, ``split``, as ``localize ronin-eval`` writes it), a title
+    says which weights were scored on which recordings, and whether those recordings are held out from
+    the weights' training data. Every figure is a median over recordings, except the waypoint error,
+    pooled over all waypoints.
+    """
+    lines = []
+    weights, split = report.get("weights"), report.get("split")
+    if weights is not None and split is not None:
+        stride, rate = report["stream"]["stride"], report["stream"]["rate_hz"]
+        scored = {v["source"] for v in report["recordings"].values()}
+        seen = scored & set(weights.get("trained_on") or ())
+        note = (f"; {split} recordings of {'/'.join(sorted(seen))} are not held out from these weights' "
+                "training" if split != "test" and seen else "")
+        lines.append(f"RoNIN weights {Path(weights['path']).name} (sha256 {weights['sha256'][:12]}) on the "
+                     f"{split} split, a velocity every {1000 * stride / rate:g} ms{note}")
+    lines.append("medians over recordings (waypoint errors: over all waypoints); distances in m, "
+                 "speeds in m/s")
+    lines.append(f"{'source':<6} {'method':<6} {'n':>4} {'dist ratio [IQR]':>22} {'speed err':>9} "
+                 f"{'ATE':>8} {'RTE':>8} {'raw ATE':>8} {'wp err':>8} {'wp p90':>8}")
     for source, methods in report["summary"].items():
         for method, e in methods.items():
             iqr = e["distance_ratio_iqr"]
@@ -232,7 +254,8 @@ def format_summary(report: dict) -> str:
                 f"{source:<6} {method:<6} {e['n_recordings']:>4} "
                 f"{e['distance_ratio_median']:>8.3f} [{iqr[0]:.2f},{iqr[1]:.2f}] "
                 f"{e['speed_error_mps_median']:>9.3f} {e['ate_m_median']:>8.2f} {e['rte_m_median']:>8.2f} "
-                f"{e['ate_raw_m_median']:>8.2f} {e.get('waypoint_error_median_m', float('nan')):>10.2f}"
+                f"{e['ate_raw_m_median']:>8.2f} {e.get('waypoint_error_median_m', float('nan')):>8.2f} "
+                f"{e.get('waypoint_error_p90_m', float('nan')):>8.2f}"
             )
     return "\n".join(lines) + "\n"
 

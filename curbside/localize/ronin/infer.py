@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import json
 import logging
+from dataclasses import fields
 from pathlib import Path
 
 import numpy as np
@@ -83,6 +84,10 @@ def _read_config(path: Path) -> RoninConfig:
         raise CurbsideInputError(path, problem) from None
     if not isinstance(data, dict):
         raise CurbsideInputError(path, "not a RoNIN config (not a JSON object)")
+    # A missing key would silently take its default: an uncalibrated scale, another network size.
+    missing = [f.name for f in fields(RoninConfig) if f.name != "extra" and f.name not in data]
+    if missing:
+        raise CurbsideInputError(path, f"not a RoNIN config (missing {_names(missing)})")
     try:
         config = RoninConfig.from_dict(data)
         RoninResNet(config)

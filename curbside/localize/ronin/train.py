@@ -5,8 +5,9 @@ replacement, by a generator seeded from ``seed`` and the epoch number, so a resu
 same windows), rotates each window and its target by a random yaw (RoNIN's augmentation: the
 network must not learn the world frame's arbitrary heading), and minimises the mean squared
 velocity error with Adam and a cosine learning-rate schedule. Validation uses held-out recordings,
-unrotated. A checkpoint (model, optimiser, schedule, history) is written after every epoch; the
-weights with the lowest validation loss are saved as a plain ``state_dict`` plus a JSON config.
+unrotated. A checkpoint (model, optimiser, schedule, history, the best weights so far, a digest of
+the data) is written after every epoch; the weights with the lowest validation loss are saved, once
+training ends, as a plain ``state_dict`` plus a JSON config.
 """
 
 from __future__ import annotations
@@ -24,6 +25,7 @@ import torch
 from torch import nn
 from tqdm.auto import tqdm
 
+from curbside.cache import content_key
 from curbside.errors import CurbsideInputError
 from curbside.io import atomic_path, note_written
 from curbside.localize.ronin.data import WindowSet
@@ -152,33 +154,37 @@ def save_weights(model: RoninResNet, path: str | Path) -> Path:
     return path
 
 
-def train(train_set: WindowSet, val_set: WindowSet, options: TrainOptions, out: str | Path,
-          checkpoint: str | Path | None = None, extra: dict | None = None,
-          progress: bool = True) -> list[dict]:
-    """Train a RoNIN model and save the best-on-validation weights to ``out``.
+def data_fingerprint(train_set: WindowSet, val_set: WindowSet) -> str:
+    """SHA-256 of the training and validation windows (features, starts, targets): a checkpoint
+    resumes only on the data it was made from."""
+    return content_key(*(getattr(ws, name) for ws in (train_set, val_set)
+                         for name in ("features", "starts", "targets")))
 
-    Parameters
-    ----------
-    train_set, val_set
-        Windows of the training and validation recordings (split by recording).
-    options
-        See :class:`TrainOptions`.
-    out
-        Weights path (``.pt``; the config goes to ``.json`` beside it).
-    checkpoint
-        Resumable state, written after each epoch; training resumes from it when it exists (it
-        must come from a run with the same options, see :meth:`TrainOptions.schedule_key`).
-    extra
-        Stored in the config's ``extra`` (data sources, split...).
-    progress
-        Show tqdm bars.
 
-    Returns
-    -------
-    list of dict
-        Per epoch: ``epoch``, ``train_loss``, ``val_loss``, ``lr``, ``seconds``.
-    """
-    device = torch.device(options.device)
+def _read_checkpoint(path: Path, device: torch.device, options: TrainOptions, data_key: str) -> dict:
+    """A checkpoint's state, checked to belong to this run (same options, same data)."""
+    try:
+        state = torch.load(path, map_location=device, weights_only=True)
+    except OSError as exc:
+        raise CurbsideInputError(path, f"cannot read the checkpoint ({exc.strerror or exc})") from None
+    # torch.load raises many types (with many-line messages) for a file in another format.
+    except Exception:  # noqa: BLE001
+        raise CurbsideInputError(path, "not a train-ronin checkpoint (torch cannot read it)") from None
+    keys = {"model", "optimiser", "schedule", "history", "options", "best"}
+    if not isinstance(state, dict) or not keys <= set(state):
+        raise CurbsideInputError(path, "not a train-ronin checkpoint of this curbside version: delete it "
+                                       "or give another --checkpoint")
+    if json.loads(state["options"]) != options.schedule_key():
+        raise CurbsideInputError(path, "checkpoint of a run with other options (epochs, seed...)")
+    if state.get("data") != data_key:
+        raise CurbsideInputError(path, "checkpoint of a run on other data (sources or split): delete it "
+                                       "or give another --checkpoint")
+    return state
+
+
+def _new_run(train_set: WindowSet, options: TrainOptions, device: torch.device, extra: dict | None,
+             ) -> tuple[RoninResNet, torch.optim.Optimizer, torch.optim.lr_scheduler.LRScheduler]:
+    """A seeded model normalised for ``train_set``, its optimiser and learning-rate schedule."""
     if device.type == "cpu":
         torch.set_num_threads(options.num_threads)
     _set_determinism(options.seed, device)
@@ -189,46 +195,112 @@ def train(train_set: WindowSet, val_set: WindowSet, options: TrainOptions, out: 
     model = RoninResNet(config).to(device)
     optimiser = torch.optim.Adam(model.parameters(), lr=options.lr, weight_decay=options.weight_decay)
     schedule = torch.optim.lr_scheduler.CosineAnnealingLR(optimiser, options.epochs, eta_min=options.lr / 100)
+    return model, optimiser, schedule
+
+
+def _write_checkpoint(path: str | Path, state: dict) -> None:
+    """Write a checkpoint atomically and list it in its folder's marker."""
+    with atomic_path(path) as tmp:
+        torch.save(state, tmp)
+    note_written(path, "localize train-ronin")
+
+
+def _best_epoch(history: list[dict]) -> dict:
+    """The epoch whose weights are kept: the lowest validation loss, else (no validation) the last."""
+    scored = [h for h in history if h["val_loss"] is not None]
+    return min(scored, key=lambda h: h["val_loss"]) if scored else history[-1]
+
+
+def fit(train_set: WindowSet, val_set: WindowSet, options: TrainOptions,
+        checkpoint: str | Path | None = None, extra: dict | None = None,
+        progress: bool = True) -> tuple[RoninResNet, list[dict]]:
+    """Train a RoNIN model; return the best-on-validation weights and the history.
+
+    Parameters
+    ----------
+    train_set, val_set
+        Windows of the training and validation recordings (split by recording). Without validation
+        windows, the last epoch's weights are kept.
+    options
+        See :class:`TrainOptions`.
+    checkpoint
+        Resumable state, written after each epoch (atomically, listed in its folder's marker);
+        training resumes from it when it exists. It must come from a run with the same options
+        (:meth:`TrainOptions.schedule_key`) on the same windows (:func:`data_fingerprint`).
+    extra
+        Stored in the config's ``extra`` (data sources, split...).
+    progress
+        Show tqdm bars (an epoch bar, and a batch bar within each epoch).
+
+    Returns
+    -------
+    model, history
+        The kept weights, on CPU, in evaluation mode, their config's ``extra`` holding
+        ``best_epoch``, ``val_loss`` and the whole ``history``; and per epoch ``epoch``,
+        ``train_loss``, ``val_loss`` (``None`` without validation windows), ``lr``, ``seconds``.
+
+    Raises
+    ------
+    CurbsideInputError
+        A checkpoint that is unreadable or of another run.
+    """
+    if len(train_set) == 0:
+        raise CurbsideInputError("training data", "no labelled training windows")
+    device = torch.device(options.device)
+    model, optimiser, schedule = _new_run(train_set, options, device, extra)
+    data_key = data_fingerprint(train_set, val_set)
     history: list[dict] = []
-    best = math.inf
-    start_epoch = 0
+    best_state: dict[str, torch.Tensor] | None = None
     if checkpoint is not None and Path(checkpoint).is_file():
-        state = torch.load(checkpoint, map_location=device, weights_only=True)
-        if json.loads(state.get("options", "{}")) != options.schedule_key():
-            raise CurbsideInputError(checkpoint, "checkpoint of a run with other options (epochs, seed...)")
+        state = _read_checkpoint(Path(checkpoint), device, options, data_key)
         model.load_state_dict(state["model"])
         optimiser.load_state_dict(state["optimiser"])
         schedule.load_state_dict(state["schedule"])
-        history = json.loads(state["history"])
-        best = min((h["val_loss"] for h in history), default=math.inf)
-        start_epoch = len(history)
-        logger.info("resumed from %s at epoch %d", checkpoint, start_epoch)
+        history, best_state = json.loads(state["history"]), state["best"]
+        logger.info("resumed from %s after epoch %d", checkpoint, len(history))
     logger.info("%s: %d parameters, %d train / %d val windows", options.arch, count_parameters(model),
                 len(train_set), len(val_set))
     train_b, val_b = WindowBatcher(train_set, device), WindowBatcher(val_set, device)
     n_draw = min(options.windows_per_epoch, len(train_b))
-    for epoch in range(start_epoch, options.epochs):
+    epochs = tqdm(range(len(history), options.epochs), desc="train-ronin", unit="epoch",
+                  initial=len(history), total=options.epochs, disable=None if progress else True)
+    for epoch in epochs:
         tic = time.perf_counter()
         train_loss = _train_epoch(model, optimiser, train_b, n_draw, options, epoch, progress)
         lr = optimiser.param_groups[0]["lr"]
         schedule.step()
-        val_loss = evaluate_loss(model, val_b, options.val_every) if len(val_b) else train_loss
-        record = {"epoch": epoch + 1, "train_loss": train_loss, "val_loss": val_loss, "lr": lr,
-                  "seconds": time.perf_counter() - tic}
-        history.append(record)
-        logger.info("epoch %d: train %.4f val %.4f (%.0f s)", epoch + 1, record["train_loss"], val_loss,
-                    record["seconds"])
-        if val_loss < best:
-            best = val_loss
-            model.config.extra["best_epoch"] = epoch + 1
-            model.config.extra["val_loss"] = val_loss
-            model.config.extra["history"] = history
-            save_weights(model, out)
+        val_loss = evaluate_loss(model, val_b, options.val_every) if len(val_b) else None
+        history.append({"epoch": epoch + 1, "train_loss": train_loss, "val_loss": val_loss, "lr": lr,
+                        "seconds": time.perf_counter() - tic})
+        val_text = "none" if val_loss is None else f"{val_loss:.4f}"
+        epochs.set_postfix(train=f"{train_loss:.4f}", val=val_text)
+        logger.info("epoch %d: train %.4f val %s (%.0f s)", epoch + 1, train_loss, val_text,
+                    history[-1]["seconds"])
+        if _best_epoch(history) is history[-1]:
+            best_state = {k: v.detach().clone() for k, v in model.state_dict().items()}
         if checkpoint is not None:
-            with atomic_path(checkpoint) as tmp:
-                torch.save({"model": model.state_dict(), "optimiser": optimiser.state_dict(),
-                            "schedule": schedule.state_dict(), "history": json.dumps(history),
-                            "options": json.dumps(options.schedule_key())}, tmp)
+            _write_checkpoint(checkpoint, {
+                "model": model.state_dict(), "optimiser": optimiser.state_dict(),
+                "schedule": schedule.state_dict(), "history": json.dumps(history),
+                "options": json.dumps(options.schedule_key()), "data": data_key, "best": best_state})
+    model.load_state_dict(best_state)
+    best = _best_epoch(history)
+    model.config.extra.update(best_epoch=best["epoch"], val_loss=best["val_loss"], history=history)
+    return model.cpu().eval(), history
+
+
+def train(train_set: WindowSet, val_set: WindowSet, options: TrainOptions, out: str | Path,
+          checkpoint: str | Path | None = None, extra: dict | None = None,
+          progress: bool = True) -> list[dict]:
+    """Train a RoNIN model (:func:`fit`) and save the kept weights to ``out`` once training is done.
+
+    ``out`` is a ``.pt`` path; the config goes to ``.json`` beside it. Nothing is written there before
+    the last epoch, so an interrupted run leaves no weights (only the checkpoint). The output scale
+    is not calibrated (see :func:`curbside.localize.ronin.evaluate.calibrate_output_scale`). Other
+    parameters and the returned history are those of :func:`fit`.
+    """
+    model, history = fit(train_set, val_set, options, checkpoint, extra, progress)
+    save_weights(model, out)
     return history
 
 

@@ -1,0 +1,104 @@
+"""Where a RoNIN model and its figures came from: data files, weights, software.
+
+Training and evaluation record their inputs by content (SHA-256), so a model's config, a prepared
+cache and an evaluation report each say which files they were made from, and a prepared cache made
+from other files than the ones named on the command line is refused instead of silently used.
+"""
+
+from __future__ import annotations
+
+import logging
+from pathlib import Path
+
+from curbside import __version__
+from curbside.cache import content_key, file_digest
+from curbside.errors import CurbsideInputError
+
+logger = logging.getLogger(__name__)
+
+#: The command-line option of each data source, in messages.
+OPTIONS = {"ms": "--ms-indoor", "ipin": "--ipin", "ronin": "--ronin-h5"}
+
+
+def source_records(ms_indoor: str | Path | None = None, ipin: str | Path | None = None,
+                   ronin_dir: str | Path | None = None) -> list[dict]:
+    """One record per given data source: its kind, path and SHA-256.
+
+    Parameters
+    ----------
+    ms_indoor, ipin
+        HDF5 files (``None``: not given).
+    ronin_dir
+        A folder of RoNIN-layout sequences; its digest covers every ``*/data.hdf5`` below it, by
+        relative path and content.
+
+    Returns
+    -------
+    list of dict
+        ``{"source", "path", "sha256"}`` in the order ms, ipin, ronin. A missing file is left for its
+        reader to report.
+    """
+    records = []
+    for source, path in (("ms", ms_indoor), ("ipin", ipin)):
+        if path is not None and Path(path).is_file():
+            records.append({"source": source, "path": str(Path(path).resolve()),
+                            "sha256": file_digest(path).hex()})
+    if ronin_dir is not None and Path(ronin_dir).is_dir():
+        root = Path(ronin_dir)
+        files = sorted(root.rglob("data.hdf5"))
+        parts = [part for f in files for part in (str(f.relative_to(root)), file_digest(f))]
+        records.append({"source": "ronin", "path": str(root.resolve()), "sha256": content_key(*parts)})
+    return records
+
+
+def _describe(records: list[dict]) -> str:
+    return ", ".join(f"{OPTIONS.get(r['source'], r['source'])} {Path(r['path']).name} "
+                     f"(sha256 {r['sha256'][:12]})" for r in records) or "no source recorded"
+
+
+def check_prepared_sources(prepared: str | Path, stored: list[dict] | None, given: list[dict]) -> None:
+    """Refuse a prepared cache made from other data than the sources given now.
+
+    Parameters
+    ----------
+    prepared
+        The cache file, for messages.
+    stored
+        The sources recorded in it (``None``: a cache from before they were recorded).
+    given
+        :func:`source_records` of the sources on the command line (empty: none given, the cache is
+        used as it is).
+
+    Raises
+    ------
+    CurbsideInputError
+        The cache was made from other files (compared by kind and content, not by path).
+    """
+    if not given:
+        return
+    if stored is None:
+        logger.warning("%s records no sources: it cannot be checked against %s; delete it to prepare "
+                       "the data again", prepared, _describe(given))
+        return
+    key = sorted((r["source"], r["sha256"]) for r in given)
+    if key != sorted((r["source"], r["sha256"]) for r in stored):
+        raise CurbsideInputError(
+            prepared, f"was prepared from {_describe(stored)}, not from {_describe(given)}: delete it "
+            "or give another --prepared"
+        )
+
+
+def weights_record(path: str | Path) -> dict:
+    """Path and SHA-256 of a weights file and of its JSON config."""
+    path = Path(path)
+    config = path.with_suffix(".json")
+    return {"path": str(path.resolve()), "sha256": file_digest(path).hex(),
+            "config_sha256": file_digest(config).hex() if config.is_file() else None}
+
+
+def software_record() -> dict:
+    """Versions of curbside, torch and numpy."""
+    import numpy as np
+    import torch
+
+    return {"curbside": __version__, "torch": torch.__version__, "numpy": np.__version__}
