@@ -265,7 +265,9 @@ def write_session(
     tables = {k: validate_table(k, t, f"{session.name}/{k}.csv") for k, t in session.tables().items()}
     with output_folder(folder, command, overwrite=overwrite) as tmp:
         for kind, table in tables.items():
-            table.to_csv(tmp / f"{kind}.csv", index=False, float_format="%.10g")
+            # No float_format: pandas writes each float's shortest repr, which reads back bit for bit,
+            # so a written session tracks exactly as its source does.
+            table.to_csv(tmp / f"{kind}.csv", index=False)
         if session.meta:
             (tmp / "meta.json").write_text(json.dumps(session.meta, indent=2), encoding="utf-8")
     return folder
