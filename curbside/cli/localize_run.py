@@ -4,7 +4,7 @@
 
     localize run SESSION [--map MAP] [--mode gnss|inertial|paper|fused] [--particles N]
                  [--jaywalk-weight W] [--seed S] [--set KEY=VALUE ...] [--save-particles]
-                 [--lag-s SECONDS] [--velocity-source auto|file|ronin|pdr]
+                 [--lag-s SECONDS] [--velocity-source auto|file|ronin|pdr] [--ronin-weights PT]
                  [--unseen-velocity [on|auto|off]] [--no-start-pose] -o OUT
     localize run --config OUT/run.json -o OUT2          # replay a run exactly
 
@@ -12,7 +12,8 @@
 Logger export, ``FILE.h5::TRIAL``, a GPX file). Writes ``OUT/track.csv``, ``OUT/track.geojson``,
 ``OUT/run.json`` (every parameter) and, with ``--save-particles``, ``OUT/particles.npz``; ``OUT`` appears
 complete or not at all. ``--lag-s`` adds the fixed-lag smoother's positions (``smooth_lat, smooth_lon``)
-for offline analysis. A one-line summary goes to stdout.
+for offline analysis. ``--ronin-weights`` runs RoNIN with other weights than the bundled ones (refused
+where the run would not use them). A one-line summary goes to stdout.
 """
 
 from __future__ import annotations
@@ -21,6 +22,7 @@ import argparse
 import json
 import logging
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import pandas as pd
 
@@ -32,15 +34,25 @@ from curbside.cli.common import (
     seed,
     unit_interval,
 )
-from curbside.cli.run_replay import add_weights, check_replayed_inputs, input_record, replay_config
+from curbside.cli.run_replay import (
+    add_weights,
+    check_replayed_inputs,
+    input_record,
+    recorded_weights,
+    replay_config,
+)
 from curbside.errors import CurbsideInputError
 from curbside.evaluate.metrics import format_waypoint_summary, waypoint_errors, waypoint_summary
 from curbside.io import check_output_folder
 from curbside.localize.pipeline import TrackResult, resolve_config, track_session
 from curbside.localize.readers import read_any
 from curbside.localize.runconfig import MODES, VELOCITY_SOURCES, RunConfig
+from curbside.localize.session import Session
 from curbside.localize.track import write_track
 from curbside.osmseg.mapio import read_map
+
+if TYPE_CHECKING:
+    from curbside.localize.ronin.model import RoninResNet
 
 logger = logging.getLogger(__name__)
 
@@ -67,14 +79,37 @@ def _run(args: argparse.Namespace) -> int:
             "localize run", "give a SESSION (or --config with a run.json that names one)"
         )
     map_path = args.map if args.map is not None else info.get("map")
+    if args.config:
+        config = replay_config(info, config, args.config, args.mode, args.velocity_source)
+    config = _configured(args, config)
+    weights = _ronin_weights(args, info, config)
     inputs = input_record(session_path, map_path)
     if args.config:
-        check_replayed_inputs(info, args.config, session_path, map_path, inputs)
-        config = replay_config(info, config, args.config, args.mode, args.velocity_source)
+        check_replayed_inputs(info, args.config, session_path, map_path, inputs, weights)
+    model = _load_weights(weights)
     session = read_any(session_path)
+    _check_weights_used(args, config, session)
     layers = read_map(map_path) if map_path else None
-    mode = args.mode if (args.mode or config is not None) else "fused"
     save_particles = args.save_particles or bool(info.get("save_particles"))
+    result = track_session(session, layers, config=config, save_particles=save_particles, progress=True,
+                           map_name=str(map_path) if map_path else None, ronin_weights=model)
+    run_info = {"session": _absolute(session_path), "map": _absolute(map_path) if map_path else None,
+                "save_particles": save_particles,
+                "inputs": add_weights(inputs, result.velocity_source, weights)}
+    summary = None
+    if session.waypoints is not None:
+        run_info["waypoint_error"], scored = _waypoint_score(
+            result.track, session.waypoints, session.file_source("waypoints.csv")
+        )
+        summary = run_info["waypoint_error"] if scored else None
+    write_track(result, args.output, run_info, overwrite=args.overwrite)
+    _print_summary(args.output, result, summary)
+    return 0
+
+
+def _configured(args: argparse.Namespace, config: RunConfig | None) -> RunConfig:
+    """The run's configuration: the replayed one (or the mode's), with the options given."""
+    mode = args.mode if (args.mode or config is not None) else "fused"
     config = resolve_config(
         config,
         mode,
@@ -87,20 +122,48 @@ def _run(args: argparse.Namespace) -> int:
     config = config.with_overrides(config_overrides(args))
     if args.lag_s is not None:
         config = config.with_overrides({"filter.smoother.lag_s": args.lag_s})
-    result = track_session(session, layers, config=config, save_particles=save_particles, progress=True,
-                           map_name=str(map_path) if map_path else None)
-    run_info = {"session": _absolute(session_path), "map": _absolute(map_path) if map_path else None,
-                "save_particles": save_particles,
-                "inputs": add_weights(inputs, result.velocity_source)}
-    summary = None
-    if session.waypoints is not None:
-        run_info["waypoint_error"], scored = _waypoint_score(
-            result.track, session.waypoints, session.file_source("waypoints.csv")
+    return config
+
+
+def _ronin_weights(args: argparse.Namespace, info: dict, config: RunConfig) -> str | None:
+    """The RoNIN weights the run would use (``None``: the bundled ones): ``--ronin-weights``, else in a
+    replay those the run recorded.
+
+    Raises
+    ------
+    CurbsideInputError
+        ``--ronin-weights`` where the method or the velocity source uses no RoNIN; recorded weights that
+        are gone when the replay runs RoNIN.
+    """
+    source = config.engine.velocity_source
+    uses_ronin = config.mode != "gnss" and source in ("auto", "ronin")
+    if args.ronin_weights and not uses_ronin:
+        why = ("--mode gnss tracks without inertial velocity" if config.mode == "gnss" else
+               f"the velocity comes from {'velocity.csv' if source == 'file' else 'PDR'} (velocity source "
+               f"{source}); give --velocity-source ronin or auto")
+        raise CurbsideInputError("--ronin-weights", f"not used: {why}")
+    if args.ronin_weights:
+        return args.ronin_weights
+    return recorded_weights(info, args.config) if args.config and uses_ronin else None
+
+
+def _load_weights(weights: str | None) -> RoninResNet | None:
+    """The loaded RoNIN model of ``weights`` (``None``: the bundled one, loaded when RoNIN runs): a bad
+    file fails now, before the session is read."""
+    if weights is None:
+        return None
+    from curbside.localize.ronin.infer import load_model
+
+    return load_model(weights)
+
+
+def _check_weights_used(args: argparse.Namespace, config: RunConfig, session: Session) -> None:
+    """Refuse ``--ronin-weights`` on a session whose ``velocity.csv`` the ``auto`` source would use."""
+    if args.ronin_weights and config.engine.velocity_source == "auto" and session.velocity is not None:
+        raise CurbsideInputError(
+            "--ronin-weights", f"not used: {session.file_source('velocity.csv')} is the velocity under "
+            "--velocity-source auto; give --velocity-source ronin to run RoNIN on imu.csv"
         )
-        summary = run_info["waypoint_error"] if scored else None
-    write_track(result, args.output, run_info, overwrite=args.overwrite)
-    _print_summary(args.output, result, summary)
-    return 0
 
 
 def _print_summary(output: str, result: TrackResult, summary: dict | None) -> None:
@@ -189,6 +252,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "  localize run walk/ --map map.geojson --set filter.gnss.sigma_factor=1.0 -o out/t2\n"
         "  localize run walk/ --map map.geojson --lag-s 30 -o out/smooth   # adds smooth_lat, smooth_lon\n"
         "  localize run walk/ --map map.geojson --unseen-velocity -o out/new   # phone surely new to RoNIN\n"
+        "  localize run walk/ --map map.geojson --ronin-weights my.pt -o out/mine   # your own RoNIN model\n"
         "  localize run --config out/track/run.json -o out/replay     # the same track, byte for byte",
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
@@ -214,6 +278,12 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         choices=VELOCITY_SOURCES,
         default=None,
         help="auto (default): velocity.csv, else RoNIN on imu.csv, else PDR",
+    )
+    parser.add_argument(
+        "--ronin-weights",
+        metavar="PT",
+        help="RoNIN weights .pt with their .json beside (localize train-ronin; default: the bundled model); "
+        "refused where the velocity does not come from RoNIN. run.json records them and a replay uses them",
     )
     parser.add_argument(
         "--no-start-pose",

@@ -2,8 +2,11 @@
 
 ``run.json`` holds every parameter, so ``localize run --config run.json`` repeats a run byte for byte,
 but only on the same inputs. The run records a SHA-256 of each session file it could read, of the map
-and, when RoNIN made the velocity, of the weights (``inputs``); a replay recomputes them and warns when
-any differs, naming the files, since its track will then differ from the recorded one. A replay also
+and, when RoNIN made the velocity, of the weights and their config (``inputs``); a replay recomputes them
+and warns when any differs, naming the files, since its track will then differ from the recorded one. A
+replay runs RoNIN with the weights the run used (``localize run --ronin-weights``; the bundled model's,
+as installed now, when the run used it), and stops with an error naming them when they are gone. A replay
+also
 keeps the velocity source the run resolved (``velocity_source``: a run under ``auto`` that read
 ``velocity.csv`` is replayed from ``velocity.csv``, and fails clearly when the file is gone, rather than
 quietly running RoNIN) and ``--save-particles``.
@@ -18,6 +21,7 @@ from typing import Any
 from curbside import settings
 from curbside.cache import file_digest
 from curbside.errors import CurbsideInputError
+from curbside.localize.ronin.provenance import weights_record
 from curbside.localize.runconfig import RunConfig
 
 logger = logging.getLogger(__name__)
@@ -52,23 +56,59 @@ def input_record(session_path: str, map_path: str | None) -> dict[str, Any]:
     return record
 
 
-def add_weights(record: dict[str, Any], velocity_source: str | None) -> dict[str, Any]:
-    """``record`` with the RoNIN weights' path and SHA-256 when RoNIN made the run's velocity."""
+def ronin_weights_record(weights: str | Path | None) -> dict[str, Any]:
+    """``run.json``'s record of RoNIN weights (default: the bundled ones): path, SHA-256 of the weights
+    and of their config, and whether they are the bundled model's."""
+    bundled = Path(settings.ronin_default_weights).resolve()
+    path = Path(weights or bundled)
+    return {**weights_record(path), "bundled": path.resolve() == bundled}
+
+
+def add_weights(record: dict[str, Any], velocity_source: str | None,
+                weights: str | Path | None = None) -> dict[str, Any]:
+    """``record`` with the RoNIN weights' record (:func:`ronin_weights_record`; default: the bundled
+    ones) when RoNIN made the run's velocity."""
     if velocity_source != "ronin":
         return record
-    weights = Path(settings.ronin_default_weights)
-    return {**record, "ronin_weights": {"path": str(weights), "sha256": file_sha256(weights)}}
+    return {**record, "ronin_weights": ronin_weights_record(weights)}
 
 
-def changed_inputs(recorded: dict[str, Any], now: dict[str, Any], map_path: str | None) -> list[str]:
-    """The inputs whose bytes differ between ``recorded`` (``run.json``'s ``inputs``) and ``now``."""
-    now = add_weights(now, "ronin" if "ronin_weights" in recorded else None)
+def recorded_weights(info: dict[str, Any], run_json: str) -> str | None:
+    """The RoNIN weights a replay runs with: those ``run.json`` records, ``None`` for the bundled model
+    (as installed now: a run.json from another installation names another path for it).
+
+    Raises
+    ------
+    CurbsideInputError
+        The recorded weights, or their config, are gone.
+    """
+    inputs = info.get("inputs")
+    record = inputs.get("ronin_weights") if isinstance(inputs, dict) else None
+    if not isinstance(record, dict) or record.get("bundled", True):  # earlier run.json: always bundled
+        return None
+    path = str(record.get("path"))
+    for file in (Path(path), Path(path).with_suffix(".json")):
+        if not file.is_file():
+            raise CurbsideInputError(
+                file, f"no such file (the RoNIN weights {run_json} was run with; give where they are now: "
+                "--ronin-weights PT, with its .json beside it)"
+            )
+    return path
+
+
+def changed_inputs(recorded: dict[str, Any], now: dict[str, Any], map_path: str | None,
+                   weights: str | Path | None = None) -> list[str]:
+    """The inputs whose bytes differ between ``recorded`` (``run.json``'s ``inputs``) and ``now``, the
+    RoNIN weights being ``weights`` (default: the bundled ones)."""
     before, after = recorded.get("session_sha256", {}), now["session_sha256"]
     changed = [name for name in sorted(set(before) | set(after)) if before.get(name) != after.get(name)]
     if recorded.get("map_sha256") != now.get("map_sha256"):
         changed.append(f"the map {map_path}" if map_path else "the map (none now)")
-    if "ronin_weights" in recorded and recorded["ronin_weights"]["sha256"] != now["ronin_weights"]["sha256"]:
-        changed.append(f"the RoNIN weights {now['ronin_weights']['path']}")
+    if "ronin_weights" in recorded:
+        was, used = recorded["ronin_weights"], ronin_weights_record(weights)
+        keys = [key for key in ("sha256", "config_sha256") if key in was]  # earlier run.json: no config
+        if any(was[key] != used[key] for key in keys):
+            changed.append(f"the RoNIN weights {used['path']}")
     return changed
 
 
@@ -94,10 +134,12 @@ def replay_config(info: dict[str, Any], config: RunConfig, run_json: str, mode: 
 
 
 def check_replayed_inputs(
-    info: dict[str, Any], run_json: str, session_path: str, map_path: str | None, now: dict[str, Any]
+    info: dict[str, Any], run_json: str, session_path: str, map_path: str | None, now: dict[str, Any],
+    weights: str | Path | None = None,
 ) -> None:
     """Raise when a path ``run.json`` names is gone; warn when an input's bytes differ from ``now``
-    (:func:`input_record` of the replay's inputs) since the run."""
+    (:func:`input_record` of the replay's inputs) or from ``weights`` (the RoNIN weights of the replay;
+    default: the bundled ones) since the run."""
     for key, option in (("session", "SESSION"), ("map", "--map MAP")):
         path = info.get(key)
         if path and path in (session_path, map_path) and not Path(str(path).partition("::")[0]).exists():
@@ -107,7 +149,7 @@ def check_replayed_inputs(
     recorded = info.get("inputs")
     if not isinstance(recorded, dict):
         return  # written before run.json recorded its inputs
-    changed = changed_inputs(recorded, now, map_path)
+    changed = changed_inputs(recorded, now, map_path, weights)
     if changed:
         logger.warning("%s: replaying on inputs that changed since the run (%s): the track will differ from "
                        "the recorded one", run_json, ", ".join(changed))

@@ -14,7 +14,8 @@
     curbside's filter (GNSS+RoNIN+PF with robust fusion and recovery).
 
 Inputs, unless the run's :class:`~curbside.localize.runconfig.EngineConfig` forces one: velocity from
-``velocity.csv``, else the bundled RoNIN model on ``imu.csv``, else PDR; footsteps from ``steps.csv``,
+``velocity.csv``, else the RoNIN model (the bundled one unless the caller gives its own) on ``imu.csv``, else
+PDR; footsteps from ``steps.csv``,
 else detected in ``imu.csv``, else a fixed cadence. Everything goes through
 :class:`~curbside.localize.engine.SessionEngine`, the same engine the live service streams into.
 """
@@ -24,6 +25,8 @@ from __future__ import annotations
 import logging
 import math
 from dataclasses import dataclass
+from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 import pandas as pd
@@ -41,6 +44,9 @@ from curbside.localize.session import Session, warn_if_simulated_imu
 from curbside.localize.streams import DisplacementIntegrator
 from curbside.osmseg.mapio import MapLayers
 from curbside.projection import LocalFrame
+
+if TYPE_CHECKING:
+    from curbside.localize.ronin.model import RoninResNet
 
 logger = logging.getLogger(__name__)
 
@@ -273,11 +279,25 @@ def valid_fixes(gnss: pd.DataFrame | None, frame: LocalFrame) -> tuple[np.ndarra
     return gnss["t"].to_numpy(float)[ok], np.atleast_1d(x), np.atleast_1d(y), acc[ok]
 
 
+def _ronin_model(weights: RoninResNet | str | Path | None, config: RunConfig) -> RoninResNet | None:
+    """The caller's RoNIN model, loaded and checked against the stream (``None``: the bundled one): its
+    problems are errors, never a reason to fall back to PDR."""
+    if weights is None:
+        return None
+    from curbside.localize.ronin.infer import check_compatible, load_model
+
+    model = load_model(weights) if isinstance(weights, str | Path) else weights
+    check_compatible(model, config.engine.ronin)
+    return model
+
+
 def _velocity(
-    session: Session, config: RunConfig, steps: np.ndarray | None, progress: bool = False
+    session: Session, config: RunConfig, steps: np.ndarray | None, progress: bool = False,
+    ronin_weights: RoninResNet | str | Path | None = None,
 ) -> tuple[pd.DataFrame, str]:
     """The session's world-frame velocity and its source name (see the module docstring); ``progress``: a
-    progress bar over RoNIN's inference on a terminal."""
+    progress bar over RoNIN's inference on a terminal; ``ronin_weights``: the RoNIN model (default: the
+    bundled one)."""
     source = config.engine.velocity_source
     if source in ("auto", "file") and session.velocity is not None:
         return session.velocity, "file"
@@ -294,13 +314,14 @@ def _velocity(
             "data"
         )
     if source in ("auto", "ronin"):
+        model = _ronin_model(ronin_weights, config)
         try:
             from curbside.localize.ronin.infer import ronin_velocity
 
             source_name = session.file_source("imu.csv")
             warn_if_simulated_imu(session, source_name)
-            velocity = ronin_velocity(session.imu, config=config.engine.ronin, source=source_name,
-                                      progress=progress)
+            velocity = ronin_velocity(session.imu, model=model, config=config.engine.ronin,
+                                      source=source_name, progress=progress)
             return velocity, "ronin"
         except (ImportError, CurbsideInputError) as exc:
             if source == "ronin":
@@ -341,6 +362,7 @@ def track_session(
     save_particles: bool = False,
     progress: bool = False,
     map_name: str | None = None,
+    ronin_weights: RoninResNet | str | Path | None = None,
 ) -> TrackResult:
     """Track one session with one method.
 
@@ -364,12 +386,14 @@ def track_session(
         batch, which have a bar of their own).
     map_name
         How messages name the map, e.g. its path (default: "the map" alone).
+    ronin_weights
+        The RoNIN model (a loaded one, or a weights ``.pt`` with its ``.json``; default: the bundled one).
 
     Raises
     ------
     CurbsideInputError
         Unknown mode, missing inputs for the mode, start pose or session outside the map, a start pose
-        in a building with no free space nearby, nothing to start from.
+        in a building with no free space nearby, nothing to start from, unusable ``ronin_weights``.
     """
     config = resolve_config(config, mode, particles=particles, jaywalk_weight=jaywalk_weight, seed=seed,
                             velocity_source=velocity_source, use_start_pose=use_start_pose)
@@ -379,7 +403,7 @@ def track_session(
     steps, step_source = _steps(session, config)
     velocity, velocity_source = None, None
     if config.mode != "gnss":
-        velocity, velocity_source = _velocity(session, config, steps, progress)
+        velocity, velocity_source = _velocity(session, config, steps, progress, ronin_weights)
         if len(velocity) < 2:
             raise CurbsideInputError(
                 session.source, f"the {velocity_source} velocity has fewer than two samples"

@@ -8,11 +8,15 @@ the filter advances without a footstep).
 
 from __future__ import annotations
 
+import contextlib
+import json
+import math
 import numbers
 from dataclasses import dataclass, field, replace
 from typing import Any
 
 from curbside.configio import from_dict, to_dict, with_overrides
+from curbside.errors import CurbsideInputError
 from curbside.localize.filter.config import FilterConfig
 from curbside.localize.pdr import PdrConfig
 from curbside.localize.ronin.stream import RoninStreamConfig
@@ -69,6 +73,37 @@ def _as_it_ran(filter_block: dict[str, Any]) -> dict[str, Any]:
     elif isinstance(heading_block, dict) and set(heading_block) >= _STREET_HEADING_KEYS_STOP_25:
         filter_block = {**filter_block, "street_heading": {"max_turn_deg": 90.0, **heading_block}}
     return filter_block
+
+
+def non_finite_keys(tree: Any, prefix: str = "config") -> list[str]:
+    """The keys in a config's JSON tree (:func:`~curbside.configio.to_dict` output, or a ``run.json``
+    ``config``) that hold a non-finite number (``inf``, ``-inf``, ``nan``), named from ``prefix``."""
+    if isinstance(tree, dict):
+        return [k for key, value in tree.items() for k in non_finite_keys(value, f"{prefix}.{key}")]
+    if isinstance(tree, list | tuple):
+        return [k for i, value in enumerate(tree) for k in non_finite_keys(value, f"{prefix}[{i}]")]
+    return [prefix] if isinstance(tree, float) and not math.isfinite(tree) else []
+
+
+def check_finite(tree: Any, prefix: str = "config") -> None:
+    """Refuse a config's JSON tree that holds a non-finite number (see :func:`non_finite_keys`).
+
+    Raises
+    ------
+    CurbsideInputError
+        Named by the first such key, e.g. ``config.filter.gnss.sigma_factor: must be a finite number``.
+    """
+    bad = non_finite_keys(tree, prefix)
+    if bad:
+        raise CurbsideInputError(bad[0], "must be a finite number")
+
+
+def _override_value(value: Any) -> Any:
+    """An override's value as :func:`~curbside.configio.with_overrides` reads it: JSON text, else as it is."""
+    if isinstance(value, str):
+        with contextlib.suppress(json.JSONDecodeError):
+            return json.loads(value)
+    return value
 
 
 def _check(condition: bool, message: str) -> None:
@@ -399,6 +434,8 @@ class RunConfig:
         # numpy would refuse a negative seed only when the filter starts (an internal error by then)
         _check(isinstance(self.seed, numbers.Integral) and self.seed >= 0,
                f"seed must be a non-negative integer, got {self.seed!r}")
+        # the sections check their ranges with comparisons, which inf passes and nan escapes
+        check_finite(to_dict(self))
 
     @classmethod
     def for_mode(cls, mode: str, **kwargs: Any) -> RunConfig:
@@ -414,7 +451,16 @@ class RunConfig:
         return cls(mode=mode, filter=kwargs.pop("filter", preset), **kwargs)
 
     def with_overrides(self, overrides: dict[str, Any]) -> RunConfig:
-        """A copy with ``{"filter.gnss.sigma_factor": 1.0, ...}`` overrides (see :mod:`curbside.configio`)."""
+        """A copy with ``{"filter.gnss.sigma_factor": 1.0, ...}`` overrides (see :mod:`curbside.configio`).
+
+        Raises
+        ------
+        CurbsideInputError
+            An unknown key or a bad value; a non-finite number is named ``config.KEY`` before any range
+            check of its section sees it.
+        """
+        for key, value in overrides.items():
+            check_finite(_override_value(value), f"config.{key}")
         return with_overrides(self, overrides) if overrides else self
 
     def with_particles(self, n: int) -> RunConfig:
@@ -470,8 +516,10 @@ class RunConfig:
         ``correlation_accuracy_m`` replays with one correlation time for every fix; a whole ``filter``
         block without ``street_heading`` replays without that part, and a whole ``street_heading`` block
         without ``max_turn_deg`` without its turn gate; a whole ``filter`` block without
-        ``heading_correction`` replays without the heading correction.
+        ``heading_correction`` replays without the heading correction. A non-finite number (JSON's
+        ``Infinity``, ``NaN``) is refused, named ``WHERE.KEY``.
         """
+        check_finite(data, where)  # named here with the file; the class's own check cannot say which
         if isinstance(data, dict) and "unseen_velocity" not in data:
             data = {**data, "unseen_velocity": {"mode": "off"}}
         filter_block = data.get("filter") if isinstance(data, dict) else None

@@ -2,14 +2,14 @@
 
 Every refusal is a :class:`~curbside.errors.CurbsideInputError` whose source is the key at fault as the
 client wrote it (``config.seed``, ``config.filter.n_particles``), whatever layer refused it (the
-``--set`` parser, the config classes, the service's own limits).
+``--set`` parser, the config classes, the service's own limits). A JSON ``Infinity`` or ``NaN``, bare or in
+a string, is refused by :class:`~curbside.localize.runconfig.RunConfig` itself, as for ``localize run``.
 """
 
 from __future__ import annotations
 
 import contextlib
 import json
-import math
 from collections.abc import Callable
 from typing import Any
 
@@ -31,18 +31,6 @@ def _check_seed(value: Any) -> None:
     # numpy refuses a negative seed only when the filter starts, when it would be an internal error
     if isinstance(value, bool) or not isinstance(value, int) or value < 0:
         raise CurbsideInputError("config.seed", f"must be a non-negative integer, got {value!r}")
-
-
-def _non_finite_keys(config: Any, base: Any, prefix: str = "config") -> list[str]:
-    """Keys whose value in ``config`` is a non-finite number that ``base`` does not have."""
-    if isinstance(config, dict):
-        base = base if isinstance(base, dict) else {}
-        return [k for key, v in config.items() for k in _non_finite_keys(v, base.get(key), f"{prefix}.{key}")]
-    if isinstance(config, list | tuple):
-        base = base if isinstance(base, list | tuple) and len(base) == len(config) else [None] * len(config)
-        return [k for i, v in enumerate(config) for k in _non_finite_keys(v, base[i], f"{prefix}[{i}]")]
-    finite = not isinstance(config, float) or math.isfinite(config)
-    return [] if finite or (isinstance(base, float) and repr(base) == repr(config)) else [prefix]
 
 
 def session_config(
@@ -80,11 +68,6 @@ def session_config(
         raise CurbsideInputError(config_key(exc.source), exc.problem) from None
     except (ValueError, TypeError) as exc:  # a check of the config classes, not wrapped by the parser
         raise CurbsideInputError("config", str(exc).splitlines()[0]) from None
-    # A JSON Infinity or NaN (or "Infinity" in a string) would make the filter meaningless, and reads
-    # back as null in the reply; the service's own --set values may hold inf (a gate switched off).
-    bad = _non_finite_keys(config.to_dict(), mode_config.to_dict())
-    if bad:
-        raise CurbsideInputError(bad[0], "must be a finite number")
     chosen = config.filter.map
     if (chosen.raster_resolution_m, chosen.segment_reach_m) != (
         fixed_map.raster_resolution_m,
