@@ -172,19 +172,6 @@ def field_docs(cls: type) -> dict[str, str]:
         elif line.strip():
             docs.update({name: f"{docs[name]} {line.strip()}".strip() for name in names})
     return {name: _plain(text) for name, text in docs.items()}
-    names: list[str] = []
-    text: list[str] = []
-    for i in range(heads[0] + 2, len(lines) + 1):
-        line = lines[i] if i < len(lines) else ""
-        next_is_rule = i + 1 < len(lines) and lines[i + 1] != "" and set(lines[i + 1]) == {"-"}
-        if i == len(lines) or next_is_rule or (line and not line.startswith(" ")):
-            docs.update({name: _plain(" ".join(text)) for name in names})
-            if i == len(lines) or next_is_rule:
-                break
-            names, text = [n.strip() for n in line.split(" : ")[0].split(",")], []
-        elif line.strip():
-            text.append(line.strip())
-    return docs
 
 
 def _kind_name(kind: Any) -> str:
