@@ -178,6 +178,6 @@ def test_bad_weights_get_the_error_localize_ronin_gives(walk, tmp_path, capsys):
 
 def test_own_weights_that_cannot_run_are_an_error_under_auto_not_a_fall_back_to_pdr(tmp_path):
     session = read_any(TRIAL)
-    with pytest.raises(CurbsideInputError, match="trained on 50-sample windows"):
+    with pytest.raises(CurbsideInputError, match=r"w\.pt: trained on 50-sample windows"):
         track_session(session, None, "fused", particles=100, ronin_weights=tiny_weights(tmp_path / "w.pt",
                                                                                           window=50))

@@ -68,6 +68,7 @@ def load_model(weights: str | Path | None = None) -> RoninResNet:
     if problem:
         raise CurbsideInputError(weights, f"not a state_dict for the config in {cfg_path.name} ({problem})")
     model.load_state_dict(state)
+    model.source = str(weights)  # for messages about the model
     return model.eval()
 
 
@@ -246,7 +247,6 @@ def ronin_velocity(imu_df: pd.DataFrame, model: RoninResNet | str | Path | None 
 def check_compatible(model: RoninResNet, config: RoninStreamConfig) -> None:
     """Raise :class:`CurbsideInputError` unless the stream feeds the model its window and rate."""
     if (model.config.window, model.config.rate_hz) != (config.window, config.rate_hz):
-        raise CurbsideInputError(
-            "RoNIN model", f"trained on {model.config.window}-sample windows at {model.config.rate_hz:g} Hz, "
-                           f"the stream cuts {config.window} at {config.rate_hz:g} Hz"
-        )
+        trained = f"trained on {model.config.window}-sample windows at {model.config.rate_hz:g} Hz"
+        raise CurbsideInputError(getattr(model, "source", "RoNIN model"),
+                                 f"{trained}, the stream cuts {config.window} at {config.rate_hz:g} Hz")
