@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+import contextlib
+from collections.abc import Iterator
+
 import pytest
 import torch
 from test_ronin_data import write_ronin_sequence
@@ -42,25 +45,31 @@ def test_same_seed_same_weights_other_seed_other_weights(windows, tmp_path):
     assert not all(torch.equal(a[k], c[k]) for k in a)
 
 
-def test_interrupted_run_resumes_to_the_same_weights(windows, tmp_path, monkeypatch):
-    _, ws = windows
-    history = train(ws, ws, _options(), tmp_path / "full.pt", checkpoint=tmp_path / "full.ckpt",
-                    progress=False)
-    assert [h["epoch"] for h in history] == [1, 2]
-
-    calls = {"n": 0}
+@contextlib.contextmanager
+def interrupted_in_epoch_two() -> Iterator[None]:
+    """Inside the block, :func:`train` meets Ctrl-C at its second validation pass (epoch two)."""
     real = train_mod.evaluate_loss
+    calls = {"n": 0}
 
-    def interrupt_in_epoch_two(*args, **kwargs):
+    def evaluate_then_interrupt(*args, **kwargs):
         calls["n"] += 1
         if calls["n"] == 2:
             raise KeyboardInterrupt
         return real(*args, **kwargs)
 
-    monkeypatch.setattr(train_mod, "evaluate_loss", interrupt_in_epoch_two)
-    with pytest.raises(KeyboardInterrupt):
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setattr(train_mod, "evaluate_loss", evaluate_then_interrupt)
+        yield
+
+
+def test_interrupted_run_resumes_to_the_same_weights(windows, tmp_path):
+    _, ws = windows
+    history = train(ws, ws, _options(), tmp_path / "full.pt", checkpoint=tmp_path / "full.ckpt",
+                    progress=False)
+    assert [h["epoch"] for h in history] == [1, 2]
+
+    with interrupted_in_epoch_two(), pytest.raises(KeyboardInterrupt):
         train(ws, ws, _options(), tmp_path / "r.pt", checkpoint=tmp_path / "r.ckpt", progress=False)
-    monkeypatch.setattr(train_mod, "evaluate_loss", real)
     resumed = train(ws, ws, _options(), tmp_path / "r.pt", checkpoint=tmp_path / "r.ckpt", progress=False)
     assert [h["epoch"] for h in resumed] == [1, 2]
     ckpt_full = _state(tmp_path / "full.ckpt")["model"]

@@ -8,6 +8,7 @@ import json
 import pytest
 import torch
 from test_ronin_data import write_ronin_sequence
+from test_ronin_train import interrupted_in_epoch_two
 
 from curbside.cli.localize import main as localize_main
 from curbside.errors import CurbsideInputError
@@ -88,24 +89,13 @@ def test_the_whole_history_is_recorded_not_only_up_to_the_best_epoch(with_val, t
     assert [h["epoch"] for h in extra["history"]] == [1, 2, 3]
 
 
-def test_an_interrupted_run_writes_no_weights_and_resumes_to_the_same_ones(with_val, tmp_path, monkeypatch):
+def test_an_interrupted_run_writes_no_weights_and_resumes_to_the_same_ones(with_val, tmp_path):
     ws = _windows(with_val)
     train(ws, ws, _options(), tmp_path / "full.pt", progress=False)
-    real = train_mod.evaluate_loss
-    calls = {"n": 0}
-
-    def interrupt_in_epoch_two(*args, **kwargs):
-        calls["n"] += 1
-        if calls["n"] == 2:
-            raise KeyboardInterrupt
-        return real(*args, **kwargs)
-
-    monkeypatch.setattr(train_mod, "evaluate_loss", interrupt_in_epoch_two)
     out, ckpt = tmp_path / "r.pt", tmp_path / "r.ckpt"
-    with pytest.raises(KeyboardInterrupt):
+    with interrupted_in_epoch_two(), pytest.raises(KeyboardInterrupt):
         train(ws, ws, _options(), out, checkpoint=ckpt, progress=False)
     assert not out.exists() and not out.with_suffix(".json").exists() and ckpt.is_file()
-    monkeypatch.setattr(train_mod, "evaluate_loss", real)
     train(ws, ws, _options(), out, checkpoint=ckpt, progress=False)
     full, resumed = (torch.load(p, weights_only=True) for p in (tmp_path / "full.pt", out))
     assert all(torch.equal(full[k], resumed[k]) for k in full)
