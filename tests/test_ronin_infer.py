@@ -11,6 +11,7 @@ from curbside.cli.localize import main as localize_main
 from curbside.errors import CurbsideInputError
 from curbside.localize.ronin.infer import load_model, ronin_velocity
 from curbside.localize.ronin.stream import RoninStreamConfig
+from curbside.localize.session import read_session
 
 
 @pytest.mark.parametrize("stride", [10, 20, 40])
@@ -44,8 +45,12 @@ def test_ronin_command_writes_velocity_csv(tmp_path, capsys):
     session.mkdir()
     table.to_csv(session / "imu.csv", index=False)
     assert localize_main(["ronin", str(session)]) == 0
+    assert "(weights ronin_compact.pt, sha256 " in capsys.readouterr().out
     vel = pd.read_csv(session / "velocity.csv")
     assert list(vel.columns) == ["t", "ve", "vn"] and len(vel) == 90  # 9 s of centres every 100 ms
+    # bit for bit what `localize run` computes when the session has no velocity.csv (pipeline._velocity)
+    read = read_session(session)
+    assert np.array_equal(read.velocity.to_numpy(), ronin_velocity(read.imu).to_numpy())
     assert localize_main(["ronin", str(session), "-o", str(tmp_path / "v.csv")]) == 0
     assert pd.read_csv(tmp_path / "v.csv").equals(vel)
     assert localize_main(["ronin", str(session), "--stride", "40", "-o", str(tmp_path / "v40.csv")]) == 0
