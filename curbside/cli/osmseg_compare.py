@@ -79,7 +79,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "--streets-from",
         metavar="MAP",
         help="keep this map's streets, crosswalks and sidewalks under the DataSF buildings (the "
-        "map-source comparison's third map; default bbox: MAP's)",
+        "map-source comparison's third map; default bbox: MAP's extent)",
     )
     datasf.add_argument("-o", "--output", required=True, help="output map GeoJSON")
     datasf.add_argument("--overwrite", action="store_true", help=OVERWRITE_FILE_HELP)

@@ -30,6 +30,7 @@ import shapely
 
 from curbside import __version__, settings
 from curbside.errors import CurbsideInputError
+from curbside.osmseg.compare import map_extent
 from curbside.osmseg.mapio import MapLayers
 from curbside.projection import WGS84, utm_crs_for
 
@@ -182,7 +183,8 @@ def over_streets_of(buildings: MapLayers, streets_map: MapLayers) -> MapLayers:
     Returns
     -------
     MapLayers
-        In ``streets_map``'s CRS, its ``bbox`` kept, ``source`` and ``attribution`` naming both sources.
+        In ``streets_map``'s CRS, its extent (:func:`~curbside.osmseg.compare.map_extent`: its ``bbox``,
+        else its polygons' bounds) as ``bbox``, ``source`` and ``attribution`` naming both sources.
     """
     import pandas as pd
 
@@ -192,6 +194,7 @@ def over_streets_of(buildings: MapLayers, streets_map: MapLayers) -> MapLayers:
     )
     meta = {
         **streets_map.meta,
+        "bbox": list(map_extent(streets_map)),
         "source": "DataSF 2013 buildings + " + str(streets_map.meta.get("source", "OSM")),
         "attribution": "Buildings: DataSF 2013 (ODC PDDL); streets and sidewalks: "
         + str(streets_map.meta.get("attribution") or settings.osm_attribution),
@@ -207,7 +210,7 @@ def read_datasf_over(
     fill_holes: bool = False,
 ) -> MapLayers:
     """DataSF's buildings read over ``streets_map`` (:func:`over_streets_of`), within ``bbox`` (default:
-    the map's own)."""
-    if bbox is None and streets_map.meta.get("bbox"):
-        bbox = tuple(streets_map.meta["bbox"])
+    the map's extent, so a hand-made map without a metadata ``bbox`` does not get the whole city)."""
+    if bbox is None:
+        bbox = map_extent(streets_map)
     return over_streets_of(read_datasf(tiles, bbox=bbox, fill_holes=fill_holes), streets_map)

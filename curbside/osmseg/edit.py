@@ -9,9 +9,10 @@ or its sidewalk fields, or delete it; the toolbar draws new polygons and rectang
 - every feature keeps its GeoJSON ``id``: its index in the map file the page was made from (with
   ``--bbox``, in the clipped map); drawn ones are ``new-1``, ``new-2``... Edited ones carry
   ``properties.edited`` (``geometry``, ``class``, ``fields``, ``drawn``, comma separated);
-- the ``curbside`` metadata member keeps the original's and adds ``edits``: the file it was made from,
-  when it was saved, and the ids of the features changed in each way (``geometry``, ``class``,
-  ``fields``, ``drawn``, ``deleted``).
+- the ``curbside`` metadata member keeps the original's (its ``bbox`` set to the original's extent
+  when it had none, so that deleting a polygon at the edge does not shrink the map) and adds
+  ``edits``: the file it was made from, when it was saved, and the ids of the features changed in
+  each way (``geometry``, ``class``, ``fields``, ``drawn``, ``deleted``).
 
 Unedited features are saved exactly as they are in the map file (with ``--bbox``: as clipped). The
 saved file is read like any map (:func:`curbside.osmseg.mapio.read_map` validates it), e.g. by
@@ -27,6 +28,7 @@ from pathlib import Path
 
 import curbside
 from curbside.io import atomic_path
+from curbside.osmseg.compare import map_extent
 from curbside.osmseg.mapio import MapLayers, to_geojson
 from curbside.osmseg.style import CLASS_STYLE, stroke_colour
 from curbside.osmseg.webmap import asset_text, attribution, bounds_js, leaflet_page, script_json
@@ -73,6 +75,9 @@ def editor_data(layers: MapLayers, source: str, features: list[dict] | None = No
         ``classes`` (``{class: {fill, stroke, label}}``) and ``features``.
     """
     doc = to_geojson(layers, precision=EDIT_COORDINATE_DECIMALS)
+    # The saved map keeps the original's extent: without it, deleting a polygon at the edge of a map
+    # that has no metadata bbox would shrink the area `osmseg compare` looks at and hide the deletion.
+    meta = {**doc["curbside"], "bbox": list(map_extent(layers))}
     if features is None:
         features = [{**feature, "id": i} for i, feature in enumerate(doc["features"])]
     classes = {  # in drawing order, bottom to top
@@ -83,7 +88,7 @@ def editor_data(layers: MapLayers, source: str, features: list[dict] | None = No
         "source": source,
         "filename": f"{Path(source).stem}-edited.geojson",
         "generator": f"curbside {curbside.__version__} osmseg edit",
-        "meta": doc["curbside"],
+        "meta": meta,
         "classes": classes,
         "decimals": EDIT_COORDINATE_DECIMALS,
         "features": features,

@@ -9,6 +9,7 @@ local UTM CRS plus that metadata.
 from __future__ import annotations
 
 import json
+import logging
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -24,6 +25,8 @@ from curbside.projection import WGS84, utm_crs_for
 
 if TYPE_CHECKING:
     from pyproj import CRS
+
+log = logging.getLogger(__name__)
 
 CLASSES: tuple[str, ...] = ("building", "street", "crosswalk", "sidewalk")
 SIDEWALK_COLUMNS: tuple[str, ...] = ("segment_id", "street", "side")
@@ -79,6 +82,76 @@ def from_wgs84(gdf: gpd.GeoDataFrame, meta: dict[str, Any] | None = None) -> Map
     return MapLayers(out.reset_index(drop=True), dict(meta or {}))
 
 
+def polygonal_parts(geoms: np.ndarray) -> np.ndarray:
+    """The polygonal part of each geometry: polygons pass, collections and lines keep their polygons.
+
+    ``make_valid`` turns a spike of a hand-drawn polygon into a stray line beside the polygon, and a
+    zero-area polygon into a line; rasterised, such a line would become a one-cell-wide wall.
+
+    Parameters
+    ----------
+    geoms
+        Array of (valid) geometries.
+
+    Returns
+    -------
+    numpy.ndarray
+        Polygons and multipolygons unchanged; anything else replaced by the multipolygon of its
+        polygons, or by an empty polygon when it has none.
+    """
+    geoms = np.array(geoms, dtype=object)
+    other = np.flatnonzero(~np.isin(shapely.get_type_id(geoms), (3, 6)))
+    if len(other) == 0:
+        return geoms
+    parts, owner = shapely.get_parts(geoms[other], return_index=True)
+    parts, sub = shapely.get_parts(parts, return_index=True)
+    owner = owner[sub]
+    keep = shapely.get_type_id(parts) == 3
+    geoms[other] = shapely.Polygon()
+    if keep.any():
+        owners, group = np.unique(owner[keep], return_inverse=True)
+        geoms[other[owners]] = shapely.multipolygons(parts[keep], indices=group)
+    return geoms
+
+
+def _check_classes(path: Path, features: list, gdf: gpd.GeoDataFrame) -> None:
+    """Refuse a map whose polygons lack a class or have one outside :data:`CLASSES`, naming the first.
+
+    Other features (a marker left in a geojson.io file) are ignored, class or not.
+    """
+    classes = gdf["class"]
+    polygon = gdf.geom_type.isin(["Polygon", "MultiPolygon"]).to_numpy()
+    bad = np.flatnonzero(~np.isin(classes.astype(object).fillna("").astype(str), CLASSES) & polygon)
+    if len(bad) == 0:
+        return
+    i = int(bad[0])
+    feature = features[i] if isinstance(features[i], dict) else {}
+    label = f"feature {i}" + (f" (id {feature['id']!r})" if "id" in feature else "")
+    value = classes.iloc[i]
+    what = (
+        f"{label} has no properties.class" if value is None or value != value
+        else f"unknown feature class {value!r} at {label}"
+    )
+    raise CurbsideInputError(path, f"{what} ({len(bad)} such polygon(s)); expected one of {list(CLASSES)}")
+
+
+def _check_crs_member(path: Path, crs: Any) -> None:
+    """Refuse a (pre-RFC 7946) ``crs`` member naming anything but WGS84 lon/lat.
+
+    QGIS and GDAL write one when exporting from another CRS; coordinates of a projected CRS in small
+    units (km, a local grid) could otherwise pass for degrees.
+    """
+    if crs is None:
+        return
+    props = crs.get("properties") if isinstance(crs, dict) else None
+    name = str(props["name"]) if isinstance(props, dict) and "name" in props else json.dumps(crs)
+    if not (name.endswith("CRS84") or name.endswith(":4326")):
+        raise CurbsideInputError(
+            path, f"declares CRS {name}: coordinates not WGS84 lon/lat (GeoJSON must be EPSG:4326); "
+            "reproject it on export",
+        )
+
+
 def read_map(path: str | Path) -> MapLayers:
     """Read and validate a map GeoJSON (the automatic OSM map or a hand-labelled one).
 
@@ -90,7 +163,9 @@ def read_map(path: str | Path) -> MapLayers:
     Returns
     -------
     MapLayers
-        Projected to the local UTM zone; invalid polygons repaired with ``make_valid``.
+        Projected to the local UTM zone; invalid polygons repaired with ``make_valid`` (a warning
+        says how many), keeping only the polygonal part of the repair (:func:`polygonal_parts`):
+        stray lines are dropped, and so is a feature left without area.
 
     Raises
     ------
@@ -109,6 +184,7 @@ def read_map(path: str | Path) -> MapLayers:
         raise CurbsideInputError(path, f"not readable as GeoJSON ({exc})") from None
     if not isinstance(doc, dict) or doc.get("type") != "FeatureCollection":
         raise CurbsideInputError(path, "not a GeoJSON FeatureCollection")
+    _check_crs_member(path, doc.get("crs"))
     features = doc.get("features") or []
     if not features:
         raise CurbsideInputError(path, "the map has no features")
@@ -118,11 +194,7 @@ def read_map(path: str | Path) -> MapLayers:
         raise CurbsideInputError(path, f"bad feature geometry ({exc})") from None
     if "class" not in gdf:
         raise CurbsideInputError(path, "features lack properties.class")
-    unknown = sorted(set(gdf["class"].dropna().astype(str)) - set(CLASSES))
-    if unknown or gdf["class"].isna().any():
-        raise CurbsideInputError(
-            path, f"unknown feature class(es) {unknown or ['null']}; expected one of {list(CLASSES)}"
-        )
+    _check_classes(path, features, gdf)
     gdf = gdf[~gdf.geometry.is_empty & gdf.geometry.notna()]
     gdf = gdf[gdf.geom_type.isin(["Polygon", "MultiPolygon"])]
     if len(gdf) == 0:
@@ -132,7 +204,17 @@ def read_map(path: str | Path) -> MapLayers:
         raise CurbsideInputError(
             path, "coordinates are not WGS84 lon/lat degrees (GeoJSON must be EPSG:4326)"
         )
-    gdf = gdf.set_geometry(shapely.make_valid(gdf.geometry.values))
+    invalid = ~shapely.is_valid(gdf.geometry.values)
+    gdf = gdf.set_geometry(polygonal_parts(shapely.make_valid(gdf.geometry.values)))
+    collapsed = gdf.geometry.is_empty.to_numpy()
+    if invalid.any():
+        log.warning(
+            "%s: repaired %d invalid (e.g. self-intersecting) polygon(s); %d had no area left and "
+            "were dropped", path, int(invalid.sum()), int(collapsed.sum()),
+        )
+    gdf = gdf[~collapsed]
+    if len(gdf) == 0:
+        raise CurbsideInputError(path, "the map has no polygons with an area")
     meta = doc.get("curbside") if isinstance(doc.get("curbside"), dict) else {}
     return from_wgs84(gdf, meta)
 
