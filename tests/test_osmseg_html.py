@@ -174,5 +174,5 @@ def test_tooltip_names_the_street_and_its_compass_side(crossroads):
 
 def test_the_background_has_an_honest_legend_line(crossroads):
     page = html_page(crossroads)
-    assert "free space (no building mapped in OSM)" in page
+    assert "free space (no building in this map)" in page  # a hand-drawn map: not OSM's buildings
     assert 'querySelector(".leaflet-control-layers-list").append(background)' in page

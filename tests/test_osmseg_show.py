@@ -223,7 +223,7 @@ def test_png_legend_names_the_background_honestly_and_sits_outside_the_map(cross
     fig = Figure(figsize=(6, 6))
     ax = plot.plot_map(read_map(crossroads), fig.add_axes((0.05, 0.05, 0.6, 0.85)))
     labels = [t.get_text() for t in ax.get_legend().get_texts()]
-    assert "free space (no building mapped in OSM)" in labels and "free space" not in labels
+    assert "free space (no building in this map)" in labels and "free space" not in labels  # hand-drawn
     renderer = FigureCanvasAgg(fig).get_renderer()
     legend, frame = ax.get_legend().get_window_extent(renderer), ax.get_window_extent(renderer)
     assert legend.x0 >= frame.x1  # beside the map, covering none of it

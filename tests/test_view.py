@@ -316,3 +316,12 @@ def test_large_clouds_are_drawn_thinned_with_their_weights():
     assert len(dlat) == 2 * MAX_DRAWN_PARTICLES and (alpha[:, 1] == 255).all()
     small = ParticleClouds(np.arange(3.0), x[:, :300], y[:, :300], None, None, None, clouds.crs)
     assert _cloud_data(small)["n"] == 300  # at most MAX_DRAWN_PARTICLES: every particle is drawn
+
+
+def test_every_maps_credit_is_on_the_page(runs):
+    """A DataSF map first and an OSM map second: the OSM credit must not be dropped (ODbL)."""
+    osm = read_map(CROSSROADS)
+    datasf = read_map(CROSSROADS)
+    datasf.meta = {**datasf.meta, "attribution": "City and County of San Francisco (DataSF)"}
+    page = view_page([load_run(runs[1])], maps={"datasf.geojson": datasf, "osm.geojson": osm})
+    assert "DataSF" in page and "© OpenStreetMap contributors" in page

@@ -286,7 +286,7 @@ def view_page(
     west, south, east, north = _extent(runs)
     data = {"runs": runs_data, "sessions": list(sessions.values()), "title": title,
             "bounds": [[south, west], [north, east]]}
-    first = next(iter(maps.values())) if maps else None
+    credits = " · ".join(dict.fromkeys(attribution(layers) for layers in maps.values()))
     script = "\n".join(
         [
             _map_overlays(maps, bbox, namer),
@@ -297,7 +297,7 @@ def view_page(
     return leaflet_page(
         title,
         script,
-        attribution_html=html.escape(attribution(first)) if first is not None else "",
+        attribution_html=html.escape(credits),
         body=asset_text("curbside-view.html"),
         page_css=asset_text("curbside-view.css"),
     )

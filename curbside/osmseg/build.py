@@ -222,8 +222,9 @@ def build_map(
     MapLayers
         Polygons in local UTM; ``meta`` holds ``source``, ``bbox`` (the area the map covers: with a
         file, the bbox asked for clipped to the bounds the file declares, and then ``bbox_asked``
-        too), ``osm_timestamp``, ``generator``, ``attribution``, ``params`` (``config`` as a dict) and
-        ``sidewalk_ways_in_buildings`` (:func:`~curbside.osmseg.streets.sidewalk_length_in_buildings`).
+        too), ``osm_timestamp``, ``generator``, ``attribution``, ``buildings_source`` (``"osm"``),
+        ``params`` (``config`` as a dict) and ``sidewalk_ways_in_buildings``
+        (:func:`~curbside.osmseg.streets.sidewalk_length_in_buildings`).
 
     Raises
     ------
@@ -260,6 +261,7 @@ def build_map(
         "osm_timestamp": osm.timestamp,
         "generator": f"curbside {curbside.__version__}",
         "attribution": settings.osm_attribution,
+        "buildings_source": "osm",
         "params": to_dict(config),
         "sidewalk_ways_in_buildings": round(
             sidewalk_length_in_buildings(sidewalk_lines, gdf.geometry.values[gdf["class"] == "building"]), 4

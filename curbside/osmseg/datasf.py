@@ -119,8 +119,8 @@ def read_datasf(
     -------
     MapLayers
         Class ``building`` only, in the local UTM CRS. ``meta`` holds ``source`` (tile names),
-        ``bbox`` (the given one, else the footprints' bounds), ``attribution``, ``generator`` and
-        ``params``.
+        ``bbox`` (the given one, else the footprints' bounds), ``attribution``, ``buildings_source``
+        (``"datasf"``), ``generator`` and ``params``.
 
     Raises
     ------
@@ -162,6 +162,7 @@ def read_datasf(
         "source": [p.name for p in paths],
         "bbox": list(bbox) if bbox is not None else [float(v) for v in (west, south, east, north)],
         "attribution": DATASF_ATTRIBUTION,
+        "buildings_source": "datasf",
         "generator": f"curbside {__version__} (osmseg import-datasf)",
         "params": {"inner_rings": "outer outlines only" if fill_holes else "holes",
                    "duplicate_iou": duplicate_iou, "min_area_m2": min_area_m2},
@@ -184,7 +185,8 @@ def over_streets_of(buildings: MapLayers, streets_map: MapLayers) -> MapLayers:
     -------
     MapLayers
         In ``streets_map``'s CRS, its extent (:func:`~curbside.osmseg.compare.map_extent`: its ``bbox``,
-        else its polygons' bounds) as ``bbox``, ``source`` and ``attribution`` naming both sources.
+        else its polygons' bounds) as ``bbox``, ``source`` and ``attribution`` naming both sources,
+        ``buildings_source`` ``"datasf"``.
     """
     import pandas as pd
 
@@ -196,6 +198,7 @@ def over_streets_of(buildings: MapLayers, streets_map: MapLayers) -> MapLayers:
         **streets_map.meta,
         "bbox": list(map_extent(streets_map)),
         "source": "DataSF 2013 buildings + " + str(streets_map.meta.get("source", "OSM")),
+        "buildings_source": "datasf",
         "attribution": "Buildings: DataSF 2013 (ODC PDDL); streets and sidewalks: "
         + str(streets_map.meta.get("attribution") or settings.osm_attribution),
     }

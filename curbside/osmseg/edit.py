@@ -10,7 +10,8 @@ or its sidewalk fields, or delete it; the toolbar draws new polygons and rectang
   ``--bbox``, in the clipped map); drawn ones are ``new-1``, ``new-2``... Edited ones carry
   ``properties.edited`` (``geometry``, ``class``, ``fields``, ``drawn``, comma separated);
 - the ``curbside`` metadata member keeps the original's (its ``bbox`` set to the original's extent
-  when it had none, so that deleting a polygon at the edge does not shrink the map) and adds
+  when it had none, so that deleting a polygon at the edge does not shrink the map, its
+  ``buildings_source`` set to ``edited``) and adds
   ``edits``: the file it was made from, when it was saved, and the ids of the features changed in
   each way (``geometry``, ``class``, ``fields``, ``drawn``, ``deleted``).
 
@@ -77,7 +78,8 @@ def editor_data(layers: MapLayers, source: str, features: list[dict] | None = No
     doc = to_geojson(layers, precision=EDIT_COORDINATE_DECIMALS)
     # The saved map keeps the original's extent: without it, deleting a polygon at the edge of a map
     # that has no metadata bbox would shrink the area `osmseg compare` looks at and hide the deletion.
-    meta = {**doc["curbside"], "bbox": list(map_extent(layers))}
+    # Whatever the map was made from, its saved buildings are the editor's (the legend says so).
+    meta = {**doc["curbside"], "bbox": list(map_extent(layers)), "buildings_source": "edited"}
     if features is None:
         features = [{**feature, "id": i} for i, feature in enumerate(doc["features"])]
     classes = {  # in drawing order, bottom to top

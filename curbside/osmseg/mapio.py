@@ -2,8 +2,8 @@
 
 A map is one FeatureCollection in WGS84 whose features carry ``properties.class`` in
 :data:`CLASSES`; ``sidewalk`` features also carry ``segment_id``, ``street`` and ``side``. A top-level
-``"curbside"`` member holds metadata. In memory a map is a :class:`MapLayers`: a GeoDataFrame in the
-local UTM CRS plus that metadata.
+``"curbside"`` member holds metadata, ``buildings_source`` among it (:func:`buildings_source`). In
+memory a map is a :class:`MapLayers`: a GeoDataFrame in the local UTM CRS plus that metadata.
 """
 
 from __future__ import annotations
@@ -30,6 +30,10 @@ log = logging.getLogger(__name__)
 
 CLASSES: tuple[str, ...] = ("building", "street", "crosswalk", "sidewalk")
 SIDEWALK_COLUMNS: tuple[str, ...] = ("segment_id", "street", "side")
+#: Values of the ``buildings_source`` metadata, where a map's building polygons came from: ``osmseg
+#: build`` (OpenStreetMap), ``osmseg import-datasf`` (the DataSF 2013 footprints, with or without another
+#: map's streets) and ``osmseg edit`` (a map saved by the editor, whatever it was made from).
+BUILDINGS_SOURCES: tuple[str, ...] = ("osm", "datasf", "edited")
 
 
 @dataclass
@@ -42,7 +46,8 @@ class MapLayers:
         One row per polygon: ``class``, ``geometry`` and, for sidewalks, ``segment_id``, ``street``,
         ``side`` (null elsewhere). CRS: local UTM.
     meta
-        The ``"curbside"`` metadata member (``source``, ``bbox``, ``generator``, ``params``...).
+        The ``"curbside"`` metadata member (``source``, ``bbox``, ``generator``, ``buildings_source``,
+        ``params``...).
     """
 
     gdf: gpd.GeoDataFrame
@@ -61,6 +66,32 @@ class MapLayers:
         """Union of all polygons of one class (an empty polygon when there are none)."""
         geoms = self.layer(cls).geometry.values
         return shapely.union_all(geoms) if len(geoms) else shapely.Polygon()
+
+
+def buildings_source(meta: dict[str, Any]) -> str | None:
+    """Where a map's buildings came from, one of :data:`BUILDINGS_SOURCES`, or ``None`` when unknown.
+
+    Parameters
+    ----------
+    meta
+        A map's ``"curbside"`` metadata member.
+
+    Returns
+    -------
+    str or None
+        Its ``buildings_source``. A file written before that field existed is judged by the rest of its
+        metadata: ``edits`` (only the editor writes it) means ``"edited"``, an ``attribution`` naming
+        DataSF ``"datasf"``, an ``osm_timestamp`` (only ``osmseg build`` writes it) ``"osm"``. ``None``
+        for a map without such metadata (drawn in QGIS, geojson.io...) or with another value.
+    """
+    value = meta.get("buildings_source")
+    if value is not None:
+        return value if value in BUILDINGS_SOURCES else None
+    if "edits" in meta:
+        return "edited"
+    if "DataSF" in str(meta.get("attribution") or ""):
+        return "datasf"
+    return "osm" if "osm_timestamp" in meta else None
 
 
 def _empty_gdf(crs) -> gpd.GeoDataFrame:

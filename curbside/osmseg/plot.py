@@ -22,7 +22,7 @@ from curbside import __version__
 from curbside.errors import CurbsideInputError
 from curbside.io import atomic_path
 from curbside.osmseg.mapio import MapLayers
-from curbside.osmseg.style import BACKGROUND, BACKGROUND_LABEL, CLASS_STYLE, CONFLICT_COLOUR
+from curbside.osmseg.style import BACKGROUND, CLASS_STYLE, CONFLICT_COLOUR, background_label
 from curbside.osmseg.webmap import (
     attribution,
     bounds_js,
@@ -143,7 +143,8 @@ def sidewalk_under_buildings(layers: MapLayers) -> gpd.GeoSeries:
 
 def plot_map(layers: MapLayers, ax: Axes, title: str | None = None) -> Axes:
     """Draw a map's classes, a legend, a scale bar and the attribution on a matplotlib axes; where its
-    buildings stand on its sidewalks (:func:`sidewalk_under_buildings`), that area in red.
+    buildings stand on its sidewalks (:func:`sidewalk_under_buildings`), that area in red. The legend's
+    background line says where the buildings came from (:func:`~curbside.osmseg.style.background_label`).
 
     Parameters
     ----------
@@ -173,7 +174,9 @@ def plot_map(layers: MapLayers, ax: Axes, title: str | None = None) -> Axes:
             rows.geometry.plot(ax=ax, linewidth=0.0, **stripes)
             fill = {**fill, **stripes, "facecolor": style["facecolor"]}
         handles.append(Patch(**fill, label=f"{style['label']} ({len(rows):,})"))
-    handles.append(Patch(facecolor=BACKGROUND, edgecolor="#999999", linewidth=0.5, label=BACKGROUND_LABEL))
+    handles.append(
+        Patch(facecolor=BACKGROUND, edgecolor="#999999", linewidth=0.5, label=background_label(layers.meta))
+    )
     conflict = sidewalk_under_buildings(layers)
     if len(conflict):
         conflict.plot(ax=ax, facecolor=CONFLICT_COLOUR, edgecolor="none", zorder=5)
@@ -246,7 +249,7 @@ def html_page(layers: MapLayers, title: str | None = None, places: dict[str, str
     The page loads nothing: the vendored Leaflet script and stylesheet (``curbside/data/web``) and the
     polygons are inlined, so it opens offline. Each class present is one toggleable overlay in an
     expanded layer control, under which a swatch says what the background is
-    (:data:`~curbside.osmseg.style.BACKGROUND_LABEL`); sidewalk segments show the street with its
+    (:func:`~curbside.osmseg.style.background_label`); sidewalk segments show the street with its
     compass side, ``segment_id`` and the OSM ``side`` in a tooltip and thicken their outline under the
     pointer. Coordinates are rounded to :data:`curbside.osmseg.webmap.COORDINATE_DECIMALS` for display.
     The attribution goes to Leaflet's attribution control.
@@ -272,7 +275,7 @@ def html_page(layers: MapLayers, title: str | None = None, places: dict[str, str
     conflict = sidewalk_under_buildings(layers)
     if len(conflict):
         script += "\n" + conflict_overlay_js(conflict)
-    script += "\n" + _background_legend_js()
+    script += "\n" + _background_legend_js(background_label(layers.meta))
     script += f"\nmap.fitBounds({bounds_js(west, south, east, north)});"
     return leaflet_page(
         title or map_title(layers), script, attribution_html=html.escape(attribution(layers)),
@@ -280,9 +283,10 @@ def html_page(layers: MapLayers, title: str | None = None, places: dict[str, str
     )
 
 
-def _background_legend_js() -> str:
-    """A swatch of the background below the layer control's overlays (a legend line, not a layer)."""
-    label = swatch_label(BACKGROUND, "#999999", BACKGROUND_LABEL)
+def _background_legend_js(text: str) -> str:
+    """A swatch of the background, labelled ``text``, below the layer control's overlays (a legend line,
+    not a layer)."""
+    label = swatch_label(BACKGROUND, "#999999", text)
     return (
         'const background = document.createElement("div");\n'
         'background.className = "background-legend";\n'

@@ -3,6 +3,10 @@
 
 from __future__ import annotations
 
+from typing import Any
+
+from curbside.osmseg.mapio import buildings_source
+
 #: Drawing style of each class: fill, outline, hatch and legend label. Drawn bottom to top in this order.
 CLASS_STYLE: dict[str, dict[str, object]] = {
     "street": {"facecolor": "#8e9aab", "edgecolor": "none", "linewidth": 0.0, "label": "street (jaywalking)"},
@@ -23,10 +27,33 @@ CLASS_STYLE: dict[str, dict[str, object]] = {
 CONFLICT_COLOUR = "#d62728"
 #: Colour of the space no polygon covers.
 BACKGROUND = "#f3efe6"
-#: Legend label of that space. No polygon means no building *mapped in OSM*, not open ground: where OSM
-#: lacks building outlines (the bundled extract's southern band, see ``docs/maps.md``) whole blocks are
-#: this colour.
-BACKGROUND_LABEL = "free space (no building mapped in OSM)"
+#: Legend label of that space on a map whose buildings' source is unknown. No polygon means no building
+#: *in the map*, not open ground: where a source lacks building outlines (OSM in the bundled extract's
+#: southern band, see ``docs/maps.md``) whole blocks are this colour.
+BACKGROUND_LABEL = "free space (no building in this map)"
+#: That label by where the map's buildings came from (:func:`curbside.osmseg.mapio.buildings_source`).
+BACKGROUND_LABELS: dict[str, str] = {
+    "osm": "free space (no building mapped in OSM)",
+    "datasf": "free space (no building in the DataSF 2013 footprints)",
+    "edited": "free space (no building in this hand-edited map)",
+}
+
+
+def background_label(meta: dict[str, Any]) -> str:
+    """The legend label of the space no polygon covers, true to where the map's buildings came from.
+
+    Parameters
+    ----------
+    meta
+        The map's ``"curbside"`` metadata member.
+
+    Returns
+    -------
+    str
+        :data:`BACKGROUND_LABELS` of its :func:`~curbside.osmseg.mapio.buildings_source`, else
+        :data:`BACKGROUND_LABEL`.
+    """
+    return BACKGROUND_LABELS.get(buildings_source(meta) or "", BACKGROUND_LABEL)
 
 
 def stroke_colour(cls: str) -> str:
