@@ -4,9 +4,12 @@
 
     localize serve [--map MAP] [--host 127.0.0.1] [--port 8750] [--data-dir DIR] [--token-file FILE]
                    [--mode MODE] [--set KEY=VALUE ...] [--idle-timeout S] [--max-sessions N]
+                   [--keep-tracks-days D] [--max-tracks N]
 
 Without ``--map`` it tracks as ``localize run`` does without one. Tracks of ended sessions go to
-``DATA_DIR/tracks`` (default: the user's data folder, ``CURBSIDE_DATA_DIR``). With a token (from
+``DATA_DIR/tracks`` (default: the user's data folder, ``CURBSIDE_DATA_DIR``); they are kept until
+``DELETE /tracks/{id}``, or, with ``--keep-tracks-days`` or ``--max-tracks``, until they are older or
+beyond the count (checked at start and every minute). With a token (from
 ``--token-file`` or ``CURBSIDE_TOKEN``) every request must carry ``Authorization: Bearer TOKEN``.
 """
 
@@ -18,11 +21,15 @@ import os
 import socket
 import sys
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from curbside import settings
 from curbside.cli.common import add_config_options, config_overrides, port, positive_float, positive_int
 from curbside.errors import CurbsideInputError
 from curbside.localize.runconfig import MODES
+
+if TYPE_CHECKING:
+    from curbside.localize.serve.common import ServiceConfig
 
 logger = logging.getLogger(__name__)
 
@@ -60,6 +67,13 @@ def _data_dir(path: str | None) -> Path:
     return folder
 
 
+def _retention(config: ServiceConfig) -> str:
+    """How long tracks are kept, for the start-up line (empty: until deleted)."""
+    kept = [f"{config.keep_tracks_days:g} days"] if config.keep_tracks_days is not None else []
+    kept += [f"the newest {config.max_tracks}"] if config.max_tracks is not None else []
+    return f" (kept: {', at most '.join(kept)})" if kept else ""
+
+
 def _serve(args: argparse.Namespace) -> int:
     import torch
     import uvicorn
@@ -77,13 +91,16 @@ def _serve(args: argparse.Namespace) -> int:
         overrides=config_overrides(args),
         idle_timeout_s=args.idle_timeout,
         max_sessions=args.max_sessions,
+        keep_tracks_days=args.keep_tracks_days,
+        max_tracks=args.max_tracks,
     )
     service = TrackingService(config)
     app = create_app(config, service)
     where = f"map {args.map} ({len(service.places)} sidewalk segments)" if args.map else "no map"
+    tracks = f"{config.data_dir / 'tracks'}{_retention(config)}"
     sys.stdout.write(
         f"localize serve: http://{args.host}:{args.port} (OpenAPI page /docs), {where}, mode {config.mode}, "
-        f"tracks in {config.data_dir / 'tracks'}{', token required' if config.token else ''}\n"
+        f"tracks in {tracks}{', token required' if config.token else ''}\n"
     )
     sys.stdout.flush()
     uvicorn.run(
@@ -137,6 +154,20 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     )
     parser.add_argument("--max-sessions", type=positive_int, default=1000,
                         help="open sessions at most (default 1000)")
+    parser.add_argument(
+        "--keep-tracks-days",
+        type=positive_float,
+        metavar="D",
+        help="remove the service's finished tracks older than D days, at start and every minute "
+        "(default: keep them until DELETE /tracks/{id})",
+    )
+    parser.add_argument(
+        "--max-tracks",
+        type=positive_int,
+        metavar="N",
+        help="keep at most the N newest finished tracks, removing the oldest at start and every minute "
+        "(default: no limit)",
+    )
     parser.add_argument(
         "--threads",
         type=positive_int,

@@ -1,10 +1,11 @@
 """The HTTP and WebSocket face of the tracking service (FastAPI; ``docs/service.md`` is the guide).
 
 Every error is a JSON ``{"detail": "one line"}`` with a 4xx status: 400 malformed JSON, 401 missing or
-wrong token, 404 unknown session, 409 session ending or still open, 410 session ended, 413 body too
-large, 422 rows or configuration refused (nothing changed), 503 too many sessions or the service
-stopping; a bug is a 500 naming only the exception's type. The OpenAPI page is at ``/docs`` (the schema
-at ``/openapi.json``; both public: they hold no data).
+wrong token, 404 unknown session or track, 409 session ending or still open (or a track folder the
+service did not write), 410 session ended, 413 body too large, 422 rows or configuration refused
+(nothing changed), 503 too many sessions or the service stopping; a bug is a 500 naming only the
+exception's type. The OpenAPI page is at ``/docs`` (the schema at ``/openapi.json``; both public: they
+hold no data).
 """
 
 from __future__ import annotations
@@ -252,7 +253,7 @@ def _add_session_routes(app: FastAPI, service: TrackingService, config: ServiceC
 
 
 def _add_track_routes(app: FastAPI, service: TrackingService, auth: list) -> None:
-    """``/tracks``: the saved tracks of ended sessions."""
+    """``/tracks``: the saved tracks of ended sessions; read or remove one."""
 
     @app.get("/tracks", response_model=list[TrackInfo], dependencies=auth, tags=["tracks"])
     async def list_tracks() -> list[dict[str, Any]]:
@@ -265,8 +266,11 @@ def _add_track_routes(app: FastAPI, service: TrackingService, auth: list) -> Non
         # Off the event loop (a route without async), and the GeoJSON as it is on disk: parsing and
         # encoding an hour's track again took 0.4 s.
         folder = service.track_folder(session_id)
-        run = json_ready(json.loads((folder / "run.json").read_text(encoding="utf-8")))
-        track = (folder / "track.geojson").read_bytes()
+        try:
+            run = json_ready(json.loads((folder / "run.json").read_text(encoding="utf-8")))
+            track = (folder / "track.geojson").read_bytes()
+        except FileNotFoundError:  # deleted meanwhile
+            raise ServiceError(404, "no such track") from None
         body = b'{"run": ' + json.dumps(run, allow_nan=False).encode() + b', "track": ' + track + b"}"
         return Response(body, media_type="application/json")
 
@@ -276,6 +280,12 @@ def _add_track_routes(app: FastAPI, service: TrackingService, auth: list) -> Non
         if name not in TRACK_FILES:
             raise ServiceError(404, f"no such file; one of {', '.join(TRACK_FILES)}")
         return FileResponse(service.track_folder(session_id) / name)
+
+    @app.delete("/tracks/{session_id}", response_model=TrackInfo, dependencies=auth, tags=["tracks"])
+    async def delete_track(session_id: str) -> dict[str, Any]:
+        """Remove an ended session's track (its listing entry is the reply). Only a folder the service
+        wrote is removed, and in it only the files it wrote; 409 while the session is open."""
+        return await service.delete_track(session_id)
 
 
 async def _push(service: TrackingService, session_id: str, body: Samples) -> dict[str, Any]:

@@ -175,7 +175,7 @@ class TrackSummary(BaseModel):
 
 
 class TrackInfo(BaseModel):
-    """One finished track in ``GET /tracks``."""
+    """One finished track in ``GET /tracks`` (and the reply of ``DELETE /tracks/{id}``)."""
 
     key: str
     reason: str | None = None

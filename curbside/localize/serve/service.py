@@ -28,6 +28,8 @@ request, or when the service stops; once its last windows are back, its track is
 formatting a long track holds no other session up; the session answers 409 until its track is written
 and its ``DELETE`` is answered. If finishing it fails (a bug),
 it ends all the same, with the track it has so far: no request waits for good, nor does the shutdown.
+A track goes with ``DELETE /tracks/{id}`` (:meth:`TrackingService.delete_track`) or by the opt-in
+retention limits, applied at start and every ``RETENTION_PERIOD_S`` on the same thread.
 """
 
 from __future__ import annotations
@@ -39,8 +41,9 @@ import logging
 import secrets
 import time
 from collections import deque
+from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from datetime import datetime, timezone
 from pathlib import Path
 from typing import Any
@@ -48,67 +51,18 @@ from typing import Any
 import numpy as np
 import shapely
 
-from curbside import settings
 from curbside.errors import CurbsideInputError
 from curbside.localize.engine import StartPose
-from curbside.localize.live import IMU_COLUMNS, IMU_QUAT_COLUMNS, InferenceQueue, LiveLimits, LiveSession
+from curbside.localize.live import IMU_COLUMNS, IMU_QUAT_COLUMNS, InferenceQueue, LiveSession
 from curbside.localize.pipeline import resolve_config
 from curbside.localize.runconfig import RunConfig
 from curbside.localize.serve.answers import estimate_of
+from curbside.localize.serve.common import ServiceConfig, ServiceError, as_service_error
 from curbside.localize.serve.configs import config_key, session_config
-from curbside.localize.serve.store import TrackStore
+from curbside.localize.serve.store import ForeignFolderError, TrackStore
 from curbside.osmseg.places import SidewalkPlace, sidewalk_places
 
 logger = logging.getLogger(__name__)
-
-
-class ServiceError(Exception):
-    """A request the service refuses: an HTTP status and a one-line reason."""
-
-    def __init__(self, status: int, detail: str) -> None:
-        super().__init__(detail)
-        self.status = status
-        self.detail = detail
-
-
-@dataclass(frozen=True)
-class ServiceConfig:
-    """How ``localize serve`` runs.
-
-    Attributes
-    ----------
-    map_path
-        Map layers GeoJSON; ``None`` tracks without a map likelihood (as ``localize run`` without
-        ``--map``).
-    data_dir
-        Finished tracks go to ``data_dir / "tracks"``.
-    token
-        Bearer token every request must carry; ``None``: none needed.
-    mode, overrides
-        Every session's run configuration: ``RunConfig.for_mode(mode)`` with these ``--set``
-        overrides, then the session's own.
-    idle_timeout_s
-        A session without a request for this long ends (its track is saved).
-    max_sessions
-        Open sessions at most; more get 503.
-    max_particles
-        Largest ``filter.n_particles`` a session may ask for.
-    inference_wait_s
-        Longest a partial RoNIN batch waits for more windows.
-    limits
-        What each session accepts (:class:`~curbside.localize.live.LiveLimits`).
-    """
-
-    map_path: str | None = None
-    data_dir: Path = field(default_factory=lambda: settings.data_dir)
-    token: str | None = None
-    mode: str = "fused"
-    overrides: dict[str, Any] = field(default_factory=dict)
-    idle_timeout_s: float = 300.0
-    max_sessions: int = 1000
-    max_particles: int = 5000
-    inference_wait_s: float = 0.25
-    limits: LiveLimits = field(default_factory=LiveLimits)
 
 
 @dataclass(eq=False)
@@ -137,6 +91,8 @@ class _Op:
 TICK_BUDGET_S = 0.02
 #: Longest the shutdown waits for the open sessions to end and save their tracks (s).
 STOP_WAIT_S = 60.0
+#: How often the retention limits are applied (s); a pass stats each track's run.json.
+RETENTION_PERIOD_S = 60.0
 
 
 def _now_iso() -> str:
@@ -181,7 +137,9 @@ class TrackingService:
             fm = self.base.filter.map
             self.raster = load_or_build_raster(self.map_layers, fm.raster_resolution_m, fm.segment_reach_m)
         self.queue = InferenceQueue(model if model is not None else load_model())
-        self.store = TrackStore(Path(config.data_dir) / "tracks")
+        days = config.keep_tracks_days
+        max_age_s = None if days is None else days * 86400.0
+        self.store = TrackStore(Path(config.data_dir) / "tracks", max_age_s, config.max_tracks)
         self._warm_up()
         self.sessions: dict[str, _Entry] = {}
         #: Ticks run and their total seconds (for the load test).
@@ -236,6 +194,9 @@ class TrackingService:
         gc.freeze()
         self._wake = asyncio.Event()
         self._tasks = [asyncio.create_task(self._worker()), asyncio.create_task(self._expire())]
+        if self.store.max_age_s is not None or self.store.max_count is not None:
+            await self._retain_once()  # before the first request
+            self._tasks.append(asyncio.create_task(self._retain()))
 
     async def stop(self) -> None:
         """End every open session (tracks saved, reason ``shutdown``), then stop the worker.
@@ -393,7 +354,7 @@ class TrackingService:
                 if op.future.done():
                     continue
                 if op.error is not None:
-                    op.future.set_exception(_as_service_error(op.error))
+                    op.future.set_exception(as_service_error(op.error))
                 else:
                     op.future.set_result(op.result)
             self._start_inference(loop)
@@ -485,9 +446,7 @@ class TrackingService:
         if result is None:
             self._written.append(op)
             return
-        future = asyncio.get_running_loop().run_in_executor(
-            self._io_executor, self.store.save, op.entry.id, result, info
-        )
+        future = self._on_io(self.store.save, op.entry.id, result, info)
         self._writing.append(op)
 
         def done(f: asyncio.Future) -> None:
@@ -558,6 +517,21 @@ class TrackingService:
                     logger.info("session %s expired", entry.live.name)
                     self._submit_end(entry, "expired")
 
+    async def _retain(self) -> None:
+        while True:
+            await asyncio.sleep(RETENTION_PERIOD_S)
+            await self._retain_once()
+
+    async def _retain_once(self) -> None:
+        """Apply the retention limits on the I/O thread (one at a time with the track writes)."""
+        try:
+            await self._on_io(self.store.retain)
+        except Exception:  # a bug: the service goes on, and the next pass tries again
+            logger.exception("removing old tracks failed")
+
+    def _on_io(self, func: Callable[..., Any], *args: Any) -> asyncio.Future:
+        return asyncio.get_running_loop().run_in_executor(self._io_executor, func, *args)
+
     # -- tracks ---------------------------------------------------------------------------------------
 
     def track_folder(self, session_id: str) -> Path:
@@ -569,13 +543,23 @@ class TrackingService:
             raise ServiceError(404, "no such track")
         return folder
 
+    async def delete_track(self, session_id: str) -> dict[str, Any]:
+        """Remove an ended session's track (``TrackStore.delete``); its listing entry (``TrackInfo``).
 
-def _as_service_error(exc: Exception) -> ServiceError:
-    if isinstance(exc, ServiceError):
-        return exc
-    if isinstance(exc, CurbsideInputError):
-        return ServiceError(422, str(exc))
-    return ServiceError(500, f"internal error ({type(exc).__name__}); see the service log")
+        Raises
+        ------
+        ServiceError
+            404 no such track; 409 the session is still open, or the folder is not one the service wrote.
+        """
+        if session_id in self.sessions:
+            raise ServiceError(409, "the session is still open: DELETE /sessions/{id} ends it first")
+        try:
+            listed = await self._on_io(self.store.delete, self.store.key(session_id))
+        except ForeignFolderError as exc:
+            raise ServiceError(409, str(exc)) from None
+        if listed is None:
+            raise ServiceError(404, "no such track")
+        return listed
 
 
 def _log_failure(future: asyncio.Future) -> None:

@@ -4,6 +4,10 @@ A track lives in ``DATA_DIR/tracks/KEY/`` (``track.csv``, ``track.geojson``, ``r
 atomically by :func:`curbside.localize.track.write_track`), where ``KEY`` is a SHA-256 hash of the
 session id. The listing shows keys, so an operator sees what is stored, and only a client holding a
 session's id can read its track: the id is the session's only key, and it is never written to disk.
+
+A track is removed by ``DELETE /tracks/{id}`` (:meth:`TrackStore.delete`) or by the opt-in retention
+limits (:meth:`TrackStore.retain`: older than ``max_age_s``, or the oldest beyond ``max_count``). Only
+a folder the service wrote is touched (:func:`foreign_reason`), and in it only the files it wrote.
 """
 
 from __future__ import annotations
@@ -11,10 +15,14 @@ from __future__ import annotations
 import hashlib
 import json
 import logging
+import os
+import re
 import threading
+import time
 from pathlib import Path
 from typing import Any
 
+from curbside.io import MARKER, read_marker
 from curbside.localize.pipeline import TrackResult
 from curbside.localize.track import write_track
 
@@ -22,25 +30,50 @@ logger = logging.getLogger(__name__)
 
 #: Files of a track folder that ``GET /tracks/{id}/{name}`` serves.
 TRACK_FILES = ("track.csv", "track.geojson", "run.json")
+#: What ``write_track`` records as the writer in a track folder's marker.
+WRITER = "localize run"
+#: Files of a track folder the service may remove (``particles.npz``: ``write_track`` may write it).
+_OWN_FILES = ("run.json", "track.csv", "track.geojson", "particles.npz")
+_KEY = re.compile(r"[0-9a-f]{32}")
+
+
+class ForeignFolderError(Exception):
+    """A folder in the tracks folder that the service did not write: it is never removed."""
+
+    def __init__(self, key: str, reason: str) -> None:
+        super().__init__(f"the folder {key} was not written by the service ({reason}); it is left alone")
+        self.key = key
+        self.reason = reason
 
 
 class TrackStore:
     """The tracks folder (created when missing).
 
-    The listing is read from disk once, when the store is made, and kept up to date by :meth:`save`:
-    reading every ``run.json`` at each ``GET /tracks`` took 0.6 s with 5,000 tracks, with every live
-    session waiting. :meth:`save` may run on another thread than :meth:`list`.
+    The listing is read from disk once, when the store is made, and kept up to date by :meth:`save` and
+    :meth:`delete`: reading every ``run.json`` at each ``GET /tracks`` took 0.6 s with 5,000 tracks, with
+    every live session waiting. :meth:`save`, :meth:`delete` and :meth:`retain` may run on another
+    thread than :meth:`list` (one thread for the three of them).
 
     Parameters
     ----------
     root
         ``DATA_DIR/tracks``.
+    max_age_s, max_count
+        Retention limits that :meth:`retain` applies (``None``: none): a track older than ``max_age_s``
+        goes, and so do the oldest beyond ``max_count``.
     """
 
-    def __init__(self, root: str | Path) -> None:
+    def __init__(
+        self, root: str | Path, max_age_s: float | None = None, max_count: int | None = None
+    ) -> None:
         self.root = Path(root)
         self.root.mkdir(parents=True, exist_ok=True)
+        self.max_age_s = max_age_s
+        self.max_count = max_count
         self._lock = threading.Lock()
+        # Listed folders found to be the service's own tracks, or not (warned once): checked once each.
+        self._own: set[str] = set()
+        self._foreign: set[str] = set()
         self._listing: dict[str, dict[str, Any]] = {}
         for folder in sorted(p for p in self.root.iterdir() if p.is_dir()):
             info = _read_json(folder / "run.json")
@@ -68,6 +101,7 @@ class TrackStore:
         listed = _listed(key, _read_json(folder / "run.json") or {})
         with self._lock:
             self._listing[key] = listed
+        self._own.add(key)
         return folder
 
     def folder(self, session_id: str) -> Path | None:
@@ -85,6 +119,132 @@ class TrackStore:
         with self._lock:
             out = list(self._listing.values())
         return sorted(out, key=lambda item: (item["ended"] or "", item["key"]))
+
+    def delete(self, key: str, why: str = "deleted") -> dict[str, Any] | None:
+        """Remove the track ``key``: the files the service wrote in its folder, then the folder if empty.
+
+        Files it did not write stay, and so does their folder (with a warning).
+
+        Parameters
+        ----------
+        key
+            The track's key (:meth:`key` of its session id).
+        why
+            What removes it, for the log.
+
+        Returns
+        -------
+        dict or None
+            Its listing entry (``None`` when there is no such track).
+
+        Raises
+        ------
+        ForeignFolderError
+            The folder is not one the service wrote (:func:`foreign_reason`): nothing is removed.
+        OSError
+            A file could not be removed.
+        """
+        folder = self.root / key
+        if not (folder / "run.json").is_file():
+            return None
+        reason = foreign_reason(folder, key)
+        if reason is not None:
+            raise ForeignFolderError(key, reason)
+        written = set((read_marker(folder) or {}).get("files", []))
+        with self._lock:
+            listed = self._listing.pop(key, None) or _listed(key, _read_json(folder / "run.json") or {})
+        for name in _OWN_FILES:  # run.json first: from then on it is no longer a track
+            if name in written:
+                (folder / name).unlink(missing_ok=True)
+        (folder / MARKER).unlink(missing_ok=True)
+        try:
+            folder.rmdir()
+        except OSError:
+            others = ", ".join(sorted(p.name for p in folder.iterdir()))
+            logger.warning("%s: track removed; the folder stays for files the service did not write (%s)",
+                           folder, others)
+        self._own.discard(key)
+        logger.info("track %s removed (%s)", key, why)
+        return listed
+
+    def retain(self, now_s: float | None = None) -> list[str]:
+        """Remove the tracks beyond the retention limits; the keys removed.
+
+        A track's age is the time since its ``run.json`` was written (its modification time). Folders the
+        service did not write are left, and do not count towards ``max_count``.
+
+        Parameters
+        ----------
+        now_s
+            The present, Unix seconds (default: now).
+
+        Returns
+        -------
+        list of str
+            The keys of the tracks removed, oldest first.
+        """
+        if self.max_age_s is None and self.max_count is None:
+            return []
+        now_s = time.time() if now_s is None else now_s
+        with self._lock:
+            keys = list(self._listing)
+        written_s = []
+        for key in filter(self._is_own, keys):
+            try:
+                written_s.append(((self.root / key / "run.json").stat().st_mtime, key))
+            except OSError:  # removed meanwhile
+                continue
+        written_s.sort()
+        left, removed = len(written_s), []
+        for mtime_s, key in written_s:
+            too_old = self.max_age_s is not None and now_s - mtime_s > self.max_age_s
+            if not too_old and (self.max_count is None or left <= self.max_count):
+                break  # the rest are younger, and within the count
+            left -= 1
+            why = f"{(now_s - mtime_s) / 86400:.1f} days old" if too_old else f"over {self.max_count} tracks"
+            try:
+                if self.delete(key, why) is not None:
+                    removed.append(key)
+            except (ForeignFolderError, OSError) as exc:  # changed since it was checked; unremovable
+                reason = getattr(exc, "strerror", None) or exc
+                logger.warning("%s: cannot remove it (%s)", self.root / key, reason)
+        if removed:
+            logger.info("retention removed %d track(s)", len(removed))
+        return removed
+
+    def _is_own(self, key: str) -> bool:
+        """Whether the listed folder ``key`` is a track the service wrote (checked once per folder)."""
+        if key in self._own or key in self._foreign:
+            return key in self._own
+        if not os.path.lexists(self.root / key):  # removed by hand
+            return False
+        reason = foreign_reason(self.root / key, key)
+        (self._foreign if reason else self._own).add(key)
+        if reason:
+            logger.warning("%s: %s", self.root / key, ForeignFolderError(key, reason))
+        return reason is None
+
+
+def foreign_reason(folder: Path, key: str) -> str | None:
+    """Why ``folder`` is not a track folder this service wrote; ``None`` when it is one.
+
+    A service track folder is a real folder named by a track key, holding ``write_track``'s marker
+    (``.curbside-output`` naming ``localize run`` and the track's files) and a ``run.json`` that names
+    the live session of that key and records the service's ``service`` block.
+    """
+    if not _KEY.fullmatch(folder.name) or folder.name != key:
+        return "its name is not a track key"
+    if folder.is_symlink() or not folder.is_dir():
+        return "not a folder"
+    marker = read_marker(folder)
+    if marker is None or marker.get("command") != WRITER:
+        return f"no {MARKER} of {WRITER}"
+    if not set(TRACK_FILES) <= set(marker.get("files", [])):
+        return f"its {MARKER} does not list the track's files"
+    info = _read_json(folder / "run.json") or {}
+    if info.get("session") != f"live session {key}" or not isinstance(info.get("service"), dict):
+        return "its run.json is not a live session's"
+    return None
 
 
 def _listed(key: str, info: dict[str, Any]) -> dict[str, Any]:
