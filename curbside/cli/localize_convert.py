@@ -2,7 +2,7 @@
 
 ::
 
-    localize convert SRC DST [--route ROUTE.csv] [--steps] [--pdr] [--overwrite]
+    localize convert SRC DST [--route ROUTE.csv] [--platform P] [--steps] [--pdr] [--overwrite]
     localize convert FILE.h5 DSTDIR --all [--steps] [--pdr] [--overwrite]
     localize convert FILE.h5 --list          # also a zip or folder of Sensor Logger recordings
 
@@ -29,6 +29,7 @@ from curbside.io import check_output_folder, output_folder
 from curbside.localize.pdr import pdr_velocity
 from curbside.localize.readers import detect_format, ipin, read_any, split_trial
 from curbside.localize.readers._export import require_recordings
+from curbside.localize.readers._platform import PLATFORM_OPTIONS
 from curbside.localize.session import Session, write_session
 from curbside.localize.steps import detect_steps
 
@@ -115,10 +116,20 @@ def _convert(args: argparse.Namespace) -> int:
                 lines += summary_lines(session, dst / session.name)
         print("\n".join(lines))
         return 0
-    session = add_derived(read_any(args.src, route=args.route), args.steps, args.pdr)
+    session = add_derived(read_any(args.src, route=args.route, platform=args.platform), args.steps, args.pdr)
     write_session(session, dst, overwrite=args.overwrite, command="localize convert")
     print("\n".join(summary_lines(session, dst)))
     return 0
+
+
+def add_platform_option(parser: argparse.ArgumentParser) -> None:
+    """``--platform``: the phone platform of a Sensor Logger export, over ``Metadata.csv``."""
+    parser.add_argument(
+        "--platform", choices=PLATFORM_OPTIONS, default=None,
+        help="Sensor Logger: read the export as this platform's, whatever Metadata.csv says or when it is "
+        "missing (ios-standardised: 'Standardise Units & Frames' on; android also fits a standardised iOS "
+        "export whose orientation is East-North-Up)",
+    )
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -138,6 +149,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument("--list", action="store_true",
                         help="list the trials of an .h5 (or the recordings of a zip or folder) and exit")
     parser.add_argument("--route", help="Sensor Logger: CSV lat,lon of the annotation taps, in tap order")
+    add_platform_option(parser)
     parser.add_argument("--steps", action="store_true", help="add steps.csv (detected footsteps)")
     parser.add_argument("--pdr", action="store_true", help="add velocity.csv from the PDR baseline")
     parser.add_argument("--overwrite", action="store_true",

@@ -5,7 +5,7 @@
     localize run SESSION [--map MAP] [--mode gnss|inertial|paper|fused] [--particles N]
                  [--jaywalk-weight W] [--seed S] [--set KEY=VALUE ...] [--save-particles]
                  [--lag-s SECONDS] [--velocity-source auto|file|ronin|pdr] [--ronin-weights PT]
-                 [--unseen-velocity [on|auto|off]] [--no-start-pose] -o OUT
+                 [--unseen-velocity [on|auto|off]] [--no-start-pose] [--platform P] -o OUT
     localize run --config OUT/run.json -o OUT2          # replay a run exactly
 
 ``SESSION`` is anything :func:`curbside.localize.readers.read_any` reads (a SPEC folder, a Sensor
@@ -34,6 +34,7 @@ from curbside.cli.common import (
     seed,
     unit_interval,
 )
+from curbside.cli.localize_convert import add_platform_option
 from curbside.cli.run_replay import (
     add_weights,
     check_replayed_inputs,
@@ -87,7 +88,8 @@ def _run(args: argparse.Namespace) -> int:
     if args.config:
         check_replayed_inputs(info, args.config, session_path, map_path, inputs, weights)
     model = _load_weights(weights)
-    session = read_any(session_path)
+    platform = args.platform or info.get("platform")
+    session = read_any(session_path, platform=platform)
     _check_weights_used(args, config, session)
     layers = read_map(map_path) if map_path else None
     save_particles = args.save_particles or bool(info.get("save_particles"))
@@ -96,6 +98,8 @@ def _run(args: argparse.Namespace) -> int:
     run_info = {"session": _absolute(session_path), "map": _absolute(map_path) if map_path else None,
                 "save_particles": save_particles,
                 "inputs": add_weights(inputs, result.velocity_source, weights)}
+    if platform:
+        run_info["platform"] = platform
     summary = None
     if session.waypoints is not None:
         run_info["waypoint_error"], scored = _waypoint_score(
@@ -263,6 +267,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "(default with --config: the session it names)",
     )
     parser.add_argument("--map", help="map layers GeoJSON (osmseg build); none: no map likelihood")
+    add_platform_option(parser)
     _add_method_options(parser)
     parser.add_argument("--save-particles", action="store_true", help="also write OUT/particles.npz")
     parser.add_argument(

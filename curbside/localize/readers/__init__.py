@@ -73,7 +73,7 @@ def detect_format(src: str | Path) -> str:
     raise CurbsideInputError(path, "unknown format (expected a folder, .zip, .h5[::TRIAL] or .gpx)")
 
 
-def read_any(src: str | Path, *, route: str | Path | None = None) -> Session:
+def read_any(src: str | Path, *, route: str | Path | None = None, platform: str | None = None) -> Session:
     """Read any supported recording as a session.
 
     Parameters
@@ -81,6 +81,8 @@ def read_any(src: str | Path, *, route: str | Path | None = None) -> Session:
     src
         A SPEC session folder, a Sensor Logger ``.zip`` or folder (``SRC::RECORDING`` to pick one of
         several), ``FILE.h5::TRIAL`` (or a single-trial ``FILE.h5``), or a ``.gpx`` file.
+    route, platform
+        Sensor Logger only: see :func:`~curbside.localize.readers.sensorlogger.read_sensorlogger`.
 
     Returns
     -------
@@ -90,16 +92,18 @@ def read_any(src: str | Path, *, route: str | Path | None = None) -> Session:
     Raises
     ------
     CurbsideInputError
-        Missing source, unknown format, an ``.h5`` with several trials and none named, or any
-        problem the format's reader reports.
+        Missing source, unknown format, an ``.h5`` with several trials and none named, a route or
+        platform for another format than Sensor Logger's, or any problem the format's reader reports.
     """
     kind = detect_format(src)
     if route is not None and kind != "sensorlogger":
         raise CurbsideInputError(route, "a route file applies to Sensor Logger exports only")
+    if platform is not None and kind != "sensorlogger":
+        raise CurbsideInputError("--platform", "applies to Sensor Logger exports only")
     if kind == "spec":
         return read_session(src)
     if kind == "sensorlogger":
-        session = sensorlogger.read_sensorlogger(src, route=route)
+        session = sensorlogger.read_sensorlogger(src, route=route, platform=platform)
     elif kind == "gpx":
         session = gpx.read_gpx(src)
     else:

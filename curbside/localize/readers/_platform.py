@@ -35,6 +35,9 @@ _READINGS = {"android": ("android", False), "ios": ("ios", False), "standardised
 _FRAMES = {"android": "orientation in ENU", "ios": "orientation North-West-Up, turned into ENU",
            "standardised ios": "orientation North-West-Up, turned into ENU, then checked against "
                                "magnetic north"}
+#: ``--platform`` values (:func:`device_from_option`) and the reading each names.
+PLATFORM_OPTIONS = {"android": "android", "ios": "ios", "ios-standardised": "standardised ios"}
+_OPTION_OF = {reading: option for option, reading in PLATFORM_OPTIONS.items()}
 
 
 @dataclass
@@ -62,6 +65,43 @@ def device_from_metadata(table: pd.DataFrame | None, label: str) -> Device:
         return Device(meta=meta, known=False)
     standardised = str(row.get("standardisation", "false")).strip().lower() in ("true", "1", "yes")
     return Device(platform, standardised, {"platform": platform, "standardised": standardised, **meta})
+
+
+def device_from_option(option: str, described: Device, label: str) -> Device:
+    """The :class:`Device` the user named (``--platform``), in place of what ``Metadata.csv`` says.
+
+    Parameters
+    ----------
+    option
+        One of :data:`PLATFORM_OPTIONS`.
+    described
+        What ``Metadata.csv`` says (:func:`device_from_metadata`); its device and app fields are kept.
+    label
+        The export, for messages.
+
+    Raises
+    ------
+    CurbsideInputError
+        ``option`` is not one of :data:`PLATFORM_OPTIONS`.
+    """
+    if option not in PLATFORM_OPTIONS:
+        raise CurbsideInputError("--platform", f"unknown platform {option!r} (one of "
+                                 f"{', '.join(PLATFORM_OPTIONS)})")
+    platform, standardised = _READINGS[PLATFORM_OPTIONS[option]]
+    if described.known and _reading(described) != PLATFORM_OPTIONS[option]:
+        logger.warning("%s: Metadata.csv says %s; read as %s (--platform)", label,
+                       _OPTION_OF[_reading(described)], option)
+    meta = {k: v for k, v in described.meta.items() if k not in ("platform", "standardised")}
+    return Device(platform, standardised, {"platform": platform, "standardised": standardised,
+                                           "platform_given": option, **meta})
+
+
+def _named(reading: str) -> str:
+    return reading.replace("ios", "iOS").replace("android", "Android")
+
+
+def _reading(device: Device) -> str:
+    return "standardised ios" if device.platform == "ios" and device.standardised else device.platform
 
 
 def metadata_sign(device: Device) -> float:
@@ -191,8 +231,8 @@ def settle_device(device: Device, streams, export, frame: pd.DataFrame | None, s
         return device
     cues = _platform_cues(streams, export, frame, sign, mag)
     if not cues:
-        logger.warning("%s: no Metadata.csv platform, and no cue to it in the data; assuming Android frames",
-                       export.label)
+        logger.warning("%s: no Metadata.csv platform, and no cue to it in the data; assuming Android frames "
+                       "(an iOS export: give --platform ios or ios-standardised)", export.label)
         return Device()
     possible = set(_READINGS)
     for readings, _ in cues:
@@ -201,10 +241,13 @@ def settle_device(device: Device, streams, export, frame: pd.DataFrame | None, s
     reading = next(r for r in _READINGS if r in possible)
     agree = [why for readings, why in cues if reading in readings]
     against = [why for readings, why in cues if reading not in readings]
-    logger.log(logging.INFO if len(agree) > 1 and not against else logging.WARNING,
-               "%s: no Metadata.csv platform; %s inferred (%s) from %s%s", export.label,
-               reading.replace("ios", "iOS").replace("android", "Android"), _FRAMES[reading],
-               "; ".join(agree), f"; against it: {'; '.join(against)}" if against else "")
+    others = [r for r in _READINGS if r in possible and r != reading]  # the data cannot tell these apart
+    fits = f"; {' or '.join(_named(r) for r in others)} fits the data too (then give --platform " \
+        f"{' or '.join(_OPTION_OF[r] for r in others)})" if others else ""
+    logger.log(logging.INFO if len(agree) > 1 and not against and not others else logging.WARNING,
+               "%s: no Metadata.csv platform; %s inferred (%s) from %s%s%s", export.label, _named(reading),
+               _FRAMES[reading], "; ".join(agree), f"; against it: {'; '.join(against)}" if against else "",
+               fits)
     platform, standardised = _READINGS[reading]
     meta.update(platform=platform, standardised=standardised, platform_inferred_from=agree)
     return Device(platform, standardised)

@@ -14,8 +14,9 @@ them and lists the real exports this reader was run on):
 - iOS reports acceleration and gravity with the opposite sign of Android on all three axes unless
   "Standardise Units & Frames" is on (``standardisation`` in ``Metadata.csv``). With an orientation
   the sign is not taken on trust: the reader picks the sign (and the quaternion's direction) under
-  which the orientation rotates the measured acceleration onto +9.8 m/s^2 up; without one it follows
-  the metadata;
+  which the orientation rotates the measured acceleration onto +9.8 m/s^2 up (for gravity restored
+  from the orientation, measured on ``AccelerometerUncalibrated.csv`` when there is one); without one
+  it follows the metadata;
 - ``Gyroscope.csv``: rad/s, the same sign on both platforms;
 - ``AccelerometerUncalibrated.csv`` and ``GyroscopeUncalibrated.csv`` (raw, gravity included; the
   gyroscope keeps its bias) stand in, with a warning, only for calibrated files the export lacks;
@@ -33,7 +34,8 @@ them and lists the real exports this reader was run on):
   (near 0: ENU; near +90 deg: NWU, which with Android's sign means a standardised iOS export) and the
   iOS 1.10-1.11 ``Orientation.csv`` column order (:mod:`._platform`), logs what it found and what
   disagreed, and records it in ``meta["platform_inferred_from"]``. Without any cue it assumes
-  Android frames (warning) and records no platform;
+  Android frames (warning) and records no platform. Where the data cannot decide, the user can:
+  ``platform=`` (``--platform``) replaces what ``Metadata.csv`` says;
 - ``Location.csv``: ``latitude,longitude,horizontalAccuracy`` (m, ~1 sigma) -> ``gnss.csv``;
   (0, 0) fixes are dropped;
 - ``Annotation.csv``: taps. A tap is a waypoint when its text is ``"lat,lon"``, or when a route file
@@ -61,6 +63,7 @@ from curbside.localize.readers._platform import (
     NORTH_TOLERANCE_DEG,
     Device,
     device_from_metadata,
+    device_from_option,
     magnetic_north_deg,
     metadata_sign,
     north_quarter,
@@ -118,23 +121,36 @@ def _one_clock(streams: dict[str, pd.DataFrame], export, metadata: pd.DataFrame 
     ref = streams[reference]
     t0_ns = None
     if "time" in ref.columns and "seconds_elapsed" in ref.columns:
-        offsets = pd.to_numeric(ref["time"], errors="coerce") - 1e9 * pd.to_numeric(
-            ref["seconds_elapsed"], errors="coerce")
-        t0_ns = float(np.nanmedian(offsets))
-    elif metadata is not None and "recording epoch time" in metadata.columns:
-        t0_ns = float(metadata["recording epoch time"].iat[0]) * 1e6  # ms
-    elif "time" in ref.columns:
-        t0_ns = float(np.nanmin(pd.to_numeric(ref["time"], errors="coerce")))
+        offsets = _numbers(pd.to_numeric(ref["time"], errors="coerce") - 1e9 * pd.to_numeric(
+            ref["seconds_elapsed"], errors="coerce"))
+        t0_ns = float(np.median(offsets)) if len(offsets) else None
+    elif metadata is not None and len(_numbers(metadata.get("recording epoch time", pd.Series()))):
+        t0_ns = float(_numbers(metadata["recording epoch time"])[0]) * 1e6  # ms
+    elif len(_numbers(ref.get("time", pd.Series()))):
+        t0_ns = float(_numbers(ref["time"]).min())
     for name, table in streams.items():
-        if "seconds_elapsed" in table.columns:
-            table["t"] = pd.to_numeric(table["seconds_elapsed"], errors="coerce")
-        elif "time" in table.columns and t0_ns is not None:
-            ns = pd.to_numeric(table["time"], errors="coerce")
-            table["t"] = (ns - int(t0_ns)) / 1e9  # difference first: float64 cannot hold ns epochs exactly
-        else:
-            raise CurbsideInputError(f"{export.label}/{name}", "no time column ('seconds_elapsed' or 'time')")
-    if t0_ns is not None and np.isfinite(t0_ns):
+        table["t"] = _time_s(table, t0_ns, f"{export.label}/{name}")
+    if t0_ns is not None:
         meta["t0_unix_s"] = t0_ns / 1e9
+
+
+def _numbers(column: pd.Series) -> np.ndarray:
+    """The finite numbers of a column (text and blanks left out)."""
+    values = pd.to_numeric(column, errors="coerce").to_numpy(float)
+    return values[np.isfinite(values)]
+
+
+def _time_s(table: pd.DataFrame, t0_ns: float | None, source: str) -> pd.Series:
+    """``t`` (s) of a table: ``seconds_elapsed``, else ``time`` (ns) since ``t0_ns``."""
+    if "seconds_elapsed" in table.columns:
+        return pd.to_numeric(table["seconds_elapsed"], errors="coerce")
+    if "time" not in table.columns:
+        raise CurbsideInputError(source, "no time column ('seconds_elapsed' or 'time')")
+    if t0_ns is None:
+        raise CurbsideInputError(source, "no 'seconds_elapsed', and the 'time' clock has no start (no number "
+                                 "in the reference stream's 'time' column)")
+    ns = pd.to_numeric(table["time"], errors="coerce")
+    return (ns - int(t0_ns)) / 1e9  # difference first: float64 cannot hold ns epochs exactly
 
 
 def _xyz(table: pd.DataFrame, source: str, cols: tuple[str, str, str]) -> pd.DataFrame:
@@ -188,6 +204,51 @@ def _specific_force(streams, label: str) -> tuple[pd.DataFrame, bool]:
     return user, _includes_gravity(user, source)
 
 
+def _raw_convention(export, quat: pd.DataFrame, meta: dict) -> tuple[float, bool] | None:
+    """:func:`_gravity_convention` of ``AccelerometerUncalibrated.csv`` (gravity included), read beside a
+    gravity-free Accelerometer.csv only to measure the export's sign; ``None`` when it cannot tell."""
+    source = f"{export.label}/AccelerometerUncalibrated.csv"
+    t0_s = meta.get("t0_unix_s")
+    try:
+        table = export.read("AccelerometerUncalibrated.csv")
+        if table is None or table.empty:
+            return None
+        table["t"] = _time_s(table, None if t0_s is None else t0_s * 1e9, source)
+        raw = accelerometer_ms2(_xyz(table, source, _ACC), source)
+        t = raw["t"].to_numpy()
+        inside = (t >= quat["t"].iat[0]) & (t <= quat["t"].iat[-1])
+        if inside.sum() < 2:
+            return None
+        raw = raw[inside].reset_index(drop=True)
+        raw[_QUAT] = interp_quaternions(raw["t"].to_numpy(), quat["t"].to_numpy(), quat[_QUAT].to_numpy())
+        return _gravity_convention(raw, source)
+    except CurbsideInputError as exc:  # only a cue: a file the reader does not need must not stop it
+        logger.info("%s (its sign not used)", exc)
+        return None
+
+
+def _gravity_from_orientation(
+    acce: pd.DataFrame, quat: pd.DataFrame, streams, export, device: Device, mag: pd.DataFrame | None,
+    meta: dict,
+) -> tuple[pd.DataFrame, pd.DataFrame, Device]:
+    """Android-signed acceleration with gravity restored from the orientation; the orientation (inverted
+    when found world-to-device) and the settled device.
+
+    The sign (and the quaternion's direction) is measured as with gravity included, on the raw
+    accelerometer when the export has one; else it follows the platform.
+    """
+    measured = _raw_convention(export, quat, meta)
+    if measured is not None and measured[1]:
+        logger.info("%s: orientation is world-to-device (against AccelerometerUncalibrated.csv); inverted",
+                    export.label)
+        quat = quat.copy()
+        quat[_QUAT] = Rotation.from_quat(quat[_QUAT].to_numpy()).inv().as_quat()
+    sign = None if measured is None else measured[0]
+    device = settle_device(device, streams, export, quat, sign, mag, meta)
+    acce = _restore_gravity(acce, quat, metadata_sign(device) if sign is None else sign, export.label)
+    return acce, quat, device
+
+
 def _restore_gravity(user: pd.DataFrame, quat: pd.DataFrame, sign: float, label: str) -> pd.DataFrame:
     """Android-signed acceleration: ``sign`` times the gravity-free ``user``, plus gravity from ``quat``."""
     # "Up" in the device frame is g along the world z axis seen from the phone.
@@ -223,7 +284,8 @@ def _check_north(imu: pd.DataFrame, mag: pd.DataFrame | None, label: str, device
     if mag is None:
         if device.platform == "ios" and device.standardised:
             logger.warning("%s: standardised iOS export without Magnetometer.csv; orientation assumed in "
-                           "CoreMotion's x-north frame (unverified for standardised exports)", label)
+                           "CoreMotion's x-north frame (unverified for standardised exports; one already in "
+                           "East-North-Up reads right with --platform android)", label)
         return
     north = magnetic_north_deg(imu, mag)
     if north is None:
@@ -276,8 +338,7 @@ def _imu(streams, export, device: Device, meta: dict) -> pd.DataFrame | None:
         if quat is None:
             raise CurbsideInputError(f"{label}/Accelerometer.csv", "acceleration without gravity, and no "
                                      "TotalAcceleration.csv, Gravity.csv or Orientation.csv to restore it")
-        device = settle_device(device, streams, export, quat, None, mag, meta)  # restoring needs the sign
-        acce = _restore_gravity(acce, quat, metadata_sign(device), label)
+        acce, quat, device = _gravity_from_orientation(acce, quat, streams, export, device, mag, meta)
     acce = accelerometer_ms2(acce, f"{label}/{acc_name}")
     gyro = _xyz(streams[gyro_name], f"{label}/{gyro_name}", ("gx", "gy", "gz"))
     names = (f"{label}/{acc_name}", f"{label}/{gyro_name}", f"{label}/Orientation.csv")
@@ -383,7 +444,9 @@ def _waypoints(streams, label: str, route: str | Path | None, meta: dict,
     return tidy_table(table, f"{label}/Annotation.csv", ["t", "lat", "lon"])
 
 
-def read_sensorlogger(src: str | Path, route: str | Path | None = None) -> Session:
+def read_sensorlogger(
+    src: str | Path, route: str | Path | None = None, platform: str | None = None
+) -> Session:
     """Read a Sensor Logger export (zip or folder, optionally ``SRC::RECORDING``) as a session.
 
     Parameters
@@ -395,6 +458,10 @@ def read_sensorlogger(src: str | Path, route: str | Path | None = None) -> Sessi
     route
         Optional CSV of the surveyed positions (``lat,lon``) of the ``Annotation.csv`` taps, in tap
         order; without it, taps whose text is ``"lat,lon"`` are the waypoints.
+    platform
+        ``"android"``, ``"ios"`` or ``"ios-standardised"`` ("Standardise Units & Frames" on): read
+        the export as that platform's, whatever ``Metadata.csv`` says or when it is missing (the data
+        cannot always tell: a standardised iOS export without it and without a magnetometer, for one).
 
     Returns
     -------
@@ -409,7 +476,8 @@ def read_sensorlogger(src: str | Path, route: str | Path | None = None) -> Sessi
     CurbsideInputError
         Unreadable zip or CSV, several recordings and none chosen, streams on different clocks,
         missing columns, acceleration without gravity and no way to restore it, an orientation
-        inconsistent with gravity, a bad route file, or neither IMU nor GNSS data.
+        inconsistent with gravity, a bad route file, an unknown ``platform``, or neither IMU nor GNSS
+        data.
     """
     export = open_export(src)
     label = export.label
@@ -419,6 +487,8 @@ def read_sensorlogger(src: str | Path, route: str | Path | None = None) -> Sessi
         logger.warning("%s (ignored)", exc)
         metadata = None
     device = device_from_metadata(metadata, label)
+    if platform is not None:
+        device = device_from_option(platform, device, label)
     meta: dict = {"source": {"format": "sensorlogger", "file": export.src.name}, **device.meta}
     if export.folder != ".":
         meta["source"]["recording"] = export.folder
