@@ -2,7 +2,7 @@
 
 Every cache of curbside lives under ``settings.cache_dir`` (the user's cache folder from
 :func:`platformdirs.user_cache_dir`, ``$CURBSIDE_CACHE_DIR`` or whatever a program sets), one
-sub-folder per kind of entry (``rasters``, ``osmsource``, osmnx's ``overpass``). An entry is named by
+sub-folder per kind of entry (``rasters``, ``osmsource``, ``overpass``, ``nominatim``). An entry is named by
 a SHA-256 of everything it was derived from (:func:`content_key`), so a changed input or parameter
 is a new entry and nothing is ever invalidated by hand.
 

@@ -23,16 +23,22 @@ def _default_cache_dir() -> Path:
     return Path(platformdirs.user_cache_dir("curbside", appauthor=False))
 
 
-#: Root of the on-disk caches (:mod:`curbside.cache`): Overpass responses (``overpass/``), the
-#: simulator's OSM tables (``osmsource/``), map rasters (``rasters/``). Safe to delete at any time.
+#: Root of the on-disk caches (:mod:`curbside.cache`): Overpass answers (``overpass/``), Nominatim's
+#: answers to ``osmseg build --place`` (``nominatim/``), the simulator's OSM tables (``osmsource/``), map
+#: rasters (``rasters/``). Safe to delete at any time.
 cache_dir: Path = _default_cache_dir()
 
-#: Seconds to wait for Overpass to accept a connection (and to answer its status query) before the
-#: build gives up with a one-line error; a dead network fails in this time, not osmnx's minutes.
+#: Seconds to wait for Overpass or Nominatim to accept a connection (and Overpass to answer its status
+#: query) before the build gives up with a one-line error; a dead network fails in this time.
 overpass_connect_timeout_s: float = 5.0
 
-#: Seconds an Overpass query may run (osmnx's ``requests_timeout``) once the server is reachable.
+#: Seconds an Overpass query may run once the server is reachable: written into the query as the
+#: server's own time limit (it then stops with a "runtime error"); its answer is awaited 15 s longer.
 overpass_timeout_s: float = 180.0
+
+#: Seconds to wait before asking a busy Overpass server (HTTP 429, 503, 504) again, one per retry;
+#: after the last the build gives up with a one-line error (osmnx alone retried every 55 s forever).
+overpass_busy_waits_s: tuple[float, ...] = (10.0, 30.0)
 
 #: Where ``localize serve`` keeps the tracks of ended sessions (under ``tracks/``): the user's data folder
 #: (``~/.local/share/curbside`` on Linux) unless ``CURBSIDE_DATA_DIR`` says otherwise.

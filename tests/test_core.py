@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import json
+import subprocess
+import sys
 
 import numpy as np
 import pandas as pd
@@ -138,3 +140,22 @@ def test_exit_status_contract(capsys):
     with pytest.raises(SystemExit) as info:
         run_cli("prog", _parser_raising(ValueError()), ["--bogus"])
     assert info.value.code == 2
+
+
+def test_a_closed_pipe_ends_quietly():
+    """``command | head``: the reader goes away; no internal error and no traceback."""
+    script = (
+        "from curbside.cli.common import make_parser, run_cli\n"
+        "def talk(_args):\n"
+        "    for i in range(200_000):\n"
+        "        print('line', i)\n"
+        "parser = make_parser('prog', 'test')\n"
+        "parser.add_subparsers().add_parser('go').set_defaults(func=talk)\n"
+        "raise SystemExit(run_cli('prog', parser, ['go']))\n"
+    )
+    proc = subprocess.Popen([sys.executable, "-c", script], stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    proc.stdout.read(100)
+    proc.stdout.close()
+    err = proc.stderr.read().decode()
+    assert proc.wait(timeout=60) == 141
+    assert err == ""

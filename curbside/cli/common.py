@@ -1,7 +1,8 @@
 """What every console command shares: logging set-up and the exit-status contract.
 
 Exit 0 on success; 2 on bad usage or bad input, with one line on stderr naming the file and the
-problem; 1 on an internal error. ``CURBSIDE_DEBUG=1`` shows tracebacks.
+problem; 1 on an internal error; 130 on Ctrl-C; 141 when the reader of stdout goes away (``| head``),
+as for a process killed by SIGPIPE. ``CURBSIDE_DEBUG=1`` shows tracebacks.
 """
 
 from __future__ import annotations
@@ -223,7 +224,13 @@ def run_cli(
         return 2
     debug = os.environ.get("CURBSIDE_DEBUG") == "1"
     try:
-        return int(func(args) or 0)
+        status = int(func(args) or 0)
+        sys.stdout.flush()  # a closed pipe shows here, inside the handler, not at interpreter exit
+        return status
+    except BrokenPipeError:
+        # the reader went away (``| head``): stop quietly, as a process killed by SIGPIPE would
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return 141
     except CurbsideInputError as exc:
         if debug:
             raise

@@ -11,9 +11,32 @@ from curbside.cli.common import set_overrides
 from curbside.configio import with_overrides
 from curbside.errors import CurbsideInputError
 from curbside.io import OVERWRITE_FILE_HELP, check_output_file
-from curbside.osmseg.build import build_map
+from curbside.osmseg.build import READ_MARGIN_M, build_map, check_bbox
 from curbside.osmseg.config import UNMARKED_CHOICES, SegmentationConfig
 from curbside.osmseg.mapio import CLASSES, MapLayers, write_map
+
+
+def _description() -> str:
+    """What ``osmseg build --help`` says before the options: the sources, the cache, the licence."""
+    extract = " ".join(f"{v:.10g}" for v in settings.default_extract_bbox)
+    return (
+        "Derive building, street, crosswalk and sidewalk-segment polygons from OpenStreetMap (OSM) and\n"
+        "write them as one GeoJSON map.\n\n"
+        "Where the OSM data comes from:\n"
+        "  --osm FILE   a file you have (.osm, .osm.bz2, .osm.gz or .osm.pbf, e.g. from Geofabrik or\n"
+        "               `osmium extract`); nothing is downloaded\n"
+        "  (no --osm)   an area inside downtown San Francisco (W S E N:\n"
+        f"               {extract}): the bundled extract; nothing is downloaded\n"
+        "  (no --osm)   any other area: every building and highway in it and "
+        f"{READ_MARGIN_M:g} m around it,\n"
+        "               downloaded from the Overpass API (overpass-api.de)\n"
+        "The area is --bbox, or --place: a place name that Nominatim, OSM's geocoder, looks up online.\n\n"
+        f"Downloads are cached in {settings.cache_dir}/overpass and .../nominatim\n"
+        "(CURBSIDE_CACHE_DIR moves the cache; it is safe to delete), so a build repeated offline works;\n"
+        "without a network an uncached build stops in seconds with a one-line error.\n\n"
+        f"Map data {settings.osm_attribution}: credit it wherever the map is shown (every map\n"
+        "written carries this line); a database derived from it that you share is ODbL too."
+    )
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -21,21 +44,32 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p = subparsers.add_parser(
         "build",
         help="derive map layers from OpenStreetMap",
-        description=(
-            "Derive building, street, crosswalk and sidewalk-segment polygons from OpenStreetMap. "
-            "No --osm: the bundled downtown San Francisco extract when the bbox lies inside it, "
-            f"else Overpass (cached under {settings.cache_dir}/overpass). {settings.osm_attribution}."
-        ),
+        description=_description(),
+        epilog="examples:\n"
+        "  osmseg build -o map.geojson                       # the bundled extract, offline\n"
+        "  osmseg build --bbox -73.990 40.750 -73.980 40.758 -o midtown.geojson   # Overpass\n"
+        "  osmseg build --place 'Union Square, San Francisco' -o union-square.geojson\n"
+        "  osmseg build --osm helsinki.osm.pbf -o helsinki.geojson   # the bounds the file declares",
+        formatter_class=argparse.RawDescriptionHelpFormatter,
     )
-    p.add_argument(
+    area = p.add_mutually_exclusive_group()
+    area.add_argument(
         "--bbox",
         nargs=4,
         type=float,
         metavar=("W", "S", "E", "N"),
-        help="area in WGS84 degrees (default: the bundled extract's default area; with --osm, the bounds "
+        help="area to build in WGS84 degrees, longitude first: west south east north, at most "
+        f"{settings.max_bbox_area_km2:g} km^2 (default: the whole bundled extract; with --osm, the bounds "
         "the file declares, else all of it)",
     )
-    p.add_argument("--osm", type=Path, metavar="FILE", help=".osm, .osm.bz2, .osm.gz or .osm.pbf file")
+    area.add_argument(
+        "--place",
+        metavar="NAME",
+        help="area to build: the bounding box of a place name, e.g. 'Union Square, San Francisco' (looked up "
+        "with Nominatim; a name that is a point, such as a shop or an address, is refused: give --bbox)",
+    )
+    p.add_argument("--osm", type=Path, metavar="FILE",
+                   help="read this OSM file instead of downloading: .osm, .osm.bz2, .osm.gz or .osm.pbf")
     p.add_argument("-o", "--output", type=Path, default=Path("map.geojson"),
                    help="output GeoJSON (default: %(default)s)")
     p.add_argument("--overwrite", action="store_true", help=OVERWRITE_FILE_HELP)
@@ -82,9 +116,16 @@ def run(args: argparse.Namespace) -> int:
     config = with_overrides(
         SegmentationConfig(unmarked_crossing_as=args.unmarked_as), set_overrides(args.set)
     )
-    layers = build_map(tuple(args.bbox) if args.bbox else None, args.osm, config=config)
-    path = write_map(layers, args.output)
     out = sys.stdout
+    bbox = tuple(args.bbox) if args.bbox else None
+    if args.place is not None:
+        from curbside.osmseg.overpass import geocode_bbox
+
+        found, name = geocode_bbox(args.place)
+        bbox = check_bbox(found, f"--place {args.place!r}")
+        out.write(f"--place {args.place!r} is {name}: --bbox {' '.join(f'{v:.7f}' for v in bbox)}\n")
+    layers = build_map(bbox, args.osm, config=config)
+    path = write_map(layers, args.output)
     out.write(f"wrote {path} ({layers.meta['source']}; {settings.osm_attribution})\n")
     for line in summary_lines(layers):
         out.write(line + "\n")

@@ -45,8 +45,40 @@ BBox = tuple[float, float, float, float]
 READ_MARGIN_M = 60.0
 
 
+#: Orders a bbox is given in by mistake -> indices into it that make (west, south, east, north).
+_MISTAKEN_ORDERS = {
+    "latitude first (S W N E)": (1, 0, 3, 2),
+    "W E S N": (0, 2, 1, 3),
+    "S N W E, Nominatim's order": (2, 0, 3, 1),
+}
+
+
+def _in_order(west: float, south: float, east: float, north: float) -> bool:
+    lon_ok = -180 <= west < east <= 180
+    return lon_ok and -90 <= south < north <= 90
+
+
+def _order_hint(values: tuple[float, float, float, float]) -> str:
+    """A hint for a bbox that is valid in another order (lat/lon swapped, corners swapped), else ''."""
+    for name, order in _MISTAKEN_ORDERS.items():
+        fixed = tuple(values[i] for i in order)
+        if _in_order(*fixed):
+            return f"; it looks like {name}: give W S E N, longitude first: --bbox {_fmt(fixed)}"
+    (west, east), (south, north) = sorted(values[0::2]), sorted(values[1::2])
+    if _in_order(west, south, east, north):
+        return f"; give W S E N, west < east, south < north: --bbox {_fmt((west, south, east, north))}"
+    return ""
+
+
+def _fmt(values: tuple[float, ...]) -> str:
+    return " ".join(f"{v:.10g}" for v in values)
+
+
 def check_bbox(bbox: BBox, source: str = "--bbox") -> BBox:
     """Validate a (west, south, east, north) bbox in WGS84 degrees.
+
+    A bbox that is valid in an order people often give by mistake (latitude first, W E S N,
+    Nominatim's S N W E, corners swapped) gets the fixed order in the message.
 
     Raises
     ------
@@ -60,17 +92,21 @@ def check_bbox(bbox: BBox, source: str = "--bbox") -> BBox:
         raise CurbsideInputError(source, "expected four numbers: west south east north") from None
     if not all(math.isfinite(v) for v in (west, south, east, north)):
         raise CurbsideInputError(source, "coordinates must be finite numbers")
+    hint = _order_hint((west, south, east, north))
     if not (-180 <= west <= 180 and -180 <= east <= 180 and -90 <= south <= 90 and -90 <= north <= 90):
-        raise CurbsideInputError(source, "outside the lon/lat range (lon -180..180, lat -90..90)")
+        raise CurbsideInputError(source, f"outside the lon/lat range (lon -180..180, lat -90..90){hint}")
     if west >= east:
-        raise CurbsideInputError(source, f"west ({west}) must be less than east ({east})")
+        raise CurbsideInputError(source, f"west ({west}) must be less than east ({east}){hint}")
     if south >= north:
-        raise CurbsideInputError(source, f"south ({south}) must be less than north ({north})")
+        raise CurbsideInputError(source, f"south ({south}) must be less than north ({north}){hint}")
     area = bbox_area_km2((west, south, east, north))
-    if area > settings.max_bbox_area_km2:
+    limit = settings.max_bbox_area_km2
+    if area > limit:
         raise CurbsideInputError(
-            source, f"area {area:.1f} km^2 exceeds the {settings.max_bbox_area_km2:g} km^2 limit; split it"
-        )
+            source, f"area {area:,.1f} km^2 is over the {limit:g} km^2 limit (settings.max_bbox_area_km2): "
+            "a larger city area takes minutes and GBs of memory to download and build, and Overpass refuses "
+            "queries that outgrow its time or memory; split it into smaller bboxes",
+        )  # fmt: skip
     return west, south, east, north
 
 

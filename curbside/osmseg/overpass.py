@@ -1,33 +1,65 @@
-"""Stage 1 (network source): OSM elements of a bbox from Overpass, through osmnx.
+"""Stage 1 (network source): OSM elements of a bbox from Overpass, and a place name's bbox from Nominatim.
 
-osmnx downloads and caches the response (``settings.cache_dir / "overpass"``, beside the other
-caches of :mod:`curbside.cache`) and builds a feature table; :func:`fetch_overpass` converts it into
-the :class:`~curbside.osmseg.reader.OsmData` that the pyosmium file reader produces, so the
-derivation is shared.
+curbside sends the Overpass query itself and osmnx turns the answer into a feature table, which
+:func:`features_to_osmdata` converts into the :class:`~curbside.osmseg.reader.OsmData` that the
+pyosmium file reader produces, so the derivation is shared. Sending it itself is what makes every
+failure one line: osmnx retried a busy server (HTTP 429/504) every 55 s without end, built a map
+from the part of an answer that Overpass had cut short with a "runtime error" remark, called an
+empty or truncated answer "no data", and could cache an answer without elements for good.
+
+Answers are cached under ``settings.cache_dir`` (``overpass/``, ``nominatim/``; :mod:`curbside.cache`):
+an entry is written only from a whole, valid answer and atomically, so a failed or interrupted
+download leaves none; an entry that cannot be read is downloaded again.
 """
 
 from __future__ import annotations
 
-import contextlib
+import json
 import logging
-from collections.abc import Iterator
+import math
+import time
+from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 import geopandas as gpd
 import numpy as np
 import osmnx as ox
 import requests
 import shapely
-from osmnx._errors import InsufficientResponseError, ResponseStatusCodeError
+from osmnx import features as ox_features
+from osmnx._errors import InsufficientResponseError
 
-from curbside import settings
+import curbside
+from curbside import cache, settings
 from curbside.errors import CurbsideInputError
+from curbside.io import atomic_path
 from curbside.osmseg.reader import TAG_KEYS, OsmData, clip_to_bbox, frame_for, make_table
 
 log = logging.getLogger(__name__)
 
+BBox = tuple[float, float, float, float]
+
 #: The Overpass tag query: every building and every highway element.
 OVERPASS_TAGS: dict[str, bool] = {"building": True, "highway": True}
+
+#: HTTP statuses with which a busy Overpass server asks to be asked again later.
+BUSY_STATUSES = frozenset({429, 503, 504})
+
+#: What requests raises when an answer stops in the middle.
+BROKEN_OFF = (requests.exceptions.ChunkedEncodingError, requests.exceptions.ContentDecodingError)
+
+#: What a build without the network can do instead.
+OFFLINE_ADVICE = "build offline with --osm FILE"
+
+#: Seconds past ``settings.overpass_timeout_s`` to wait for Overpass to answer (it stops the query then).
+READ_GRACE_S = 15.0
+
+#: Seconds Nominatim may take to answer a search once connected.
+NOMINATIM_READ_TIMEOUT_S = 30.0
+
+#: Half the side (m) of the bbox suggested around a place name that is a point.
+POINT_HALF_SIDE_M = 250.0
 
 
 def _records(gdf: gpd.GeoDataFrame) -> list[dict[str, str]]:
@@ -90,33 +122,36 @@ def overpass_reachable(url: str, timeout_s: float) -> bool:
     Any HTTP answer counts (a server that lacks the status endpoint is still there).
     """
     try:
-        requests.get(f"{url.rstrip('/')}/status", timeout=timeout_s)
+        requests.get(f"{url.rstrip('/')}/status", headers=_headers(), timeout=timeout_s)
     except requests.RequestException as exc:
         log.info("Overpass at %s is unreachable (%s)", url, type(exc).__name__)
         return False
     return True
 
 
-@contextlib.contextmanager
-def _osmnx_settings(**values) -> Iterator[None]:
-    """Set ``osmnx.settings`` attributes for one query and restore them after."""
-    saved = {name: getattr(ox.settings, name) for name in values}
-    for name, value in values.items():
-        setattr(ox.settings, name, value)
-    try:
-        yield
-    finally:
-        for name, value in saved.items():
-            setattr(ox.settings, name, value)
+def overpass_query(bbox: BBox, timeout_s: float) -> str:
+    """The Overpass QL query for every building and highway element of a bbox, with their nodes.
+
+    Parameters
+    ----------
+    bbox
+        (west, south, east, north) WGS84 degrees.
+    timeout_s
+        The server-side timeout written into the query.
+    """
+    west, south, east, north = bbox
+    box = f"({south:.7f},{west:.7f},{north:.7f},{east:.7f})"
+    wanted = "".join(f'nwr["{key}"]{box};' for key in OVERPASS_TAGS)
+    return f"[out:json][timeout:{int(timeout_s)}];({wanted});(._;>;);out;"
 
 
-def fetch_overpass(bbox: tuple[float, float, float, float], *, margin_m: float = 60.0) -> OsmData:
-    """Download buildings and highways of a bbox from Overpass (osmnx, cached on disk).
+def fetch_overpass(bbox: BBox, *, margin_m: float = 60.0) -> OsmData:
+    """Download buildings and highways of a bbox from Overpass (cached on disk).
 
-    The server is asked for its status first, with ``settings.overpass_connect_timeout_s``: when it
-    does not answer (no network), osmnx's rate-limit pause (60 s when the status is unknown) is
-    skipped and the query gets the same short timeout, so the build fails in seconds -- or is
-    answered from the cache, whose keys do not depend on either timeout.
+    A cached answer is used without asking the network. Otherwise the server is asked for its status
+    first, with ``settings.overpass_connect_timeout_s``: when it does not answer (no network), the
+    build fails in seconds. A busy server (HTTP 429, 503, 504) is asked again after each wait of
+    ``settings.overpass_busy_waits_s``, then given up on.
 
     Parameters
     ----------
@@ -133,34 +168,208 @@ def fetch_overpass(bbox: tuple[float, float, float, float], *, margin_m: float =
     Raises
     ------
     CurbsideInputError
-        No OSM data in the area, Overpass unreachable, or the request failed.
+        No OSM data in the area; Overpass unreachable, busy, failing, or sending an answer that is
+        empty, cut short, not JSON, or stopped by a runtime error (an incomplete map is never built).
     """
     west, south, east, north = bbox
     pad_lat = margin_m / 111_320.0
     pad_lon = pad_lat / max(np.cos(np.radians((south + north) / 2)), 1e-6)
-    query = (west - pad_lon, south - pad_lat, east + pad_lon, north + pad_lat)
-    url = ox.settings.overpass_url
-    reachable = overpass_reachable(url, settings.overpass_connect_timeout_s)
-    query_settings = _osmnx_settings(
-        cache_folder=str(Path(settings.cache_dir) / "overpass"),
-        use_cache=True,
-        # The server-side timeout is written into the query (and so into osmnx's cache key): fixed.
-        overpass_settings=f"[out:json][timeout:{int(settings.overpass_timeout_s)}]{{maxsize}}",
-        requests_timeout=settings.overpass_timeout_s if reachable else settings.overpass_connect_timeout_s,
-        overpass_rate_limit=ox.settings.overpass_rate_limit and reachable,
-    )
-    log.info("querying Overpass at %s for %s", url, query)
+    query_bbox = (west - pad_lon, south - pad_lat, east + pad_lon, north + pad_lat)
+    url = ox.settings.overpass_url.rstrip("/")
+    log.info("querying Overpass at %s for %s", url, query_bbox)
+    answer = _overpass_answer(url, overpass_query(query_bbox, settings.overpass_timeout_s))
     try:
-        with query_settings:
-            features = ox.features_from_bbox(query, OVERPASS_TAGS)
+        features = ox_features._create_gdf([answer], shapely.box(*query_bbox), OVERPASS_TAGS)
     except InsufficientResponseError:
         raise CurbsideInputError("overpass", f"no OSM buildings or highways in bbox {list(bbox)}") from None
-    except (requests.RequestException, ResponseStatusCodeError) as exc:
-        if not reachable:
-            problem = "cannot reach the Overpass server (no network?); build offline with --osm FILE"
-        else:
-            problem = f"Overpass request failed ({type(exc).__name__})"
-        raise CurbsideInputError(url, problem) from None
     data = features_to_osmdata(features, bbox)
     data.bounds = bbox
     return clip_to_bbox(data, bbox, margin_m)
+
+
+def _headers() -> dict[str, str]:
+    """HTTP headers: the OSM servers' usage policies ask every client to name itself."""
+    return {"User-Agent": f"curbside/{curbside.__version__} ({ox.settings.http_user_agent})"}
+
+
+def _overpass_answer(url: str, query: str) -> dict[str, Any]:
+    """Overpass's answer to ``query``: the cached one, else downloaded and cached."""
+    entry = cache.entry_path("overpass", cache.content_key("overpass-answer-v1", url, query), ".json")
+    answer = _cached(entry, _overpass_json)
+    if answer is not None:
+        return answer
+    if not overpass_reachable(url, settings.overpass_connect_timeout_s):
+        raise CurbsideInputError(url, f"cannot reach the Overpass server (no network?); {OFFLINE_ADVICE}")
+    body = _post(url, query)
+    answer = _overpass_json(url, body)
+    if "remark" not in answer:
+        _store(entry, body)
+    return answer
+
+
+def _post(url: str, query: str) -> bytes:
+    """The body of Overpass's answer to ``query``, asking again while the server says it is busy."""
+    waits_s = list(settings.overpass_busy_waits_s)
+    # The server stops at settings.overpass_timeout_s (written into the query) and says so: wait for that.
+    read_timeout_s = settings.overpass_timeout_s + READ_GRACE_S
+    for attempt in range(1, len(waits_s) + 2):
+        try:
+            response = requests.post(
+                f"{url}/interpreter", data={"data": query}, headers=_headers(),
+                timeout=(settings.overpass_connect_timeout_s, read_timeout_s),
+            )  # fmt: skip
+        except requests.ReadTimeout:
+            raise CurbsideInputError(
+                url, f"Overpass did not answer in {read_timeout_s:g} s; try a smaller --bbox, or again later",
+            ) from None  # fmt: skip
+        except requests.RequestException as exc:
+            what = "the download broke off " if isinstance(exc, BROKEN_OFF) else ""
+            problem = f"Overpass request failed: {what}({type(exc).__name__}); try again"
+            raise CurbsideInputError(url, problem) from None
+        status = f"HTTP {response.status_code} {response.reason}"
+        if response.status_code not in BUSY_STATUSES:
+            break
+        if attempt > len(waits_s):
+            raise CurbsideInputError(
+                url, f"Overpass request failed: the server is busy ({status}, {attempt} tries); try again "
+                f"in a few minutes, or {OFFLINE_ADVICE}",
+            )  # fmt: skip
+        log.warning("Overpass at %s is busy (%s); asking again in %g s", url, status, waits_s[attempt - 1])
+        time.sleep(waits_s[attempt - 1])
+    if not response.ok:
+        raise CurbsideInputError(url, f"Overpass request failed ({status})")
+    return response.content
+
+
+def _json(source: str | Path, body: bytes, server: str) -> Any:
+    """``body`` parsed as JSON; :class:`CurbsideInputError` when it is empty or not whole JSON."""
+    text = body.strip()
+    if not text:
+        raise CurbsideInputError(source, f"{server} sent an empty answer; try again")
+    try:
+        return json.loads(text)
+    except ValueError as exc:
+        what = "XML or HTML (an error page?)" if text[:1] == b"<" else f"JSON cut short or malformed ({exc})"
+        problem = f"{server} sent {what}, not a whole JSON answer; try again"
+        raise CurbsideInputError(source, problem) from None
+
+
+def _overpass_json(source: str | Path, body: bytes) -> dict[str, Any]:
+    """A whole Overpass answer; a runtime error (Overpass's ``remark``) means it is incomplete."""
+    answer = _json(source, body, "Overpass")
+    if not isinstance(answer, dict) or not isinstance(answer.get("elements"), list):
+        raise CurbsideInputError(source, "Overpass sent JSON without a list of elements; try again")
+    remark = str(answer.get("remark") or "").strip()
+    if "error" in remark.lower():
+        raise CurbsideInputError(
+            source, f"Overpass stopped the query ({remark.splitlines()[0]}), so its answer is incomplete; "
+            "try a smaller --bbox, or again later",
+        )  # fmt: skip
+    if remark:
+        log.warning("Overpass remarked: %s", remark)
+    return answer
+
+
+def _cached(entry: Path, parse: Callable[[Path, bytes], Any]) -> Any | None:
+    """A cache entry parsed, or ``None`` when it is absent or unreadable (then with a warning)."""
+    if not entry.is_file():
+        return None
+    try:
+        return parse(entry, entry.read_bytes())
+    except (OSError, CurbsideInputError) as exc:
+        log.warning("downloading again: unreadable cache entry %s (%s)", entry, getattr(exc, "problem", exc))
+        return None
+
+
+def _store(entry: Path, body: bytes) -> None:
+    """Write a cache entry atomically; one that cannot be written costs only the download next time."""
+    try:
+        entry.parent.mkdir(parents=True, exist_ok=True)
+        with atomic_path(entry) as tmp:
+            tmp.write_bytes(body)
+    except (OSError, CurbsideInputError) as exc:
+        log.warning("could not write cache entry %s (%s)", entry, exc)
+
+
+def geocode_bbox(place: str) -> tuple[BBox, str]:
+    """The bounding box of the area a place name stands for, from Nominatim (cached on disk).
+
+    Parameters
+    ----------
+    place
+        A name as typed into openstreetmap.org's search box, e.g. ``"Union Square, San Francisco"``.
+
+    Returns
+    -------
+    bbox, name
+        (west, south, east, north) degrees of Nominatim's best match, and its full name.
+
+    Raises
+    ------
+    CurbsideInputError
+        Nominatim unreachable or failing, no match, or a match that is a point (a shop, an address)
+        rather than an area.
+    """
+    source = f"--place {place!r}"
+    url = ox.settings.nominatim_url.rstrip("/")
+    entry = cache.entry_path("nominatim", cache.content_key("nominatim-search-v1", url, place), ".json")
+    found = _cached(entry, _places)
+    if found is None:
+        found = _places(source, _search(url, place, source))
+        if found:
+            _store(entry, json.dumps(found).encode())
+    if not found:
+        raise CurbsideInputError(
+            source, "Nominatim knows no place of that name; check the spelling, add the city or country "
+            "(e.g. 'Union Square, San Francisco'), or give the area as --bbox W S E N",
+        )  # fmt: skip
+    return _place_bbox(source, found[0])
+
+
+def _search(url: str, place: str, source: str) -> bytes:
+    """The body of Nominatim's answer to a search for ``place``."""
+    params = {"q": place, "format": "jsonv2", "limit": "1"}
+    timeout = (settings.overpass_connect_timeout_s, NOMINATIM_READ_TIMEOUT_S)
+    try:
+        response = requests.get(f"{url}/search", params=params, headers=_headers(), timeout=timeout)
+    except (requests.ConnectionError, requests.Timeout):
+        raise CurbsideInputError(
+            source, f"cannot reach the geocoder Nominatim at {url} (no network?); give the area as --bbox "
+            f"W S E N, or {OFFLINE_ADVICE}",
+        ) from None  # fmt: skip
+    except requests.RequestException as exc:
+        problem = f"Nominatim request failed ({type(exc).__name__}); try again"
+        raise CurbsideInputError(source, problem) from None
+    if not response.ok:
+        raise CurbsideInputError(
+            source, f"Nominatim request failed (HTTP {response.status_code} {response.reason}); try again "
+            "later, or give the area as --bbox W S E N",
+        )  # fmt: skip
+    return response.content
+
+
+def _places(source: str | Path, body: bytes) -> list[dict[str, Any]]:
+    """Nominatim's list of matches."""
+    found = _json(source, body, "Nominatim")
+    if not isinstance(found, list) or not all(isinstance(match, dict) for match in found):
+        raise CurbsideInputError(source, "Nominatim sent JSON that is not a list of places; try again")
+    return found
+
+
+def _place_bbox(source: str, match: dict[str, Any]) -> tuple[BBox, str]:
+    """(west, south, east, north) and name of a Nominatim match; a point is refused."""
+    name = str(match.get("display_name") or "?")
+    try:
+        south, north, west, east = (float(v) for v in match["boundingbox"])
+        lon, lat = float(match["lon"]), float(match["lat"])
+    except (KeyError, TypeError, ValueError):
+        raise CurbsideInputError(source, "Nominatim sent a place without a bounding box; try again") from None
+    if match.get("osm_type") == "node" or not (west < east and south < north):
+        half_lat = POINT_HALF_SIDE_M / 111_320.0
+        half_lon = half_lat / max(math.cos(math.radians(lat)), 1e-6)
+        around = f"{lon - half_lon:.5f} {lat - half_lat:.5f} {lon + half_lon:.5f} {lat + half_lat:.5f}"
+        raise CurbsideInputError(
+            source, f"is a point, not an area ({name}, at {lon:.5f} {lat:.5f}); give the area around it, "
+            f"e.g. --bbox {around} ({2 * POINT_HALF_SIDE_M:.0f} m across)",
+        )  # fmt: skip
+    return (west, south, east, north), name

@@ -25,7 +25,7 @@ import shapely
 from pyproj import CRS
 
 from curbside.errors import CurbsideInputError
-from curbside.osmseg.clipped import MissingNodes, agreed_area, closed_rings
+from curbside.osmseg.clipped import ADVICE, MissingNodes, agreed_area, closed_rings
 from curbside.projection import LocalFrame
 
 log = logging.getLogger(__name__)
@@ -34,6 +34,14 @@ BBox = tuple[float, float, float, float]
 
 #: File name endings ``--osm`` accepts (pyosmium reads compressed XML itself).
 OSM_SUFFIXES: tuple[str, ...] = (".osm", ".osm.bz2", ".osm.gz", ".osm.pbf")
+
+#: osmium's name of each format, by the file name ending that announces it.
+_FORMATS = {".osm.pbf": "pbf", ".osm.bz2": "osm.bz2", ".osm.gz": "osm.gz", ".osm": "osm"}
+_FORMAT_NAMES = {"pbf": "PBF", "osm.bz2": "bzip2-compressed OSM XML", "osm.gz": "gzip-compressed OSM XML",
+                 "osm": "OSM XML"}  # fmt: skip
+
+#: What osmium says about a file that ends early (an interrupted download).
+_CUT_SHORT = ("bzip2 error", "gzip error", "unexpected EOF", "unclosed token", "no element found")
 
 #: Tags the derivation reads; every table has one column per key (None where absent).
 TAG_KEYS: tuple[str, ...] = (
@@ -134,16 +142,50 @@ def clip_to_bbox(data: OsmData, bbox: tuple[float, float, float, float], margin_
     )
 
 
-def _check_path(path: Path) -> None:
+def _osm_input(path: Path, *, warn: bool = True) -> str | osmium.io.File:
+    """What osmium should open for ``path``: its name, or, when its content is another OSM format than
+    its name says (XML named ``.pbf``), the file with the format its first bytes show (a WARNING says so).
+
+    Raises
+    ------
+    CurbsideInputError
+        Missing, a folder, empty, or a name without one of :data:`OSM_SUFFIXES`.
+    """
     if not path.exists():
         raise CurbsideInputError(path, "no such OSM file")
     if not path.is_file():
-        raise CurbsideInputError(path, "not a file")
-    name = path.name.lower()
-    if not name.endswith(OSM_SUFFIXES):
+        raise CurbsideInputError(path, "is a folder, not an OSM file" if path.is_dir() else "not a file")
+    named = next((fmt for suffix, fmt in _FORMATS.items() if path.name.lower().endswith(suffix)), None)
+    if named is None:
         raise CurbsideInputError(
             path, f"unsupported file type; expected one of {', '.join(OSM_SUFFIXES[:4])}"
         )
+    if path.stat().st_size == 0:
+        raise CurbsideInputError(path, "is empty (0 bytes)")
+    found = _sniffed_format(path)
+    if found is None or found == named:
+        return str(path)
+    if warn:
+        log.warning(
+            "%s holds %s, not the %s its name says; reading it as %s",
+            path.name, _FORMAT_NAMES[found], _FORMAT_NAMES[named], _FORMAT_NAMES[found],
+        )  # fmt: skip
+    return osmium.io.File(str(path), found)
+
+
+def _sniffed_format(path: Path) -> str | None:
+    """osmium's name of the format that the first bytes of ``path`` show, ``None`` for none of them."""
+    with open(path, "rb") as fh:
+        head = fh.read(64)
+    if head.startswith(b"\x1f\x8b"):
+        return "osm.gz"
+    if head.startswith(b"BZh"):
+        return "osm.bz2"
+    if head[4:].startswith(b"\n\tOSMHeader"):  # a PBF's first blob header: length, then type "OSMHeader"
+        return "pbf"
+    if head.lstrip(b"\xef\xbb\xbf \t\r\n").startswith(b"<"):
+        return "osm"
+    return None
 
 
 def declared_bounds(path: str | Path) -> BBox | None:
@@ -166,9 +208,9 @@ def declared_bounds(path: str | Path) -> BBox | None:
         Missing file, unsupported extension, or a header osmium cannot parse.
     """
     path = Path(path)
-    _check_path(path)
+    source = _osm_input(path, warn=False)
     with _osmium_errors(path):
-        reader = osmium.io.Reader(str(path), osmium.osm.osm_entity_bits.NOTHING)
+        reader = osmium.io.Reader(source, osmium.osm.osm_entity_bits.NOTHING)
         try:
             return _header_bounds(reader.header())
         finally:
@@ -194,7 +236,8 @@ def read_osm_file(
     Parameters
     ----------
     path
-        ``.osm``, ``.osm.bz2``, ``.osm.gz`` or ``.osm.pbf``.
+        ``.osm``, ``.osm.bz2``, ``.osm.gz`` or ``.osm.pbf``; read as the format its first bytes show
+        when that is another of the four (a WARNING says so).
     bbox
         (west, south, east, north) degrees: keep only elements within ``margin_m`` of it and take
         the UTM zone of its centre. ``None``: everything, UTM zone of the data's centre.
@@ -209,21 +252,22 @@ def read_osm_file(
     Raises
     ------
     CurbsideInputError
-        Missing file, unsupported extension, a file osmium cannot parse (not OSM, truncated,
-        corrupt), or one without highways, buildings or crossings.
+        Missing or empty file, a folder, unsupported extension, a file osmium cannot parse (not OSM,
+        truncated, corrupt), one without highways, buildings or crossings, or one whose ways refer
+        only to nodes it lacks.
     """
     path = Path(path)
-    _check_path(path)
+    source = _osm_input(path)
     with _osmium_errors(path):
-        members, rel_tags, bounds = _building_relations(path)
-        elements = _read_elements(path, members, bounds)
+        members, rel_tags, bounds = _building_relations(source)
+        elements = _read_elements(source, members, bounds)
     log.info(
         "read %s: %d ways, %d areas, %d nodes",
         path.name, len(elements.way_ids), len(elements.area_ids), len(elements.node_ids),
     )  # fmt: skip
     every_xy = np.reshape(np.array(elements.coords(), dtype=float), (-1, 2))
     if len(every_xy) == 0:
-        raise CurbsideInputError(path, "no highways, buildings or crossings in this file")
+        raise _nothing_read(path, elements.missing)
     frame = LocalFrame.around(*((every_xy.min(0) + every_xy.max(0)) / 2)) if bbox is None else frame_for(bbox)
     way_xy = np.array(elements.way_coords, dtype=float).reshape(-1, 2)
     node_xy = np.array(elements.node_coords, dtype=float).reshape(-1, 2)
@@ -278,13 +322,25 @@ def _area_table(
     )
 
 
+def _nothing_read(path: Path, missing: MissingNodes) -> CurbsideInputError:
+    """The error for a file that gave no coordinates: no elements used, or ways without their nodes."""
+    if missing.ways:
+        return CurbsideInputError(
+            path, f"its {missing.ways} highway and building ways refer to nodes the file lacks, which "
+            f"leaves nothing to build. {ADVICE}",
+        )  # fmt: skip
+    return CurbsideInputError(path, "no highways, buildings or crossings in this file")
+
+
 @contextlib.contextmanager
 def _osmium_errors(path: Path) -> Iterator[None]:
     """Turn what osmium raises on a file it cannot parse into a one-line :class:`CurbsideInputError`."""
     try:
         yield
     except (RuntimeError, osmium.InvalidLocationError) as exc:
-        raise CurbsideInputError(path, f"not a readable OSM file ({_first_line(exc)})") from None
+        reason = _first_line(exc)
+        cut = "; it ends early: an interrupted download?" if any(m in reason for m in _CUT_SHORT) else ""
+        raise CurbsideInputError(path, f"not a readable OSM file ({reason}){cut}") from None
 
 
 @dataclass
@@ -318,13 +374,15 @@ class _Elements:
         return self.way_coords + self.area_coords + self.node_coords + cut
 
 
-def _read_elements(path: Path, members: dict[int, list[tuple[int, str]]], bounds: BBox | None) -> _Elements:
+def _read_elements(
+    source: str | osmium.io.File, members: dict[int, list[tuple[int, str]]], bounds: BBox | None
+) -> _Elements:
     """The streaming pass: highway ways, building ways, crossing nodes, member ways' coordinates."""
     out = _Elements()
     keys = frozenset(TAG_KEYS)
     # osmium's location index holds only positive ids; extracts and editors use negative ones too.
     negative_nodes: dict[int, tuple[float, float]] = {}
-    for obj in osmium.FileProcessor(str(path)).with_locations():
+    for obj in osmium.FileProcessor(source).with_locations():
         if obj.tags:
             out.newest = max(out.newest, obj.timestamp.timestamp())
         if obj.is_node():
@@ -435,7 +493,7 @@ def _rings_or_lines(lonlat: np.ndarray, lengths: list[int], frame: LocalFrame, *
 
 
 def _building_relations(
-    path: Path,
+    source: str | osmium.io.File,
 ) -> tuple[dict[int, list[tuple[int, str]]], dict[int, dict[str, str]], BBox | None]:
     """Building multipolygon relations and the header's bounds, from a pass over relations only.
 
@@ -450,7 +508,7 @@ def _building_relations(
     """
     members: dict[int, list[tuple[int, str]]] = {}
     rel_tags: dict[int, dict[str, str]] = {}
-    processor = osmium.FileProcessor(str(path), osmium.osm.RELATION)
+    processor = osmium.FileProcessor(source, osmium.osm.RELATION)
     bounds = _header_bounds(processor.header)
     for rel in processor:
         if rel.tags.get("type") != "multipolygon" or "building" not in rel.tags:
