@@ -193,7 +193,7 @@ def test_benchmark_cli_refuses_a_bad_ipin_ronin_before_simulating(tmp_path, caps
     missing = tmp_path / "none.pt"
     assert main(["benchmark", "--ipin", str(IPIN_CUT), "--ipin-ronin", str(missing), "-o", str(out)]) == 2
     assert capsys.readouterr().err.strip().splitlines()[-1] == (
-        f"localize: error: {missing}: no such RoNIN weights/config file")
+        f"localize: error: {missing}: no such RoNIN weights file")
     assert not out.exists()
 
 
@@ -204,7 +204,7 @@ def test_benchmark_cli_bad_input(tmp_path, capsys):
     assert usage.value.code == 2
     assert main(["benchmark", "--datasf-tiles", str(tmp_path / "missing.topojson"), "-o", str(out)]) == 2
     err = capsys.readouterr().err.strip().splitlines()
-    assert err[-1] == f"localize: error: {tmp_path / 'missing.topojson'}: no such file"
+    assert err[-1] == f"localize: error: {tmp_path / 'missing.topojson'}: no such DataSF tile file"
     assert not out.exists()
 
 

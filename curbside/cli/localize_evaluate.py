@@ -26,7 +26,9 @@ from __future__ import annotations
 
 import argparse
 import logging
+import math
 import os
+import re
 from pathlib import Path
 
 from curbside.cli.common import (
@@ -73,34 +75,58 @@ def _simulate(args: argparse.Namespace) -> int:
         )
         return 0
     from curbside.evaluate.osmsource import load_osm
+    from curbside.osmseg.mapio import read_map
     from curbside.projection import LocalFrame
 
     names = [s.name for s in routes_mod.SF6]
     _check_custom_options(args)
-    if args.route == "custom":
-        if args.start is None or args.length_m is None:
-            raise CurbsideInputError("--route custom", "needs --start LON LAT and --length-m")
-        osm = load_osm(args.osm)
-        frame = LocalFrame(osm.crs)
-        spec = routes_mod.RouteSpec(
-            "custom", tuple(args.start), args.length_m, args.crossings or 0, args.jaywalks or 0, "custom"
-        )
-        route = routes_mod.generate_route(routes_mod.build_walk_graph(osm), spec, frame, args.seed,
-                                         progress=True)
-    elif args.route in names:
-        route_list, frame, osm = sf6_routes(load_osm(args.osm))
-        route = route_list[names.index(args.route)]
-    else:
+    if args.route != "custom" and args.route not in names:
         raise CurbsideInputError("--route", f"unknown route {args.route!r}; one of {names} or custom")
+    if args.route == "custom" and (args.start is None or args.length_m is None):
+        raise CurbsideInputError("--route custom", "needs --start LON LAT and --length-m")
+    layers = read_map(args.map) if args.map else None  # a bad map fails now, not after the walk
+    osm = load_osm(args.osm)
+    if args.route == "custom":
+        frame = LocalFrame(osm.crs)
+        route = _custom_route(args, routes_mod.build_walk_graph(osm), frame)
+    else:
+        route_list, frame, osm = sf6_routes(osm)
+        route = route_list[names.index(args.route)]
     session = simulate_session(route, osm, frame, args.seed, config, name=Path(args.output).name)
-    if args.map:
-        _check_on_map(args.map, route, frame)
+    if layers is not None:
+        _check_on_map(args.map, layers, route, frame)
     write_session(session, args.output, overwrite=args.overwrite, command="localize simulate")
     print(
         f"{args.output}: {route.spec.name}, {route.length_m:.0f} m, {route.crossings} crosswalk crossings, "
         f"{route.jaywalks} jaywalks, {len(session.gnss)} GNSS fixes"
     )
     return 0
+
+
+def _custom_route(args: argparse.Namespace, graph, frame):
+    """``--route custom``: the walk from ``--start``, refused when no footway of the extract is near it."""
+    import numpy as np
+
+    from curbside.evaluate import routes as routes_mod
+
+    lon, lat = args.start
+    if not (-180 <= lon <= 180 and -90 <= lat <= 90):
+        raise CurbsideInputError("--start", f"({lon:g}, {lat:g}) is not a longitude and a latitude in "
+                                 "degrees; give LON then LAT, e.g. -122.4025 37.7930")
+    spec = routes_mod.RouteSpec(
+        "custom", (lon, lat), args.length_m, args.crossings or 0, args.jaywalks or 0, "custom"
+    )
+    node_lon, node_lat = frame.to_lonlat(graph.xy[:, 0], graph.xy[:, 1])
+    x, y = frame.to_xy(np.array([lon]), np.array([lat]))
+    nearest_m = float(np.min(np.hypot(graph.xy[:, 0] - x[0], graph.xy[:, 1] - y[0])))
+    if nearest_m > spec.start_radius_m:
+        raise CurbsideInputError(
+            "--start",
+            f"no footway of the OSM extract within {spec.start_radius_m:g} m of ({lon:g}, {lat:g}), the "
+            f"nearest is {nearest_m / 1000:.1f} km away; the extract's footways span lon "
+            f"{node_lon.min():.4f} to {node_lon.max():.4f}, lat {node_lat.min():.4f} to {node_lat.max():.4f}",
+        )
+    return routes_mod.generate_route(graph, spec, frame, args.seed, progress=True)
 
 
 def _check_custom_options(args: argparse.Namespace) -> None:
@@ -114,17 +140,15 @@ def _check_custom_options(args: argparse.Namespace) -> None:
         )
 
 
-def _check_on_map(map_path: str, route, frame) -> None:
+def _check_on_map(map_path: str, layers, route, frame) -> None:
+    """Refuse a route outside the map's extent; warn about waypoints inside its buildings."""
     import numpy as np
     import pyproj
     import shapely
 
-    from curbside.osmseg.mapio import read_map
-
-    layers = read_map(map_path)
-    lon, lat = frame.to_lonlat(route.xy[:, 0], route.xy[:, 1])
     from curbside.projection import LocalFrame
 
+    lon, lat = frame.to_lonlat(route.xy[:, 0], route.xy[:, 1])
     x, y = LocalFrame(pyproj.CRS(layers.crs)).to_xy(lon, lat)
     if not shapely.box(*layers.gdf.total_bounds).contains(shapely.multipoints(np.column_stack([x, y]))):
         raise CurbsideInputError(map_path, f"route {route.spec.name} lies outside the map's extent")
@@ -139,53 +163,59 @@ def _check_on_map(map_path: str, route, frame) -> None:
         )
 
 
-def _check_sessions(sessions: list[Path], maps: dict, methods: list[str]) -> None:
-    """Refuse, before any run, a session without ground truth or off one of the maps.
+def _check_is_file(path: str, what: str) -> None:
+    """Refuse a missing ``what`` file, or a folder given for one; a path with ``*`` or ``?`` in it is a
+    shell pattern that matched nothing."""
+    p = Path(path)
+    if p.is_dir():
+        raise CurbsideInputError(path, f"is a folder, not a {what} file")
+    if not p.is_file():
+        pattern = " (a pattern that matched no file)" if any(c in path for c in "*?[") else ""
+        raise CurbsideInputError(path, f"no such {what} file{pattern}")
 
-    Parameters
-    ----------
-    sessions
-        Session folders.
-    maps
-        The maps' layers by path (every method scores on them, the GNSS baseline too).
-    methods
-        The methods to run (their configurations decide whether the start pose is checked).
 
-    Raises
-    ------
-    CurbsideInputError
-        Naming the session's file (and the map): ``waypoints.csv`` missing or with fewer than two
-        waypoints, a session outside a map's extent.
-    """
-    from curbside.localize.pipeline import check_on_map, resolve_config
-    from curbside.localize.session import read_session
+def _check_ipin(path: str, held_out: bool) -> None:
+    """Refuse, before any run, an ``--ipin`` file that is not an IPIN 2023 HDF5 with trials (with
+    ``held_out``: with held-out ``repetition04`` trials, the ones the benchmark scores)."""
+    from curbside.localize.readers.ipin import list_trials
+    from curbside.localize.ronin.data import IPIN_TEST_MARK
 
-    configs = [resolve_config(None, method) for method in methods]
-    for folder in sessions:
-        session = read_session(folder, kinds=("gnss", "waypoints"))
-        waypoints = folder / "waypoints.csv"
-        if session.waypoints is None:
-            raise CurbsideInputError(waypoints, "missing: no ground truth to score the session against")
-        if len(session.waypoints) < 2:
-            raise CurbsideInputError(
-                waypoints, f"ground truth needs at least two waypoints; it holds {len(session.waypoints)}"
-            )
-        for path, layers in maps.items():
-            for config in configs:
-                check_on_map(session, layers, config, map_name=path)
+    _check_is_file(path, "IPIN HDF5")
+    trials = list_trials(path)  # a file that is not HDF5, or holds no trial, is refused here
+    if held_out and not any(IPIN_TEST_MARK in name for name in trials):
+        raise CurbsideInputError(
+            path, f"none of its {len(trials)} trials is a held-out one ({IPIN_TEST_MARK}), which the "
+            "benchmark scores; give the full ipin2023-t3.h5",
+        )
+
+
+def _check_ronin_weights(path: str) -> None:
+    """Refuse, before any walk, ``--ipin-ronin`` weights that are missing, lack their config or do not
+    load."""
+    from curbside.localize.ronin.infer import config_path_for, load_model
+
+    _check_is_file(path, "RoNIN weights")
+    config = config_path_for(path)
+    if Path(path) != config and not config.is_file():
+        raise CurbsideInputError(
+            path, f"its config {config.name} is not beside it (a RoNIN model is a .pt with its .json, as "
+            "localize train-ronin writes them)",
+        )
+    load_model(path)
 
 
 def _evaluate(args: argparse.Namespace) -> int:
     from curbside.evaluate.benchmark import expand_sessions, ipin_table, plan, route_table
     from curbside.evaluate.report import write_report
-    from curbside.evaluate.runner import run_all
+    from curbside.evaluate.runner import check_sessions, run_all
     from curbside.osmseg.mapio import read_map
 
     check_output_folder(args.output, args.overwrite, "localize evaluate")  # before minutes of runs
     sessions = expand_sessions(args.sessions)
-    for m in args.maps:
-        if not Path(m).is_file():
-            raise CurbsideInputError(m, "no such map file")
+    for m in [*args.maps, *([args.metrics_map] if args.metrics_map else [])]:
+        _check_is_file(m, "map")
+    if args.ipin:
+        _check_ipin(args.ipin, held_out=False)  # before the runs, not after them
     names = args.map_names or [Path(m).stem for m in args.maps]
     if len(names) != len(args.maps) or len(set(names)) != len(names):
         raise CurbsideInputError("--map-names", "give one distinct name per map")
@@ -194,7 +224,7 @@ def _evaluate(args: argparse.Namespace) -> int:
     reference = read_map(metrics_map)
     if len(reference.layer("sidewalk")) == 0:
         raise CurbsideInputError(metrics_map, "no sidewalk segments to score against: pass --metrics-map")
-    _check_sessions(sessions, {path: read_map(path) for path in maps.values()}, args.methods)
+    check_sessions(sessions, {path: read_map(path) for path in maps.values()}, tuple(args.methods))
     sigmas = tuple(args.gnss_sigma_factors) if args.gnss_sigma_factors else (None,)
     specs, base = plan(
         sessions,
@@ -234,15 +264,14 @@ def _benchmark(args: argparse.Namespace) -> int:
     from curbside.evaluate.suite import SuiteConfig, check_suite_folder, run_suite, suite_summary
 
     check_suite_folder(args.output, args.overwrite)  # before any map, model or walk
-    for path in [*(args.datasf_tiles or []), *([args.ipin] if args.ipin else [])]:
-        if not Path(path).is_file():
-            raise CurbsideInputError(path, "no such file")
-    if args.ipin_ronin:
-        if not args.ipin:
-            raise CurbsideInputError("--ipin-ronin", "needs --ipin (the trials to score)")
-        from curbside.localize.ronin.infer import load_model
-
-        load_model(args.ipin_ronin)  # a missing or unreadable model fails now, not after the walks
+    if args.ipin_ronin and not args.ipin:
+        raise CurbsideInputError("--ipin-ronin", "needs --ipin (the trials to score)")
+    for path in args.datasf_tiles or []:
+        _check_is_file(path, "DataSF tile")
+    if args.ipin_ronin:  # IPIN is scored after every walk: a bad model or file fails now, not then
+        _check_ronin_weights(args.ipin_ronin)
+    if args.ipin:
+        _check_ipin(args.ipin, held_out=True)
     config = SuiteConfig(
         profile=args.profile,
         split=args.split,
@@ -273,6 +302,54 @@ def _benchmark(args: argparse.Namespace) -> int:
     return 0
 
 
+class _HelpFormatter(argparse.HelpFormatter):
+    """Wraps the description; keeps the examples' lines (a text with line breaks) as written."""
+
+    def _fill_text(self, text: str, width: int, indent: str) -> str:
+        if "\n" in text:
+            return "".join(indent + line for line in text.splitlines(keepends=True))
+        return super()._fill_text(text, width, indent)
+
+
+def _coordinate(text: str) -> float:
+    """argparse ``type``: a finite number (a longitude or latitude in degrees)."""
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not a number: {text!r}") from None
+    if not math.isfinite(value):
+        raise argparse.ArgumentTypeError(f"must be finite, got {value}")
+    return value
+
+
+def _scheduler_address(text: str) -> str:
+    """argparse ``type``: a dask scheduler address, ``[PROTOCOL://]HOST:PORT``."""
+    if not re.fullmatch(r"([a-z]+://)?[^\s:/]+:\d{1,5}", text):
+        raise argparse.ArgumentTypeError(f"expected HOST:PORT or tcp://HOST:PORT, got {text!r}")
+    return text
+
+
+_SIMULATE_EXAMPLES = """examples:
+  localize simulate --route path3 --seed 1 -o walks/path3-s1     # one walk, in a few seconds
+  localize simulate --route path1 --seed 7 --profile phone --imu -o walk/   # + imu.csv
+  localize simulate --route custom --start -122.4025 37.7930 --length-m 600 --crossings 2 -o walk-c/
+  localize simulate --benchmark sf6 --seeds 1 -o sf6/            # six walks, one per route"""
+
+_EVALUATE_EXAMPLES = """examples:
+  localize evaluate walks/ --maps map.geojson -o report/     # map.geojson: osmseg build -o map.geojson
+  localize evaluate walks/ --maps map.geojson --methods gnss fused --jaywalk-weights 0.4 -o quick/
+  localize evaluate walks/ --maps auto.geojson hand.geojson --map-names auto hand -o maps/
+  localize evaluate walks/ --maps map.geojson --particles 500 2000 --gnss-sigma-factors 0.66 1 -o sweep/
+Put SESSIONS first: an option with several values (--maps, --methods...) takes every word after it."""
+
+_BENCHMARK_EXAMPLES = """examples:
+  localize benchmark -o bench/                              # all of it: about 6-8 min on 2 cores
+  localize benchmark --subsets paper6 --seeds 1 -o quick/   # a quick look: six walks, about 3 min
+  localize benchmark --map map.geojson --datasf-tiles ../shared/data/datasf/*.topojson \\
+      --ipin ../shared/data/ipin2023/ipin2023-t3.h5 -o bench/  # + the DataSF map and real IPIN trials
+OUT keeps its simulated sessions: a run stopped half-way (Ctrl-C) resumes from them."""
+
+
 def register(subparsers: argparse._SubParsersAction) -> None:
     """Add ``simulate``, ``evaluate`` and ``benchmark`` to ``subparsers``."""
     _register_simulate(subparsers)
@@ -289,24 +366,32 @@ def _register_simulate(subparsers: argparse._SubParsersAction) -> None:
         "truth), gnss.csv (an urban-canyon error model driven by OSM building heights), steps.csv, "
         "velocity.csv (RoNIN-like) and, with --imu, imu.csv. One of the six benchmark routes shaped like "
         "the paper's Table 1, a custom route, or the whole sf6 benchmark.",
+        epilog=_SIMULATE_EXAMPLES,
+        formatter_class=_HelpFormatter,
     )
     what = sim.add_mutually_exclusive_group(required=True)
-    what.add_argument("--route", help="one benchmark route (path1 .. path6), or 'custom'")
-    what.add_argument("--benchmark", choices=["sf6"], help="all six routes, --seeds recordings each")
+    what.add_argument("--route", help="one benchmark route (path1 .. path6, shaped like the paper's six), "
+                      "or 'custom' (with --start and --length-m)")
+    what.add_argument("--benchmark", choices=["sf6"],
+                      help="sf6: all six routes, --seeds walks each, into one folder of sessions")
     sim.add_argument("--seed", type=seed, default=1,
-                     help="session seed: which walk is simulated (default: %(default)s)")
-    sim.add_argument("--start", nargs=2, type=float, metavar=("LON", "LAT"), help="custom route: start")
+                     help="session seed, an integer >= 0: which walk is simulated (default: %(default)s)")
+    sim.add_argument("--start", nargs=2, type=_coordinate, metavar=("LON", "LAT"),
+                     help="custom route: where it starts, longitude then latitude in degrees (WGS84), near a "
+                     "footway of the extract (downtown SF, e.g. -122.4025 37.7930)")
     sim.add_argument("--length-m", type=positive_float,
                      help="custom route: length in metres (it stays within 320 m of its start and uses no "
                      "street twice: about 2 km at most)")
     sim.add_argument("--crossings", type=non_negative_int, default=None,
-                     help="custom route: crosswalk crossings (default: 0)")
+                     help="custom route: how many crosswalks it crosses (default: 0)")
     sim.add_argument("--jaywalks", type=non_negative_int, default=None,
-                     help="custom route: crossings off crosswalks (default: 0)")
+                     help="custom route: how many times it crosses a street off a crosswalk (default: 0)")
     sim.add_argument("--seeds", type=positive_int, default=3,
-                     help="sessions (simulated recordings) per route for --benchmark (default: %(default)s)")
-    sim.add_argument("--map", help="check the route against this map (extent, buildings)")
-    sim.add_argument("--osm", help="OSM extract for heights and footways (default: the bundled one)")
+                     help="--benchmark: walks per route, with session seeds 1..N (default: %(default)s)")
+    sim.add_argument("--map", help="a map GeoJSON (osmseg build): refuse a route outside its extent and warn "
+                     "about waypoints inside its buildings")
+    sim.add_argument("--osm", help="OSM extract (.osm or .osm.bz2) for heights and footways (default: the "
+                     "bundled one)")
     sim.add_argument("--imu", action="store_true",
                      help="also write imu.csv (100 Hz phone IMU, made for the footstep detector and PDR; "
                      "RoNIN cannot read it)")
@@ -325,7 +410,9 @@ def _register_simulate(subparsers: argparse._SubParsersAction) -> None:
         help="GNSS error model: canyon (the benchmark's, calibrated to the paper's GNSS column) or "
         "persistent (the same error sizes, with errors that last as long as real phones' do); default canyon",
     )
-    sim.add_argument("-o", "--output", required=True, help="session folder (or folder of sessions)")
+    sim.add_argument("-o", "--output", required=True,
+                     help="the session folder to write (with --benchmark: the folder of sessions): new, "
+                     "empty or a previous curbside output")
     sim.add_argument("--overwrite", action="store_true", help=_OVERWRITE_HELP)
     sim.set_defaults(func=_simulate)
 
@@ -338,19 +425,23 @@ def _register_evaluate(subparsers: argparse._SubParsersAction) -> None:
         "against the ground truth (waypoints.csv) and write a report folder: metrics.json (SPEC metric "
         "names), report.md and report.html (the paper's tables and figures), and view/SESSION.html, a "
         "replay page per session. Each list option with several values is a sweep, one parameter at a "
-        "time around the first values. Compare an automatic and a hand-corrected map (osmseg edit) with "
-        "--maps auto.geojson hand.geojson.",
+        "time around the base values (the first map, w = 0.4 when given, the first of the others). "
+        "Compare an automatic and a hand-corrected map (osmseg edit) with --maps auto.geojson hand.geojson.",
+        epilog=_EVALUATE_EXAMPLES,
+        formatter_class=_HelpFormatter,
     )
-    ev.add_argument("sessions", nargs="+", help="session folders or folders of them")
-    ev.add_argument("--maps", nargs="+", required=True, help="map GeoJSONs (map sources to compare)")
-    ev.add_argument("--map-names", nargs="+", help="labels of the maps (default: file stems)")
+    ev.add_argument("sessions", nargs="+", help="session folders (each with waypoints.csv, the ground "
+                    "truth), or folders of them (localize simulate's output)")
+    ev.add_argument("--maps", nargs="+", required=True,
+                    help="map GeoJSONs (osmseg build, osmseg edit); several are map sources to compare")
+    ev.add_argument("--map-names", nargs="+", help="labels of the maps, one each (default: file stems)")
     ev.add_argument("--metrics-map", help="map whose sidewalk segments score every run (default: the first)")
     ev.add_argument("--methods", nargs="+", default=list(METHODS), choices=METHODS,
                     help="methods to run: gnss (GNSS only), inertial (RoNIN+PF), paper (the paper's plain "
                     "GNSS+RoNIN+PF), fused (curbside's filter) (default: all)")
     ev.add_argument("--jaywalk-weights", nargs="+", type=unit_interval, default=[0.0, 0.4, 1.0], metavar="W",
-                    help="particle weight on the street surface, in [0, 1]; the paper's sweep "
-                    "(default: 0 0.4 1)")
+                    help="weight, in [0, 1], of a particle on the street surface off a crosswalk (0: never "
+                    "there, 1: as likely as on a sidewalk); the paper's sweep (default: 0 0.4 1)")
     ev.add_argument("--particles", nargs="+", type=positive_int, default=[500],
                     metavar="N", help="particle counts, the same for every method, curbside fused included "
                     "(default: 500, the paper's; localize run gives fused 2000)")
@@ -359,18 +450,22 @@ def _register_evaluate(subparsers: argparse._SubParsersAction) -> None:
         nargs="+",
         type=positive_float,
         metavar="F",
-        help="GNSS sigma = factor x accuracy (default: each method's own, 0.66 for curbside fused, 1 for "
-        "the paper's method)",
+        help="the GNSS likelihood's standard deviation (m) = F x each fix's reported accuracy_m (default: "
+        "each method's own, 0.66 for curbside fused, 1 for the paper's method)",
     )
     ev.add_argument("--velocity-source", default="auto", choices=["auto", "file", "ronin", "pdr"],
                     help="auto: velocity.csv, else RoNIN on imu.csv, else PDR (default: %(default)s)")
-    ev.add_argument("--seed", type=seed, default=0, help="filter seed (default: %(default)s)")
+    ev.add_argument("--seed", type=seed, default=0,
+                    help="filter seed, an integer >= 0 (default: %(default)s)")
     ev.add_argument("--workers", type=positive_int,
                     help="dask LocalCluster worker processes; 1 runs serially (default: one per CPU, "
                     "at most one per run)")
-    ev.add_argument("--scheduler", help="address of an existing dask scheduler (instead of --workers)")
-    ev.add_argument("--ipin", help="IPIN 2023 HDF5: add the real-data table (no map)")
-    ev.add_argument("--ipin-trials", type=positive_int, help="only the first K IPIN trials")
+    ev.add_argument("--scheduler", type=_scheduler_address,
+                    help="address of a running dask scheduler, e.g. tcp://host:8786 (instead of --workers)")
+    ev.add_argument("--ipin", metavar="H5", help="IPIN 2023 HDF5 (ipin2023-t3.h5): add a table over its "
+                    "trials (real phones, tracked without a map)")
+    ev.add_argument("--ipin-trials", type=positive_int, metavar="K",
+                    help="only the first K IPIN trials (default: all)")
     ev.add_argument("-o", "--output", required=True,
                     help="report folder: new, empty or a previous curbside output")
     ev.add_argument("--overwrite", action="store_true", help=_OVERWRITE_HELP)
@@ -386,35 +481,43 @@ def _register_benchmark(subparsers: argparse._SubParsersAction) -> None:
         description="Simulate (or reuse) the benchmark's sessions (paper6, downtown, open), track them with "
         "GNSS, RoNIN+PF, the paper's method and curbside fused, and write OUT/report/ with the tables, "
         "figures and issue 9's done-when checks (PASS/FAIL).",
+        epilog=_BENCHMARK_EXAMPLES,
+        formatter_class=_HelpFormatter,
     )
     bench.add_argument("--profile", choices=PROFILES, default="phone",
                        help="inertial error profile of the simulated walks (default: phone)")
     bench.add_argument("--gnss", choices=GNSS_MODELS, default="canyon",
                        help="GNSS error model of the simulated walks: canyon (the default, the scored "
                        "one) or persistent (errors that last as long as a phone's)")
-    bench.add_argument("--split", choices=SPLITS, default="test", help="test (scored) or tune (default test)")
+    bench.add_argument("--split", choices=SPLITS, default="test",
+                       help="which routes and walks: test (the scored ones) or tune (others of the same "
+                       "kind, to choose parameters on); default test")
     bench.add_argument("--subsets", nargs="+", choices=SUBSETS, default=list(SUBSETS),
                        help="which subsets to run (default: all three)")
-    bench.add_argument("--seeds", type=positive_int, default=3, help="sessions per route (default 3)")
+    bench.add_argument("--seeds", type=positive_int, default=3,
+                       help="simulated walks (sessions) per route (default 3)")
     bench.add_argument("--downtown-routes", type=positive_int, default=DEFAULT_ROUTES["downtown"],
                        help=f"random downtown routes (default {DEFAULT_ROUTES['downtown']})")
     bench.add_argument("--open-routes", type=positive_int, default=DEFAULT_ROUTES["open"],
                        help=f"routes under open sky (default {DEFAULT_ROUTES['open']})")
-    bench.add_argument("--map", help="the OSM map to track on (default: build it into OUT/map.geojson)")
-    bench.add_argument(
-        "--datasf-tiles", nargs="+", help="DataSF 2013 building tiles: add the DataSF-buildings map"
-    )
+    bench.add_argument("--map", help="the OSM map of downtown SF to track on (default: build it into "
+                       "OUT/map.geojson, about 20 s)")
+    bench.add_argument("--datasf-tiles", nargs="+", metavar="TOPOJSON",
+                       help="DataSF 2013 building tiles (.topojson): also track on a map with their "
+                       "buildings and OSM's streets")
     bench.add_argument("--ipin", metavar="H5",
-                       help="IPIN 2023 HDF5: also score the held-out trials (real phones, no map)")
+                       help="IPIN 2023 HDF5 (ipin2023-t3.h5): also score its held-out trials (real phones, "
+                       "no map)")
     bench.add_argument("--ipin-ronin", metavar="PT",
-                       help="RoNIN weights never trained on IPIN (e.g. benchmarks/weights/ronin_ms_only.pt): "
-                       "also score every IPIN trial with them, as for a phone and place the model has not "
-                       "seen (reported, not a done-when check)")
+                       help="RoNIN weights (.pt with its .json) never trained on IPIN (e.g. "
+                       "benchmarks/weights/ronin_ms_only.pt): also score every IPIN trial with them, as for "
+                       "a phone and place the model has not seen (reported, not a done-when check)")
     bench.add_argument("--particles", type=positive_int, default=500,
                        help="particles of the paper's method and RoNIN+PF (default 500, the paper's); "
                        "curbside fused runs with its own default (2000)")
     bench.add_argument("--seed", type=seed, default=0,
-                       help="filter seed (the sessions' seeds are fixed by --split; default 0)")
+                       help="filter seed, an integer >= 0 (the sessions' seeds are fixed by --split; "
+                       "default 0)")
     bench.add_argument("--filter-seeds", type=positive_int, default=1, metavar="N",
                        help="run every filter with N seeds from --seed on and pool them (less noisy "
                        "figures and checks, N times the tracking time; default 1)")
@@ -428,7 +531,9 @@ def _register_benchmark(subparsers: argparse._SubParsersAction) -> None:
                        "the checks judge it, version 0.1's fused filter stays the IPIN baseline")
     bench.add_argument("--workers", type=positive_int, default=2,
                        help="dask worker processes; 1 runs serially (default 2)")
-    bench.add_argument("--scheduler", help="address of an existing dask scheduler")
+    bench.add_argument("--scheduler", type=_scheduler_address,
+                       help="address of a running dask scheduler, e.g. tcp://host:8786 (instead of "
+                       "--workers)")
     bench.add_argument("-o", "--output", required=True,
                        help="output folder: new, empty or a previous benchmark output (its sessions are "
                        "reused when they match)")

@@ -315,6 +315,7 @@ def fig_per_path(
         rotation=30 if len(paths) > 8 else 0,
         ha="right" if len(paths) > 8 else "center",
     )
+    ax.set_xlabel("route")
     ax.set_ylabel("mean Euclidean error (m)")
     ax.legend(fontsize=8)
     ax.set_title(f"{title} ({config_label(base)})")

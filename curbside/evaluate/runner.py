@@ -146,7 +146,7 @@ def run_one(spec: RunSpec) -> dict[str, Any]:
         overrides["filter.gnss.sigma_factor"] = float(spec.gnss_sigma_factor)
     config = resolve_config(None, spec.method, particles=spec.particles, jaywalk_weight=spec.jaywalk_weight,
                             seed=spec.seed, velocity_source=spec.velocity_source).with_overrides(overrides)
-    result = track_session(session, layers, config=config,
+    result = track_session(session, layers, config=config, map_name=spec.map_path,
                            save_particles=bool(spec.snapshot_times) and spec.method != "gnss")
     track = result.track
     if spec.metrics_map:
@@ -188,6 +188,43 @@ def run_one(spec: RunSpec) -> dict[str, Any]:
         "recoveries": int(result.recoveries),
         "velocity_source": result.velocity_source,
     }
+
+
+def check_sessions(
+    sessions: list[Path], maps: dict[str, MapLayers], methods: tuple[str, ...] = METHODS
+) -> None:
+    """Refuse, before any run, a session without ground truth or off one of the maps.
+
+    Parameters
+    ----------
+    sessions
+        Session folders.
+    maps
+        The maps' layers by path (every method scores on them, the GNSS baseline too).
+    methods
+        The methods to run (their configurations decide whether the start pose is checked).
+
+    Raises
+    ------
+    CurbsideInputError
+        Naming the session's file (and the map): ``waypoints.csv`` missing or with fewer than two
+        waypoints, a session outside a map's extent.
+    """
+    from curbside.localize.pipeline import check_on_map, resolve_config
+
+    configs = [resolve_config(None, method) for method in methods]
+    for folder in sessions:
+        session = read_session(folder, kinds=("gnss", "waypoints"))
+        waypoints = Path(folder) / "waypoints.csv"
+        if session.waypoints is None:
+            raise CurbsideInputError(waypoints, "missing: no ground truth to score the session against")
+        if len(session.waypoints) < 2:
+            raise CurbsideInputError(
+                waypoints, f"ground truth needs at least two waypoints; it holds {len(session.waypoints)}"
+            )
+        for path, layers in maps.items():
+            for config in configs:
+                check_on_map(session, layers, config, map_name=path)
 
 
 def _clouds_at(
@@ -287,7 +324,7 @@ def run_all(
         client = Client(cluster)
         client.run(_quiet_heartbeat_at_shutdown)
     else:
-        client = Client(scheduler)
+        client = _connect(scheduler)
     try:
         futures = client.map(run_one, specs, pure=False)
         order = {f.key: i for i, f in enumerate(futures)}
@@ -304,16 +341,31 @@ def run_all(
             cluster.close()
 
 
+def _connect(scheduler: str):
+    """A client of the dask scheduler at ``scheduler``, or :class:`CurbsideInputError` naming the option
+    when there is none there (a wrong address, a scheduler that is not running)."""
+    from dask.distributed import Client
+
+    try:
+        return Client(scheduler)
+    except (OSError, ValueError, TypeError) as exc:
+        raise CurbsideInputError(
+            "--scheduler", f"cannot reach a dask scheduler at {scheduler!r} ({exc})"
+        ) from None
+
+
 class HeartbeatAtShutdown(logging.Filter):
-    """Drops a worker's "Failed to communicate with scheduler during heartbeat" error and its traceback.
+    """Drops the noise of a worker whose cluster is closing: "Failed to communicate with scheduler during
+    heartbeat" (and its traceback), and, after Ctrl-C, "Async instruction ... ended with CancelledError".
 
     When a local cluster closes, a worker's heartbeat can race the scheduler's exit and log that error,
-    a traceback at the end of a run that succeeded; a scheduler that dies mid-run still fails the run
-    through its futures.
+    a traceback at the end of a run that succeeded; Ctrl-C cancels the tasks under way, which each
+    worker logs. A scheduler that dies mid-run still fails the run through its futures.
     """
 
     def filter(self, record: logging.LogRecord) -> bool:
-        return "during heartbeat" not in record.getMessage()
+        message = record.getMessage()
+        return "during heartbeat" not in message and "ended with CancelledError" not in message
 
 
 @contextlib.contextmanager
@@ -331,7 +383,8 @@ def _workers_ignore_ctrl_c() -> Iterator[None]:
 
 
 def _quiet_heartbeat_at_shutdown() -> None:
-    logging.getLogger("distributed.worker").addFilter(HeartbeatAtShutdown())
+    for name in ("distributed.worker", "distributed.worker.state_machine"):
+        logging.getLogger(name).addFilter(HeartbeatAtShutdown())
 
 
 async def _close_workers(cluster, timeout_s: float) -> None:

@@ -29,13 +29,22 @@ from curbside.errors import CurbsideInputError
 from curbside.evaluate import criteria
 from curbside.evaluate.benchmark import IpinScores, snapshot_times
 from curbside.evaluate.gnss_model import GnssErrorModel
-from curbside.evaluate.runner import SMOOTHED_METHOD, RunSpec, pool, run_all, smoothed_results, subset_of
+from curbside.evaluate.runner import (
+    SMOOTHED_METHOD,
+    RunSpec,
+    check_sessions,
+    pool,
+    run_all,
+    smoothed_results,
+    subset_of,
+)
 from curbside.evaluate.simulate import PROFILES, SimulationConfig
 from curbside.evaluate.subsets import DEFAULT_ROUTES, SPLITS, SUBSETS, benchmark_sessions, load_world
 from curbside.evaluate.suite_output import (
     DATASF_MAP,
     OSM_MAP,
     benchmark_maps,
+    check_map_area,
     check_suite_folder,
     folder_for_run,
 )
@@ -419,7 +428,7 @@ def _maps_and_sessions(
     if map_path is not None:
         if not Path(map_path).is_file():
             raise CurbsideInputError(map_path, "no such map file")
-        read_map(map_path)  # a bad map fails now, not after the walks
+        check_map_area(map_path, read_map(map_path))  # a bad map fails now, not after the walks
     with folder_for_run(out_dir):
         start = time.perf_counter()
         maps = benchmark_maps(out_dir, map_path, datasf_tiles, overwrite)
@@ -480,6 +489,8 @@ def run_suite(
     out_dir = check_suite_folder(out_dir, overwrite)
     timings: dict[str, float] = {}
     maps, sessions = _maps_and_sessions(out_dir, config, map_path, datasf_tiles, osm_file, overwrite, timings)
+    # a map that misses some walks fails now, naming the map, not in the middle of the tracking
+    check_sessions([s for group in sessions.values() for s in group], {p: read_map(p) for p in maps.values()})
     specs = plan_suite(sessions, maps, config)
     log.info("benchmark: %d runs over %d sessions", len(specs), sum(map(len, sessions.values())))
     start = time.perf_counter()

@@ -17,8 +17,9 @@ from pathlib import Path
 
 from curbside.errors import CurbsideInputError
 from curbside.evaluate.benchmark import datasf_osm_map
+from curbside.evaluate.subsets import SKY_BBOX
 from curbside.io import MARKER, check_output_folder, note_written, read_marker, written_by_curbside
-from curbside.osmseg.mapio import write_map
+from curbside.osmseg.mapio import MapLayers, write_map
 
 log = logging.getLogger(__name__)
 
@@ -58,7 +59,14 @@ def check_suite_folder(out_dir: str | Path, overwrite: bool = False) -> Path:
     CurbsideInputError
         Any other folder, a file, or a folder that cannot be written.
     """
-    return check_output_folder(out_dir, overwrite or _earlier_output(Path(out_dir)), COMMAND)
+    checked = check_output_folder(out_dir, overwrite or _earlier_output(Path(out_dir)), COMMAND)
+    report = checked / "report"
+    if report.is_dir() and any(report.iterdir()) and read_marker(report) is None:
+        # the report is written last, and never over a folder curbside did not write: refuse it now
+        raise CurbsideInputError(
+            report, "holds files curbside did not write, where the benchmark writes its report: move them"
+        )
+    return checked
 
 
 def _own_file(path: Path, overwrite: bool) -> bool:
@@ -98,13 +106,36 @@ def benchmark_maps(
     return maps
 
 
+def check_map_area(map_path: str | Path, layers: MapLayers) -> None:
+    """Refuse a ``--map`` whose extent misses the benchmark's area (:data:`subsets.SKY_BBOX`, downtown San
+    Francisco), before minutes of simulated walks that could not be tracked on it.
+
+    Raises
+    ------
+    CurbsideInputError
+        Naming the map, its extent and the area, both in degrees.
+    """
+    west, south, east, north = layers.gdf.to_crs(4326).total_bounds
+    w, s, e, n = SKY_BBOX
+    if west > e or east < w or south > n or north < s:
+        raise CurbsideInputError(
+            map_path,
+            f"the map (lon {west:.4f} to {east:.4f}, lat {south:.4f} to {north:.4f}) does not cover the "
+            f"benchmark's walks in downtown San Francisco (lon {w} to {e}, lat {s} to {n}); build it with "
+            "osmseg build, or leave --map out",
+        )
+
+
 @contextlib.contextmanager
 def folder_for_run(out_dir: Path) -> Iterator[None]:
     """Create ``out_dir``, marked as a benchmark output at once (a run stopped half-way leaves a folder
     the next one resumes in); remove it again when this run created it and fails before writing."""
     created = not os.path.lexists(out_dir)
-    out_dir.mkdir(parents=True, exist_ok=True)
-    note_written(out_dir / "sessions", COMMAND)
+    try:
+        out_dir.mkdir(parents=True, exist_ok=True)
+        note_written(out_dir / "sessions", COMMAND)
+    except OSError as exc:
+        raise CurbsideInputError(out_dir, f"cannot write here ({exc.strerror or exc})") from None
     try:
         yield
     except BaseException:

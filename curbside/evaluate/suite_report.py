@@ -56,7 +56,7 @@ _STYLE = (
     "body{font-family:sans-serif;max-width:1250px;margin:auto;padding:1em}"
     "table{border-collapse:collapse;margin:.5em 0}td,th{border:1px solid #bbb;padding:3px 8px;"
     "text-align:right}th{background:#eee}.note{color:#555;font-size:90%}img{max-width:100%}"
-    "td:first-child{text-align:left}td.pass{background:#d9f2d9}td.fail{background:#f7d4d4}"
+    "td:first-child{text-align:left;white-space:nowrap}td.pass{background:#d9f2d9}td.fail{background:#f7d4d4}"
 )
 METRICS = ("csa", "euclid_median_m", "euclid_p90_m", "euclid_mean_m", "along_median_m", "across_median_m")
 HEADERS = ("CSA", "median m", "p90 m", "mean m", "along median m", "across median m")
