@@ -345,6 +345,18 @@ def test_fixes_that_all_report_no_usable_accuracy_are_named_in_a_warning(tmp_pat
     assert not result.track["gnss_used"].any()
 
 
+def test_a_truncated_velocity_file_is_named_in_a_warning(tmp_path, map_file, caplog):
+    folder = write_walk(tmp_path / "walk", duration_s=60.0)
+    with caplog.at_level("WARNING", logger="curbside.localize.input_warnings"):
+        track_session(read_session(folder), read_map(map_file), "fused", seed=0)
+    assert "velocity covers" not in caplog.text
+    velocity = pd.read_csv(folder / "velocity.csv")
+    velocity[velocity["t"] < 1.0].to_csv(folder / "velocity.csv", index=False)
+    with caplog.at_level("WARNING", logger="curbside.localize.input_warnings"):
+        track_session(read_session(folder), read_map(map_file), "fused", seed=0)
+    assert "walk/velocity.csv: the velocity covers t=0.0-1.0 s of the walk's 0.0-60.0 s" in caplog.text
+
+
 def test_gnss_start_without_start_pose(tmp_path, map_file):
     folder = write_walk(tmp_path / "walk", duration_s=60.0, start_xy=None, gnss_offset_m=(0, 0))
     session = read_session(folder)

@@ -57,3 +57,28 @@ def report_unusable_fixes(session: Session) -> None:
             "%s: none of its %d fixes reports a usable accuracy (a positive accuracy_m): the walk "
             "is tracked as if it had no GNSS", session.file_source("gnss.csv"), len(gnss),
         )
+
+
+def report_short_velocity(session: Session, velocity_t: np.ndarray, source: str) -> None:
+    """Warn when the velocity starts well after the walk or stops well before it (a truncated
+    ``velocity.csv``): outside its rows the particles stand still and only the fixes move the track.
+
+    The walk's span is that of its other streams (fixes, footsteps, IMU, waypoints); a gap at either end
+    longer than 10 s or 5 % of that span is reported.
+    """
+    others = [frame["t"].to_numpy(float) for frame in (session.gnss, session.steps, session.imu,
+                                                       session.waypoints) if frame is not None and len(frame)]
+    if not others or len(velocity_t) == 0:
+        return
+    walk_begin_s = min(float(np.nanmin(t)) for t in others)
+    walk_end_s = max(float(np.nanmax(t)) for t in others)
+    allowed_s = max(10.0, 0.05 * (walk_end_s - walk_begin_s))
+    v_begin_s, v_end_s = float(velocity_t[0]), float(velocity_t[-1])
+    if v_begin_s - walk_begin_s > allowed_s or walk_end_s - v_end_s > allowed_s:
+        name = (session.file_source("velocity.csv") if source == "file"
+                else f"{session.source} ({source} velocity)")
+        logger.warning(
+            "%s: the velocity covers t=%.1f-%.1f s of the walk's %.1f-%.1f s: outside it the particles "
+            "stand still and only the fixes move the track (a truncated file?)",
+            name, v_begin_s, v_end_s, walk_begin_s, walk_end_s,
+        )

@@ -408,6 +408,7 @@ def track_session(
             raise CurbsideInputError(
                 session.source, f"the {velocity_source} velocity has fewer than two samples"
             )
+        input_warnings.report_short_velocity(session, velocity["t"].to_numpy(float), velocity_source)
     fix_lag = _fix_lag(session, config, frame, velocity, velocity_source == "pdr")
     engine = SessionEngine(
         config, frame, _raster_for(map_layers, config), start=start, t_begin=t_begin, cadence=steps is None,
