@@ -16,7 +16,6 @@ import pytest
 from serve_fixtures import TRIAL
 from viewer_fixtures import CROSSROADS, write_session
 
-from curbside.cli import localize_run
 from curbside.cli.localize import main as localize_main
 from curbside.errors import CurbsideInputError
 from curbside.evaluate import routes
@@ -132,7 +131,7 @@ def test_waypoints_that_cannot_be_scored_name_an_export_as_given(tmp_path, monke
     def unscorable(*_args, **_kwargs):
         raise CurbsideInputError("track", "too short")
 
-    monkeypatch.setattr(localize_run, "waypoint_errors", unscorable)
+    monkeypatch.setattr("curbside.evaluate.metrics.waypoint_errors", unscorable)  # imported when the run runs
     assert localize_main(["run", export, "--mode", "gnss", "-o", str(tmp_path / "out")]) == 0
     warned = [r.getMessage() for r in caplog.records if "at waypoints" in r.getMessage()]
     assert warned == [f"{export}: error at waypoints not scored (too short); the track is written without it"]

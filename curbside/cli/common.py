@@ -14,6 +14,12 @@ import os
 import sys
 from collections.abc import Callable, Sequence
 
+from curbside.cli.defaults import (
+    FAMILIAR_VELOCITY,
+    FAMILIAR_VELOCITY_MODES,
+    UNSEEN_VELOCITY,
+    UNSEEN_VELOCITY_MODES,
+)
 from curbside.errors import CurbsideInputError
 
 
@@ -129,14 +135,7 @@ def _fix_lag(value: str) -> dict[str, object]:
 def add_config_options(parser: argparse.ArgumentParser, set_help: str) -> None:
     """``--unseen-velocity``, ``--familiar-velocity``, ``--fix-lag`` and ``--set KEY=VALUE``: the
     run-configuration options (read back with :func:`config_overrides`)."""
-    from curbside.localize.runconfig import (
-        FAMILIAR_VELOCITY_MODES,
-        UNSEEN_VELOCITY_MODES,
-        FamiliarVelocityConfig,
-        UnseenVelocityConfig,
-    )
-
-    u, f = UnseenVelocityConfig(), FamiliarVelocityConfig()
+    u, f = UNSEEN_VELOCITY, FAMILIAR_VELOCITY
     parser.add_argument(
         "--unseen-velocity",
         nargs="?",
@@ -191,6 +190,12 @@ def make_parser(prog: str, description: str) -> argparse.ArgumentParser:
     return parser
 
 
+def interrupted(prog: str) -> int:
+    """Say ``PROG: interrupted`` on stderr and return 130, the status of Ctrl-C (no traceback)."""
+    sys.stderr.write(f"{prog}: interrupted\n")
+    return 130
+
+
 def run_cli(
     prog: str,
     parser: argparse.ArgumentParser,
@@ -237,8 +242,7 @@ def run_cli(
         sys.stderr.write(f"{prog}: error: {exc}\n")
         return 2
     except KeyboardInterrupt:
-        sys.stderr.write(f"{prog}: interrupted\n")
-        return 130
+        return interrupted(prog)
     except Exception as exc:  # noqa: BLE001 - the contract: internal errors exit 1, one line
         if debug:
             raise

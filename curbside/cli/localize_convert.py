@@ -20,18 +20,13 @@ from __future__ import annotations
 import argparse
 import sys
 from pathlib import Path
+from typing import TYPE_CHECKING
 
-import pandas as pd
-from tqdm import tqdm
-
+from curbside.cli.defaults import PLATFORM_OPTIONS
 from curbside.errors import CurbsideInputError
-from curbside.io import check_output_folder, output_folder
-from curbside.localize.pdr import pdr_velocity
-from curbside.localize.readers import detect_format, ipin, read_any, split_trial
-from curbside.localize.readers._export import require_recordings
-from curbside.localize.readers._platform import PLATFORM_OPTIONS
-from curbside.localize.session import Session, write_session
-from curbside.localize.steps import detect_steps
+
+if TYPE_CHECKING:
+    from curbside.localize.session import Session
 
 
 def add_derived(session: Session, steps: bool, pdr: bool) -> Session:
@@ -51,6 +46,11 @@ def add_derived(session: Session, steps: bool, pdr: bool) -> Session:
     """
     if not (steps or pdr):
         return session
+    import pandas as pd
+
+    from curbside.localize.pdr import pdr_velocity
+    from curbside.localize.steps import detect_steps
+
     source = session.source
     if session.imu is None:
         raise CurbsideInputError(source, "--steps/--pdr need IMU data, and this source has none")
@@ -83,6 +83,13 @@ def summary_lines(session: Session, folder: Path) -> list[str]:
 
 
 def _convert(args: argparse.Namespace) -> int:
+    from tqdm import tqdm
+
+    from curbside.io import check_output_folder, output_folder
+    from curbside.localize.readers import detect_format, ipin, read_any, split_trial
+    from curbside.localize.readers._export import require_recordings
+    from curbside.localize.session import write_session
+
     if args.list:
         path, _ = split_trial(args.src)
         kind = detect_format(path)

@@ -39,9 +39,8 @@ from curbside.cli.common import (
     seed,
     unit_interval,
 )
+from curbside.cli.defaults import METHODS, UNSEEN_VELOCITY, UNSEEN_VELOCITY_MODES
 from curbside.errors import CurbsideInputError
-from curbside.evaluate.runner import METHODS
-from curbside.io import check_output_folder, output_folder
 
 # The choices of the simulator and benchmark options, kept here so that ``localize --help`` need not
 # import the simulator (tests check them against curbside.evaluate.simulate / .subsets).
@@ -57,6 +56,8 @@ _OVERWRITE_HELP = "write into a non-empty folder curbside did not write (its oth
 
 
 def _simulate(args: argparse.Namespace) -> int:
+    from curbside.io import check_output_folder, output_folder
+
     command = "localize simulate --benchmark" if args.benchmark else "localize simulate"
     check_output_folder(args.output, args.overwrite, command)  # before the slow imports and the OSM load
     from curbside.evaluate import routes as routes_mod
@@ -208,6 +209,7 @@ def _evaluate(args: argparse.Namespace) -> int:
     from curbside.evaluate.benchmark import expand_sessions, ipin_table, plan, route_table
     from curbside.evaluate.report import write_report
     from curbside.evaluate.runner import check_sessions, run_all
+    from curbside.io import check_output_folder, output_folder
     from curbside.osmseg.mapio import read_map
 
     check_output_folder(args.output, args.overwrite, "localize evaluate")  # before minutes of runs
@@ -473,8 +475,6 @@ def _register_evaluate(subparsers: argparse._SubParsersAction) -> None:
 
 
 def _register_benchmark(subparsers: argparse._SubParsersAction) -> None:
-    from curbside.localize.runconfig import UNSEEN_VELOCITY_MODES, UnseenVelocityConfig
-
     bench = subparsers.add_parser(
         "benchmark",
         help="the benchmark: simulated subsets x every method, done-when checks, report",
@@ -524,10 +524,10 @@ def _register_benchmark(subparsers: argparse._SubParsersAction) -> None:
     bench.add_argument("--lag-s", type=non_negative_float, default=0.0, metavar="SECONDS",
                        help="also score curbside fused's fixed-lag smoothed positions with this lag, as "
                        "'fused, smoothed' (offline; default 0: off)")
-    bench.add_argument("--unseen-velocity", nargs="?", const="on", default=UnseenVelocityConfig().mode,
+    bench.add_argument("--unseen-velocity", nargs="?", const="on", default=UNSEEN_VELOCITY.mode,
                        choices=UNSEEN_VELOCITY_MODES,
                        help="run curbside fused everywhere with this --unseen-velocity mode, as localize run "
-                       f"takes it ('on' for the flag alone; default {UnseenVelocityConfig().mode}, its own); "
+                       f"takes it ('on' for the flag alone; default {UNSEEN_VELOCITY.mode}, its own); "
                        "the checks judge it, version 0.1's fused filter stays the IPIN baseline")
     bench.add_argument("--workers", type=positive_int, default=2,
                        help="dask worker processes; 1 runs serially (default 2)")

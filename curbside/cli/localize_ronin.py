@@ -10,8 +10,8 @@ from pathlib import Path
 
 from curbside import __version__
 from curbside.cli.common import positive_float, positive_int, seed
+from curbside.cli.defaults import OVERWRITE_FILE_HELP, RONIN_STRIDE
 from curbside.errors import CurbsideInputError
-from curbside.io import OVERWRITE_FILE_HELP, atomic_path, check_output_file, note_written
 
 logger = logging.getLogger(__name__)
 
@@ -48,6 +48,7 @@ def _ronin_source(args: argparse.Namespace) -> tuple[Path, list[Path]]:
 
 def _ronin(args: argparse.Namespace) -> int:
     from curbside import settings
+    from curbside.io import atomic_path, check_output_file, note_written
     from curbside.localize.readers import read_any
     from curbside.localize.ronin.infer import load_model, ronin_velocity
     from curbside.localize.ronin.provenance import weights_record
@@ -90,6 +91,7 @@ def _data(args: argparse.Namespace, keep_imu: tuple[str, ...] = ()):
 
 def _check_train_outputs(args: argparse.Namespace) -> None:
     """Before hours of training: the weights, their config and the checkpoint can be written."""
+    from curbside.io import check_output_file
     from curbside.localize.ronin.infer import config_path_for
 
     out = Path(args.output)
@@ -191,6 +193,7 @@ def _calibrate(model, val_recordings: list) -> float:
 
 def _evaluate(args: argparse.Namespace) -> int:
     from curbside import settings
+    from curbside.io import atomic_path, check_output_file
     from curbside.localize.ronin.evaluate import evaluate_recordings, format_summary
     from curbside.localize.ronin.infer import load_model
     from curbside.localize.ronin.provenance import software_record, weights_record
@@ -226,9 +229,7 @@ def _add_data_args(p: argparse.ArgumentParser) -> None:
 
 
 def _add_stride_arg(p: argparse.ArgumentParser) -> None:
-    from curbside.localize.ronin.stream import RoninStreamConfig
-
-    default = RoninStreamConfig().stride
+    default = RONIN_STRIDE
     p.add_argument("--stride", type=int, default=default, metavar="N",
                    help=f"200 Hz samples between window starts (default {default}: a velocity every "
                         f"{1000 * default / 200:g} ms)")

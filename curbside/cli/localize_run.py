@@ -24,8 +24,6 @@ import logging
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-import pandas as pd
-
 from curbside.cli.common import (
     add_config_options,
     config_overrides,
@@ -34,6 +32,7 @@ from curbside.cli.common import (
     seed,
     unit_interval,
 )
+from curbside.cli.defaults import MODES, VELOCITY_SOURCES
 from curbside.cli.localize_convert import add_platform_option
 from curbside.cli.run_replay import (
     add_weights,
@@ -43,23 +42,22 @@ from curbside.cli.run_replay import (
     replay_config,
 )
 from curbside.errors import CurbsideInputError
-from curbside.evaluate.metrics import format_waypoint_summary, waypoint_errors, waypoint_summary
-from curbside.io import check_output_folder
-from curbside.localize.pipeline import TrackResult, resolve_config, track_session
-from curbside.localize.readers import read_any
-from curbside.localize.runconfig import MODES, VELOCITY_SOURCES, RunConfig
-from curbside.localize.session import Session
-from curbside.localize.track import write_track
-from curbside.osmseg.mapio import read_map
 
 if TYPE_CHECKING:
+    import pandas as pd
+
+    from curbside.localize.pipeline import TrackResult
     from curbside.localize.ronin.model import RoninResNet
+    from curbside.localize.runconfig import RunConfig
+    from curbside.localize.session import Session
 
 logger = logging.getLogger(__name__)
 
 
 def _replayed(path: str) -> tuple[dict, RunConfig]:
     """``run.json``'s contents and its run configuration."""
+    from curbside.localize.runconfig import RunConfig
+
     try:
         info = json.loads(Path(path).read_text(encoding="utf-8"))
     except OSError as exc:
@@ -72,6 +70,12 @@ def _replayed(path: str) -> tuple[dict, RunConfig]:
 
 
 def _run(args: argparse.Namespace) -> int:
+    from curbside.io import check_output_folder
+    from curbside.localize.pipeline import track_session
+    from curbside.localize.readers import read_any
+    from curbside.localize.track import write_track
+    from curbside.osmseg.mapio import read_map
+
     check_output_folder(args.output, args.overwrite, "localize run")
     info, config = _replayed(args.config) if args.config else ({}, None)
     session_path = args.session or info.get("session")
@@ -113,6 +117,8 @@ def _run(args: argparse.Namespace) -> int:
 
 def _configured(args: argparse.Namespace, config: RunConfig | None) -> RunConfig:
     """The run's configuration: the replayed one (or the mode's), with the options given."""
+    from curbside.localize.pipeline import resolve_config
+
     mode = args.mode if (args.mode or config is not None) else "fused"
     config = resolve_config(
         config,
@@ -172,6 +178,8 @@ def _check_weights_used(args: argparse.Namespace, config: RunConfig, session: Se
 
 def _print_summary(output: str, result: TrackResult, summary: dict | None) -> None:
     """What the run did, in a few lines: updates, motion models, fix lag, soft walls, waypoint error."""
+    from curbside.evaluate.metrics import format_waypoint_summary
+
     track = result.track
     span = track["t"].iat[-1] - track["t"].iat[0] if len(track) else 0.0
     print(
@@ -228,6 +236,10 @@ def _waypoint_score(track: pd.DataFrame, waypoints: pd.DataFrame, source: str) -
     warning says why and the summary scores no waypoint (``n_waypoints`` 0, the figures null in
     ``run.json``), as when no waypoint lies inside the track's time span.
     """
+    import pandas as pd
+
+    from curbside.evaluate.metrics import waypoint_errors, waypoint_summary
+
     try:
         return waypoint_summary(waypoint_errors(track, waypoints)), True
     except CurbsideInputError as exc:

@@ -15,19 +15,25 @@ from __future__ import annotations
 import argparse
 import logging
 from pathlib import Path
-
-from tqdm.auto import tqdm
+from typing import TYPE_CHECKING
 
 from curbside.cli.common import positive_int
+from curbside.cli.defaults import OVERWRITE_FILE_HELP
 from curbside.errors import CurbsideInputError
-from curbside.io import OVERWRITE_FILE_HELP, check_output_file
-from curbside.localize.view import ViewRun, label_runs, load_run, maps_of, write_view
-from curbside.localize.view_data import SegmentNamer
+
+if TYPE_CHECKING:
+    from curbside.localize.view import ViewRun
 
 log = logging.getLogger(__name__)
 
 
 def _view(args: argparse.Namespace) -> int:
+    from tqdm.auto import tqdm
+
+    from curbside.io import check_output_file
+    from curbside.localize.view import label_runs, load_run, maps_of, write_view
+    from curbside.localize.view_data import SegmentNamer
+
     if Path(args.output).suffix.lower() not in (".html", ".htm"):
         raise CurbsideInputError(args.output, "the viewer is an HTML page: name it .html")
     check_output_file(args.output, args.overwrite, inputs=(args.map,) if args.map else ())

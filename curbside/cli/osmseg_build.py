@@ -5,15 +5,16 @@ from __future__ import annotations
 import argparse
 import sys
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from curbside import settings
 from curbside.cli.common import set_overrides
-from curbside.configio import with_overrides
+from curbside.cli.defaults import OVERWRITE_FILE_HELP, READ_MARGIN_M
 from curbside.errors import CurbsideInputError
-from curbside.io import OVERWRITE_FILE_HELP, check_output_file
-from curbside.osmseg.build import READ_MARGIN_M, build_map, check_bbox
 from curbside.osmseg.config import UNMARKED_CHOICES, SegmentationConfig
-from curbside.osmseg.mapio import CLASSES, MapLayers, write_map
+
+if TYPE_CHECKING:
+    from curbside.osmseg.mapio import MapLayers
 
 
 def _description() -> str:
@@ -93,6 +94,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 def summary_lines(layers: MapLayers) -> list[str]:
     """One line per class: polygon count and total area in m^2."""
+    from curbside.osmseg.mapio import CLASSES
+
     gdf = layers.gdf
     lines = []
     for cls in CLASSES:
@@ -110,6 +113,11 @@ def _conflict_share_min() -> float:
 
 def run(args: argparse.Namespace) -> int:
     """Build the map and write it."""
+    from curbside.configio import with_overrides
+    from curbside.io import check_output_file
+    from curbside.osmseg.build import build_map, check_bbox
+    from curbside.osmseg.mapio import write_map
+
     if Path(args.output).suffix.lower() not in (".geojson", ".json"):
         raise CurbsideInputError(args.output, "the map is GeoJSON: name it .geojson")
     check_output_file(args.output, args.overwrite, inputs=(args.osm,) if args.osm else ())

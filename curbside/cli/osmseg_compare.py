@@ -6,19 +6,18 @@ import argparse
 import logging
 from pathlib import Path
 
+from curbside.cli.defaults import OVERWRITE_FILE_HELP
 from curbside.cli.osmseg_show import add_bbox_option
 from curbside.errors import CurbsideInputError
-from curbside.io import OVERWRITE_FILE_HELP, check_output_file
-from curbside.osmseg.build import check_bbox
-from curbside.osmseg.compare import compare_maps, format_comparison, write_comparison
-from curbside.osmseg.datasf import read_datasf, read_datasf_over
-from curbside.osmseg.mapio import read_map, write_map
-from curbside.osmseg.summary import class_summary, format_summary
 
 log = logging.getLogger(__name__)
 
 
 def _compare(args: argparse.Namespace) -> int:
+    from curbside.io import check_output_file
+    from curbside.osmseg.compare import compare_maps, format_comparison, write_comparison
+    from curbside.osmseg.mapio import read_map
+
     if args.json:
         if Path(args.json).suffix.lower() != ".json":
             raise CurbsideInputError(args.json, "the figures are JSON: name the file .json")
@@ -33,6 +32,12 @@ def _compare(args: argparse.Namespace) -> int:
 
 
 def _import_datasf(args: argparse.Namespace) -> int:
+    from curbside.io import check_output_file
+    from curbside.osmseg.build import check_bbox
+    from curbside.osmseg.datasf import read_datasf, read_datasf_over
+    from curbside.osmseg.mapio import read_map, write_map
+    from curbside.osmseg.summary import class_summary, format_summary
+
     bbox = check_bbox(args.bbox) if args.bbox is not None else None
     if Path(args.output).suffix.lower() not in (".geojson", ".json"):
         raise CurbsideInputError(args.output, "the map is GeoJSON: name it .geojson")

@@ -5,16 +5,18 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from curbside.cli.defaults import OVERWRITE_FILE_HELP
 from curbside.cli.osmseg_show import add_bbox_option
 from curbside.errors import CurbsideInputError
-from curbside.io import OVERWRITE_FILE_HELP, check_output_file
-from curbside.osmseg.build import check_bbox
-from curbside.osmseg.edit import file_features, write_editor
-from curbside.osmseg.mapio import read_map
-from curbside.osmseg.plot import clip_to_bbox
 
 
 def _edit(args: argparse.Namespace) -> int:
+    from curbside.io import check_output_file
+    from curbside.osmseg.build import check_bbox
+    from curbside.osmseg.edit import file_features, write_editor
+    from curbside.osmseg.mapio import read_map
+    from curbside.osmseg.plot import clip_to_bbox
+
     if Path(args.output).suffix.lower() not in (".html", ".htm"):
         raise CurbsideInputError(args.output, "the editor is an HTML page: name it .html")
     check_output_file(args.output, args.overwrite, inputs=(args.map,))

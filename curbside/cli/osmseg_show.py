@@ -5,10 +5,7 @@ from __future__ import annotations
 import argparse
 import logging
 
-from curbside.io import OVERWRITE_FILE_HELP, check_output_file
-from curbside.osmseg.build import check_bbox
-from curbside.osmseg.mapio import read_map
-from curbside.osmseg.plot import output_format, render_map
+from curbside.cli.defaults import OVERWRITE_FILE_HELP
 
 log = logging.getLogger(__name__)
 
@@ -21,6 +18,11 @@ def add_bbox_option(parser: argparse.ArgumentParser, help_text: str) -> None:
 
 
 def _show(args: argparse.Namespace) -> int:
+    from curbside.io import check_output_file
+    from curbside.osmseg.build import check_bbox
+    from curbside.osmseg.mapio import read_map
+    from curbside.osmseg.plot import output_format, render_map
+
     output_format(args.output)
     check_output_file(args.output, args.overwrite, inputs=(args.map,))
     bbox = check_bbox(args.bbox) if args.bbox is not None else None

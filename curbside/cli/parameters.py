@@ -16,11 +16,15 @@ import argparse
 import json
 import textwrap
 from collections.abc import Iterable
+from typing import TYPE_CHECKING
 
-from curbside.configio import Parameter, parameters, sections
+from curbside.cli.defaults import MODES
 from curbside.errors import CurbsideInputError
-from curbside.localize.runconfig import MODES, RunConfig
-from curbside.osmseg.config import SegmentationConfig
+
+if TYPE_CHECKING:
+    from curbside.configio import Parameter
+    from curbside.localize.runconfig import RunConfig
+    from curbside.osmseg.config import SegmentationConfig
 
 _INTRO = """\
 # Parameters
@@ -96,6 +100,10 @@ def format_markdown(
 
 def reference_markdown() -> str:
     """``docs/parameters.md``: the run's keys (with the paper preset's values) and the map build's."""
+    from curbside.configio import parameters, sections
+    from curbside.localize.runconfig import RunConfig
+    from curbside.osmseg.config import SegmentationConfig
+
     run = RunConfig.for_mode("fused")
     paper = {p.key: p.value for p in parameters(RunConfig.for_mode("paper"))}
     osm = SegmentationConfig()
@@ -109,6 +117,8 @@ def reference_markdown() -> str:
 
 def _list(args: argparse.Namespace) -> int:
     """Print the parameters of ``args.config(args)``, those whose key contains ``args.pattern``."""
+    from curbside.configio import parameters, sections
+
     config = args.config(args)
     params = _matching(parameters(config), args.pattern, f"{args.prog} parameters")
     print(format_markdown(params, sections(config)) if args.markdown else format_text(params))
@@ -134,13 +144,27 @@ def register_localize(subparsers: argparse._SubParsersAction) -> None:
                          "localize parameters filter.gnss")
     parser.add_argument("--mode", choices=MODES, default="fused",
                         help="list the values of this method's defaults (default: fused)")
-    parser.set_defaults(func=_list, prog="localize", config=lambda args: RunConfig.for_mode(args.mode))
+    parser.set_defaults(func=_list, prog="localize", config=_run_config)
 
 
 def register_osmseg(subparsers: argparse._SubParsersAction) -> None:
     """Add ``parameters`` to the ``osmseg`` sub-commands."""
     parser = _add_parser(subparsers, "the map build (osmseg build)", "osmseg parameters width")
-    parser.set_defaults(func=_list, prog="osmseg", config=lambda args: SegmentationConfig())
+    parser.set_defaults(func=_list, prog="osmseg", config=_map_config)
+
+
+def _run_config(args: argparse.Namespace) -> RunConfig:
+    """The run configuration of ``--mode`` (imported here: the run configuration is slow to import)."""
+    from curbside.localize.runconfig import RunConfig
+
+    return RunConfig.for_mode(args.mode)
+
+
+def _map_config(_args: argparse.Namespace) -> SegmentationConfig:
+    """The map build's configuration."""
+    from curbside.osmseg.config import SegmentationConfig
+
+    return SegmentationConfig()
 
 
 if __name__ == "__main__":

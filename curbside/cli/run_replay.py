@@ -16,19 +16,21 @@ from __future__ import annotations
 
 import logging
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from curbside import settings
-from curbside.cache import file_digest
 from curbside.errors import CurbsideInputError
-from curbside.localize.ronin.provenance import weights_record
-from curbside.localize.runconfig import RunConfig
+
+if TYPE_CHECKING:
+    from curbside.localize.runconfig import RunConfig
 
 logger = logging.getLogger(__name__)
 
 
 def file_sha256(path: str | Path) -> str:
     """SHA-256 of a file's bytes, as hex."""
+    from curbside.cache import file_digest
+
     return file_digest(path).hex()
 
 
@@ -59,6 +61,8 @@ def input_record(session_path: str, map_path: str | None) -> dict[str, Any]:
 def ronin_weights_record(weights: str | Path | None) -> dict[str, Any]:
     """``run.json``'s record of RoNIN weights (default: the bundled ones): path, SHA-256 of the weights
     and of their config, and whether they are the bundled model's."""
+    from curbside.localize.ronin.provenance import weights_record
+
     bundled = Path(settings.ronin_default_weights).resolve()
     path = Path(weights or bundled)
     return {**weights_record(path), "bundled": path.resolve() == bundled}
