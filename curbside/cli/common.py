@@ -8,9 +8,11 @@ as for a process killed by SIGPIPE. ``CURBSIDE_DEBUG=1`` shows tracebacks.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import logging
 import math
 import os
+import select
 import sys
 from collections.abc import Callable, Sequence
 
@@ -67,7 +69,8 @@ def port(text: str) -> int:
     return value
 
 
-def _float(text: str) -> float:
+def finite_float(text: str) -> float:
+    """argparse ``type``: a finite number (e.g. a longitude or latitude in degrees)."""
     try:
         value = float(text)
     except ValueError:
@@ -79,7 +82,7 @@ def _float(text: str) -> float:
 
 def positive_float(text: str) -> float:
     """argparse ``type``: a number > 0."""
-    value = _float(text)
+    value = finite_float(text)
     if not value > 0:
         raise argparse.ArgumentTypeError(f"must be positive, got {value}")
     return value
@@ -87,7 +90,7 @@ def positive_float(text: str) -> float:
 
 def non_negative_float(text: str) -> float:
     """argparse ``type``: a finite number >= 0 (0 usually turns the option off)."""
-    value = _float(text)
+    value = finite_float(text)
     if value < 0:
         raise argparse.ArgumentTypeError(f"must be 0 or more, got {value}")
     return value
@@ -95,7 +98,7 @@ def non_negative_float(text: str) -> float:
 
 def unit_interval(text: str) -> float:
     """argparse ``type``: a number in [0, 1] (a weight or a probability)."""
-    value = _float(text)
+    value = finite_float(text)
     if not 0.0 <= value <= 1.0:
         raise argparse.ArgumentTypeError(f"must lie in [0, 1], got {value}")
     return value
@@ -232,10 +235,15 @@ def run_cli(
         status = int(func(args) or 0)
         sys.stdout.flush()  # a closed pipe shows here, inside the handler, not at interpreter exit
         return status
-    except BrokenPipeError:
-        # the reader went away (``| head``): stop quietly, as a process killed by SIGPIPE would
-        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
-        return 141
+    except BrokenPipeError as exc:
+        if _stdout_reader_gone():
+            # the reader went away (``| head``): stop quietly, as a process killed by SIGPIPE would
+            with contextlib.suppress(OSError, ValueError):
+                os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+            return 141
+        if debug:
+            raise
+        return _internal_error(prog, exc)  # another pipe or socket broke: a worker, a subprocess
     except CurbsideInputError as exc:
         if debug:
             raise
@@ -246,7 +254,23 @@ def run_cli(
     except Exception as exc:  # noqa: BLE001 - the contract: internal errors exit 1, one line
         if debug:
             raise
-        sys.stderr.write(
-            f"{prog}: internal error: {type(exc).__name__}: {exc} (CURBSIDE_DEBUG=1 for a traceback)\n"
-        )
-        return 1
+        return _internal_error(prog, exc)
+
+
+def _internal_error(prog: str, exc: Exception) -> int:
+    """Say what went wrong inside on one line of stderr and return 1."""
+    sys.stderr.write(
+        f"{prog}: internal error: {type(exc).__name__}: {exc} (CURBSIDE_DEBUG=1 for a traceback)\n"
+    )
+    return 1
+
+
+def _stdout_reader_gone() -> bool:
+    """Whether stdout is a pipe whose reader has closed it (poll reports an error on it); ``True`` where
+    that cannot be told (no ``poll``, no file descriptor), as it was before this check."""
+    try:
+        poller = select.poll()
+        poller.register(sys.stdout.fileno(), select.POLLOUT)
+        return any(events & (select.POLLERR | select.POLLHUP) for _, events in poller.poll(0))
+    except (AttributeError, OSError, ValueError):
+        return True

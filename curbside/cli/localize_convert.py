@@ -112,6 +112,10 @@ def _convert(args: argparse.Namespace) -> int:
             raise CurbsideInputError(args.src, "--all converts every trial of an IPIN .h5 file")
         if trial is not None:
             raise CurbsideInputError(args.src, "--all converts every trial; drop the ::TRIAL part")
+        if args.platform is not None:
+            raise CurbsideInputError("--platform", "applies to Sensor Logger exports only")
+        if args.route is not None:
+            raise CurbsideInputError(args.route, "a route file applies to Sensor Logger exports only")
         trials = ipin.list_trials(path)
         lines: list[str] = []
         with output_folder(dst, command, overwrite=args.overwrite) as tmp:

@@ -26,12 +26,12 @@ from __future__ import annotations
 
 import argparse
 import logging
-import math
 import os
 import re
 from pathlib import Path
 
 from curbside.cli.common import (
+    finite_float,
     non_negative_float,
     non_negative_int,
     positive_float,
@@ -313,20 +313,9 @@ class _HelpFormatter(argparse.HelpFormatter):
         return super()._fill_text(text, width, indent)
 
 
-def _coordinate(text: str) -> float:
-    """argparse ``type``: a finite number (a longitude or latitude in degrees)."""
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"not a number: {text!r}") from None
-    if not math.isfinite(value):
-        raise argparse.ArgumentTypeError(f"must be finite, got {value}")
-    return value
-
-
 def _scheduler_address(text: str) -> str:
-    """argparse ``type``: a dask scheduler address, ``[PROTOCOL://]HOST:PORT``."""
-    if not re.fullmatch(r"([a-z]+://)?[^\s:/]+:\d{1,5}", text):
+    """argparse ``type``: a dask scheduler address, ``[PROTOCOL://]HOST:PORT`` (an IPv6 HOST in brackets)."""
+    if not re.fullmatch(r"([a-z]+://)?(\[[0-9A-Fa-f:.]+\]|[^\s:/\[\]]+):\d{1,5}", text):
         raise argparse.ArgumentTypeError(f"expected HOST:PORT or tcp://HOST:PORT, got {text!r}")
     return text
 
@@ -378,7 +367,7 @@ def _register_simulate(subparsers: argparse._SubParsersAction) -> None:
                       help="sf6: all six routes, --seeds walks each, into one folder of sessions")
     sim.add_argument("--seed", type=seed, default=1,
                      help="session seed, an integer >= 0: which walk is simulated (default: %(default)s)")
-    sim.add_argument("--start", nargs=2, type=_coordinate, metavar=("LON", "LAT"),
+    sim.add_argument("--start", nargs=2, type=finite_float, metavar=("LON", "LAT"),
                      help="custom route: where it starts, longitude then latitude in degrees (WGS84), near a "
                      "footway of the extract (downtown SF, e.g. -122.4025 37.7930)")
     sim.add_argument("--length-m", type=positive_float,

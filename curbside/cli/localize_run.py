@@ -92,7 +92,7 @@ def _run(args: argparse.Namespace) -> int:
     if args.config:
         check_replayed_inputs(info, args.config, session_path, map_path, inputs, weights)
     model = _load_weights(weights)
-    platform = args.platform or info.get("platform")
+    platform = args.platform or _replayed_platform(info, session_path)
     session = read_any(session_path, platform=platform)
     _check_weights_used(args, config, session)
     layers = read_map(map_path) if map_path else None
@@ -113,6 +113,19 @@ def _run(args: argparse.Namespace) -> int:
     write_track(result, args.output, run_info, overwrite=args.overwrite)
     _print_summary(args.output, result, summary)
     return 0
+
+
+def _replayed_platform(info: dict, session_path: str) -> str | None:
+    """The ``--platform`` a replayed ``run.json`` records, for a Sensor Logger session only: its
+    configuration may be replayed on a session of another format, which takes no platform."""
+    from curbside.localize.readers import detect_format
+
+    platform = info.get("platform")
+    if platform and detect_format(session_path) != "sensorlogger":
+        logger.info("%s is not a Sensor Logger export: the replayed --platform %s does not apply",
+                    session_path, platform)
+        return None
+    return platform
 
 
 def _configured(args: argparse.Namespace, config: RunConfig | None) -> RunConfig:

@@ -61,6 +61,8 @@ def check_suite_folder(out_dir: str | Path, overwrite: bool = False) -> Path:
     """
     checked = check_output_folder(out_dir, overwrite or _earlier_output(Path(out_dir)), COMMAND)
     report = checked / "report"
+    if os.path.lexists(report) and not report.is_dir():
+        raise CurbsideInputError(report, "is a file, where the benchmark writes its report folder: move it")
     if report.is_dir() and any(report.iterdir()) and read_marker(report) is None:
         # the report is written last, and never over a folder curbside did not write: refuse it now
         raise CurbsideInputError(
@@ -109,6 +111,13 @@ def benchmark_maps(
 def check_map_area(map_path: str | Path, layers: MapLayers) -> None:
     """Refuse a ``--map`` whose extent misses the benchmark's area (:data:`subsets.SKY_BBOX`, downtown San
     Francisco), before minutes of simulated walks that could not be tracked on it.
+
+    Parameters
+    ----------
+    map_path
+        The map's file, for the message.
+    layers
+        The map, read.
 
     Raises
     ------

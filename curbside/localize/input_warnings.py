@@ -63,12 +63,24 @@ def report_short_velocity(session: Session, velocity_t: np.ndarray, source: str)
     """Warn when the velocity starts well after the walk or stops well before it (a truncated
     ``velocity.csv``): outside its rows the particles stand still and only the fixes move the track.
 
-    The walk's span is that of its other streams (fixes, footsteps, IMU, waypoints); a gap at either end
-    longer than 10 s or 5 % of that span is reported.
+    The walk's span is that of its footsteps (``steps.csv``) where the session has them, since a
+    recording often starts and ends standing; else that of its other streams (fixes, IMU, waypoints). A
+    gap at either end longer than 10 s or 5 % of that span is reported. PDR's velocity is not judged: it
+    runs from the first footstep to the last by construction.
+
+    Parameters
+    ----------
+    session
+        The recording.
+    velocity_t
+        The velocity's times (s, increasing), on the session's clock.
+    source
+        Where the velocity came from (``file``, ``ronin``, ``pdr``): ``file`` names ``velocity.csv``.
     """
-    others = [frame["t"].to_numpy(float) for frame in (session.gnss, session.steps, session.imu,
-                                                       session.waypoints) if frame is not None and len(frame)]
-    if not others or len(velocity_t) == 0:
+    streams = (session.steps,) if session.steps is not None and len(session.steps) else (
+        session.gnss, session.imu, session.waypoints)
+    others = [frame["t"].to_numpy(float) for frame in streams if frame is not None and len(frame)]
+    if source == "pdr" or not others or len(velocity_t) == 0:
         return
     walk_begin_s = min(float(np.nanmin(t)) for t in others)
     walk_end_s = max(float(np.nanmax(t)) for t in others)

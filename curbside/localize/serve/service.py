@@ -544,7 +544,17 @@ class TrackingService:
         return folder
 
     async def delete_track(self, session_id: str) -> dict[str, Any]:
-        """Remove an ended session's track (``TrackStore.delete``); its listing entry (``TrackInfo``).
+        """Remove an ended session's track (``TrackStore.delete``).
+
+        Parameters
+        ----------
+        session_id
+            The session's id (the track is found by its key).
+
+        Returns
+        -------
+        dict
+            The removed track's listing entry (``TrackInfo``).
 
         Raises
         ------

@@ -231,6 +231,18 @@ def foreign_reason(folder: Path, key: str) -> str | None:
     A service track folder is a real folder named by a track key, holding ``write_track``'s marker
     (``.curbside-output`` naming ``localize run`` and the track's files) and a ``run.json`` that names
     the live session of that key and records the service's ``service`` block.
+
+    Parameters
+    ----------
+    folder
+        A folder in the tracks folder.
+    key
+        The track key it should hold (:meth:`TrackStore.key`).
+
+    Returns
+    -------
+    str or None
+        The first reason found, in a few words (for :class:`ForeignFolderError`).
     """
     if not _KEY.fullmatch(folder.name) or folder.name != key:
         return "its name is not a track key"
