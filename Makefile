@@ -53,6 +53,8 @@ bench: $(STAMP)
 	$(BIN)/python benchmarks/bench_filter.py
 	$(BIN)/python benchmarks/bench_ronin.py
 	$(BIN)/python benchmarks/bench_serve.py
+	$(BIN)/python benchmarks/bench_stream_rows.py
+	$(BIN)/python benchmarks/bench_cli_start.py
 
 clean:
 	rm -rf out .pytest_cache .ruff_cache

@@ -85,9 +85,12 @@ def messages(walk: Path, batch_s: float) -> tuple[dict, list[bytes]]:
     imu, gnss = session.imu, session.gnss
     t0, t1 = session.time_span()
     out = []
-    for lo in np.arange(t0, t1, batch_s):
-        pick_i = imu[(imu["t"] >= lo) & (imu["t"] < lo + batch_s)]
-        pick_g = gnss[(gnss["t"] >= lo) & (gnss["t"] < lo + batch_s)]
+    edges = np.arange(t0, t1, batch_s)
+    # each batch ends where the next begins: lo + batch_s rounds past the next edge (0.1 + 0.02 >
+    # 0.12), which sent the row at 0.12 twice and had 17 % of 0.02 s batches refused
+    for lo, hi in zip(edges, [*edges[1:], np.inf], strict=True):
+        pick_i = imu[(imu["t"] >= lo) & (imu["t"] < hi)]
+        pick_g = gnss[(gnss["t"] >= lo) & (gnss["t"] < hi)]
         body = {"imu": pick_i.to_dict("records"), "gnss": pick_g.to_dict("records")}
         out.append(json.dumps(body).encode())
     return session.meta["start"], out

@@ -46,7 +46,7 @@ from curbside.localize.live_input import (
 )
 from curbside.localize.pipeline import TrackResult, track_table, tracker_record
 from curbside.localize.raster import MapRaster, load_or_build_raster
-from curbside.localize.ronin.stream import RoninStream, RoninStreamConfig
+from curbside.localize.ronin.stream import InferenceQueue, RoninStream, RoninStreamConfig
 from curbside.localize.runconfig import RunConfig
 from curbside.localize.session import Session
 from curbside.localize.steps import StepDetector
@@ -58,8 +58,8 @@ if TYPE_CHECKING:
 
 logger = logging.getLogger(__name__)
 
-#: Column indexes made once: building one per batch costs more than the batch's numbers.
-_INDEXES = {columns: pd.Index(columns) for columns in (IMU_COLUMNS, IMU_QUAT_COLUMNS, GNSS_COLUMNS)}
+#: The fixes' column index, made once: building one per batch costs more than the batch's numbers.
+_GNSS_INDEX = pd.Index(GNSS_COLUMNS, dtype=object)
 
 
 class LiveSession:
@@ -280,7 +280,7 @@ class LiveSession:
     def _push_imu(self, imu: np.ndarray, columns: tuple[str, ...]) -> None:
         if self.ronin is not None:
             try:
-                self.ronin.push(pd.DataFrame(imu, columns=_INDEXES[columns], copy=False))
+                self.ronin.push_rows(imu, columns)
             except CurbsideInputError as exc:  # the start-up decision: rate, gyroscope, quaternion
                 self.failed = exc.problem
                 raise
@@ -352,7 +352,7 @@ class LiveSession:
         if self._gnss:
             rows = np.concatenate(self._gnss)
             self._gnss = []
-            engine.push_gnss(pd.DataFrame(rows, columns=_INDEXES[GNSS_COLUMNS], copy=False))
+            engine.push_gnss(pd.DataFrame(rows, columns=_GNSS_INDEX, copy=False))
         if self._velocity:
             rows = np.concatenate(self._velocity)
             n = int(np.searchsorted(rows[:, 0], until, side="right"))
@@ -441,89 +441,6 @@ class LiveSession:
             fix_lag=None if self.engine.lag is None else {"mode": self.config.fix_lag.mode,
                                                           "lag_s": self.engine.lag.lag_s},
         )
-
-
-class InferenceQueue:
-    """RoNIN windows of many sessions, run through the model together in fixed-shape batches.
-
-    Windows are queued in the order they are taken, so each session gets its velocities back in time
-    order. Because :func:`~curbside.localize.ronin.infer.infer_windows` pads every batch to one shape,
-    a window's velocity does not depend on which other windows share its batch.
-
-    Parameters
-    ----------
-    model
-        A loaded RoNIN model (:func:`~curbside.localize.ronin.infer.load_model`).
-    batch_size
-        The fixed batch shape (``RoninStreamConfig.batch_size``, the batch command's).
-    """
-
-    def __init__(self, model: RoninResNet, batch_size: int | None = None) -> None:
-        from curbside.localize.ronin.infer import check_compatible
-
-        config = RoninStreamConfig()
-        check_compatible(model, config)
-        self.model = model
-        self.batch_size = batch_size or config.batch_size
-        self._queue: list[tuple[LiveSession, np.ndarray, np.ndarray]] = []
-        self.pending = 0
-
-    def collect(self, session: LiveSession) -> None:
-        """Queue the windows ``session`` has cut since the last call."""
-        t, windows = session.take_windows()
-        if len(t):
-            self._queue.append((session, t, windows))
-            self.pending += len(t)
-
-    def take(self, whole_batches_only: bool = False, max_batches: int | None = None) -> list[tuple]:
-        """Dequeue windows for one inference: all of them, or only whole batches (the rest stays), at
-        most ``max_batches`` batches; ``[(session, t, windows), ...]`` in queue order."""
-        n = self.pending - self.pending % self.batch_size if whole_batches_only else self.pending
-        if max_batches is not None:
-            n = min(n, max_batches * self.batch_size)
-        taken, left = [], n
-        while left:
-            session, t, windows = self._queue[0]
-            k = min(left, len(t))
-            taken.append((session, t[:k], windows[:k]))
-            if k == len(t):
-                self._queue.pop(0)
-            else:
-                self._queue[0] = (session, t[k:], windows[k:])
-            left -= k
-        self.pending -= n
-        return taken
-
-    def infer(self, taken: list[tuple]) -> np.ndarray:
-        """Velocities ``(K, 2)`` of the windows :meth:`take` returned (touches no session: it may run on
-        another thread than the one that feeds the sessions)."""
-        from curbside.localize.ronin.infer import infer_windows
-
-        return infer_windows(self.model, np.concatenate([w for _, _, w in taken]), self.batch_size)
-
-    @staticmethod
-    def deliver(taken: list[tuple], velocity: np.ndarray) -> set[LiveSession]:
-        """Hand each session its velocities; return the sessions that got some."""
-        i = 0
-        for session, t, _ in taken:
-            session.push_velocity(t, velocity[i : i + len(t)])
-            i += len(t)
-        return {session for session, _, _ in taken}
-
-    def run(self, whole_batches_only: bool = False) -> set[LiveSession]:
-        """:meth:`take`, :meth:`infer` and :meth:`deliver` in one go; return the sessions served."""
-        taken = self.take(whole_batches_only)
-        return self.deliver(taken, self.infer(taken)) if taken else set()
-
-    def holds(self, session: LiveSession) -> bool:
-        """Whether windows of ``session`` are queued."""
-        return any(entry[0] is session for entry in self._queue)
-
-    def drop(self, session: LiveSession) -> None:
-        """Forget the queued windows of ``session``."""
-        kept = [entry for entry in self._queue if entry[0] is not session]
-        self.pending = sum(len(t) for _, t, _ in kept)
-        self._queue = kept
 
 
 def stream_session(

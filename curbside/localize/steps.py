@@ -41,6 +41,7 @@ from dataclasses import dataclass
 
 import numpy as np
 import pandas as pd
+from numpy.lib.stride_tricks import as_strided
 from scipy.signal import firwin
 
 from curbside.errors import CurbsideInputError
@@ -132,25 +133,29 @@ def lowpass_taps(config: StepConfig) -> np.ndarray:
     return firwin(config.lowpass_taps, config.lowpass_hz, fs=config.rate_hz)
 
 
+#: Outputs up to which :func:`fir_centered` sums with one accumulate (faster for short signals only).
+_FIR_ACCUMULATE_MAX = 128
+
+
+def _windows(x: np.ndarray, width: int) -> np.ndarray:
+    """Read-only view ``(len(x) - width + 1, width)`` whose row ``i`` is ``x[i : i + width]``."""
+    return as_strided(x, (len(x) - width + 1, width), (x.strides[0],) * 2, writeable=False)
+
+
 def fir_centered(x: np.ndarray, taps: np.ndarray) -> np.ndarray:
     """Centred FIR filter, ``y[i] = sum_k taps[k] * x[i + k]`` for ``len(x) - len(taps) + 1`` outputs.
 
     The sum runs over the taps in the same order for every output, so an output does not depend on
-    which slice of a longer signal it is computed in (``np.convolve`` gives no such guarantee).
+    which slice of a longer signal it is computed in (``np.convolve`` gives no such guarantee). A
+    short signal (a streamed push) is summed by ``np.add.accumulate`` along each output's window, the
+    same additions in the same order in a few calls instead of one per tap.
     """
     n = len(x) - len(taps) + 1
+    if 0 < n <= _FIR_ACCUMULATE_MAX:
+        return np.add.accumulate(_windows(x, len(taps)) * taps, axis=1)[:, -1]
     y = taps[0] * x[:n]
     for k in range(1, len(taps)):
         y = y + taps[k] * x[k : k + n]
-    return y
-
-
-def _window_reduce(x: np.ndarray, half: int, op) -> np.ndarray:
-    """``op`` (np.maximum or np.minimum) over ``x[i : i + 2 half + 1]``, for ``len(x) - 2 half`` outputs."""
-    n = len(x) - 2 * half
-    y = x[:n]
-    for k in range(1, 2 * half + 1):
-        y = op(y, x[k : k + n])
     return y
 
 
@@ -272,13 +277,16 @@ class StepDetector:
             g2 = g[:, 0] * g[:, 0] + g[:, 1] * g[:, 1] + g[:, 2] * g[:, 2]
         else:
             g2 = np.zeros(len(t))
-        rows = np.column_stack([t, acc, g2])
-        rows = rows[np.isfinite(rows).all(axis=1)]
+        rows = np.concatenate([t[:, None], acc, g2[:, None]], axis=1)
+        if not np.isfinite(rows).all():
+            rows = rows[np.isfinite(rows).all(axis=1)]
         if len(rows) == 0:
             return rows
         # Keep a row only if it is later than every row before it (a running maximum is the same
         # whichever way the rows were split, given the last accepted time).
         floor = -np.inf if self._last is None else self._last[0]
+        if rows[0, 0] > floor and (len(rows) == 1 or (rows[1:, 0] > rows[:-1, 0]).all()):
+            return rows  # increasing, as a live session's rows are: nothing to drop
         before = np.maximum.accumulate(np.concatenate([[floor], rows[:-1, 0]]))
         return rows[rows[:, 0] > before]
 
@@ -299,7 +307,7 @@ class StepDetector:
             rows = rows[1:]
             if len(rows) == 0:
                 return
-        known = np.vstack([self._last[None, :], rows])
+        known = np.concatenate([self._last[None, :], rows])
         t_end = known[-1, 0]
         k_end = int((t_end - self._t0) * c.rate_hz)  # grid indices < k_end have times <= t_end
         while self._t0 + k_end / c.rate_hz <= t_end:
@@ -324,43 +332,38 @@ class StepDetector:
     # --- stages 2-4: candidates -------------------------------------------------------------------
 
     def _candidates(self, stop: int) -> np.ndarray:
-        """Candidate grid indices in ``[self._n_done, stop)`` (absolute)."""
+        """Candidate grid indices in ``[self._n_done, stop)`` (absolute).
+
+        Only the peaks (a few per second) get their troughs, swing and gyroscope RMS: a push of one row
+        decides one grid sample, and computing those for every sample was most of its cost. Maxima and
+        minima are exact in any order; the sums run in the order :func:`fir_centered` gives.
+        """
         c = self.config
-        start = self._n_done
+        start, n, reach = self._n_done, stop - self._n_done, self._lp_reach
         # Low-pass over [start - lp_reach, stop + lp_reach), from magnitudes half_fir further out.
-        m0 = start - self._lp_reach - self._half_fir - self._buf0
-        m1 = stop + self._lp_reach + self._half_fir - self._buf0
+        m0 = start - reach - self._half_fir - self._buf0
+        m1 = stop + reach + self._half_fir - self._buf0
         lp = fir_centered(self._mag[m0:m1], self._taps)  # lp[i] is grid index start - lp_reach + i
         w, r = self._w, self._range
-        core = lp[self._lp_reach : self._lp_reach + (stop - start)]
-        left_max = np.full(stop - start, -np.inf)
-        for k in range(1, w + 1):
-            left_max = np.maximum(left_max, lp[self._lp_reach - k : self._lp_reach - k + (stop - start)])
-        right_max = np.full(stop - start, -np.inf)
-        for k in range(1, w + 1):
-            right_max = np.maximum(right_max, lp[self._lp_reach + k : self._lp_reach + k + (stop - start)])
-        is_peak = (core > left_max) & (core >= right_max)
-        trough_l = np.full(stop - start, np.inf)
-        trough_r = np.full(stop - start, np.inf)
-        for k in range(1, 2 * w + 1):
-            trough_l = np.minimum(trough_l, lp[self._lp_reach - k : self._lp_reach - k + (stop - start)])
-            trough_r = np.minimum(trough_r, lp[self._lp_reach + k : self._lp_reach + k + (stop - start)])
-        prominence = core - np.maximum(trough_l, trough_r)
-        span = self._lp_reach - r
-        hi = _window_reduce(lp[span : span + (stop - start) + 2 * r], r, np.maximum)
-        lo = _window_reduce(lp[span : span + (stop - start) + 2 * r], r, np.minimum)
-        swing = hi - lo
-        keep = is_peak & (swing >= c.min_swing_ms2)
+        near = _windows(lp[reach - w : reach + n + w], 2 * w + 1)  # row j: centred on j
+        core = near[:, w]
+        peaks = np.flatnonzero((core > near[:, :w].max(axis=1)) & (core >= near[:, w + 1 :].max(axis=1)))
+        if not len(peaks):
+            return peaks
+        at = peaks + reach  # the peaks' positions in lp
+        trough_l = lp[at[:, None] + np.arange(-2 * w, 0)].min(axis=1)
+        trough_r = lp[at[:, None] + np.arange(1, 2 * w + 1)].min(axis=1)
+        prominence = lp[at] - np.maximum(trough_l, trough_r)
+        around = lp[at[:, None] + np.arange(-r, r + 1)]
+        swing = around.max(axis=1) - around.min(axis=1)
+        keep = swing >= c.min_swing_ms2
         keep &= prominence >= np.maximum(c.min_prominence_ms2, c.rel_prominence * swing)
         if self._use_gyro:
             g = self._gyro_half
-            g0 = start - g - self._buf0
-            seg = self._gyro2[g0 : g0 + (stop - start) + 2 * g]
-            total = seg[: stop - start]
-            for k in range(1, 2 * g + 1):
-                total = total + seg[k : k + (stop - start)]
+            seg = self._gyro2[(start - self._buf0 + peaks)[:, None] + np.arange(-g, g + 1)]
+            total = np.add.accumulate(seg, axis=1)[:, -1]
             keep &= total <= (2 * g + 1) * c.handling_gyro_rms_rads**2
-        index = np.arange(start, stop)[keep]
+        index = start + peaks[keep]
         return index[index >= 0]
 
     # --- stage 5: runs ----------------------------------------------------------------------------

@@ -10,8 +10,10 @@ It holds one :class:`~curbside.localize.live.LiveSession` per walker. Two thread
   request with its session's latest estimate. Under load ticks grow, and their cost per request falls;
 - the *RoNIN* thread runs the queued windows of all sessions through the model in fixed-shape batches
   (torch releases the GIL, so it runs beside the loop on the other core). Whole batches (64 windows)
-  go as soon as they fill; a partial batch (zero-padded to the fixed shape) waits at most
-  ``inference_wait_s`` for more windows, so a lone walker costs one padded batch every quarter second,
+  go as soon as they fill; a partial batch (zero-padded to the smallest shape that gives the full
+  shape's velocities bit for bit, usually 16: :class:`~curbside.localize.ronin.stream.InferenceQueue`)
+  waits at most ``inference_wait_s`` for more windows, so a lone walker costs one small batch every
+  quarter second,
   not one per request. A reply never waits for inference: the velocities reach the filter at the next
   tick, which adds milliseconds to the estimate's lag of seconds.
 
