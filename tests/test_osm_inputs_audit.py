@@ -16,7 +16,6 @@ import http.server
 import json
 import pathlib
 import socket
-import threading
 import time
 from collections.abc import Iterator
 from pathlib import Path
@@ -24,6 +23,7 @@ from pathlib import Path
 import osmium
 import osmnx as ox
 import pytest
+from loopback import loopback_server
 
 from curbside import settings
 from curbside.cli.osmseg import main as osmseg_main
@@ -75,20 +75,13 @@ class _Scripted(http.server.BaseHTTPRequestHandler):
 def server(tmp_path, monkeypatch) -> Iterator[type[_Scripted]]:
     """The scripted server, answering with the recording; caches in tmp_path; no bundled extract."""
     handler = type("Server", (_Scripted,), {"answers": [(200, RECORDED.read_bytes())]})
-    httpd = http.server.ThreadingHTTPServer(("127.0.0.1", 0), handler)
-    thread = threading.Thread(target=httpd.serve_forever, daemon=True)
-    thread.start()
-    base = f"http://127.0.0.1:{httpd.server_port}"
-    monkeypatch.setattr(ox.settings, "overpass_url", f"{base}/api")
-    monkeypatch.setattr(ox.settings, "nominatim_url", f"{base}/")
-    monkeypatch.setattr(settings, "cache_dir", tmp_path / "cache")
-    monkeypatch.setattr(settings, "overpass_busy_waits_s", (0.0, 0.0))
-    monkeypatch.setattr(settings, "default_extract_bbox", (0.0, 0.0, 1.0, 1.0))
-    try:
+    with loopback_server(handler) as base:
+        monkeypatch.setattr(ox.settings, "overpass_url", f"{base}/api")
+        monkeypatch.setattr(ox.settings, "nominatim_url", f"{base}/")
+        monkeypatch.setattr(settings, "cache_dir", tmp_path / "cache")
+        monkeypatch.setattr(settings, "overpass_busy_waits_s", (0.0, 0.0))
+        monkeypatch.setattr(settings, "default_extract_bbox", (0.0, 0.0, 1.0, 1.0))
         yield handler
-    finally:
-        httpd.shutdown()
-        httpd.server_close()
 
 
 def _build(tmp_path: Path, *args: str) -> tuple[int, Path]:

@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import http.server
 import socket
-import threading
 import time
 from collections.abc import Iterator
 from pathlib import Path
@@ -12,6 +11,7 @@ from pathlib import Path
 import osmnx as ox
 import pytest
 import shapely
+from loopback import loopback_server
 
 from curbside import settings
 from curbside.cli.osmseg import main as osmseg_main
@@ -47,21 +47,15 @@ class _Handler(http.server.BaseHTTPRequestHandler):
 def overpass(tmp_path, monkeypatch) -> Iterator[type[_Handler]]:
     """A loopback Overpass serving the recording; osmnx and curbside caches in tmp_path."""
     handler = type("Recorded", (_Handler,), {"body": RECORDED.read_bytes(), "status": 200, "requests": 0})
-    server = http.server.ThreadingHTTPServer(("127.0.0.1", 0), handler)
-    thread = threading.Thread(target=server.serve_forever, daemon=True)
-    thread.start()
-    monkeypatch.setattr(ox.settings, "overpass_url", f"http://127.0.0.1:{server.server_port}/api")
-    monkeypatch.setattr(ox.settings, "overpass_rate_limit", False)
-    monkeypatch.setattr(ox.settings, "cache_folder", ox.settings.cache_folder)
-    monkeypatch.setattr(ox.settings, "use_cache", ox.settings.use_cache)
-    monkeypatch.setattr(settings, "cache_dir", tmp_path / "cache")
-    # Pretend the bundled extract does not cover this bbox, so the build must ask Overpass.
-    monkeypatch.setattr(settings, "default_extract_bbox", (0.0, 0.0, 1.0, 1.0))
-    try:
+    with loopback_server(handler) as base:
+        monkeypatch.setattr(ox.settings, "overpass_url", f"{base}/api")
+        monkeypatch.setattr(ox.settings, "overpass_rate_limit", False)
+        monkeypatch.setattr(ox.settings, "cache_folder", ox.settings.cache_folder)
+        monkeypatch.setattr(ox.settings, "use_cache", ox.settings.use_cache)
+        monkeypatch.setattr(settings, "cache_dir", tmp_path / "cache")
+        # Pretend the bundled extract does not cover this bbox, so the build must ask Overpass.
+        monkeypatch.setattr(settings, "default_extract_bbox", (0.0, 0.0, 1.0, 1.0))
         yield handler
-    finally:
-        server.shutdown()
-        server.server_close()
 
 
 def test_overpass_build_matches_file_build(overpass):
