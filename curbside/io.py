@@ -58,9 +58,6 @@ SIGNATURES = (
 )
 _SIGNATURE_BYTES = 8192
 
-#: ``--overwrite`` of the commands that write one file.
-OVERWRITE_FILE_HELP = "replace the output file even when curbside did not write it (never one of the inputs)"
-
 
 def json_ready(value: Any) -> Any:
     """``value`` with numpy scalars unwrapped, keys as strings and non-finite floats as ``None`` (strict

@@ -1,15 +1,17 @@
 """The console commands start fast and answer Ctrl-C at start-up with one line.
 
 Building the parsers (every ``--help``) imports no heavy library: each sub-command imports what it
-needs when it runs, and the choices and defaults that ``--help`` shows come from
-:mod:`curbside.cli.defaults`, whose copies are checked here against the modules that own them. A
-Ctrl-C that lands while modules import exits 130 with ``PROG: interrupted`` and no traceback: the
-tests make an import hang (a meta-path finder that sleeps when asked for one module) and send SIGINT
-once the child says it is in that import, so they do not depend on timing.
+needs when it runs, and the choices and defaults that ``--help`` shows come from the light modules that
+own them (:mod:`curbside.localize.runconstants`, :mod:`curbside.localize.platforms`,
+:mod:`curbside.osmseg.config`), which the heavy ones import; ``localize --help`` does not even import
+``dataclasses``. A Ctrl-C that lands while modules import exits 130 with ``PROG: interrupted`` and no
+traceback: the tests make an import hang (a meta-path finder that sleeps when asked for one module) and
+send SIGINT once the child says it is in that import, so they do not depend on timing.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import os
 import signal
@@ -19,16 +21,14 @@ import textwrap
 
 import pytest
 
-from curbside.cli import defaults
-
 #: What ``--help`` must not import: each costs tenths of a second to seconds at start-up.
 HEAVY = ("numpy", "pandas", "scipy", "torch", "matplotlib", "geopandas", "shapely", "osmnx", "dask", "numba",
          "pyproj", "h5py")
 
+# Every ``--help`` of the commands named in argv, in this process; prints the top-level packages imported.
 _EVERY_HELP = textwrap.dedent(
     """
-    import argparse, contextlib, io, json, sys
-    from curbside.cli import localize, osmseg
+    import argparse, contextlib, importlib, io, json, sys
 
     def commands(module):
         seen = {}
@@ -38,7 +38,7 @@ _EVERY_HELP = textwrap.dedent(
         (sub,) = [a for a in seen["p"]._actions if isinstance(a, argparse._SubParsersAction)]
         return list(sub.choices)
 
-    for module in (localize, osmseg):
+    for module in (importlib.import_module(f"curbside.cli.{prog}") for prog in sys.argv[1:]):
         for argv in (["--help"], *([name, "--help"] for name in commands(module))):
             with contextlib.redirect_stdout(io.StringIO()), contextlib.suppress(SystemExit):
                 module.main(argv)
@@ -47,32 +47,38 @@ _EVERY_HELP = textwrap.dedent(
 )
 
 
+def _imported_by_every_help(*progs: str) -> set[str]:
+    out = subprocess.run([sys.executable, "-c", _EVERY_HELP, *progs], capture_output=True, text=True,
+                         check=True, timeout=120).stdout
+    return set(json.loads(out))
+
+
 def test_no_help_imports_a_heavy_library():
     """``localize --help``, ``osmseg --help`` and every sub-command's ``--help``, in a fresh process."""
-    out = subprocess.run([sys.executable, "-c", _EVERY_HELP], capture_output=True, text=True, check=True,
-                         timeout=120).stdout
-    imported = set(json.loads(out)) & set(HEAVY)
+    imported = _imported_by_every_help("localize", "osmseg") & set(HEAVY)
     assert not imported, f"--help imports {sorted(imported)}"
 
 
-def test_the_shown_defaults_are_their_owners():
-    from curbside.evaluate.runner import METHODS
-    from curbside.io import OVERWRITE_FILE_HELP
-    from curbside.localize import runconfig
-    from curbside.localize.readers._platform import PLATFORM_OPTIONS
-    from curbside.localize.ronin.stream import RoninStreamConfig
-    from curbside.osmseg.build import READ_MARGIN_M
+def test_localize_help_imports_no_dataclasses():
+    """``import dataclasses`` (inspect, ast, dis) and the frozen dataclasses made at import would add about
+    a fifth to ``localize --help``: its parsers quote :mod:`curbside.localize.runconstants`, not the
+    config dataclasses."""
+    assert "dataclasses" not in _imported_by_every_help("localize")
 
-    for name in ("MODES", "VELOCITY_SOURCES", "UNSEEN_VELOCITY_MODES", "FAMILIAR_VELOCITY_MODES"):
-        assert tuple(getattr(runconfig, name)) == getattr(defaults, name), name
-    for shown, owner in ((defaults.UNSEEN_VELOCITY, runconfig.UnseenVelocityConfig()),
-                         (defaults.FAMILIAR_VELOCITY, runconfig.FamiliarVelocityConfig())):
-        assert vars(shown) == {key: getattr(owner, key) for key in vars(shown)}, type(owner).__name__
-    assert tuple(METHODS) == defaults.METHODS
-    assert tuple(PLATFORM_OPTIONS) == defaults.PLATFORM_OPTIONS
-    assert defaults.READ_MARGIN_M == READ_MARGIN_M
-    assert RoninStreamConfig().stride == defaults.RONIN_STRIDE
-    assert defaults.OVERWRITE_FILE_HELP == OVERWRITE_FILE_HELP
+
+def test_the_quoted_defaults_are_the_configs_defaults():
+    """Each field of the configs whose defaults ``--help`` quotes takes its default from
+    :mod:`curbside.localize.runconstants`, so that what ``--help`` says is what a run does."""
+    from curbside.evaluate.runner import METHODS
+    from curbside.localize import runconstants
+    from curbside.localize.ronin.stream import RoninStreamConfig
+    from curbside.localize.runconfig import FamiliarVelocityConfig, UnseenVelocityConfig
+
+    for config, quoted in ((UnseenVelocityConfig(), runconstants.UNSEEN_VELOCITY_DEFAULTS),
+                           (FamiliarVelocityConfig(), runconstants.FAMILIAR_VELOCITY_DEFAULTS)):
+        assert dataclasses.asdict(config) == vars(quoted), type(config).__name__
+    assert RoninStreamConfig().stride == runconstants.RONIN_STRIDE
+    assert METHODS == runconstants.MODES
 
 
 # The console script's own code (``from curbside.cli.PROG import main; sys.exit(main())``), after a

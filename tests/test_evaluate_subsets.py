@@ -37,10 +37,6 @@ def test_splits_have_disjoint_seeds_and_distinct_simulator_seeds():
 def test_cli_choices_match_the_library():
     assert tuple(simulate.PROFILES) == localize_evaluate.PROFILES
     assert tuple(gnss_model.GNSS_MODELS) == localize_evaluate.GNSS_MODELS
-    assert localize_evaluate.SUBSETS == subsets.SUBSETS and localize_evaluate.SPLITS == subsets.SPLITS
-    assert {
-        k: v for k, v in subsets.DEFAULT_ROUTES.items() if k != "paper6"
-    } == localize_evaluate.DEFAULT_ROUTES
 
 
 @pytest.mark.slow

@@ -16,13 +16,16 @@ import select
 import sys
 from collections.abc import Callable, Sequence
 
-from curbside.cli.defaults import (
-    FAMILIAR_VELOCITY,
+from curbside.errors import CurbsideInputError
+from curbside.localize.runconstants import (
+    FAMILIAR_VELOCITY_DEFAULTS,
     FAMILIAR_VELOCITY_MODES,
-    UNSEEN_VELOCITY,
+    UNSEEN_VELOCITY_DEFAULTS,
     UNSEEN_VELOCITY_MODES,
 )
-from curbside.errors import CurbsideInputError
+
+#: ``--overwrite`` of the commands that write one file.
+OVERWRITE_FILE_HELP = "replace the output file even when curbside did not write it (never one of the inputs)"
 
 
 class _ArgumentParser(argparse.ArgumentParser):
@@ -138,7 +141,7 @@ def _fix_lag(value: str) -> dict[str, object]:
 def add_config_options(parser: argparse.ArgumentParser, set_help: str) -> None:
     """``--unseen-velocity``, ``--familiar-velocity``, ``--fix-lag`` and ``--set KEY=VALUE``: the
     run-configuration options (read back with :func:`config_overrides`)."""
-    u, f = UNSEEN_VELOCITY, FAMILIAR_VELOCITY
+    u, f = UNSEEN_VELOCITY_DEFAULTS, FAMILIAR_VELOCITY_DEFAULTS
     parser.add_argument(
         "--unseen-velocity",
         nargs="?",

@@ -22,8 +22,8 @@ import sys
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from curbside.cli.defaults import PLATFORM_OPTIONS
 from curbside.errors import CurbsideInputError
+from curbside.localize.platforms import PLATFORM_OPTIONS
 
 if TYPE_CHECKING:
     from curbside.localize.session import Session

@@ -39,16 +39,14 @@ from curbside.cli.common import (
     seed,
     unit_interval,
 )
-from curbside.cli.defaults import METHODS, UNSEEN_VELOCITY, UNSEEN_VELOCITY_MODES
 from curbside.errors import CurbsideInputError
+from curbside.evaluate.subset_names import DEFAULT_ROUTES, SPLITS, SUBSETS
+from curbside.localize.runconstants import MODES, UNSEEN_VELOCITY_DEFAULTS, UNSEEN_VELOCITY_MODES
 
-# The choices of the simulator and benchmark options, kept here so that ``localize --help`` need not
-# import the simulator (tests check them against curbside.evaluate.simulate / .subsets).
+# The simulator's profile and GNSS model names, kept here so that ``localize --help`` need not import
+# the simulator (a test checks them against curbside.evaluate.simulate and .gnss_model).
 PROFILES = ("nominal", "phone")
 GNSS_MODELS = ("canyon", "persistent")
-SUBSETS = ("paper6", "downtown", "open")
-SPLITS = ("test", "tune")
-DEFAULT_ROUTES = {"downtown": 8, "open": 6}
 
 logger = logging.getLogger(__name__)
 
@@ -427,7 +425,7 @@ def _register_evaluate(subparsers: argparse._SubParsersAction) -> None:
                     help="map GeoJSONs (osmseg build, osmseg edit); several are map sources to compare")
     ev.add_argument("--map-names", nargs="+", help="labels of the maps, one each (default: file stems)")
     ev.add_argument("--metrics-map", help="map whose sidewalk segments score every run (default: the first)")
-    ev.add_argument("--methods", nargs="+", default=list(METHODS), choices=METHODS,
+    ev.add_argument("--methods", nargs="+", default=list(MODES), choices=MODES,
                     help="methods to run: gnss (GNSS only), inertial (RoNIN+PF), paper (the paper's plain "
                     "GNSS+RoNIN+PF), fused (curbside's filter) (default: all)")
     ev.add_argument("--jaywalk-weights", nargs="+", type=unit_interval, default=[0.0, 0.4, 1.0], metavar="W",
@@ -513,10 +511,11 @@ def _register_benchmark(subparsers: argparse._SubParsersAction) -> None:
     bench.add_argument("--lag-s", type=non_negative_float, default=0.0, metavar="SECONDS",
                        help="also score curbside fused's fixed-lag smoothed positions with this lag, as "
                        "'fused, smoothed' (offline; default 0: off)")
-    bench.add_argument("--unseen-velocity", nargs="?", const="on", default=UNSEEN_VELOCITY.mode,
+    bench.add_argument("--unseen-velocity", nargs="?", const="on", default=UNSEEN_VELOCITY_DEFAULTS.mode,
                        choices=UNSEEN_VELOCITY_MODES,
                        help="run curbside fused everywhere with this --unseen-velocity mode, as localize run "
-                       f"takes it ('on' for the flag alone; default {UNSEEN_VELOCITY.mode}, its own); "
+                       "takes it ('on' for the flag alone; default "
+                       f"{UNSEEN_VELOCITY_DEFAULTS.mode}, its own); "
                        "the checks judge it, version 0.1's fused filter stays the IPIN baseline")
     bench.add_argument("--workers", type=positive_int, default=2,
                        help="dask worker processes; 1 runs serially (default 2)")

@@ -9,9 +9,9 @@ import sys
 from pathlib import Path
 
 from curbside import __version__
-from curbside.cli.common import positive_float, positive_int, seed
-from curbside.cli.defaults import OVERWRITE_FILE_HELP, RONIN_STRIDE
+from curbside.cli.common import OVERWRITE_FILE_HELP, positive_float, positive_int, seed
 from curbside.errors import CurbsideInputError
+from curbside.localize.runconstants import RONIN_STRIDE
 
 logger = logging.getLogger(__name__)
 

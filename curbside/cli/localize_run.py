@@ -32,7 +32,6 @@ from curbside.cli.common import (
     seed,
     unit_interval,
 )
-from curbside.cli.defaults import MODES, VELOCITY_SOURCES
 from curbside.cli.localize_convert import add_platform_option
 from curbside.cli.run_replay import (
     add_weights,
@@ -42,6 +41,7 @@ from curbside.cli.run_replay import (
     replay_config,
 )
 from curbside.errors import CurbsideInputError
+from curbside.localize.runconstants import MODES, VELOCITY_SOURCES
 
 if TYPE_CHECKING:
     import pandas as pd
@@ -97,8 +97,10 @@ def _run(args: argparse.Namespace) -> int:
     _check_weights_used(args, config, session)
     layers = read_map(map_path) if map_path else None
     save_particles = args.save_particles or bool(info.get("save_particles"))
+    # The clouds go to disk beside the output as the walk goes, not into memory (nor /tmp, maybe a RAM disk).
     result = track_session(session, layers, config=config, save_particles=save_particles, progress=True,
-                           map_name=str(map_path) if map_path else None, ronin_weights=model)
+                           map_name=str(map_path) if map_path else None, ronin_weights=model,
+                           spill_dir=args.output)
     run_info = {"session": _absolute(session_path), "map": _absolute(map_path) if map_path else None,
                 "save_particles": save_particles,
                 "inputs": add_weights(inputs, result.velocity_source, weights)}

@@ -25,8 +25,8 @@ from typing import TYPE_CHECKING
 
 from curbside import settings
 from curbside.cli.common import add_config_options, config_overrides, port, positive_float, positive_int
-from curbside.cli.defaults import MODES
 from curbside.errors import CurbsideInputError
+from curbside.localize.runconstants import MODES
 
 if TYPE_CHECKING:
     from curbside.localize.serve.common import ServiceConfig

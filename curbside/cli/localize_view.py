@@ -17,8 +17,7 @@ import logging
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from curbside.cli.common import positive_int
-from curbside.cli.defaults import OVERWRITE_FILE_HELP
+from curbside.cli.common import OVERWRITE_FILE_HELP, positive_int
 from curbside.errors import CurbsideInputError
 
 if TYPE_CHECKING:

@@ -8,10 +8,9 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from curbside import settings
-from curbside.cli.common import set_overrides
-from curbside.cli.defaults import OVERWRITE_FILE_HELP, READ_MARGIN_M
+from curbside.cli.common import OVERWRITE_FILE_HELP, set_overrides
 from curbside.errors import CurbsideInputError
-from curbside.osmseg.config import UNMARKED_CHOICES, SegmentationConfig
+from curbside.osmseg.config import READ_MARGIN_M, UNMARKED_CHOICES, SegmentationConfig
 
 if TYPE_CHECKING:
     from curbside.osmseg.mapio import MapLayers

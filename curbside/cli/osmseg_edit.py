@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from curbside.cli.defaults import OVERWRITE_FILE_HELP
+from curbside.cli.common import OVERWRITE_FILE_HELP
 from curbside.cli.osmseg_show import add_bbox_option
 from curbside.errors import CurbsideInputError
 

@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 import logging
 
-from curbside.cli.defaults import OVERWRITE_FILE_HELP
+from curbside.cli.common import OVERWRITE_FILE_HELP
 
 log = logging.getLogger(__name__)
 

@@ -18,8 +18,8 @@ import textwrap
 from collections.abc import Iterable
 from typing import TYPE_CHECKING
 
-from curbside.cli.defaults import MODES
 from curbside.errors import CurbsideInputError
+from curbside.localize.runconstants import MODES
 
 if TYPE_CHECKING:
     from curbside.configio import Parameter

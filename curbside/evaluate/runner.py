@@ -33,13 +33,14 @@ from curbside.errors import CurbsideInputError
 from curbside.evaluate import metrics
 from curbside.evaluate.groundtruth import groundtruth_at
 from curbside.localize.particle_store import select_footsteps, unpack_particles
+from curbside.localize.runconstants import MODES
 from curbside.localize.session import Session, read_session
 from curbside.osmseg.mapio import MapLayers, read_map
 from curbside.projection import LocalFrame
 
 log = logging.getLogger(__name__)
 
-METHODS: tuple[str, ...] = ("gnss", "inertial", "paper", "fused")
+METHODS: tuple[str, ...] = MODES
 #: Report names of the methods: the paper's for its three, "paper PF" for the paper's GNSS+RoNIN+PF
 #: re-implemented plainly (``track_session``'s ``paper`` mode), "curbside fused" for ours.
 METHOD_LABELS: dict[str, str] = {

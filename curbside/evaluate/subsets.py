@@ -39,16 +39,13 @@ from curbside.evaluate import routes as routes_mod
 from curbside.evaluate.gnss_model import GnssErrorModel, canyon_axes, sky_mask
 from curbside.evaluate.osmsource import OsmSource, load_osm
 from curbside.evaluate.simulate import SimulationConfig, routes_geojson, simulate_session
+from curbside.evaluate.subset_names import DEFAULT_ROUTES, SPLITS, SUBSETS
 from curbside.io import atomic_path
 from curbside.localize.session import write_session
 from curbside.projection import LocalFrame
 
 log = logging.getLogger(__name__)
 
-SUBSETS: tuple[str, ...] = ("paper6", "downtown", "open")
-SPLITS: tuple[str, ...] = ("test", "tune")
-#: Routes per subset by default (``paper6`` always has six).
-DEFAULT_ROUTES: dict[str, int] = {"paper6": 6, "downtown": 8, "open": 6}
 #: First session seed of each split (seeds are ``first .. first + n - 1``; at most 100 per split).
 FIRST_SESSION_SEED: dict[str, int] = {"test": 1, "tune": 101}
 MAX_SEEDS = 100

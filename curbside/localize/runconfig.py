@@ -3,7 +3,8 @@
 A run is reproducible from its ``run.json`` alone (``localize run --config run.json``): the method, the
 seed, the filter's parameters (:class:`~curbside.localize.filter.config.FilterConfig`) and the engine's
 (:class:`EngineConfig`: where velocity and footsteps come from, how fixes are matched to updates, when
-the filter advances without a footstep).
+the filter advances without a footstep). The choices and the defaults that ``--help`` quotes are plain
+values in :mod:`curbside.localize.runconstants`, which the command line imports instead of this module.
 """
 
 from __future__ import annotations
@@ -20,16 +21,18 @@ from curbside.errors import CurbsideInputError
 from curbside.localize.filter.config import FilterConfig
 from curbside.localize.pdr import PdrConfig
 from curbside.localize.ronin.stream import RoninStreamConfig
+from curbside.localize.runconstants import (
+    FAMILIAR_VELOCITY_DEFAULTS,
+    FAMILIAR_VELOCITY_MODES,
+    FIX_ASSOCIATIONS,
+    FIX_LAG_MODES,
+    MODES,
+    STEP_SOURCES,
+    UNSEEN_VELOCITY_DEFAULTS,
+    UNSEEN_VELOCITY_MODES,
+    VELOCITY_SOURCES,
+)
 from curbside.localize.steps import StepConfig
-
-#: The methods: GNSS alone; the filter without GNSS (RoNIN+PF); the paper's plain fused filter; curbside's.
-MODES = ("gnss", "inertial", "paper", "fused")
-VELOCITY_SOURCES = ("auto", "file", "ronin", "pdr")
-STEP_SOURCES = ("auto", "file", "detect", "cadence")
-FIX_ASSOCIATIONS = ("interpolate", "once")
-UNSEEN_VELOCITY_MODES = ("off", "on", "auto")
-FAMILIAR_VELOCITY_MODES = ("off", "on", "auto")
-FIX_LAG_MODES = ("off", "fixed", "auto")
 
 _MAP_KEYS_0_1 = frozenset({"jaywalk_weight", "wall_tolerance_m", "raster_resolution_m", "segment_reach_m"})
 #: ``filter.map`` blocks as earlier versions wrote them whole, and the values they ran with.
@@ -234,14 +237,14 @@ class UnseenVelocityConfig:
         ``filter.scale_correction.fraction`` once it applies.
     """
 
-    mode: str = "auto"
-    still_speed_mps: float = 0.1
-    still_updates: int = 5
-    settle_s: float = 2.0
-    step_noise_fraction: float = 0.55
-    step_noise_across_fraction: float | None = 0.25
-    standing_speed_mps: float = 0.6
-    scale_correction_fraction: float = 0.05
+    mode: str = UNSEEN_VELOCITY_DEFAULTS.mode
+    still_speed_mps: float = UNSEEN_VELOCITY_DEFAULTS.still_speed_mps
+    still_updates: int = UNSEEN_VELOCITY_DEFAULTS.still_updates
+    settle_s: float = UNSEEN_VELOCITY_DEFAULTS.settle_s
+    step_noise_fraction: float = UNSEEN_VELOCITY_DEFAULTS.step_noise_fraction
+    step_noise_across_fraction: float | None = UNSEEN_VELOCITY_DEFAULTS.step_noise_across_fraction
+    standing_speed_mps: float = UNSEEN_VELOCITY_DEFAULTS.standing_speed_mps
+    scale_correction_fraction: float = UNSEEN_VELOCITY_DEFAULTS.scale_correction_fraction
 
     def __post_init__(self) -> None:
         _check(
@@ -300,16 +303,16 @@ class FamiliarVelocityConfig:
         learnt from phones' fixes comes out too small (docs/filter.md).
     """
 
-    mode: str = "off"
-    window_s: float = 0.5
-    min_speed_mps: float = 0.6
-    jitter_max: float = 0.05
-    min_samples: int = 40
-    final_samples: int = 120
-    heading_noise_deg: float = 0.75
-    step_noise_fraction: float = 0.15
-    scale_init_sigma: float = 0.0
-    scale_correction_fraction: float = 0.0
+    mode: str = FAMILIAR_VELOCITY_DEFAULTS.mode
+    window_s: float = FAMILIAR_VELOCITY_DEFAULTS.window_s
+    min_speed_mps: float = FAMILIAR_VELOCITY_DEFAULTS.min_speed_mps
+    jitter_max: float = FAMILIAR_VELOCITY_DEFAULTS.jitter_max
+    min_samples: int = FAMILIAR_VELOCITY_DEFAULTS.min_samples
+    final_samples: int = FAMILIAR_VELOCITY_DEFAULTS.final_samples
+    heading_noise_deg: float = FAMILIAR_VELOCITY_DEFAULTS.heading_noise_deg
+    step_noise_fraction: float = FAMILIAR_VELOCITY_DEFAULTS.step_noise_fraction
+    scale_init_sigma: float = FAMILIAR_VELOCITY_DEFAULTS.scale_init_sigma
+    scale_correction_fraction: float = FAMILIAR_VELOCITY_DEFAULTS.scale_correction_fraction
 
     def __post_init__(self) -> None:
         _check(

@@ -27,7 +27,7 @@ from curbside.configio import to_dict
 from curbside.errors import CurbsideInputError
 from curbside.osmseg.buildings import buildings as derive_buildings
 from curbside.osmseg.clipped import covered_bbox
-from curbside.osmseg.config import SegmentationConfig
+from curbside.osmseg.config import READ_MARGIN_M, SegmentationConfig
 from curbside.osmseg.crosswalks import crosswalks as derive_crosswalks
 from curbside.osmseg.mapio import MapLayers
 from curbside.osmseg.overlay import polygons_only, subtract
@@ -39,11 +39,6 @@ from curbside.projection import LocalFrame
 log = logging.getLogger(__name__)
 
 BBox = tuple[float, float, float, float]
-
-#: Elements this far (m) outside the area to build are still read, so that sidewalks, crosswalks and
-#: buildings at its edge come out whole before the map is clipped.
-READ_MARGIN_M = 60.0
-
 
 #: Orders a bbox is given in by mistake -> indices into it that make (west, south, east, north).
 _MISTAKEN_ORDERS = {

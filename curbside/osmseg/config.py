@@ -11,6 +11,9 @@ from dataclasses import dataclass, field
 
 #: What an unmarked crossing (``crossing=unmarked``, ``crossing:markings=no``) may become.
 UNMARKED_CHOICES = ("crosswalk", "street")
+#: Elements this far (m) outside the area to build are still read, so that sidewalks, crosswalks and
+#: buildings at its edge come out whole before the map is clipped.
+READ_MARGIN_M = 60.0
 
 
 def _check(condition: bool, message: str) -> None:

@@ -16,6 +16,7 @@ import pandas as pd
 from scipy.spatial.transform import Rotation
 
 from curbside.errors import CurbsideInputError
+from curbside.localize.platforms import PLATFORM_OPTIONS
 
 #: The reader's logger: these are its messages, filtered with it.
 logger = logging.getLogger("curbside.localize.readers.sensorlogger")
@@ -35,8 +36,6 @@ _READINGS = {"android": ("android", False), "ios": ("ios", False), "standardised
 _FRAMES = {"android": "orientation in ENU", "ios": "orientation North-West-Up, turned into ENU",
            "standardised ios": "orientation North-West-Up, turned into ENU, then checked against "
                                "magnetic north"}
-#: ``--platform`` values (:func:`device_from_option`) and the reading each names.
-PLATFORM_OPTIONS = {"android": "android", "ios": "ios", "ios-standardised": "standardised ios"}
 _OPTION_OF = {reading: option for option, reading in PLATFORM_OPTIONS.items()}
 
 

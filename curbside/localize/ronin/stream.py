@@ -28,6 +28,7 @@ import numpy as np
 import pandas as pd
 
 from curbside.localize.imu import ImuConfig, WorldFrameStream, WorldSamples
+from curbside.localize.runconstants import RONIN_STRIDE
 
 if TYPE_CHECKING:
     from curbside.localize.live import LiveSession
@@ -61,7 +62,7 @@ class RoninStreamConfig:
 
     rate_hz: float = 200.0
     window: int = 200
-    stride: int = 20
+    stride: int = RONIN_STRIDE
     batch_size: int = 128
     imu: ImuConfig = field(default_factory=ImuConfig)
 
