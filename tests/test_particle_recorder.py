@@ -1,5 +1,6 @@
-"""``--save-particles`` packs each footstep's cloud as it is taken: compact while the walk runs, and the
-same ``particles.npz``, byte for byte, as packing the float32 snapshots of the whole walk at its end."""
+"""``--save-particles`` packs each footstep's cloud as it is taken: compact while the walk runs (and on disk
+a chunk at a time: ``test_particle_spill.py``), and the same ``particles.npz``, byte for byte, as packing
+the float32 snapshots of the whole walk at its end."""
 
 from __future__ import annotations
 
@@ -10,6 +11,7 @@ from viewer_fixtures import CROSSROADS, write_session
 
 from curbside.localize.engine import SessionEngine
 from curbside.localize.particle_store import (
+    CHUNK_BYTES,
     CloudRecorder,
     pack_particles,
     pack_snapshots,
@@ -71,8 +73,8 @@ def walk_clouds(n_steps: int, n: int, uniform: bool, seed: int = 0):
     return t, ref_x, ref_y, clouds
 
 
-def recorded(t, ref_x, ref_y, clouds) -> CloudRecorder:
-    recorder = CloudRecorder(UTM10N)
+def recorded(t, ref_x, ref_y, clouds, **kwargs) -> CloudRecorder:
+    recorder = CloudRecorder(UTM10N, **kwargs)
     for k, cloud in enumerate(clouds):
         recorder.add(t[k], ref_x[k], ref_y[k], *cloud)
     return recorder
@@ -82,11 +84,12 @@ def npz_bytes(packed: dict[str, np.ndarray], path) -> bytes:
     return write_particles(packed, path).read_bytes()
 
 
+@pytest.mark.parametrize("chunk_bytes", [1, 7 * PACKED_BYTES * 200, CHUNK_BYTES])  # 1, 6 footsteps; all
 @pytest.mark.parametrize("uniform", [True, False])
-def test_packing_each_footstep_writes_the_file_that_packing_at_the_end_wrote(tmp_path, uniform):
+def test_packing_each_footstep_writes_the_file_that_packing_at_the_end_wrote(tmp_path, uniform, chunk_bytes):
     t, ref_x, ref_y, clouds = walk_clouds(40, 200, uniform)
     before = packed_at_the_end(clouds, t, ref_x, ref_y, UTM10N)
-    now = recorded(t, ref_x, ref_y, clouds).packed()
+    now = recorded(t, ref_x, ref_y, clouds, chunk_bytes=chunk_bytes, spill_dir=tmp_path).packed()
     assert list(now) == list(before) and ("weight_u8" in now) is not uniform
     for name in before:
         assert now[name].dtype == before[name].dtype and now[name].shape == before[name].shape, name
@@ -99,26 +102,25 @@ def test_packing_each_footstep_writes_the_file_that_packing_at_the_end_wrote(tmp
 
 
 def test_the_recorder_holds_integers_only_and_nothing_of_the_floats_it_was_given():
-    t, ref_x, ref_y, clouds = walk_clouds(300, 500, uniform=False)  # past the first growth
-    recorder = recorded(t, ref_x, ref_y, clouds)
+    t, ref_x, ref_y, clouds = walk_clouds(300, 500, uniform=False)
+    chunk_bytes = 64 * (PACKED_BYTES * 500 + 24)  # 64 footsteps: 4 chunks on disk, 44 footsteps held
+    recorder = recorded(t, ref_x, ref_y, clouds, chunk_bytes=chunk_bytes)
     expected = packed_at_the_end(clouds, t, ref_x, ref_y, UTM10N)
     for cloud in clouds:
         cloud[:] = np.nan  # the caller's particles move on
-    held = list(recorder._held.values())
-    assert len(held) == 5 and all(values.dtype.kind in "iu" for values in held)
-    assert len(recorder) == 300 and sum(values[0].nbytes for values in held) == PACKED_BYTES * 500
-    assert sum(values.nbytes for values in held) <= 2 * PACKED_BYTES * 500 * 300  # room for twice as many
+    per_particle = [values for name, values in recorder._buffer.items() if values.ndim == 2]
+    assert len(per_particle) == 5 and all(values.dtype.kind in "iu" for values in per_particle)
+    assert len(recorder) == 300 and sum(values[0].nbytes for values in per_particle) == PACKED_BYTES * 500
+    assert recorder.buffer_bytes == chunk_bytes
     packed = recorder.packed()
     for name in expected:
         np.testing.assert_array_equal(packed[name], expected[name], err_msg=name)
-    for name in ("dx_dm", "dy_dm", "theta_ddeg", "scale_e4", "weight_u8"):
-        assert np.shares_memory(packed[name], recorder._held[name]), f"{name} was copied"
 
 
 def test_packing_twice_or_adding_after_packing_still_gives_the_whole_walk():
     t, ref_x, ref_y, clouds = walk_clouds(300, 50, uniform=False)
     expected = packed_at_the_end(clouds, t, ref_x, ref_y, UTM10N)
-    recorder = recorded(t[:250], ref_x[:250], ref_y[:250], clouds[:250])
+    recorder = recorded(t[:250], ref_x[:250], ref_y[:250], clouds[:250], chunk_bytes=40 * PACKED_BYTES * 50)
     first = recorder.packed()
     for k in range(250, 300):
         recorder.add(t[k], ref_x[k], ref_y[k], *clouds[k])
@@ -152,15 +154,15 @@ def test_a_run_packs_its_clouds_as_it_walks_into_the_old_bytes(tmp_path, mode):
     frame = _frame_for(session, block_layers())
     config = RunConfig.for_mode(mode, seed=2).with_overrides({"filter.n_particles": 300})
     engine = SessionEngine(config, frame, rasterize_map(block_layers(), 0.5), start=start, t_begin=t_begin,
-                           save_particles=True)
-    assert isinstance(engine.snapshots, CloudRecorder)
-    spy = engine.snapshots = KeepsTheFloats(engine.snapshots.crs)
+                           save_particles=True, spill_dir=tmp_path / "spill")
+    assert isinstance(engine.snapshots, CloudRecorder) and engine.snapshots.spill_dir == tmp_path / "spill"
+    spy = engine.snapshots = KeepsTheFloats(engine.snapshots.crs, chunk_bytes=10 * PACKED_BYTES * 300)
     engine.push_velocity(session.velocity["t"].to_numpy(), session.velocity[["ve", "vn"]].to_numpy())
     engine.push_steps(session.steps["t"].to_numpy(), float(session.steps["t"].iat[-1]))
     engine.push_gnss(session.gnss)
     engine.finish()
     k = len(engine.rows)
-    assert len(spy) == k > 20 and sum(values[0].nbytes for values in spy._held.values()) == PACKED_BYTES * 300
+    assert len(spy) == k > 20 and spy.buffer_bytes <= 10 * PACKED_BYTES * 300  # a chunk is held, not k
     t = np.array([r.t for r in engine.rows])
     ref_x, ref_y = np.array([r.x for r in engine.rows]), np.array([r.y for r in engine.rows])
     before = packed_at_the_end(spy.floats, t, ref_x, ref_y, frame.crs.to_wkt())

@@ -122,8 +122,8 @@ def errors_m(track: pd.DataFrame) -> np.ndarray:
 class KeepsTheFloats(CloudRecorder):
     """A particle recorder that also keeps each footstep's cloud as the engine gave it, in floats."""
 
-    def __init__(self, crs: str) -> None:
-        super().__init__(crs)
+    def __init__(self, crs: str, **kwargs) -> None:
+        super().__init__(crs, **kwargs)
         #: One ``(5, N)`` array a footstep: x, y, theta (rad), scale, weight.
         self.floats: list[np.ndarray] = []
 
@@ -137,8 +137,8 @@ def keeping_the_floats() -> Iterator[list[KeepsTheFloats]]:
     """While open, each run's particle recorder is a :class:`KeepsTheFloats`; the list gets them in turn."""
     made: list[KeepsTheFloats] = []
 
-    def recorder(crs: str) -> KeepsTheFloats:
-        made.append(KeepsTheFloats(crs))
+    def recorder(crs: str, **kwargs) -> KeepsTheFloats:
+        made.append(KeepsTheFloats(crs, **kwargs))
         return made[-1]
 
     with pytest.MonkeyPatch.context() as patch:

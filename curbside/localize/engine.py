@@ -47,6 +47,7 @@ from __future__ import annotations
 import logging
 import math
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import numpy as np
 import pandas as pd
@@ -147,6 +148,9 @@ class SessionEngine:
     save_particles
         Pack the particles' ``x, y, theta, scale`` and weights at each update, around its estimate, into
         :attr:`snapshots` (a :class:`~curbside.localize.particle_store.CloudRecorder`).
+    spill_dir
+        Where :attr:`snapshots` keeps the clouds on disk as the walk goes (default: the system's
+        temporary folder; see :class:`~curbside.localize.particle_store.CloudRecorder`).
     step_means_velocity
         The velocity rows are per-step means (PDR), not samples (see
         :class:`~curbside.localize.streams.DisplacementIntegrator`).
@@ -167,6 +171,7 @@ class SessionEngine:
         save_particles: bool = False,
         step_means_velocity: bool = False,
         fix_lag_s: float | None = None,
+        spill_dir: str | Path | None = None,
     ) -> None:
         self.config = config
         self.frame = frame
@@ -206,7 +211,9 @@ class SessionEngine:
         #: Moves each fix forward by the inertial motion its lag holds back (``None``: no lag).
         self.lag = LagCompensator(fix_lag_s) if fix_lag_s > 0 and self.tracker is not None else None
         self.rows: list[Row] = []
-        self.snapshots: CloudRecorder | None = CloudRecorder(frame.crs.to_wkt()) if save_particles else None
+        self.snapshots: CloudRecorder | None = None
+        if save_particles:
+            self.snapshots = CloudRecorder(frame.crs.to_wkt(), spill_dir=spill_dir)
         self._s = _State()
 
     def _new_tracker(self, config: RunConfig, raster: MapRaster | None) -> Tracker:

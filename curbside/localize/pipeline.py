@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import logging
 import math
+from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -109,7 +110,8 @@ class TrackResult:
         ``None`` without a map).
     snapshots
         With ``save_particles``: the cloud at each update, packed as it was taken: the arrays of
-        ``particles.npz`` (:mod:`curbside.localize.particle_store`; ``unpack_particles`` reads them), with
+        ``particles.npz`` (:mod:`curbside.localize.particle_store`; ``unpack_particles`` reads them), on
+        disk (a :class:`~curbside.localize.particle_store.SpilledClouds`, read as memory maps), with
         ``weight_u8`` when the weights are not all uniform (particles killed by the map keep their place,
         with no weight, until the next resampling).
     """
@@ -120,7 +122,7 @@ class TrackResult:
     step_source: str
     recoveries: int = 0
     injections: int = 0
-    snapshots: dict[str, np.ndarray] | None = None
+    snapshots: Mapping[str, np.ndarray] | None = None
     unseen_velocity_from_s: float | None = None
     wall_tolerance_m: float | None = None
     walkable_first: bool | None = None
@@ -363,6 +365,7 @@ def track_session(
     progress: bool = False,
     map_name: str | None = None,
     ronin_weights: RoninResNet | str | Path | None = None,
+    spill_dir: str | Path | None = None,
 ) -> TrackResult:
     """Track one session with one method.
 
@@ -380,7 +383,8 @@ def track_session(
         Shortcuts for ``filter.n_particles``, ``filter.map.jaywalk_weight``, ``seed``,
         ``engine.velocity_source`` and ``use_start_pose``.
     save_particles
-        Keep a particle snapshot per update in :attr:`TrackResult.snapshots`.
+        Keep a particle snapshot per update in :attr:`TrackResult.snapshots` (on disk, a chunk written
+        as soon as it is full: the memory held stays bounded however long the walk).
     progress
         A progress bar over RoNIN's inference on a terminal (a command's single run; off for runs in a
         batch, which have a bar of their own).
@@ -388,6 +392,10 @@ def track_session(
         How messages name the map, e.g. its path (default: "the map" alone).
     ronin_weights
         The RoNIN model (a loaded one, or a weights ``.pt`` with its ``.json``; default: the bundled one).
+    spill_dir
+        With ``save_particles``: where the clouds are kept on disk as the walk goes, e.g. the output
+        folder (default: the system's temporary folder;
+        :class:`~curbside.localize.particle_store.CloudRecorder`).
 
     Raises
     ------
@@ -413,7 +421,7 @@ def track_session(
     engine = SessionEngine(
         config, frame, _raster_for(map_layers, config), start=start, t_begin=t_begin, cadence=steps is None,
         save_particles=save_particles, step_means_velocity=velocity_source == "pdr",
-        fix_lag_s=None if fix_lag is None else float(fix_lag["lag_s"]),
+        fix_lag_s=None if fix_lag is None else float(fix_lag["lag_s"]), spill_dir=spill_dir,
     )
     if velocity is not None:
         engine.push_velocity(velocity["t"].to_numpy(float), velocity[["ve", "vn"]].to_numpy(float))
