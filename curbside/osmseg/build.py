@@ -243,7 +243,7 @@ def build_map(
         ``settings.default_bbox`` when no file is given.
     osm_file
         ``.osm``, ``.osm.bz2``, ``.osm.gz`` or ``.osm.pbf``. ``None``: the bundled extract when the
-        bbox lies inside ``settings.default_extract_bbox``, else Overpass through osmnx. With no
+        bbox lies inside ``settings.default_extract_bbox``, else Overpass. With no
         ``bbox`` the map is clipped to the bounds the file declares, if it declares any.
     config
         Widths and rules (default :class:`~curbside.osmseg.config.SegmentationConfig`).

@@ -1,8 +1,9 @@
 """Stage 1 (network source): OSM elements of a bbox from Overpass, and a place name's bbox from Nominatim.
 
-curbside sends the Overpass query itself and osmnx turns the answer into a feature table, which
-:func:`features_to_osmdata` converts into the :class:`~curbside.osmseg.reader.OsmData` that the
-pyosmium file reader produces, so the derivation is shared. Sending it itself is what makes every
+curbside sends the Overpass query itself, writes the answer's nodes, ways and relations to a temporary
+OSM file with pyosmium (:func:`write_osm_file`) and reads that with
+:func:`~curbside.osmseg.reader.read_osm_file`, the reader of ``--osm`` files: both sources go through
+one code path, and only public APIs (no osmnx internals). Sending it itself is what makes every
 failure one line: osmnx retried a busy server (HTTP 429/504) every 55 s without end, built a map
 from the part of an answer that Overpass had cut short with a "runtime error" remark, called an
 empty or truncated answer "no data", and could cache an answer without elements for good.
@@ -17,24 +18,21 @@ from __future__ import annotations
 import json
 import logging
 import math
+import tempfile
 import time
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-import geopandas as gpd
-import numpy as np
+import osmium
 import osmnx as ox
 import requests
-import shapely
-from osmnx import features as ox_features
-from osmnx._errors import InsufficientResponseError
 
 import curbside
 from curbside import cache, settings
 from curbside.errors import CurbsideInputError
 from curbside.io import atomic_path
-from curbside.osmseg.reader import TAG_KEYS, OsmData, clip_to_bbox, frame_for, make_table
+from curbside.osmseg.reader import OsmData, read_osm_file
 
 log = logging.getLogger(__name__)
 
@@ -61,59 +59,90 @@ NOMINATIM_READ_TIMEOUT_S = 30.0
 #: Half the side (m) of the bbox suggested around a place name that is a point.
 POINT_HALF_SIDE_M = 250.0
 
+#: The element types of OSM data, and their one-letter names in osmium; other Overpass elements are skipped.
+OSM_TYPES: dict[str, str] = {"node": "n", "way": "w", "relation": "r"}
 
-def _records(gdf: gpd.GeoDataFrame) -> list[dict[str, str]]:
-    keys = [k for k in TAG_KEYS if k in gdf]
-    table = gdf[keys].astype(object)
-    table = table.where(table.notna(), None)
-    return [{k: v for k, v in row.items() if v is not None} for row in table.to_dict("records")]
+#: The longest text (UTF-8 bytes) libosmium stores in a tag key or value or a member role (OSM allows 255
+#: characters).
+MAX_TEXT_BYTES = 1024
 
 
-def features_to_osmdata(features: gpd.GeoDataFrame, bbox: tuple[float, float, float, float]) -> OsmData:
-    """Convert an osmnx feature table (WGS84, index ``(element, id)``) into :class:`OsmData`.
+def write_osm_file(elements: list[dict[str, Any]], path: str | Path) -> None:
+    """Write the nodes, ways and relations of an Overpass JSON answer to an OSM file with pyosmium.
+
+    Nodes are written first, then ways, then relations (readers that look up node locations need that
+    order); elements of other types are skipped.
 
     Parameters
     ----------
-    features
-        As returned by ``osmnx.features_from_bbox``.
-    bbox
-        (west, south, east, north): sets the UTM zone.
+    elements
+        An answer's ``elements``, each checked by :func:`element_problem`.
+    path
+        A new file; its name sets the format (``.osm.pbf``, ``.osm``...).
     """
-    frame = frame_for(bbox)
-    gdf = features.to_crs(frame.crs)
-    element = gdf.index.get_level_values(0).astype(str).to_numpy()
-    osm_id = gdf.index.get_level_values(1).to_numpy()
-    geom_type = gdf.geom_type.to_numpy()
-    highway = gdf["highway"].notna().to_numpy() if "highway" in gdf else np.zeros(len(gdf), bool)
-    building = gdf["building"].notna().to_numpy() if "building" in gdf else np.zeros(len(gdf), bool)
-    geoms = np.asarray(gdf.geometry.values, dtype=object)
+    by_type: dict[str, list[dict[str, Any]]] = {kind: [] for kind in OSM_TYPES}
+    for element in elements:
+        if element.get("type") in by_type:
+            by_type[element["type"]].append(element)
+    mutable = osmium.osm.mutable
+    with osmium.SimpleWriter(str(path)) as writer:
+        for e in by_type["node"]:
+            writer.add_node(mutable.Node(id=e["id"], location=(e["lon"], e["lat"]), tags=e.get("tags", {})))
+        for e in by_type["way"]:
+            writer.add_way(mutable.Way(id=e["id"], nodes=e["nodes"], tags=e.get("tags", {})))
+        for e in by_type["relation"]:
+            members = [(OSM_TYPES[m["type"]], m["ref"], m["role"]) for m in e["members"]]
+            writer.add_relation(mutable.Relation(id=e["id"], members=members, tags=e.get("tags", {})))
 
-    way_mask = (element == "way") & highway & (geom_type == "LineString")
-    # osmnx turns closed highway ways tagged area=yes into polygons: keep their outline as the way.
-    closed_highway = (element == "way") & highway & ~building & (geom_type == "Polygon")
-    rings = shapely.get_exterior_ring(geoms[closed_highway])
-    ring_xy, ring_i = shapely.get_coordinates(rings, return_index=True)
-    outlines = shapely.linestrings(ring_xy, indices=ring_i) if len(ring_i) else np.array([], dtype=object)
-    way_geoms = np.concatenate([geoms[way_mask], outlines])
-    ways = make_table(
-        np.concatenate([osm_id[way_mask], osm_id[closed_highway]]),
-        way_geoms,
-        _records(gdf[way_mask]) + _records(gdf[closed_highway]),
-        frame.crs,
-    )
-    area_mask = building & np.isin(geom_type, ["Polygon", "MultiPolygon"])
-    prefix = np.where(element[area_mask] == "relation", "r", "w")
-    areas = make_table(
-        [f"{p}{i}" for p, i in zip(prefix, osm_id[area_mask], strict=True)],
-        geoms[area_mask],
-        _records(gdf[area_mask]),
-        frame.crs,
-    )
-    node_mask = (element == "node") & highway & (geom_type == "Point")
-    if "highway" in gdf:
-        node_mask &= (gdf["highway"] == "crossing").to_numpy()
-    nodes = make_table(osm_id[node_mask], geoms[node_mask], _records(gdf[node_mask]), frame.crs)
-    return OsmData(ways, areas, nodes, source="overpass", timestamp=None)
+
+def element_problem(element: Any) -> str | None:
+    """What keeps :func:`write_osm_file` from writing an Overpass element, ``None`` when nothing does.
+
+    Elements of types other than node, way and relation are not checked (they are skipped).
+    """
+    if not isinstance(element, dict):
+        return "an element that is not a JSON object"
+    kind = element.get("type")
+    if kind not in OSM_TYPES:
+        return None
+    what = f"{kind} {element.get('id')!r}"
+    if not _is_id(element.get("id")):
+        return f"a {kind} without a whole-number id"
+    tags = element.get("tags", {})
+    if not isinstance(tags, dict):
+        return f"{what} with tags that are not a JSON object"
+    texts = [*tags, *tags.values()]
+    if kind == "node":
+        fields_ok = all(_is_number(element.get(axis)) for axis in ("lat", "lon"))
+    elif kind == "way":
+        refs = element.get("nodes")
+        fields_ok = isinstance(refs, list) and all(_is_id(ref) for ref in refs)
+    else:
+        members = element.get("members")
+        fields_ok = isinstance(members, list) and all(
+            isinstance(m, dict) and m.get("type") in OSM_TYPES and _is_id(m.get("ref")) for m in members
+        )
+        texts += [m.get("role") for m in members] if fields_ok else []
+    if not fields_ok:
+        return f"{what} without its {_FIELDS[kind]}"
+    # libosmium's PBF writer crashes the process on a NUL character, so it is refused here.
+    if not all(isinstance(t, str) and "\x00" not in t and len(t.encode()) <= MAX_TEXT_BYTES for t in texts):
+        return f"{what} with a tag or role that is not text of at most {MAX_TEXT_BYTES} bytes without NUL"
+    return None
+
+
+#: What :func:`element_problem` says an element lacks, by type.
+_FIELDS = {"node": "coordinates (lat, lon)", "way": "list of node ids", "relation": "list of members"}
+
+
+def _is_id(value: Any) -> bool:
+    """Whether ``value`` is an OSM id: a whole number that fits 64 bits (``bool`` is not one)."""
+    return type(value) is int and -(2**63) <= value < 2**63
+
+
+def _is_number(value: Any) -> bool:
+    """Whether ``value`` is a finite JSON number."""
+    return type(value) in (int, float) and math.isfinite(value)
 
 
 def overpass_reachable(url: str, timeout_s: float) -> bool:
@@ -151,7 +180,9 @@ def fetch_overpass(bbox: BBox, *, margin_m: float = 60.0) -> OsmData:
     A cached answer is used without asking the network. Otherwise the server is asked for its status
     first, with ``settings.overpass_connect_timeout_s``: when it does not answer (no network), the
     build fails in seconds. A busy server (HTTP 429, 503, 504) is asked again after each wait of
-    ``settings.overpass_busy_waits_s``, then given up on.
+    ``settings.overpass_busy_waits_s``, then given up on. The answer is written to a temporary OSM
+    file (:func:`write_osm_file`) and read like an ``--osm`` file by
+    :func:`~curbside.osmseg.reader.read_osm_file`, keeping the elements within ``margin_m`` of ``bbox``.
 
     Parameters
     ----------
@@ -163,28 +194,39 @@ def fetch_overpass(bbox: BBox, *, margin_m: float = 60.0) -> OsmData:
     Returns
     -------
     OsmData
-        ``bounds`` is ``bbox``.
+        ``source`` is ``"overpass"``, ``bounds`` is ``bbox``.
 
     Raises
     ------
     CurbsideInputError
         No OSM data in the area; Overpass unreachable, busy, failing, or sending an answer that is
-        empty, cut short, not JSON, or stopped by a runtime error (an incomplete map is never built).
+        empty, cut short, not JSON, with an element that is not OSM data, or stopped by a runtime error
+        (an incomplete map is never built).
     """
     west, south, east, north = bbox
     pad_lat = margin_m / 111_320.0
-    pad_lon = pad_lat / max(np.cos(np.radians((south + north) / 2)), 1e-6)
+    pad_lon = pad_lat / max(math.cos(math.radians((south + north) / 2)), 1e-6)
     query_bbox = (west - pad_lon, south - pad_lat, east + pad_lon, north + pad_lat)
     url = ox.settings.overpass_url.rstrip("/")
     log.info("querying Overpass at %s for %s", url, query_bbox)
     answer = _overpass_answer(url, overpass_query(query_bbox, settings.overpass_timeout_s))
     try:
-        features = ox_features._create_gdf([answer], shapely.box(*query_bbox), OVERPASS_TAGS)
-    except InsufficientResponseError:
-        raise CurbsideInputError("overpass", f"no OSM buildings or highways in bbox {list(bbox)}") from None
-    data = features_to_osmdata(features, bbox)
+        folder = tempfile.TemporaryDirectory(prefix="curbside-overpass-")
+    except OSError as exc:
+        reason = exc.strerror or exc
+        problem = f"cannot write Overpass's answer there ({reason}); set TMPDIR to a writable folder"
+        raise CurbsideInputError(tempfile.gettempdir(), problem) from None
+    with folder:
+        osm_file = Path(folder.name) / "overpass-answer.osm.pbf"
+        write_osm_file(answer["elements"], osm_file)
+        try:
+            data = read_osm_file(osm_file, bbox, margin_m=margin_m)
+        except CurbsideInputError:  # the reader found nothing it uses in the answer
+            problem = f"no OSM buildings or highways in bbox {list(bbox)}"
+            raise CurbsideInputError("overpass", problem) from None
+    data.source = "overpass"
     data.bounds = bbox
-    return clip_to_bbox(data, bbox, margin_m)
+    return data
 
 
 def _headers() -> dict[str, str]:
@@ -259,6 +301,9 @@ def _overpass_json(source: str | Path, body: bytes) -> dict[str, Any]:
     answer = _json(source, body, "Overpass")
     if not isinstance(answer, dict) or not isinstance(answer.get("elements"), list):
         raise CurbsideInputError(source, "Overpass sent JSON without a list of elements; try again")
+    problem = next(filter(None, map(element_problem, answer["elements"])), None)
+    if problem is not None:
+        raise CurbsideInputError(source, f"Overpass sent {problem}; try again")
     remark = str(answer.get("remark") or "").strip()
     if "error" in remark.lower():
         raise CurbsideInputError(

@@ -4,8 +4,8 @@ The derivation stages (:mod:`~curbside.osmseg.buildings`, :mod:`~curbside.osmseg
 :mod:`~curbside.osmseg.crosswalks`, :mod:`~curbside.osmseg.sidewalks`) all work on an
 :class:`OsmData`: highway ways as LineStrings, building areas as (Multi)Polygons and tagged highway
 nodes as Points, each with one column per tag of :data:`TAG_KEYS`. Files are read with pyosmium in
-one streaming pass; :mod:`~curbside.osmseg.overpass` converts an osmnx feature table into the same
-representation, so both sources share the derivation.
+one streaming pass; :mod:`~curbside.osmseg.overpass` writes an Overpass answer to an OSM file and
+reads it here too, so both sources share the reading and the derivation.
 """
 
 from __future__ import annotations
