@@ -55,8 +55,11 @@ def test_ronin_layout_missing_dataset_is_an_input_error(tmp_path):
         f["synced/time"] = np.arange(10.0)
     with pytest.raises(CurbsideInputError, match="missing dataset"):
         data.read_ronin_sequence(folder)
-    with pytest.raises(CurbsideInputError, match="no \\*/data.hdf5"):
+    with pytest.raises(CurbsideInputError, match="no such folder"):
         data.read_ronin_dir(tmp_path / "empty_dir_that_is_absent")
+    (tmp_path / "empty").mkdir()
+    with pytest.raises(CurbsideInputError, match="no \\*/data.hdf5"):
+        data.read_ronin_dir(tmp_path / "empty")
 
 
 def test_plan_rotation_recovers_the_floor_frame_rotation():

@@ -101,16 +101,24 @@ def test_an_interrupted_run_writes_no_weights_and_resumes_to_the_same_ones(with_
     assert all(torch.equal(full[k], resumed[k]) for k in full)
 
 
-def test_ctrl_c_exits_130_and_says_how_to_resume(with_val, tmp_path, caplog, monkeypatch):
-    def interrupted(*args, **kwargs):
-        raise KeyboardInterrupt
+def test_ctrl_c_exits_130_and_says_how_to_resume_on_one_line(with_val, tmp_path, capsys, monkeypatch):
+    real, calls = train_mod._train_epoch, {"n": 0}
 
-    monkeypatch.setattr(train_mod, "_train_epoch", interrupted)
+    def interrupted_in_epoch_two(*args, **kwargs):
+        calls["n"] += 1
+        if calls["n"] == 2:
+            raise KeyboardInterrupt
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(train_mod, "_train_epoch", interrupted_in_epoch_two)
     out, ckpt = tmp_path / "w.pt", tmp_path / "w.ckpt"
-    argv = ["train-ronin", "--ronin-h5", str(with_val), *TINY, "--checkpoint", str(ckpt), "-o", str(out)]
+    argv = ["train-ronin", "--ronin-h5", str(with_val), *TINY, "--epochs", "2", "--checkpoint", str(ckpt),
+            "-o", str(out)]
     assert localize_main(argv) == 130
-    assert f"rerun the same command to resume from {ckpt}" in caplog.text
-    assert not out.exists()
+    err = capsys.readouterr().err
+    assert err == (f"localize: interrupted: nothing written to {out}; rerun the same command to resume "
+                   f"from {ckpt}\n")
+    assert not out.exists() and not out.with_suffix(".json").exists() and ckpt.is_file()
 
 
 def test_a_checkpoint_of_other_data_is_refused(with_val, no_val, tmp_path):

@@ -89,6 +89,22 @@ def _data(args: argparse.Namespace, keep_imu: tuple[str, ...] = ()):
     return recordings, sources
 
 
+def _data_inputs(args: argparse.Namespace) -> tuple[Path, ...]:
+    """The data files a training or evaluation reads (or, for ``--prepared``, may write): never an output."""
+    files = [Path(p) for p in (args.ms_indoor, args.ipin, args.prepared) if p]
+    if args.ronin_h5 and Path(args.ronin_h5).is_dir():
+        files += sorted(Path(args.ronin_h5).rglob("data.hdf5"))
+    return tuple(files)
+
+
+def _check_not_prepared(outputs: tuple[Path, ...], args: argparse.Namespace) -> None:
+    """Refuse an output on the ``--prepared`` path, which the run may write before it (the check of
+    existing inputs in :func:`curbside.io.check_output_file` cannot see a file not written yet)."""
+    if args.prepared and Path(args.prepared).resolve() in {Path(o).resolve() for o in outputs}:
+        raise CurbsideInputError(args.prepared, "is both --prepared and an output of this command: give "
+                                                "each its own file")
+
+
 def _check_train_outputs(args: argparse.Namespace) -> None:
     """Before hours of training: the weights, their config and the checkpoint can be written."""
     from curbside.io import check_output_file
@@ -97,15 +113,16 @@ def _check_train_outputs(args: argparse.Namespace) -> None:
     out = Path(args.output)
     if config_path_for(out) == out:
         raise CurbsideInputError(out, "name the weights .pt: their config goes to a .json beside them")
+    _check_not_prepared((out, config_path_for(out)), args)
     for path in (out, config_path_for(out)):
-        check_output_file(path, args.overwrite, inputs=tuple(p for p in (args.prepared,) if p))
+        check_output_file(path, args.overwrite, inputs=_data_inputs(args))
     if args.checkpoint:
         others = {Path(p).resolve() for p in (out, config_path_for(out), args.prepared) if p}
         if Path(args.checkpoint).resolve() in others:
             raise CurbsideInputError(args.checkpoint, "the checkpoint needs a file of its own (not -o, its "
                                                       ".json or --prepared)")
         # An existing checkpoint is read, and must be one of this run's (else an error, before writing).
-        check_output_file(args.checkpoint, True)
+        check_output_file(args.checkpoint, True, inputs=_data_inputs(args))
 
 
 def _train_extra(args: argparse.Namespace, recordings: list, sources: list[dict], sets: dict) -> dict:
@@ -126,16 +143,41 @@ def _train_extra(args: argparse.Namespace, recordings: list, sources: list[dict]
     }
 
 
+def _check_device(name: str) -> None:
+    """Refuse a torch device that is misspelt or that this machine lacks, before the data are read."""
+    import torch
+
+    try:
+        torch.zeros(1, device=torch.device(name))
+    # torch raises RuntimeError, ValueError or AssertionError (a build without CUDA), with long messages.
+    except Exception:  # noqa: BLE001
+        here = "cpu, cuda, cuda:N" if torch.cuda.is_available() else "cpu; torch sees no CUDA device"
+        problem = f"{name!r} is not a torch device this machine has ({here})"
+        raise CurbsideInputError("--device", problem) from None
+
+
 def _train(args: argparse.Namespace) -> int:
     _check_train_outputs(args)
-    import torch
+    _check_device(args.device)
+    try:
+        return _train_and_save(args)
+    except KeyboardInterrupt:
+        # One line and status 130, as `localize: interrupted` (the weights are written only at the end).
+        ckpt = args.checkpoint
+        resume = (f"rerun the same command to resume from {ckpt}" if ckpt and Path(ckpt).is_file()
+                  else "give --checkpoint to make a run resumable" if not ckpt
+                  else "no checkpoint written yet")
+        sys.stderr.write(f"localize: interrupted: nothing written to {args.output}; {resume}\n")
+        return 130
+
+
+def _train_and_save(args: argparse.Namespace) -> int:
+    import datetime
 
     from curbside.localize.ronin.data import WindowSet
     from curbside.localize.ronin.model import RoninConfig
     from curbside.localize.ronin.train import TrainOptions, fit, save_weights
 
-    if args.device.startswith("cuda") and not torch.cuda.is_available():
-        raise CurbsideInputError("--device", f"{args.device!r} requested but torch sees no CUDA device")
     recordings, sources = _data(args)
     options = TrainOptions(arch=args.arch, epochs=args.epochs, windows_per_epoch=args.windows_per_epoch,
                            batch_size=args.batch_size, lr=args.lr, seed=args.seed, device=args.device,
@@ -153,14 +195,10 @@ def _train(args: argparse.Namespace) -> int:
         logger.warning("%s: no validation recordings, so the last epoch is kept and the output scale is "
                        "not calibrated (1.0); MS-indoor and RoNIN-layout data hold 7 %% of their "
                        "recordings out for validation, IPIN trials none", given)
-    try:
-        model, history = fit(sets["train"], sets["val"], options, args.checkpoint,
-                             _train_extra(args, recordings, sources, sets))
-    except KeyboardInterrupt:
-        resume = (f"rerun the same command to resume from {args.checkpoint}" if args.checkpoint
-                  else "give --checkpoint to make a run resumable")
-        logger.warning("training interrupted: nothing written to %s; %s", args.output, resume)
-        raise
+    model, history = fit(sets["train"], sets["val"], options, args.checkpoint,
+                         _train_extra(args, recordings, sources, sets))
+    ended = datetime.datetime.now(datetime.timezone.utc)
+    model.config.extra["trained_utc"] = ended.isoformat(timespec="seconds")  # when the last epoch ended
     scale = _calibrate(model, [r for r in recordings if r.split == "val"])
     save_weights(model, args.output)
     best = history[model.config.extra["best_epoch"] - 1]
@@ -195,11 +233,13 @@ def _evaluate(args: argparse.Namespace) -> int:
     from curbside import settings
     from curbside.io import atomic_path, check_output_file
     from curbside.localize.ronin.evaluate import evaluate_recordings, format_summary
-    from curbside.localize.ronin.infer import load_model
+    from curbside.localize.ronin.infer import config_path_for, load_model
     from curbside.localize.ronin.provenance import software_record, weights_record
 
     if args.output:
-        check_output_file(args.output, args.overwrite, inputs=(args.weights,) if args.weights else ())
+        weights = (Path(args.weights), config_path_for(args.weights)) if args.weights else ()
+        _check_not_prepared((Path(args.output),), args)
+        check_output_file(args.output, args.overwrite, inputs=(*weights, *_data_inputs(args)))
     config = _stream_config(args)
     model = load_model(args.weights)
     keep = () if args.no_pdr else (args.split,)
@@ -220,83 +260,141 @@ def _evaluate(args: argparse.Namespace) -> int:
     return 0
 
 
+_RONIN_EXAMPLES = """examples:
+  localize ronin walk/                          # writes walk/velocity.csv (t s, ve and vn m/s)
+  localize ronin walk/ --weights my.pt          # your model (my.json beside it)
+  localize ronin ipin2023-t3.h5::TrainingTrial01_repetition01 -o vel.csv
+Then `localize run walk/ ...` tracks with walk/velocity.csv instead of running RoNIN itself."""
+
+_TRAIN_EXAMPLES = """examples:
+  localize train-ronin --ms-indoor ms-indoor-2020.h5 --ipin ipin2023-t3.h5 \\
+      --prepared cache/prepared.npz --checkpoint cache/compact.ckpt -o my.pt
+      # the default schedule: about 8 min on 2 quiet CPU cores, 25 min on a busy machine
+  localize train-ronin --prepared cache/prepared.npz --epochs 1 --windows-per-epoch 2000 -o try.pt
+      # a smoke test, one short epoch: about 1.5 min on 2 cores for MS-indoor, mostly validation
+Give at least one of --ms-indoor, --ipin, --ronin-h5, or an existing --prepared.
+Splits are by recording, never by window: MS-indoor and RoNIN-layout 15 % test and
+7 % validation; IPIN every repetition04 test, the rest train (no validation).
+Ctrl-C exits 130 and writes no weights; with --checkpoint, the same command resumes."""
+
+_EVAL_EXAMPLES = """examples:
+  localize ronin-eval --ms-indoor ms-indoor-2020.h5 --ipin ipin2023-t3.h5 -o report.json
+  localize ronin-eval --ipin ipin2023-t3.h5 --weights my.pt --no-pdr
+The table gives medians over recordings: distance ratio (estimated / true path length),
+speed error (m/s), ATE and RTE (m, after the best rotation about the start), raw ATE (m,
+no rotation) and the error at the waypoints (m, median and 90th percentile of them all)."""
+
+
 def _add_data_args(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--ms-indoor", metavar="H5", help="ms-indoor-2020.h5 (Indoor Location Competition 2.0)")
-    p.add_argument("--ipin", metavar="H5", help="ipin2023-t3.h5 (IPIN 2023 Track 3 trials)")
-    p.add_argument("--ronin-h5", metavar="DIR", help="folder of RoNIN-layout sequences (*/data.hdf5)")
+    p.add_argument("--ms-indoor", metavar="H5",
+                   help="ms-indoor-2020.h5 (Indoor Location Competition 2.0: 870 walks with waypoints)")
+    p.add_argument("--ipin", metavar="H5",
+                   help="ipin2023-t3.h5 (IPIN 2023 Track 3: 43 trials with waypoints)")
+    p.add_argument("--ronin-h5", metavar="DIR",
+                   help="folder of RoNIN-layout sequences, one sub-folder each holding data.hdf5")
     p.add_argument("--prepared", metavar="NPZ",
-                   help="cache of the prepared recordings: read when it exists, else written after reading")
+                   help="cache of the prepared recordings (.npz, about 50 MB for both datasets): read when "
+                        "it exists (and was made from the files given, if any), else written after reading")
 
 
 def _add_stride_arg(p: argparse.ArgumentParser) -> None:
     default = RONIN_STRIDE
     p.add_argument("--stride", type=int, default=default, metavar="N",
-                   help=f"200 Hz samples between window starts (default {default}: a velocity every "
-                        f"{1000 * default / 200:g} ms)")
+                   help=f"200 Hz samples between the starts of the one-second windows, 1 to 200 (default "
+                        f"{default}: a velocity every {1000 * default / 200:g} ms)")
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
     """Add ``ronin``, ``train-ronin`` and ``ronin-eval``."""
+    _register_ronin(subparsers)
+    _register_train(subparsers)
+    _register_eval(subparsers)
+
+
+def _register_ronin(subparsers: argparse._SubParsersAction) -> None:
     p = subparsers.add_parser(
         "ronin",
         help="write velocity.csv from a session's imu.csv (RoNIN)",
         description="Estimate the walker's horizontal velocity from the phone IMU with RoNIN (learned "
-        "inertial odometry, Herath et al. 2020) and write it as velocity.csv (t, ve, vn in m/s), which "
-        "`localize run` then uses instead of running RoNIN itself.",
+        "inertial odometry, Herath et al. 2020) and write it as velocity.csv: one row per one-second "
+        "window, t (s, the window's centre), ve and vn (m/s east and north, in the frame of the phone's "
+        "orientation), which `localize run` then uses instead of running RoNIN itself.",
+        epilog=_RONIN_EXAMPLES,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     p.add_argument("session", metavar="SESSION",
                    help="session folder holding imu.csv, or any recording `localize run` reads "
                         "(FILE.h5::TRIAL, a Sensor Logger export; these need -o)")
     p.add_argument("-o", "--output", metavar="CSV", help="output file (default: SESSION/velocity.csv)")
     p.add_argument("--overwrite", action="store_true", help=OVERWRITE_FILE_HELP)
-    p.add_argument("--weights", metavar="PT", help="weights .pt with its .json (default: the bundled model)")
+    p.add_argument("--weights", metavar="PT",
+                   help="weights .pt, its config .json beside it, as train-ronin writes them (default: the "
+                        "bundled model)")
     _add_stride_arg(p)
     p.set_defaults(func=_ronin)
 
+
+def _register_train(subparsers: argparse._SubParsersAction) -> None:
     p = subparsers.add_parser(
         "train-ronin",
         help="train a RoNIN model from HDF5 datasets",
         description="Train a RoNIN velocity network on IMU recordings with ground-truth motion (Indoor "
         "Location Competition 2.0, IPIN 2023 Track 3, RoNIN-layout HDF5), keep the weights with the best "
-        "validation loss and calibrate their output scale on the validation recordings.",
+        "validation loss and calibrate their output scale on the validation recordings. The network "
+        "maps one-second windows (200 samples at 200 Hz) of world-frame gyroscope and accelerometer to "
+        "the mean horizontal velocity (m/s) over the window.",
+        epilog=_TRAIN_EXAMPLES,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     _add_data_args(p)
     p.add_argument("--arch", choices=["compact", "resnet18"], default="compact",
                    help="network: compact (a small 1-D ResNet that trains on two CPU cores) or resnet18 "
                    "(RoNIN's) (default: %(default)s)")
-    p.add_argument("--epochs", type=positive_int, default=12, help="training epochs (default: %(default)s)")
-    p.add_argument("--windows-per-epoch", type=positive_int, default=120_000,
-                   help="training windows drawn per epoch (default: %(default)s)")
-    p.add_argument("--batch-size", type=positive_int, default=256,
+    p.add_argument("--epochs", type=positive_int, default=12, metavar="N",
+                   help="training epochs, at least 1 (default: %(default)s)")
+    p.add_argument("--windows-per-epoch", type=positive_int, default=120_000, metavar="N",
+                   help="one-second training windows drawn per epoch, all of them when fewer (default: "
+                        "%(default)s)")
+    p.add_argument("--batch-size", type=positive_int, default=256, metavar="N",
                    help="windows per batch (default: %(default)s)")
     p.add_argument("--lr", type=positive_float, default=1e-3,
                    help="Adam learning rate, cosine decay to lr/100 (default: %(default)s)")
-    p.add_argument("--seed", type=seed, default=0,
+    p.add_argument("--seed", type=seed, default=0, metavar="N",
                    help="seed of initialisation, window draws and augmentation (default: %(default)s)")
-    p.add_argument("--device", default="cpu", help="torch device: cpu, cuda (default: %(default)s)")
-    p.add_argument("--threads", type=positive_int, default=2,
+    p.add_argument("--device", default="cpu",
+                   help="torch device: cpu, cuda, cuda:N (default: %(default)s)")
+    p.add_argument("--threads", type=positive_int, default=2, metavar="N",
                    help="CPU threads for torch (default: %(default)s)")
     p.add_argument("--checkpoint", metavar="PT",
                    help="resumable checkpoint, written every epoch: rerunning the command resumes from it")
     p.add_argument("-o", "--output", metavar="PT", required=True,
-                   help="best weights, written when training ends (config .json beside, with the data, "
-                        "split, options and history)")
+                   help="best weights, written when training ends, with their config .json beside them "
+                        "(data, split, options, history)")
     p.add_argument("--overwrite", action="store_true",
-                   help="replace existing weights and their config (to train into the same file again)")
+                   help="replace the weights or their .json even when curbside did not write them (a "
+                        "previous train-ronin -o the same file is replaced without it)")
     p.set_defaults(func=_train)
 
+
+def _register_eval(subparsers: argparse._SubParsersAction) -> None:
     p = subparsers.add_parser(
         "ronin-eval",
         help="RoNIN and PDR figures on held-out recordings",
-        description="Score RoNIN weights (and the step-and-heading PDR baseline) on held-out recordings: "
-        "ATE, RTE and the error at ground-truth points, per recording and pooled.",
+        description="Score RoNIN weights (and the step-and-heading PDR baseline) on the held-out "
+        "recordings of the given datasets, split as train-ronin splits them: distance ratio, speed "
+        "error, ATE, RTE and the error at ground-truth waypoints, per recording (-o) and as medians.",
+        epilog=_EVAL_EXAMPLES,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     _add_data_args(p)
-    p.add_argument("--weights", metavar="PT", help="weights .pt (default: the bundled model)")
+    p.add_argument("--weights", metavar="PT",
+                   help="weights .pt, its .json beside it (default: the bundled model)")
     p.add_argument("--split", default="test", choices=["test", "val", "train"],
-                   help="recordings to score (default: %(default)s)")
-    p.add_argument("--no-pdr", action="store_true", help="skip the PDR baseline")
+                   help="recordings to score: test (held out from training), val (chose the epoch and "
+                        "the output scale) or train (default: %(default)s)")
+    p.add_argument("--no-pdr", action="store_true", help="skip the PDR baseline (faster)")
     _add_stride_arg(p)
-    p.add_argument("-o", "--output", metavar="JSON", help="write the full report here")
+    p.add_argument("-o", "--output", metavar="JSON",
+                   help="also write the full report: per-recording metrics, weights, data and software")
     p.add_argument("--overwrite", action="store_true", help=OVERWRITE_FILE_HELP)
     p.set_defaults(func=_evaluate)

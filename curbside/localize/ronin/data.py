@@ -39,6 +39,8 @@ from __future__ import annotations
 import hashlib
 import json
 import logging
+import zipfile
+import zlib
 from collections.abc import Iterable
 from dataclasses import dataclass
 from pathlib import Path
@@ -53,7 +55,7 @@ from curbside.errors import CurbsideInputError
 from curbside.io import atomic_path, open_h5
 from curbside.localize.imu import world_frame_segments
 from curbside.localize.pdr import forward_heading_vectors
-from curbside.localize.ronin.provenance import check_prepared_sources, source_records
+from curbside.localize.ronin.provenance import check_prepared_sources, ronin_sequence_files, source_records
 
 logger = logging.getLogger(__name__)
 
@@ -185,8 +187,22 @@ def plan_rotation(t: np.ndarray, forward_xy: np.ndarray, waypoints: np.ndarray,
     return _circular_mean(diff, length[ok])
 
 
+def _finite_positions(positions: np.ndarray, src: str) -> np.ndarray:
+    """Ground-truth rows whose time and position are finite (a NaN would make every label it touches
+    NaN, and the training loss with them), with a warning when some are not."""
+    finite = np.isfinite(positions).all(axis=1)
+    if not finite.all():
+        logger.warning("%s: %d ground-truth row(s) with NaN or infinite values dropped", src,
+                       int((~finite).sum()))
+    return positions[finite]
+
+
 def _recordings_from_imu(name: str, source: str, imu: pd.DataFrame, positions: np.ndarray,
                          src: str, keep_imu: Iterable[str] = ()) -> list[Recording]:
+    positions = _finite_positions(positions, src)
+    if len(positions) < 2:
+        logger.warning("%s: skipped (fewer than 2 finite ground-truth positions)", src)
+        return []
     out = []
     split = split_of(name, source)
     for k, seg in enumerate(world_frame_segments(imu, src, min_duration_s=2.0)):
@@ -338,15 +354,21 @@ def read_ronin_sequence(folder: str | Path) -> Recording:
                        columns=["t", "ax", "ay", "az", "gx", "gy", "gz", "qx", "qy", "qz", "qw"])
     name = f"ronin/{(folder if folder.is_dir() else folder.parent).name}"
     recs = _recordings_from_imu(name, "ronin", imu, positions, str(path))
+    if not recs:
+        raise CurbsideInputError(path, "fewer than 2 finite pose/tango_pos rows")
     return recs[0]
 
 
 def read_ronin_dir(root: str | Path, progress: bool = True) -> list[Recording]:
-    """Every RoNIN-layout sequence under ``root`` (folders holding ``data.hdf5``)."""
-    root = Path(root)
-    folders = sorted(p.parent for p in root.rglob("data.hdf5"))
-    if not folders:
-        raise CurbsideInputError(root, "no */data.hdf5 (RoNIN layout) below this folder")
+    """Every RoNIN-layout sequence under ``root`` (folders holding ``data.hdf5``).
+
+    Raises
+    ------
+    CurbsideInputError
+        See :func:`~curbside.localize.ronin.provenance.ronin_sequence_files` and
+        :func:`read_ronin_sequence`.
+    """
+    folders = [p.parent for p in ronin_sequence_files(root)]
     return [read_ronin_sequence(f) for f in tqdm(folders, desc="ronin", disable=None if progress else True)]
 
 
@@ -369,14 +391,35 @@ def save_recordings(recordings: Iterable[Recording], path: str | Path,
     return Path(path)
 
 
+#: What np.load and the reads after it raise for a file that is not a :func:`save_recordings` archive:
+#: ValueError (pickled or text data), EOFError (empty), BadZipFile or zlib.error (truncated, corrupt),
+#: KeyError (another .npz),
+#: TypeError or AttributeError (a single .npy array).
+_NOT_NPZ = (KeyError, ValueError, TypeError, AttributeError, EOFError, zipfile.BadZipFile, zlib.error)
+
+
+def _not_prepared(path: str | Path) -> CurbsideInputError:
+    return CurbsideInputError(path, "not a prepared RoNIN dataset (an .npz that --prepared wrote): delete it "
+                                    "or give another --prepared")
+
+
 def load_recordings(path: str | Path) -> list[Recording]:
-    """Inverse of :func:`save_recordings`."""
+    """Inverse of :func:`save_recordings`.
+
+    Raises
+    ------
+    CurbsideInputError
+        ``path`` cannot be read, or is not a file :func:`save_recordings` wrote (another format, empty,
+        truncated).
+    """
     try:
         with np.load(path) as z:
             index = json.loads(z["index"].tobytes().decode())
             t, feats, pos = z["t"], z["features"], z["positions"]
-    except (OSError, KeyError, ValueError) as exc:
-        raise CurbsideInputError(path, f"not a prepared RoNIN dataset ({exc})") from None
+    except OSError as exc:
+        raise CurbsideInputError(path, f"cannot read the prepared RoNIN dataset ({exc})") from None
+    except _NOT_NPZ:
+        raise _not_prepared(path) from None
     out, i, j = [], 0, 0
     for e in index:
         out.append(Recording(e["name"], e["source"], t[i : i + e["n"]], feats[i : i + e["n"]],
@@ -391,8 +434,10 @@ def prepared_sources(path: str | Path) -> list[dict] | None:
     try:
         with np.load(path) as z:
             return json.loads(z["sources"].tobytes().decode()) if "sources" in z.files else None
-    except (OSError, KeyError, ValueError) as exc:
-        raise CurbsideInputError(path, f"not a prepared RoNIN dataset ({exc})") from None
+    except OSError as exc:
+        raise CurbsideInputError(path, f"cannot read the prepared RoNIN dataset ({exc})") from None
+    except _NOT_NPZ:
+        raise _not_prepared(path) from None
 
 
 @dataclass
@@ -482,6 +527,8 @@ def prepare_recordings(ms_indoor: str | Path | None = None, ipin: str | Path | N
         missing or malformed.
     """
     keep_imu = tuple(keep_imu)
+    if prepared is not None and Path(prepared).is_dir():
+        raise CurbsideInputError(prepared, "is a folder; --prepared takes a file (.npz)")
     if sources is None:
         sources = source_records(ms_indoor, ipin, ronin_dir)
     if prepared is not None and Path(prepared).is_file() and not keep_imu:

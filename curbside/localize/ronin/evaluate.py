@@ -263,7 +263,9 @@ def format_summary(report: dict) -> str:
 def calibrate_output_scale(model: RoninResNet, recordings: list[Recording]) -> float:
     """Set ``model.config.output_scale`` so that the median distance ratio on ``recordings`` is 1.
 
-    Use validation recordings (never the test split). Returns the new scale.
+    Use validation recordings (never the test split). Returns the new scale: 1.0 when no recording has
+    a finite, positive ratio (each needs a window inside its ground truth, and some ground-truth
+    distance and estimated motion).
     """
     model.config.output_scale = 1.0
     ratios = []
@@ -271,8 +273,9 @@ def calibrate_output_scale(model: RoninResNet, recordings: list[Recording]) -> f
         t_c, est, truth = ronin_trajectory(model, rec)
         if len(t_c) >= 2:
             ratios.append(trajectory_metrics(t_c, est, truth)["distance_ratio"])
+    ratios = [r for r in ratios if np.isfinite(r) and r > 0]
     if not ratios:
         return 1.0
-    model.config.output_scale = float(1.0 / np.nanmedian(ratios))
+    model.config.output_scale = float(1.0 / np.median(ratios))
     logger.info("output scale %.4f from %d validation recordings", model.config.output_scale, len(ratios))
     return model.config.output_scale

@@ -59,14 +59,22 @@ def load_model(weights: str | Path | None = None) -> RoninResNet:
         raise CurbsideInputError(
             weights, "not a curbside RoNIN weights file (a .json is the config beside one: give the .pt)"
         )
-    for path in (weights, cfg_path):
-        if not path.is_file():
-            raise CurbsideInputError(path, "no such RoNIN weights/config file")
+    if weights.is_dir():
+        raise CurbsideInputError(weights, "is a folder; give the RoNIN weights file (.pt)")
+    if not weights.is_file():
+        raise CurbsideInputError(weights, "no such RoNIN weights file")
+    if not cfg_path.is_file():
+        raise CurbsideInputError(cfg_path, f"no such file: the config of {weights.name} must sit beside it "
+                                           "(train-ronin writes both)")
     model = RoninResNet(_read_config(cfg_path))
     state = _read_state_dict(weights)
     problem = _state_dict_mismatch(model.state_dict(), state)
     if problem:
         raise CurbsideInputError(weights, f"not a state_dict for the config in {cfg_path.name} ({problem})")
+    not_finite = [key for key, value in state.items() if not torch.isfinite(value).all()]
+    if not_finite:
+        raise CurbsideInputError(weights, f"NaN or infinite values in {_names(not_finite)} (weights of a "
+                                          "diverged training run?)")
     model.load_state_dict(state)
     model.source = str(weights)  # for messages about the model
     return model.eval()
@@ -92,9 +100,13 @@ def _read_config(path: Path) -> RoninConfig:
     try:
         config = RoninConfig.from_dict(data)
         RoninResNet(config)
+        numbers = np.array([*config.feature_mean, *config.feature_std, config.output_scale], dtype=float)
     except (TypeError, ValueError, KeyError, IndexError, RuntimeError) as exc:
         first_line = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
         raise CurbsideInputError(path, f"not a RoNIN config ({first_line})") from None
+    if not np.isfinite(numbers).all():
+        raise CurbsideInputError(path, "NaN or infinite feature_mean, feature_std or output_scale (the "
+                                       "config of a diverged training run?)")
     return config
 
 

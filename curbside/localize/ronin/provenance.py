@@ -8,6 +8,7 @@ from other files than the ones named on the command line is refused instead of s
 from __future__ import annotations
 
 import logging
+import subprocess
 from pathlib import Path
 
 from curbside import __version__
@@ -35,20 +36,55 @@ def source_records(ms_indoor: str | Path | None = None, ipin: str | Path | None 
     Returns
     -------
     list of dict
-        ``{"source", "path", "sha256"}`` in the order ms, ipin, ronin. A missing file is left for its
-        reader to report.
+        ``{"source", "path", "sha256"}`` in the order ms, ipin, ronin.
+
+    Raises
+    ------
+    CurbsideInputError
+        A missing file or folder, a folder given for an HDF5 file, a file given for the folder, or a
+        ``data.hdf5`` below it that is not a file.
     """
     records = []
     for source, path in (("ms", ms_indoor), ("ipin", ipin)):
-        if path is not None and Path(path).is_file():
+        if path is not None:
+            _check_h5_file(path, OPTIONS[source])
             records.append({"source": source, "path": str(Path(path).resolve()),
                             "sha256": file_digest(path).hex()})
-    if ronin_dir is not None and Path(ronin_dir).is_dir():
+    if ronin_dir is not None:
         root = Path(ronin_dir)
-        files = sorted(root.rglob("data.hdf5"))
+        files = ronin_sequence_files(root)
         parts = [part for f in files for part in (str(f.relative_to(root)), file_digest(f))]
         records.append({"source": "ronin", "path": str(root.resolve()), "sha256": content_key(*parts)})
     return records
+
+
+def _check_h5_file(path: str | Path, option: str) -> None:
+    """Refuse a missing HDF5 file, or a folder in its place, naming it."""
+    if Path(path).is_dir():
+        raise CurbsideInputError(path, f"is a folder; {option} takes an HDF5 file")
+    if not Path(path).is_file():
+        raise CurbsideInputError(path, f"no such file ({option})")
+
+
+def ronin_sequence_files(root: str | Path) -> list[Path]:
+    """The ``*/data.hdf5`` files of a folder of RoNIN-layout sequences, sorted.
+
+    Raises
+    ------
+    CurbsideInputError
+        ``root`` is missing or not a folder, holds no ``data.hdf5``, or one that is not a file.
+    """
+    root = Path(root)
+    if not root.is_dir():
+        problem = "is a file; --ronin-h5 takes the folder" if root.exists() else "no such folder"
+        raise CurbsideInputError(root, f"{problem} (RoNIN layout: one folder per sequence, */data.hdf5)")
+    files = sorted(root.rglob("data.hdf5"))
+    if not files:
+        raise CurbsideInputError(root, "no */data.hdf5 (RoNIN layout) below this folder")
+    for path in files:
+        if not path.is_file():
+            raise CurbsideInputError(path, "is not a file (a RoNIN sequence's data.hdf5 is an HDF5 file)")
+    return files
 
 
 def _describe(records: list[dict]) -> str:
@@ -97,8 +133,21 @@ def weights_record(path: str | Path) -> dict:
 
 
 def software_record() -> dict:
-    """Versions of curbside, torch and numpy."""
+    """Versions of curbside, torch and numpy, and the git commit of the curbside checkout (``None``:
+    not a git checkout, or no git)."""
     import numpy as np
     import torch
 
-    return {"curbside": __version__, "torch": torch.__version__, "numpy": np.__version__}
+    return {"curbside": __version__, "torch": torch.__version__, "numpy": np.__version__,
+            "git_commit": git_commit()}
+
+
+def git_commit() -> str | None:
+    """``HEAD`` of the git checkout curbside runs from (uncommitted changes are not seen), or ``None``."""
+    try:
+        out = subprocess.run(["git", "rev-parse", "HEAD"], cwd=Path(__file__).parent, capture_output=True,
+                             text=True, timeout=10, check=False)
+    except (OSError, subprocess.SubprocessError):
+        return None
+    commit = out.stdout.strip()
+    return commit if out.returncode == 0 and commit else None

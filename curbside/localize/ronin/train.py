@@ -145,10 +145,11 @@ def save_weights(model: RoninResNet, path: str | Path) -> Path:
     """Write ``path`` (state_dict) and its JSON config beside it, atomically, and list both in the
     folder's marker (a later ``train-ronin -o`` the same path may replace them)."""
     path = Path(path)
-    with atomic_path(path) as tmp:
-        torch.save({k: v.detach().cpu() for k, v in model.state_dict().items()}, tmp)
-    with atomic_path(config_path_for(path)) as tmp:
-        tmp.write_text(json.dumps(model.config.to_dict(), indent=1), encoding="utf-8")
+    # Both are staged before either replaces its file: a Ctrl-C or a full disk while writing leaves the
+    # previous pair (or none), never new weights beside an old config.
+    with atomic_path(path) as tmp_weights, atomic_path(config_path_for(path)) as tmp_config:
+        torch.save({k: v.detach().cpu() for k, v in model.state_dict().items()}, tmp_weights)
+        tmp_config.write_text(json.dumps(model.config.to_dict(), indent=1, allow_nan=False), encoding="utf-8")
     for written in (path, config_path_for(path)):
         note_written(written, "localize train-ronin")
     return path
@@ -172,8 +173,14 @@ def _read_checkpoint(path: Path, device: torch.device, options: TrainOptions, da
         raise CurbsideInputError(path, "not a train-ronin checkpoint (torch cannot read it)") from None
     keys = {"model", "optimiser", "schedule", "history", "options", "best"}
     if not isinstance(state, dict) or not keys <= set(state):
-        raise CurbsideInputError(path, "not a train-ronin checkpoint of this curbside version: delete it "
-                                       "or give another --checkpoint")
+        # "delete it" only for what can only be a checkpoint: never for weights or other files
+        if isinstance(state, dict) and {"model", "history"} <= set(state):
+            problem = "a train-ronin checkpoint of an older curbside version: delete it or give another"
+        elif isinstance(state, dict) and state and all(isinstance(v, torch.Tensor) for v in state.values()):
+            problem = "holds model weights, not a train-ronin checkpoint: give another"
+        else:
+            problem = "not a train-ronin checkpoint: give another"
+        raise CurbsideInputError(path, f"{problem} --checkpoint")
     if json.loads(state["options"]) != options.schedule_key():
         raise CurbsideInputError(path, "checkpoint of a run with other options (epochs, seed...)")
     if state.get("data") != data_key:
@@ -203,6 +210,14 @@ def _write_checkpoint(path: str | Path, state: dict) -> None:
     with atomic_path(path) as tmp:
         torch.save(state, tmp)
     note_written(path, "localize train-ronin")
+
+
+def _check_finite(epoch: int, train_loss: float, val_loss: float | None) -> None:
+    """Stop a run whose loss is no longer finite, before its checkpoint or weights are written."""
+    for name, loss in (("training", train_loss), ("validation", val_loss)):
+        if loss is not None and not math.isfinite(loss):
+            raise CurbsideInputError(f"epoch {epoch}", f"the {name} loss is {loss}: training diverged; "
+                                                       "try a lower --lr (nothing was written)")
 
 
 def _best_epoch(history: list[dict]) -> dict:
@@ -242,7 +257,8 @@ def fit(train_set: WindowSet, val_set: WindowSet, options: TrainOptions,
     Raises
     ------
     CurbsideInputError
-        A checkpoint that is unreadable or of another run.
+        A checkpoint that is unreadable or of another run; a loss that is no longer finite (diverged:
+        the checkpoint keeps the last finite epoch).
     """
     if len(train_set) == 0:
         raise CurbsideInputError("training data", "no labelled training windows")
@@ -270,6 +286,7 @@ def fit(train_set: WindowSet, val_set: WindowSet, options: TrainOptions,
         lr = optimiser.param_groups[0]["lr"]
         schedule.step()
         val_loss = evaluate_loss(model, val_b, options.val_every) if len(val_b) else None
+        _check_finite(epoch + 1, train_loss, val_loss)
         history.append({"epoch": epoch + 1, "train_loss": train_loss, "val_loss": val_loss, "lr": lr,
                         "seconds": time.perf_counter() - tic})
         val_text = "none" if val_loss is None else f"{val_loss:.4f}"
