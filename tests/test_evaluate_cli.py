@@ -452,12 +452,15 @@ def test_a_session_without_ground_truth_is_refused_naming_its_file(tmp_path, cap
     _fails(capsys, argv, needle, out)
 
 
-def test_worker_processes_start_with_ctrl_c_ignored_and_the_handler_comes_back():
+def test_worker_processes_start_with_ctrl_c_blocked_and_the_mask_comes_back():
     import signal
 
-    from curbside.evaluate.runner import _workers_ignore_ctrl_c
+    from curbside.evaluate.runner import _ctrl_c_blocked
 
-    before = signal.getsignal(signal.SIGINT)
-    with _workers_ignore_ctrl_c():
-        assert signal.getsignal(signal.SIGINT) is signal.SIG_IGN  # what the spawned workers inherit
-    assert signal.getsignal(signal.SIGINT) is before
+    before = signal.pthread_sigmask(signal.SIG_BLOCK, [])
+    handler = signal.getsignal(signal.SIGINT)
+    with _ctrl_c_blocked():
+        # what the threads and worker processes started now inherit; the command keeps its handler
+        assert signal.SIGINT in signal.pthread_sigmask(signal.SIG_BLOCK, [])
+        assert signal.getsignal(signal.SIGINT) is handler
+    assert signal.pthread_sigmask(signal.SIG_BLOCK, []) == before

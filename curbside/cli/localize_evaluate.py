@@ -206,11 +206,13 @@ def _check_ronin_weights(path: str) -> None:
 def _evaluate(args: argparse.Namespace) -> int:
     from curbside.evaluate.benchmark import expand_sessions, ipin_table, plan, route_table
     from curbside.evaluate.report import write_report
-    from curbside.evaluate.runner import check_sessions, run_all
+    from curbside.evaluate.runner import check_scheduler, check_sessions, run_all
     from curbside.io import check_output_folder, output_folder
     from curbside.osmseg.mapio import read_map
 
     check_output_folder(args.output, args.overwrite, "localize evaluate")  # before minutes of runs
+    if args.scheduler:
+        check_scheduler(args.scheduler)  # in seconds, before the maps and sessions are read
     sessions = expand_sessions(args.sessions)
     for m in [*args.maps, *([args.metrics_map] if args.metrics_map else [])]:
         _check_is_file(m, "map")
@@ -261,9 +263,12 @@ def _evaluate(args: argparse.Namespace) -> int:
 
 
 def _benchmark(args: argparse.Namespace) -> int:
+    from curbside.evaluate.runner import check_scheduler
     from curbside.evaluate.suite import SuiteConfig, check_suite_folder, run_suite, suite_summary
 
     check_suite_folder(args.output, args.overwrite)  # before any map, model or walk
+    if args.scheduler:
+        check_scheduler(args.scheduler)  # in seconds, not after minutes of simulated walks
     if args.ipin_ronin and not args.ipin:
         raise CurbsideInputError("--ipin-ronin", "needs --ipin (the trials to score)")
     for path in args.datasf_tiles or []:

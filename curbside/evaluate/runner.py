@@ -56,6 +56,9 @@ SMOOTHED_METHOD = "fused_smoothed"
 #: (numba, shapely, pandas) takes 1-2 s alone and more on a loaded machine, past the nanny's default
 #: of 4 s, which then logs "Worker process still alive ... killing" and kills it.
 WORKER_CLOSE_TIMEOUT_S = 60.0
+#: Seconds ``--scheduler`` is given to answer, instead of dask's 30 s connect timeout (a scheduler on a
+#: reachable host answers in milliseconds).
+SCHEDULER_TIMEOUT_S = 5.0
 #: Suffix of the metrics scored on the posterior-mode estimate (``csa_mode``...).
 MODE_SUFFIX = "_mode"
 
@@ -304,29 +307,28 @@ def run_all(
     -------
     list of dict
         :func:`run_one` outputs.
+
+    Raises
+    ------
+    CurbsideInputError
+        Naming ``--scheduler`` when no dask scheduler answers at ``scheduler`` within
+        :data:`SCHEDULER_TIMEOUT_S`.
+    KeyboardInterrupt
+        On Ctrl-C, at any moment, the local cluster's start-up included; its workers are closed first.
     """
     disable = (not progress) if progress is not None else None
     if scheduler is None and workers <= 1:
         return [run_one(s) for s in tqdm(specs, desc="evaluate", unit="run", disable=disable)]
-    from dask.distributed import Client, LocalCluster, as_completed
+    from dask.distributed import Client, as_completed
 
-    cluster = None
-    if scheduler is None:
-        with _workers_ignore_ctrl_c():
-            cluster = LocalCluster(
-                n_workers=workers,
-                threads_per_worker=1,
-                processes=True,
-                # no dashboard; the scheduler's HTTP routes on a free port, not 8787 (often taken)
-                dashboard_address=":0",
-                scheduler_kwargs={"dashboard": False},
-                silence_logs=logging.WARNING,
-            )
-        client = Client(cluster)
-        client.run(_quiet_heartbeat_at_shutdown)
-    else:
-        client = _connect(scheduler)
+    cluster = _start_local_cluster(workers) if scheduler is None else None
+    client = None
     try:
+        if cluster is None:
+            client = _connect(scheduler)
+        else:
+            client = Client(cluster)
+            client.run(_quiet_heartbeat_at_shutdown)
         futures = client.map(run_one, specs, pure=False)
         order = {f.key: i for i, f in enumerate(futures)}
         out: list[dict[str, Any] | None] = [None] * len(specs)
@@ -336,23 +338,162 @@ def run_all(
             out[order[future.key]] = future.result()
         return out  # type: ignore[return-value]
     finally:
-        client.close()
+        if client is not None:
+            client.close()
         if cluster is not None:
-            cluster.sync(_close_workers, cluster, WORKER_CLOSE_TIMEOUT_S)
-            cluster.close()
+            _close_cluster(cluster)
+
+
+def _start_local_cluster(workers: int):
+    """A :class:`dask.distributed.LocalCluster` of ``workers`` processes, started by a thread that blocks
+    SIGINT, which its worker processes inherit.
+
+    Ctrl-C then stops the command alone, which closes its workers, instead of printing every worker's
+    KeyboardInterrupt traceback; and this thread keeps SIGINT, so a Ctrl-C while the workers start (2-3 s)
+    is caught at once (it used to be ignored then, and lost). The cluster is closed, once up, before
+    KeyboardInterrupt propagates: a LocalCluster cut short while it starts would leave workers behind.
+    """
+    from multiprocessing import resource_tracker
+
+    from dask.distributed import LocalCluster
+
+    started: dict[str, Any] = {}
+    done = threading.Event()
+
+    def start() -> None:
+        try:
+            started["cluster"] = LocalCluster(
+                n_workers=workers,
+                threads_per_worker=1,
+                processes=True,
+                # no dashboard; the scheduler's HTTP routes on a free port, not 8787 (often taken)
+                dashboard_address=":0",
+                scheduler_kwargs={"dashboard": False},
+                silence_logs=logging.WARNING,
+            )
+        except BaseException as exc:  # noqa: BLE001 - raised again in the caller's thread
+            started["error"] = exc
+        finally:
+            done.set()
+
+    # multiprocessing's resource tracker unblocks SIGINT in the thread that starts it, which would be the
+    # one that starts the first worker: it starts here instead, in a thread that keeps SIGINT anyway.
+    resource_tracker.ensure_running()
+    thread = threading.Thread(target=start, name="curbside-dask-start", daemon=True)
+    try:
+        with _ctrl_c_blocked():
+            thread.start()
+        done.wait()
+    except KeyboardInterrupt:
+        if thread.ident is not None:
+            done.wait()
+            if "cluster" in started:
+                _close_cluster(started["cluster"])
+        raise
+    if "error" in started:
+        raise started["error"]
+    return started["cluster"]
+
+
+@contextlib.contextmanager
+def _ctrl_c_blocked() -> Iterator[None]:
+    """Block SIGINT in this thread (the threads and processes it starts inherit the mask); a Ctrl-C
+    meanwhile is held, and raised as KeyboardInterrupt when the block ends."""
+    if not hasattr(signal, "pthread_sigmask"):  # Windows has no signal masks
+        yield
+        return
+    previous = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
+    try:
+        yield
+    finally:
+        signal.pthread_sigmask(signal.SIG_SETMASK, previous)
+
+
+def _close_cluster(cluster) -> None:
+    """Close a local cluster, each worker process with :data:`WORKER_CLOSE_TIMEOUT_S` to exit on its own."""
+    cluster.sync(_close_workers, cluster, WORKER_CLOSE_TIMEOUT_S)
+    cluster.close()
+
+
+def check_scheduler(address: str) -> None:
+    """Refuse a dask scheduler address where none answers within :data:`SCHEDULER_TIMEOUT_S`.
+
+    Parameters
+    ----------
+    address
+        ``[PROTOCOL://]HOST:PORT`` (``--scheduler``).
+
+    Raises
+    ------
+    CurbsideInputError
+        Naming ``--scheduler``: a closed port (at once), a host that does not answer, a server that is
+        not a dask scheduler.
+    """
+    try:
+        _probe_scheduler(address, SCHEDULER_TIMEOUT_S)
+    except (OSError, ValueError, TypeError) as exc:
+        raise _unreachable(address, exc) from None
+
+
+def _unreachable(address: str, exc: Exception) -> CurbsideInputError:
+    return CurbsideInputError("--scheduler", f"cannot reach a dask scheduler at {address!r} ({exc})")
 
 
 def _connect(scheduler: str):
     """A client of the dask scheduler at ``scheduler``, or :class:`CurbsideInputError` naming the option
-    when there is none there (a wrong address, a scheduler that is not running)."""
+    (:func:`check_scheduler`)."""
     from dask.distributed import Client
 
+    check_scheduler(scheduler)
     try:
-        return Client(scheduler)
-    except (OSError, ValueError, TypeError) as exc:
-        raise CurbsideInputError(
-            "--scheduler", f"cannot reach a dask scheduler at {scheduler!r} ({exc})"
-        ) from None
+        return Client(scheduler, timeout=SCHEDULER_TIMEOUT_S)
+    except (OSError, ValueError, TypeError) as exc:  # it went away since
+        raise _unreachable(scheduler, exc) from None
+
+
+def _probe_scheduler(address: str, timeout_s: float) -> None:
+    """Raise :class:`OSError` unless a dask scheduler at ``address`` answers within ``timeout_s``.
+
+    dask's own connection retries a refused port for 30 s (``distributed.comm.timeouts.connect``) and
+    waits without end on a server that accepts but never answers; a server that answers something else
+    (an HTTP proxy) fails it with a MemoryError. A TCP connection first refuses a closed port at once.
+    """
+    import asyncio
+    import socket
+    from concurrent.futures import ThreadPoolExecutor
+
+    from distributed.comm import connect
+    from distributed.comm.addressing import get_address_host_port
+
+    async def identity() -> object:
+        comm = await connect(address, timeout=timeout_s)
+        try:
+            await comm.write({"op": "identity"})
+            return await comm.read()
+        finally:
+            await comm.close()
+
+    def ask() -> object:
+        try:
+            host_port = get_address_host_port(address)
+        except ValueError:  # an address without a TCP port (inproc://): dask's connection alone
+            pass
+        else:
+            socket.create_connection(host_port, timeout=timeout_s).close()
+        return asyncio.run(asyncio.wait_for(identity(), timeout_s))
+
+    try:
+        with ThreadPoolExecutor(1) as pool:  # a thread of its own: asyncio.run fails under a running loop
+            reply = pool.submit(ask).result()
+    except (TimeoutError, asyncio.TimeoutError):
+        raise OSError(f"no answer within {timeout_s:g} s") from None
+    except (OSError, ValueError, TypeError):
+        raise
+    except Exception as exc:  # noqa: BLE001 - whatever a server that is not dask's makes the reader raise
+        raise OSError(f"what answers is not a dask scheduler ({type(exc).__name__})") from None
+    kind = reply.get("type") if isinstance(reply, dict) else None
+    if kind != "Scheduler":
+        raise OSError(f"what answers is not a dask scheduler but {kind or 'something else'}")
 
 
 class HeartbeatAtShutdown(logging.Filter):
@@ -367,20 +508,6 @@ class HeartbeatAtShutdown(logging.Filter):
     def filter(self, record: logging.LogRecord) -> bool:
         message = record.getMessage()
         return "during heartbeat" not in message and "ended with CancelledError" not in message
-
-
-@contextlib.contextmanager
-def _workers_ignore_ctrl_c() -> Iterator[None]:
-    """Start worker processes with SIGINT ignored (they inherit it): Ctrl-C then stops the command
-    alone, which closes its workers, instead of printing every worker's KeyboardInterrupt traceback."""
-    if threading.current_thread() is not threading.main_thread():
-        yield
-        return
-    previous = signal.signal(signal.SIGINT, signal.SIG_IGN)
-    try:
-        yield
-    finally:
-        signal.signal(signal.SIGINT, previous)
 
 
 def _quiet_heartbeat_at_shutdown() -> None:

@@ -1,0 +1,232 @@
+"""``localize evaluate`` / ``localize benchmark`` on dask: a Ctrl-C while the local cluster's workers
+start ends the command at once (exit status 130, one line, no worker left behind), as one later in the
+run does; and a ``--scheduler`` where no dask scheduler answers is refused in seconds (exit status 2),
+not after dask's 30 s connect timeout, nor never (a server that accepts and stays silent)."""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import signal
+import socket
+import subprocess
+import sys
+import textwrap
+import threading
+import time
+from pathlib import Path
+
+import psutil
+import pytest
+
+from curbside.cli.localize import main
+from curbside.errors import CurbsideInputError
+from curbside.evaluate import runner, suite
+
+MAP = Path(__file__).parent / "data" / "evaluate" / "sf-path3.geojson"
+
+#: ``localize`` with a line on stderr when the LocalCluster starts (``@starting``) and when the runs
+#: are handed to the workers (``@running``), so that the test knows when to press Ctrl-C.
+_CHILD = textwrap.dedent(
+    """
+    import sys
+
+    import distributed
+
+    from curbside.cli.localize import main
+
+    def say(moment):
+        sys.stderr.write(f"@{moment}\\n")
+        sys.stderr.flush()
+
+    start, submit = distributed.LocalCluster.__init__, distributed.Client.map
+
+    def starting(self, *args, **kwargs):
+        say("starting")
+        start(self, *args, **kwargs)
+
+    def running(self, *args, **kwargs):
+        futures = submit(self, *args, **kwargs)
+        say("running")
+        return futures
+
+    distributed.LocalCluster.__init__, distributed.Client.map = starting, running
+    sys.exit(main(sys.argv[1:]))
+    """
+)
+
+
+@pytest.fixture(scope="module")
+def session(tmp_path_factory) -> Path:
+    """One simulated walk of the benchmark's path 3 (the fixture map is clipped around it)."""
+    folder = tmp_path_factory.mktemp("walks") / "path3-s1"
+    assert main(["simulate", "--route", "path3", "--seed", "1", "--map", str(MAP), "-o", str(folder)]) == 0
+    return folder
+
+
+def _alive_in_session(session_id: int) -> list[str]:
+    """The processes of a session (a command and its workers) that are still running (not zombies)."""
+    alive = []
+    for proc in psutil.process_iter(["status", "cmdline"]):
+        with contextlib.suppress(psutil.Error, OSError):
+            if os.getsid(proc.pid) == session_id and proc.info["status"] != psutil.STATUS_ZOMBIE:
+                alive.append(" ".join(proc.info["cmdline"] or []))
+    return alive
+
+
+def _read_up_to(stream, mark: bytes) -> bytes:
+    """Read ``stream`` up to the line ``mark``; what came before it."""
+    seen = b""
+    for line in iter(stream.readline, b""):
+        if line.rstrip() == mark:
+            return seen
+        seen += line
+    raise AssertionError(f"the command ended before {mark.decode()}: {seen.decode()}")
+
+
+@pytest.mark.slow
+@pytest.mark.skipif(sys.platform == "win32", reason="SIGINT to a process group is POSIX")
+@pytest.mark.parametrize(
+    ("moment", "delay_s", "limit_s"),
+    # under way, the runs that a worker has begun end first (a fused run: seconds), as they always did
+    [("starting", 0.2, 10), ("starting", 1.0, 10), ("running", 0.5, 30)],
+    ids=["workers-starting-0.2s", "workers-starting-1s", "runs-under-way"],
+)
+def test_ctrl_c_ends_a_dask_run_at_once(tmp_path, session, moment, delay_s, limit_s):
+    out = tmp_path / "report"
+    argv = ["evaluate", str(session), "--maps", str(MAP), "--methods", "gnss", "fused", "--jaywalk-weights",
+            "0.4", "--workers", "2", "-o", str(out)]
+    proc = subprocess.Popen([sys.executable, "-c", _CHILD, *argv], cwd=tmp_path, stdout=subprocess.DEVNULL,
+                            stderr=subprocess.PIPE, start_new_session=True)
+    try:
+        _read_up_to(proc.stderr, f"@{moment}".encode())
+        time.sleep(delay_s)
+        os.killpg(proc.pid, signal.SIGINT)  # as a terminal's Ctrl-C: to the command and its workers
+        sent = time.monotonic()
+        _, err = proc.communicate(timeout=60)
+        exit_s = time.monotonic() - sent
+        deadline = time.monotonic() + 5  # multiprocessing's resource tracker exits after the command
+        while (left := _alive_in_session(proc.pid)) and time.monotonic() < deadline:
+            time.sleep(0.2)
+    finally:
+        with contextlib.suppress(ProcessLookupError):
+            os.killpg(proc.pid, signal.SIGKILL)
+        proc.communicate()
+    text = err.decode()
+    assert proc.returncode == 130, text
+    assert text.splitlines()[-1] == "localize: interrupted" and text.count("interrupted") == 1, text
+    assert "Traceback" not in text and "KeyboardInterrupt" not in text and "distributed." not in text, text
+    assert exit_s < limit_s, f"{exit_s:.1f} s from Ctrl-C to the exit"
+    assert not left, f"left running: {left}"
+    assert not (out / "report.md").exists()
+
+
+@contextlib.contextmanager
+def _server(kind: str):
+    """A loopback address where no dask scheduler answers: ``closed`` (a port nothing listens on),
+    ``unroutable`` (a full accept queue: the connection is never made, as with an address no host
+    answers), ``silent`` (accepts, never says a word), ``http`` (answers as an HTTP proxy does)."""
+    listener = socket.socket()
+    listener.bind(("127.0.0.1", 0))
+    address = f"tcp://127.0.0.1:{listener.getsockname()[1]}"
+    held: list[socket.socket] = [listener]
+    if kind == "closed":
+        listener.close()
+    elif kind == "unroutable":
+        listener.listen(0)
+        held.append(socket.create_connection(listener.getsockname()))  # fills the queue: SYNs are dropped
+    else:
+        listener.listen(8)
+
+        def serve() -> None:
+            with contextlib.suppress(OSError):
+                while True:
+                    conn, _ = listener.accept()
+                    held.append(conn)
+                    if kind == "http":
+                        conn.recv(1024)
+                        conn.sendall(b"HTTP/1.1 400 Bad Request\r\ncontent-length: 0\r\n\r\n")
+
+        threading.Thread(target=serve, daemon=True).start()
+    try:
+        yield address
+    finally:
+        for sock in held:
+            sock.close()
+
+
+def _refusal(address: str, limit_s: float) -> tuple[CurbsideInputError, float]:
+    """What ``run_all`` on the scheduler at ``address`` raises, and after how long; fails past
+    ``limit_s`` (the run waits on in a thread of its own, as it would have for 30 s or for ever)."""
+    outcome: dict[str, object] = {}
+
+    def run() -> None:
+        start = time.monotonic()
+        try:
+            runner.run_all([runner.RunSpec("no-session", "gnss")], scheduler=address)
+        except Exception as exc:  # noqa: BLE001 - checked below
+            outcome["error"] = exc
+        outcome["s"] = time.monotonic() - start
+
+    thread = threading.Thread(target=run, daemon=True)
+    thread.start()
+    thread.join(limit_s)
+    assert not thread.is_alive(), f"still waiting for {address} after {limit_s:g} s"
+    error = outcome.get("error")
+    assert isinstance(error, CurbsideInputError), repr(error)
+    assert str(error).startswith(f"--scheduler: cannot reach a dask scheduler at '{address}'"), error
+    return error, float(outcome["s"])
+
+
+def test_a_closed_scheduler_port_is_refused_at_once():
+    with _server("closed") as address:
+        error, took_s = _refusal(address, limit_s=3)
+    assert "Connection refused" in str(error) and took_s < 2
+
+
+@pytest.mark.parametrize("kind", ["unroutable", "silent"])
+def test_a_scheduler_that_does_not_answer_is_refused_within_the_timeout(monkeypatch, kind):
+    assert runner.SCHEDULER_TIMEOUT_S <= 5
+    monkeypatch.setattr(runner, "SCHEDULER_TIMEOUT_S", 1.0)  # the test's time, not the default's
+    with _server(kind) as address:
+        error, took_s = _refusal(address, limit_s=6)
+    assert "no answer within 1 s" in str(error) and took_s < 4
+
+
+def test_a_server_that_is_not_a_dask_scheduler_is_bad_input():
+    with _server("http") as address:
+        error, _ = _refusal(address, limit_s=6)  # it was a MemoryError, an internal error
+    assert "not a dask scheduler" in str(error)
+
+
+def test_a_running_scheduler_is_accepted_and_a_worker_address_named_for_what_it_is():
+    from dask.distributed import LocalCluster
+
+    with LocalCluster(n_workers=1, processes=False, protocol="tcp", dashboard_address=":0",
+                      scheduler_kwargs={"dashboard": False}) as cluster:
+        runner.check_scheduler(cluster.scheduler_address)
+        worker = next(iter(cluster.scheduler_info["workers"]))
+        with pytest.raises(CurbsideInputError, match="not a dask scheduler but Worker"):
+            runner.check_scheduler(worker)
+
+
+def test_evaluate_refuses_an_unreachable_scheduler_before_reading_its_inputs(tmp_path, capsys):
+    with _server("closed") as address:
+        argv = ["evaluate", str(tmp_path / "no-sessions"), "--maps", str(tmp_path / "no-map.geojson"),
+                "--scheduler", address, "-o", str(tmp_path / "report")]
+        assert main(argv) == 2
+    err = capsys.readouterr().err
+    assert err.startswith(f"localize: error: --scheduler: cannot reach a dask scheduler at '{address}'"), err
+    assert err.count("\n") == 1 and not (tmp_path / "report").exists()
+
+
+def test_benchmark_refuses_an_unreachable_scheduler_before_any_walk(tmp_path, capsys, monkeypatch):
+    def run_suite(*args, **kwargs):
+        raise AssertionError("walks simulated and tracked before --scheduler was checked")
+
+    monkeypatch.setattr(suite, "run_suite", run_suite)
+    with _server("closed") as address:
+        assert main(["benchmark", "--scheduler", address, "-o", str(tmp_path / "bench")]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("localize: error: --scheduler: cannot reach a dask scheduler"), err
+    assert not (tmp_path / "bench").exists()
