@@ -20,6 +20,7 @@ from curbside.localize.pipeline import track_session
 from curbside.localize.readers import read_any
 from curbside.localize.ronin.infer import config_path_for
 from curbside.localize.ronin.model import RoninConfig, RoninResNet
+from curbside.localize.ronin.provenance import weights_record
 from curbside.localize.ronin.train import save_weights
 
 RUN = ["--particles", "200"]
@@ -181,3 +182,18 @@ def test_own_weights_that_cannot_run_are_an_error_under_auto_not_a_fall_back_to_
     with pytest.raises(CurbsideInputError, match=r"w\.pt: trained on 50-sample windows"):
         track_session(session, None, "fused", particles=100, ronin_weights=tiny_weights(tmp_path / "w.pt",
                                                                                           window=50))
+
+
+def test_the_weights_record_ignores_the_training_record_but_not_the_model_fields(tmp_path):
+    # Adding provenance to a config's ``extra`` read as other weights on replay (a warning on every
+    # run.json made before); a model field such as the output scale must still count.
+    weights = tiny_weights(tmp_path / "w.pt")
+    config_path = weights.with_suffix(".json")
+    before = weights_record(weights)
+    config = json.loads(config_path.read_text())
+    config.setdefault("extra", {})["provenance_recorded_afterwards"] = {"trained_utc": "unknown"}
+    config_path.write_text(json.dumps(config, indent=1))
+    assert weights_record(weights) == before
+    config["output_scale"] = config.get("output_scale", 1.0) * 1.01
+    config_path.write_text(json.dumps(config))
+    assert weights_record(weights)["config_sha256"] != before["config_sha256"]

@@ -7,6 +7,8 @@ from other files than the ones named on the command line is refused instead of s
 
 from __future__ import annotations
 
+import hashlib
+import json
 import logging
 import subprocess
 from pathlib import Path
@@ -125,11 +127,28 @@ def check_prepared_sources(prepared: str | Path, stored: list[dict] | None, give
 
 
 def weights_record(path: str | Path) -> dict:
-    """Path and SHA-256 of a weights file and of its JSON config."""
+    """Path and SHA-256 of a weights file, and of the model fields of its JSON config.
+
+    The config's ``extra`` (the training record: data, metrics, provenance) is left out of
+    ``config_sha256``, so documenting how weights were made does not read as other weights when a run
+    is replayed; a config that is not a JSON object is digested as it is.
+    """
     path = Path(path)
     config = path.with_suffix(".json")
     return {"path": str(path.resolve()), "sha256": file_digest(path).hex(),
-            "config_sha256": file_digest(config).hex() if config.is_file() else None}
+            "config_sha256": _config_digest(config) if config.is_file() else None}
+
+
+def _config_digest(config: Path) -> str:
+    try:
+        fields = json.loads(config.read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError, ValueError):
+        fields = None
+    if not isinstance(fields, dict):
+        return file_digest(config).hex()
+    fields.pop("extra", None)
+    canonical = json.dumps(fields, sort_keys=True, separators=(",", ":"), allow_nan=True)
+    return hashlib.sha256(canonical.encode()).hexdigest()
 
 
 def software_record() -> dict:
