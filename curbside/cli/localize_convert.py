@@ -82,10 +82,49 @@ def summary_lines(session: Session, folder: Path) -> list[str]:
     return lines
 
 
+def _command(args: argparse.Namespace) -> str:
+    """What writes the destination, as its marker records it."""
+    return "localize convert --all" if args.all else "localize convert"
+
+
+def _check_arguments(args: argparse.Namespace) -> None:
+    """Refuse, before the heavy imports, what needs no reading: a missing or misnamed source, a missing or
+    unusable destination, and what ``--all`` does not take.
+
+    Raises
+    ------
+    CurbsideInputError
+        Any of these.
+    """
+    from curbside.io import check_output_folder
+    from curbside.localize.paths import check_source_path, split_trial
+
+    path, trial = split_trial(args.src)
+    if args.list:
+        check_source_path(path)
+        return
+    if args.dst is None:
+        raise CurbsideInputError("DST", "missing destination folder")
+    check_output_folder(Path(args.dst), args.overwrite, _command(args))
+    if not args.all:
+        check_source_path(args.src)
+        return
+    if check_source_path(path) != "ipin":
+        raise CurbsideInputError(args.src, "--all converts every trial of an IPIN .h5 file")
+    if trial is not None:
+        raise CurbsideInputError(args.src, "--all converts every trial; drop the ::TRIAL part")
+    if args.platform is not None:
+        raise CurbsideInputError("--platform", "applies to Sensor Logger exports only")
+    if args.route is not None:
+        raise CurbsideInputError(args.route, "a route file applies to Sensor Logger exports only")
+
+
 def _convert(args: argparse.Namespace) -> int:
+    _check_arguments(args)
+    # the heavy imports, once the cheap checks passed
     from tqdm import tqdm
 
-    from curbside.io import check_output_folder, output_folder
+    from curbside.io import output_folder
     from curbside.localize.readers import detect_format, ipin, read_any, split_trial
     from curbside.localize.readers._export import require_recordings
     from curbside.localize.session import write_session
@@ -101,24 +140,12 @@ def _convert(args: argparse.Namespace) -> int:
             raise CurbsideInputError(args.src, "--list needs an IPIN .h5 file or Sensor Logger exports")
         print("\n".join(names))
         return 0
-    if args.dst is None:
-        raise CurbsideInputError("DST", "missing destination folder")
     dst = Path(args.dst)
-    command = "localize convert --all" if args.all else "localize convert"
-    check_output_folder(dst, args.overwrite, command)  # before reading: fail fast on an unusable destination
     if args.all:
-        path, trial = split_trial(args.src)
-        if detect_format(path) != "ipin":
-            raise CurbsideInputError(args.src, "--all converts every trial of an IPIN .h5 file")
-        if trial is not None:
-            raise CurbsideInputError(args.src, "--all converts every trial; drop the ::TRIAL part")
-        if args.platform is not None:
-            raise CurbsideInputError("--platform", "applies to Sensor Logger exports only")
-        if args.route is not None:
-            raise CurbsideInputError(args.route, "a route file applies to Sensor Logger exports only")
+        path, _ = split_trial(args.src)
         trials = ipin.list_trials(path)
         lines: list[str] = []
-        with output_folder(dst, command, overwrite=args.overwrite) as tmp:
+        with output_folder(dst, _command(args), overwrite=args.overwrite) as tmp:
             for name in tqdm(trials, desc="convert", unit="trial", disable=not sys.stderr.isatty()):
                 session = ipin.read_trial(path, name)
                 session.source = f"{path}::{name}"

@@ -36,6 +36,7 @@ from curbside.cli.localize_convert import add_platform_option
 from curbside.cli.run_replay import (
     add_weights,
     check_replayed_inputs,
+    check_replayed_paths,
     input_record,
     recorded_weights,
     replay_config,
@@ -54,10 +55,8 @@ if TYPE_CHECKING:
 logger = logging.getLogger(__name__)
 
 
-def _replayed(path: str) -> tuple[dict, RunConfig]:
-    """``run.json``'s contents and its run configuration."""
-    from curbside.localize.runconfig import RunConfig
-
+def _replayed_info(path: str) -> dict:
+    """``run.json``'s contents, checked to hold a ``config`` object."""
     try:
         info = json.loads(Path(path).read_text(encoding="utf-8"))
     except OSError as exc:
@@ -66,18 +65,18 @@ def _replayed(path: str) -> tuple[dict, RunConfig]:
         raise CurbsideInputError(path, f"not JSON ({exc.msg} at line {exc.lineno})") from None
     if not isinstance(info, dict) or not isinstance(info.get("config"), dict):
         raise CurbsideInputError(path, "not a run.json of localize run (no 'config' object)")
-    return info, RunConfig.from_dict(info["config"], f"{path}: config")
+    return info
 
 
-def _run(args: argparse.Namespace) -> int:
+def _checked_inputs(args: argparse.Namespace) -> tuple[dict, str, str | None]:
+    """The replayed ``run.json`` (``{}`` without ``--config``), the session and the map, after the checks
+    that need no heavy import: the output folder, then each input's path."""
     from curbside.io import check_output_folder
-    from curbside.localize.pipeline import track_session
-    from curbside.localize.readers import read_any
-    from curbside.localize.track import write_track
-    from curbside.osmseg.mapio import read_map
+    from curbside.localize.paths import check_source_path
+    from curbside.osmseg.inputs import check_map_file
 
     check_output_folder(args.output, args.overwrite, "localize run")
-    info, config = _replayed(args.config) if args.config else ({}, None)
+    info = _replayed_info(args.config) if args.config else {}
     session_path = args.session or info.get("session")
     if not session_path:
         raise CurbsideInputError(
@@ -85,12 +84,31 @@ def _run(args: argparse.Namespace) -> int:
         )
     map_path = args.map if args.map is not None else info.get("map")
     if args.config:
+        check_replayed_paths(info, args.config, session_path, map_path)
+    check_source_path(session_path)
+    if map_path:
+        check_map_file(map_path)
+    return info, session_path, map_path
+
+
+def _run(args: argparse.Namespace) -> int:
+    info, session_path, map_path = _checked_inputs(args)
+    # the heavy imports, once the cheap checks passed
+    from curbside.localize.pipeline import track_session
+    from curbside.localize.readers import read_any
+    from curbside.localize.runconfig import RunConfig
+    from curbside.localize.track import write_track
+    from curbside.osmseg.mapio import read_map
+
+    config = None
+    if args.config:
+        config = RunConfig.from_dict(info["config"], f"{args.config}: config")
         config = replay_config(info, config, args.config, args.mode, args.velocity_source)
     config = _configured(args, config)
     weights = _ronin_weights(args, info, config)
     inputs = input_record(session_path, map_path)
     if args.config:
-        check_replayed_inputs(info, args.config, session_path, map_path, inputs, weights)
+        check_replayed_inputs(info, args.config, map_path, inputs, weights)
     model = _load_weights(weights)
     platform = args.platform or _replayed_platform(info, session_path)
     session = read_any(session_path, platform=platform)

@@ -26,16 +26,38 @@ if TYPE_CHECKING:
 log = logging.getLogger(__name__)
 
 
-def _view(args: argparse.Namespace) -> int:
-    from tqdm.auto import tqdm
+def _check_arguments(args: argparse.Namespace) -> None:
+    """Refuse, before the heavy imports, what needs no reading: the output's name and folder, a missing
+    run folder, session or map.
 
+    Raises
+    ------
+    CurbsideInputError
+        Any of these.
+    """
     from curbside.io import check_output_file
-    from curbside.localize.view import label_runs, load_run, maps_of, write_view
-    from curbside.localize.view_data import SegmentNamer
+    from curbside.localize.paths import check_run_folder, check_source_path
+    from curbside.osmseg.inputs import check_map_file
 
     if Path(args.output).suffix.lower() not in (".html", ".htm"):
         raise CurbsideInputError(args.output, "the viewer is an HTML page: name it .html")
     check_output_file(args.output, args.overwrite, inputs=(args.map,) if args.map else ())
+    for folder in args.runs:
+        check_run_folder(folder)
+    if args.session:
+        check_source_path(args.session)
+    if args.map:
+        check_map_file(args.map)
+
+
+def _view(args: argparse.Namespace) -> int:
+    _check_arguments(args)
+    # the heavy imports, once the cheap checks passed
+    from tqdm.auto import tqdm
+
+    from curbside.localize.view import label_runs, load_run, maps_of, write_view
+    from curbside.localize.view_data import SegmentNamer
+
     # One bar over the slow steps, on a terminal only: each run (its session and clouds), the maps, the page.
     with tqdm(total=len(args.runs) + 2, desc="localize view: reading runs", unit="step", leave=False,
               disable=None) as bar:

@@ -110,12 +110,18 @@ def _conflict_share_min() -> float:
     return MapConfig.conflict_share_min
 
 
-def run(args: argparse.Namespace) -> int:
-    """Build the map and write it."""
+def _checked_config(args: argparse.Namespace) -> SegmentationConfig:
+    """The build's configuration, after the checks that need no heavy import: the output's name and
+    folder, ``--set``, ``--bbox``, the ``--osm`` file's path.
+
+    Raises
+    ------
+    CurbsideInputError
+        Any of these.
+    """
     from curbside.configio import with_overrides
     from curbside.io import check_output_file
-    from curbside.osmseg.build import build_map, check_bbox
-    from curbside.osmseg.mapio import write_map
+    from curbside.osmseg.inputs import check_bbox, check_osm_file
 
     if Path(args.output).suffix.lower() not in (".geojson", ".json"):
         raise CurbsideInputError(args.output, "the map is GeoJSON: name it .geojson")
@@ -123,6 +129,21 @@ def run(args: argparse.Namespace) -> int:
     config = with_overrides(
         SegmentationConfig(unmarked_crossing_as=args.unmarked_as), set_overrides(args.set)
     )
+    if args.bbox:
+        check_bbox(args.bbox)
+    if args.osm:
+        check_osm_file(args.osm)
+    return config
+
+
+def run(args: argparse.Namespace) -> int:
+    """Build the map and write it."""
+    config = _checked_config(args)
+    # the heavy imports, once the cheap checks passed
+    from curbside.osmseg.build import build_map
+    from curbside.osmseg.inputs import check_bbox
+    from curbside.osmseg.mapio import write_map
+
     out = sys.stdout
     bbox = tuple(args.bbox) if args.bbox else None
     if args.place is not None:

@@ -15,13 +15,18 @@ log = logging.getLogger(__name__)
 
 def _compare(args: argparse.Namespace) -> int:
     from curbside.io import check_output_file
-    from curbside.osmseg.compare import compare_maps, format_comparison, write_comparison
-    from curbside.osmseg.mapio import read_map
+    from curbside.osmseg.inputs import check_map_file
 
     if args.json:
         if Path(args.json).suffix.lower() != ".json":
             raise CurbsideInputError(args.json, "the figures are JSON: name the file .json")
         check_output_file(args.json, args.overwrite, inputs=(args.a, args.b))
+    check_map_file(args.a)
+    check_map_file(args.b)
+    # the heavy imports, once the cheap checks passed
+    from curbside.osmseg.compare import compare_maps, format_comparison, write_comparison
+    from curbside.osmseg.mapio import read_map
+
     a, b = read_map(args.a), read_map(args.b)
     result = compare_maps(a, b, name_b=args.b)
     print(format_comparison(result, args.a, args.b))
@@ -33,16 +38,20 @@ def _compare(args: argparse.Namespace) -> int:
 
 def _import_datasf(args: argparse.Namespace) -> int:
     from curbside.io import check_output_file
-    from curbside.osmseg.build import check_bbox
-    from curbside.osmseg.datasf import read_datasf, read_datasf_over
-    from curbside.osmseg.mapio import read_map, write_map
-    from curbside.osmseg.summary import class_summary, format_summary
+    from curbside.osmseg.inputs import check_bbox, check_map_file
 
     bbox = check_bbox(args.bbox) if args.bbox is not None else None
     if Path(args.output).suffix.lower() not in (".geojson", ".json"):
         raise CurbsideInputError(args.output, "the map is GeoJSON: name it .geojson")
     inputs = (*args.tiles, args.streets_from) if args.streets_from else tuple(args.tiles)
     check_output_file(args.output, args.overwrite, inputs=inputs)
+    if args.streets_from:
+        check_map_file(args.streets_from)
+    # the heavy imports, once the cheap checks passed
+    from curbside.osmseg.datasf import read_datasf, read_datasf_over
+    from curbside.osmseg.mapio import read_map, write_map
+    from curbside.osmseg.summary import class_summary, format_summary
+
     if args.streets_from:
         layers = read_datasf_over(args.tiles, read_map(args.streets_from), bbox, fill_holes=args.fill_holes)
     else:

@@ -12,18 +12,22 @@ from curbside.errors import CurbsideInputError
 
 def _edit(args: argparse.Namespace) -> int:
     from curbside.io import check_output_file
-    from curbside.osmseg.build import check_bbox
-    from curbside.osmseg.edit import file_features, write_editor
-    from curbside.osmseg.mapio import read_map
-    from curbside.osmseg.plot import clip_to_bbox
+    from curbside.osmseg.inputs import check_bbox, check_map_file
 
     if Path(args.output).suffix.lower() not in (".html", ".htm"):
         raise CurbsideInputError(args.output, "the editor is an HTML page: name it .html")
     check_output_file(args.output, args.overwrite, inputs=(args.map,))
+    bbox = check_bbox(args.bbox) if args.bbox is not None else None
+    check_map_file(args.map)
+    # the heavy imports, once the cheap checks passed
+    from curbside.osmseg.edit import file_features, write_editor
+    from curbside.osmseg.mapio import read_map
+    from curbside.osmseg.plot import clip_to_bbox
+
     layers = read_map(args.map)
     features = None
-    if args.bbox is not None:
-        layers = clip_to_bbox(layers, check_bbox(args.bbox))
+    if bbox is not None:
+        layers = clip_to_bbox(layers, bbox)
     else:
         features = file_features(args.map)
     path = write_editor(layers, Path(args.map).name, args.output, features)

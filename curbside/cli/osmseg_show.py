@@ -19,13 +19,16 @@ def add_bbox_option(parser: argparse.ArgumentParser, help_text: str) -> None:
 
 def _show(args: argparse.Namespace) -> int:
     from curbside.io import check_output_file
-    from curbside.osmseg.build import check_bbox
-    from curbside.osmseg.mapio import read_map
-    from curbside.osmseg.plot import output_format, render_map
+    from curbside.osmseg.inputs import check_bbox, check_map_file, output_format
 
     output_format(args.output)
     check_output_file(args.output, args.overwrite, inputs=(args.map,))
     bbox = check_bbox(args.bbox) if args.bbox is not None else None
+    check_map_file(args.map)
+    # the heavy imports, once the cheap checks passed
+    from curbside.osmseg.mapio import read_map
+    from curbside.osmseg.plot import render_map
+
     layers = read_map(args.map)
     path = render_map(layers, args.output, bbox=bbox)
     log.info("wrote %s", path)

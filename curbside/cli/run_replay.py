@@ -137,19 +137,24 @@ def replay_config(info: dict[str, Any], config: RunConfig, run_json: str, mode: 
     return config
 
 
-def check_replayed_inputs(
-    info: dict[str, Any], run_json: str, session_path: str, map_path: str | None, now: dict[str, Any],
-    weights: str | Path | None = None,
+def check_replayed_paths(
+    info: dict[str, Any], run_json: str, session_path: str, map_path: str | None
 ) -> None:
-    """Raise when a path ``run.json`` names is gone; warn when an input's bytes differ from ``now``
-    (:func:`input_record` of the replay's inputs) or from ``weights`` (the RoNIN weights of the replay;
-    default: the bundled ones) since the run."""
+    """Raise when a path ``run.json`` names, and the replay uses, is gone (before the input is read)."""
     for key, option in (("session", "SESSION"), ("map", "--map MAP")):
         path = info.get(key)
         if path and path in (session_path, map_path) and not Path(str(path).partition("::")[0]).exists():
             raise CurbsideInputError(
                 path, f"no such file or folder (the {key} {run_json} names; give where it is now: {option})"
             )
+
+
+def check_replayed_inputs(
+    info: dict[str, Any], run_json: str, map_path: str | None, now: dict[str, Any],
+    weights: str | Path | None = None,
+) -> None:
+    """Warn when an input's bytes differ from ``now`` (:func:`input_record` of the replay's inputs) or
+    from ``weights`` (the RoNIN weights of the replay; default: the bundled ones) since the run."""
     recorded = info.get("inputs")
     if not isinstance(recorded, dict):
         return  # written before run.json recorded its inputs

@@ -32,6 +32,7 @@ from curbside.errors import CurbsideInputError
 from curbside.evaluate.runner import METHOD_LABELS
 from curbside.io import atomic_path
 from curbside.localize.particle_store import ParticleClouds, read_particles
+from curbside.localize.paths import check_run_folder
 from curbside.localize.session import Session
 from curbside.localize.view_data import SegmentNamer, run_data, session_data
 from curbside.osmseg.mapio import MapLayers, read_map
@@ -133,11 +134,7 @@ def load_run(
     from curbside.localize.readers import read_any
 
     folder = Path(folder)
-    track_csv, run_json = folder / "track.csv", folder / "run.json"
-    if not folder.exists():
-        raise CurbsideInputError(folder, "no such run folder")
-    if not track_csv.is_file():
-        raise CurbsideInputError(folder, "not a run folder (no track.csv; write one with `localize run -o`)")
+    track_csv, run_json = check_run_folder(folder)
     try:
         info = json.loads(run_json.read_text(encoding="utf-8")) if run_json.is_file() else {}
         track = pd.read_csv(track_csv)

@@ -11,7 +11,6 @@ sidewalks take only what none of the three cover.
 from __future__ import annotations
 
 import logging
-import math
 import sys
 from pathlib import Path
 
@@ -29,6 +28,7 @@ from curbside.osmseg.buildings import buildings as derive_buildings
 from curbside.osmseg.clipped import covered_bbox
 from curbside.osmseg.config import READ_MARGIN_M, SegmentationConfig
 from curbside.osmseg.crosswalks import crosswalks as derive_crosswalks
+from curbside.osmseg.inputs import BBox, check_bbox
 from curbside.osmseg.mapio import MapLayers
 from curbside.osmseg.overlay import polygons_only, subtract
 from curbside.osmseg.reader import OsmData, bbox_polygon, clip_to_bbox, declared_bounds, read_osm_file
@@ -37,81 +37,6 @@ from curbside.osmseg.streets import carriageways, mapped_sidewalks, sidewalk_len
 from curbside.projection import LocalFrame
 
 log = logging.getLogger(__name__)
-
-BBox = tuple[float, float, float, float]
-
-#: Orders a bbox is given in by mistake -> indices into it that make (west, south, east, north).
-_MISTAKEN_ORDERS = {
-    "latitude first (S W N E)": (1, 0, 3, 2),
-    "W E S N": (0, 2, 1, 3),
-    "S N W E, Nominatim's order": (2, 0, 3, 1),
-}
-
-
-def _in_order(west: float, south: float, east: float, north: float) -> bool:
-    lon_ok = -180 <= west < east <= 180
-    return lon_ok and -90 <= south < north <= 90
-
-
-def _order_hint(values: tuple[float, float, float, float]) -> str:
-    """A hint for a bbox that is valid in another order (lat/lon swapped, corners swapped), else ''."""
-    for name, order in _MISTAKEN_ORDERS.items():
-        fixed = tuple(values[i] for i in order)
-        if _in_order(*fixed):
-            return f"; it looks like {name}: give W S E N, longitude first: --bbox {_fmt(fixed)}"
-    (west, east), (south, north) = sorted(values[0::2]), sorted(values[1::2])
-    if _in_order(west, south, east, north):
-        return f"; give W S E N, west < east, south < north: --bbox {_fmt((west, south, east, north))}"
-    return ""
-
-
-def _fmt(values: tuple[float, ...]) -> str:
-    return " ".join(f"{v:.10g}" for v in values)
-
-
-def check_bbox(bbox: BBox, source: str = "--bbox") -> BBox:
-    """Validate a (west, south, east, north) bbox in WGS84 degrees.
-
-    A bbox that is valid in an order people often give by mistake (latitude first, W E S N,
-    Nominatim's S N W E, corners swapped) gets the fixed order in the message.
-
-    Raises
-    ------
-    CurbsideInputError
-        Not four finite numbers, W >= E or S >= N, outside lon/lat ranges, or larger than
-        ``settings.max_bbox_area_km2``.
-    """
-    try:
-        west, south, east, north = (float(v) for v in bbox)
-    except (TypeError, ValueError):
-        raise CurbsideInputError(source, "expected four numbers: west south east north") from None
-    if not all(math.isfinite(v) for v in (west, south, east, north)):
-        raise CurbsideInputError(source, "coordinates must be finite numbers")
-    hint = _order_hint((west, south, east, north))
-    if not (-180 <= west <= 180 and -180 <= east <= 180 and -90 <= south <= 90 and -90 <= north <= 90):
-        raise CurbsideInputError(source, f"outside the lon/lat range (lon -180..180, lat -90..90){hint}")
-    if west >= east:
-        raise CurbsideInputError(source, f"west ({west}) must be less than east ({east}){hint}")
-    if south >= north:
-        raise CurbsideInputError(source, f"south ({south}) must be less than north ({north}){hint}")
-    area = bbox_area_km2((west, south, east, north))
-    limit = settings.max_bbox_area_km2
-    if area > limit:
-        raise CurbsideInputError(
-            source, f"area {area:,.1f} km^2 is over the {limit:g} km^2 limit (settings.max_bbox_area_km2): "
-            "a larger city area takes minutes and GBs of memory to download and build, and Overpass refuses "
-            "queries that outgrow its time or memory; split it into smaller bboxes",
-        )  # fmt: skip
-    return west, south, east, north
-
-
-def bbox_area_km2(bbox: BBox) -> float:
-    """Approximate area of a WGS84 bbox in km^2 (spherical Earth)."""
-    west, south, east, north = bbox
-    r_km = 6371.0088
-    band = math.sin(math.radians(north)) - math.sin(math.radians(south))
-    return r_km**2 * math.radians(east - west) * band
-
 
 def _inside(inner: BBox, outer: BBox) -> bool:
     return outer[0] <= inner[0] and outer[1] <= inner[1] and inner[2] <= outer[2] and inner[3] <= outer[3]

@@ -21,6 +21,7 @@ import shapely
 
 from curbside.errors import CurbsideInputError
 from curbside.io import atomic_path
+from curbside.osmseg.inputs import map_document
 from curbside.projection import WGS84, utm_crs_for
 
 if TYPE_CHECKING:
@@ -205,16 +206,7 @@ def read_map(path: str | Path) -> MapLayers:
         not lon/lat degrees, no polygons.
     """
     path = Path(path)
-    if path.is_dir():
-        raise CurbsideInputError(path, "is a folder, not a map file (a GeoJSON written by `osmseg build`)")
-    if not path.is_file():
-        raise CurbsideInputError(path, "no such map file")
-    try:
-        doc = json.loads(path.read_text(encoding="utf-8"))
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
-        raise CurbsideInputError(path, f"not readable as GeoJSON ({exc})") from None
-    if not isinstance(doc, dict) or doc.get("type") != "FeatureCollection":
-        raise CurbsideInputError(path, "not a GeoJSON FeatureCollection")
+    doc = map_document(path)
     _check_crs_member(path, doc.get("crs"))
     features = doc.get("features") or []
     if not features:

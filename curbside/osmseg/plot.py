@@ -21,6 +21,7 @@ from matplotlib.patches import Patch, Rectangle
 from curbside import __version__
 from curbside.errors import CurbsideInputError
 from curbside.io import atomic_path
+from curbside.osmseg.inputs import output_format
 from curbside.osmseg.mapio import MapLayers
 from curbside.osmseg.style import BACKGROUND, CLASS_STYLE, CONFLICT_COLOUR, background_label
 from curbside.osmseg.webmap import (
@@ -41,9 +42,6 @@ log = logging.getLogger(__name__)
 #: The smallest piece of building over sidewalk drawn (osmseg's sliver size: shared edges drawn twice
 #: leave overlaps of a few square decimetres on any map).
 MIN_CONFLICT_AREA_M2 = 0.5
-
-#: Output formats by file extension.
-FORMATS: dict[str, str] = {".png": "png", ".html": "html", ".htm": "html"}
 
 
 def _degrees(value: float) -> str:
@@ -320,22 +318,6 @@ def save_html(
         tmp.write_text(page, encoding="utf-8")
     log.info("wrote %s (%.1f MB)", path, path.stat().st_size / 1e6)
     return path
-
-
-def output_format(path: str | Path) -> str:
-    """``"png"`` or ``"html"`` from an output file's extension.
-
-    Raises
-    ------
-    CurbsideInputError
-        For any other extension.
-    """
-    suffix = Path(path).suffix.lower()
-    if suffix not in FORMATS:
-        raise CurbsideInputError(
-            path, f"unsupported output format {suffix or '(none)'!r}; use one of {sorted(FORMATS)}"
-        )
-    return FORMATS[suffix]
 
 
 def render_map(

@@ -26,17 +26,13 @@ from pyproj import CRS
 
 from curbside.errors import CurbsideInputError
 from curbside.osmseg.clipped import ADVICE, MissingNodes, agreed_area, closed_rings
+from curbside.osmseg.inputs import check_osm_file
 from curbside.projection import LocalFrame
 
 log = logging.getLogger(__name__)
 
 BBox = tuple[float, float, float, float]
 
-#: File name endings ``--osm`` accepts (pyosmium reads compressed XML itself).
-OSM_SUFFIXES: tuple[str, ...] = (".osm", ".osm.bz2", ".osm.gz", ".osm.pbf")
-
-#: osmium's name of each format, by the file name ending that announces it.
-_FORMATS = {".osm.pbf": "pbf", ".osm.bz2": "osm.bz2", ".osm.gz": "osm.gz", ".osm": "osm"}
 _FORMAT_NAMES = {"pbf": "PBF", "osm.bz2": "bzip2-compressed OSM XML", "osm.gz": "gzip-compressed OSM XML",
                  "osm": "OSM XML"}  # fmt: skip
 
@@ -149,19 +145,10 @@ def _osm_input(path: Path, *, warn: bool = True) -> str | osmium.io.File:
     Raises
     ------
     CurbsideInputError
-        Missing, a folder, empty, or a name without one of :data:`OSM_SUFFIXES`.
+        Missing, a folder, empty, or a name without one of
+        :data:`~curbside.osmseg.inputs.OSM_SUFFIXES` (:func:`~curbside.osmseg.inputs.check_osm_file`).
     """
-    if not path.exists():
-        raise CurbsideInputError(path, "no such OSM file")
-    if not path.is_file():
-        raise CurbsideInputError(path, "is a folder, not an OSM file" if path.is_dir() else "not a file")
-    named = next((fmt for suffix, fmt in _FORMATS.items() if path.name.lower().endswith(suffix)), None)
-    if named is None:
-        raise CurbsideInputError(
-            path, f"unsupported file type; expected one of {', '.join(OSM_SUFFIXES[:4])}"
-        )
-    if path.stat().st_size == 0:
-        raise CurbsideInputError(path, "is empty (0 bytes)")
+    named = check_osm_file(path)
     found = _sniffed_format(path)
     if found is None or found == named:
         return str(path)

@@ -19,58 +19,33 @@ from __future__ import annotations
 from pathlib import Path
 
 from curbside.errors import CurbsideInputError
+from curbside.localize.paths import TRIAL_SEPARATOR, check_source_path, split_trial
 from curbside.localize.readers import gpx, ipin, sensorlogger
 from curbside.localize.session import COLUMNS, Session, read_session, validate_table
-
-#: Separator between an HDF5 file and a trial (group) name: ``file.h5::TrialName``.
-TRIAL_SEPARATOR = "::"
-
-_H5_SUFFIXES = (".h5", ".hdf5")
-
-
-def split_trial(src: str | Path) -> tuple[Path, str | None]:
-    """Split ``FILE.h5::TRIAL`` (or ``SRC::RECORDING``) into the path and the name (``None`` if no ``::``)."""
-    text = str(src)
-    if TRIAL_SEPARATOR in text:
-        path, trial = text.rsplit(TRIAL_SEPARATOR, 1)
-        return Path(path), trial
-    return Path(text), None
 
 
 def detect_format(src: str | Path) -> str:
     """Name the format of ``src``: ``spec``, ``sensorlogger``, ``ipin`` or ``gpx``.
+
+    A file's name tells its format (:func:`~curbside.localize.paths.check_source_path`, which also
+    refuses a missing path); a folder's files tell a folder's.
 
     Raises
     ------
     CurbsideInputError
         ``src`` does not exist or is of no known format.
     """
+    kind = check_source_path(src)
+    if kind is not None:
+        return kind
     path, name = split_trial(src)
-    if path.suffix.lower() in _H5_SUFFIXES:
-        return "ipin"
-    if not path.exists():
-        raise CurbsideInputError(path, "no such file or folder")
-    suffix = path.suffix.lower()
-    if path.is_dir():
-        if name is None and any((path / f"{kind}.csv").is_file() for kind in COLUMNS):
-            return "spec"
-        if sensorlogger.looks_like_export(path):
-            return "sensorlogger"
-        raise CurbsideInputError(
-            path, "folder is neither a session folder (imu.csv, gnss.csv...) nor a Sensor Logger export"
-        )
-    if suffix == ".zip":
+    if name is None and any((path / f"{table}.csv").is_file() for table in COLUMNS):
+        return "spec"
+    if sensorlogger.looks_like_export(path):
         return "sensorlogger"
-    if name is not None:
-        raise CurbsideInputError(src, f"'{TRIAL_SEPARATOR}NAME' applies to an .h5 file, a .zip or a folder")
-    if suffix == ".gpx":
-        return "gpx"
-    if suffix == ".csv":
-        raise CurbsideInputError(
-            path, "a single CSV is not a recording: give the Sensor Logger .zip (not the 'Combined CSV' "
-            "export) or its folder, or a session folder"
-        )
-    raise CurbsideInputError(path, "unknown format (expected a folder, .zip, .h5[::TRIAL] or .gpx)")
+    raise CurbsideInputError(
+        path, "folder is neither a session folder (imu.csv, gnss.csv...) nor a Sensor Logger export"
+    )
 
 
 def read_any(src: str | Path, *, route: str | Path | None = None, platform: str | None = None) -> Session:

@@ -1,0 +1,92 @@
+"""The checks of localize's input paths that need no heavy import: a recording's path and name, a run
+folder.
+
+The console commands call them before they import numpy, pandas or torch, so a missing or misnamed input
+is refused in a fraction of a second; :func:`~curbside.localize.readers.detect_format` and
+:func:`~curbside.localize.view.load_run` call the same functions, so each message has one source.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from curbside.errors import CurbsideInputError
+
+#: Separator between an HDF5 file and a trial (group) name: ``file.h5::TrialName``.
+TRIAL_SEPARATOR = "::"
+
+_H5_SUFFIXES = (".h5", ".hdf5")
+
+
+def split_trial(src: str | Path) -> tuple[Path, str | None]:
+    """Split ``FILE.h5::TRIAL`` (or ``SRC::RECORDING``) into the path and the name (``None`` if no ``::``)."""
+    text = str(src)
+    if TRIAL_SEPARATOR in text:
+        path, trial = text.rsplit(TRIAL_SEPARATOR, 1)
+        return Path(path), trial
+    return Path(text), None
+
+
+def check_source_path(src: str | Path) -> str | None:
+    """Check a recording's path by its name and kind alone, and name the format they tell.
+
+    Parameters
+    ----------
+    src
+        What :func:`~curbside.localize.readers.read_any` reads: a folder, ``.zip``, ``FILE.h5[::TRIAL]``,
+        ``.gpx``, ``SRC::RECORDING``.
+
+    Returns
+    -------
+    str or None
+        ``ipin``, ``sensorlogger`` (a ``.zip``) or ``gpx``; ``None`` for a folder, whose files tell
+        (:func:`~curbside.localize.readers.detect_format`).
+
+    Raises
+    ------
+    CurbsideInputError
+        ``src`` does not exist, is a single CSV or a file of no known format, or names a recording
+        (``::NAME``) inside a file that holds none.
+    """
+    path, name = split_trial(src)
+    if not path.exists():
+        raise CurbsideInputError(path, "no such file or folder")
+    if path.suffix.lower() in _H5_SUFFIXES:
+        return "ipin"
+    if path.is_dir():
+        return None
+    suffix = path.suffix.lower()
+    if suffix == ".zip":
+        return "sensorlogger"
+    if name is not None:
+        raise CurbsideInputError(src, f"'{TRIAL_SEPARATOR}NAME' applies to an .h5 file, a .zip or a folder")
+    if suffix == ".gpx":
+        return "gpx"
+    if suffix == ".csv":
+        raise CurbsideInputError(
+            path, "a single CSV is not a recording: give the Sensor Logger .zip (not the 'Combined CSV' "
+            "export) or its folder, or a session folder"
+        )
+    raise CurbsideInputError(path, "unknown format (expected a folder, .zip, .h5[::TRIAL] or .gpx)")
+
+
+def check_run_folder(folder: str | Path) -> tuple[Path, Path]:
+    """Check that ``folder`` is a run folder of ``localize run -o`` (it holds ``track.csv``).
+
+    Returns
+    -------
+    (pathlib.Path, pathlib.Path)
+        Its ``track.csv`` and ``run.json`` (which may be missing).
+
+    Raises
+    ------
+    CurbsideInputError
+        ``folder`` does not exist or holds no ``track.csv``.
+    """
+    folder = Path(folder)
+    if not folder.exists():
+        raise CurbsideInputError(folder, "no such run folder")
+    track_csv = folder / "track.csv"
+    if not track_csv.is_file():
+        raise CurbsideInputError(folder, "not a run folder (no track.csv; write one with `localize run -o`)")
+    return track_csv, folder / "run.json"
