@@ -1,7 +1,9 @@
 """``localize evaluate`` / ``localize benchmark`` on dask: a Ctrl-C while the local cluster's workers
-start ends the command at once (exit status 130, one line, no worker left behind), as one later in the
-run does; and a ``--scheduler`` where no dask scheduler answers is refused in seconds (exit status 2),
-not after dask's 30 s connect timeout, nor never (a server that accepts and stays silent)."""
+start ends the command at once (exit status 130, one line, no worker left behind), as one during the
+runs does, without waiting for the runs under way (their workers are killed; on ``--scheduler`` they are
+cancelled and the user's cluster lives on); and a ``--scheduler`` where no dask scheduler answers is
+refused in seconds (exit status 2), not after dask's 30 s connect timeout, nor never (a server that
+accepts and stays silent)."""
 
 from __future__ import annotations
 
@@ -26,14 +28,27 @@ from curbside.evaluate import runner, suite
 MAP = Path(__file__).parent / "data" / "evaluate" / "sf-path3.geojson"
 
 #: ``localize`` with a line on stderr when the LocalCluster starts (``@starting``) and when the runs
-#: are handed to the workers (``@running``), so that the test knows when to press Ctrl-C.
+#: are handed to the workers (``@running``), so that the test knows when to press Ctrl-C; with
+#: ``SLOW_RUN_S`` in its environment, each run first sleeps that long (a long session's run).
 _CHILD = textwrap.dedent(
     """
+    import os
     import sys
+    import time
 
     import distributed
 
     from curbside.cli.localize import main
+    from curbside.evaluate import runner
+
+    if os.environ.get("SLOW_RUN_S"):
+        run_one, slow_s = runner.run_one, float(os.environ["SLOW_RUN_S"])
+
+        def slow_run_one(spec):  # defined in __main__: dask ships it to the workers by value
+            time.sleep(slow_s)
+            return run_one(spec)
+
+        runner.run_one = slow_run_one
 
     def say(moment):
         sys.stderr.write(f"@{moment}\\n")
@@ -84,26 +99,25 @@ def _read_up_to(stream, mark: bytes) -> bytes:
     raise AssertionError(f"the command ended before {mark.decode()}: {seen.decode()}")
 
 
-@pytest.mark.slow
-@pytest.mark.skipif(sys.platform == "win32", reason="SIGINT to a process group is POSIX")
-@pytest.mark.parametrize(
-    ("moment", "delay_s", "limit_s"),
-    # under way, the runs that a worker has begun end first (a fused run: seconds), as they always did
-    [("starting", 0.2, 10), ("starting", 1.0, 10), ("running", 0.5, 30)],
-    ids=["workers-starting-0.2s", "workers-starting-1s", "runs-under-way"],
-)
-def test_ctrl_c_ends_a_dask_run_at_once(tmp_path, session, moment, delay_s, limit_s):
-    out = tmp_path / "report"
-    argv = ["evaluate", str(session), "--maps", str(MAP), "--methods", "gnss", "fused", "--jaywalk-weights",
-            "0.4", "--workers", "2", "-o", str(out)]
+def _interrupt(
+    tmp_path: Path, argv: list[str], moment: str, delay_s: float, slow_run_s: float = 0.0,
+    again_s: float | None = None,
+):
+    """Run ``localize ARGV`` in a session of its own, SIGINT its process group ``delay_s`` after
+    ``@moment`` (and again ``again_s`` later); its exit status, stderr, seconds from the (first) SIGINT to
+    its exit, processes left running."""
+    env = {**os.environ, "SLOW_RUN_S": str(slow_run_s) if slow_run_s else ""}
     proc = subprocess.Popen([sys.executable, "-c", _CHILD, *argv], cwd=tmp_path, stdout=subprocess.DEVNULL,
-                            stderr=subprocess.PIPE, start_new_session=True)
+                            stderr=subprocess.PIPE, start_new_session=True, env=env)
     try:
         _read_up_to(proc.stderr, f"@{moment}".encode())
         time.sleep(delay_s)
         os.killpg(proc.pid, signal.SIGINT)  # as a terminal's Ctrl-C: to the command and its workers
         sent = time.monotonic()
-        _, err = proc.communicate(timeout=60)
+        if again_s is not None:
+            time.sleep(again_s)
+            os.killpg(proc.pid, signal.SIGINT)
+        _, err = proc.communicate(timeout=90)
         exit_s = time.monotonic() - sent
         deadline = time.monotonic() + 5  # multiprocessing's resource tracker exits after the command
         while (left := _alive_in_session(proc.pid)) and time.monotonic() < deadline:
@@ -112,13 +126,64 @@ def test_ctrl_c_ends_a_dask_run_at_once(tmp_path, session, moment, delay_s, limi
         with contextlib.suppress(ProcessLookupError):
             os.killpg(proc.pid, signal.SIGKILL)
         proc.communicate()
-    text = err.decode()
-    assert proc.returncode == 130, text
+    return proc.returncode, err.decode(), exit_s, left
+
+
+def _assert_interrupted(status: int, text: str, statuses: tuple[int, ...] = (130,)) -> None:
+    assert status in statuses, text
     assert text.splitlines()[-1] == "localize: interrupted" and text.count("interrupted") == 1, text
     assert "Traceback" not in text and "KeyboardInterrupt" not in text and "distributed." not in text, text
+
+
+def _evaluate_argv(session: Path, out: Path, *parallel: str) -> list[str]:
+    return ["evaluate", str(session), "--maps", str(MAP), "--methods", "gnss", "fused", "--jaywalk-weights",
+            "0.4", *parallel, "-o", str(out)]
+
+
+@pytest.mark.slow
+@pytest.mark.skipif(sys.platform == "win32", reason="SIGINT to a process group is POSIX")
+@pytest.mark.parametrize(
+    ("moment", "delay_s", "slow_run_s", "again_s", "limit_s"),
+    # under way, runs of 30 s (a long session's) are dropped: the workers are killed (it took 38.6 s); a
+    # second Ctrl-C while they are killed (a tenth of a second) does not cut that short (it took 6-11 s,
+    # with "Worker process still alive" warnings)
+    [("starting", 0.2, 0, None, 10), ("starting", 1.0, 0, None, 10), ("running", 1.5, 30, None, 8),
+     ("running", 1.5, 30, 0.02, 8)],
+    ids=["workers-starting-0.2s", "workers-starting-1s", "30s-runs-under-way", "twice-while-killing"],
+)
+def test_ctrl_c_ends_a_dask_run_at_once(tmp_path, session, moment, delay_s, slow_run_s, again_s, limit_s):
+    out = tmp_path / "report"
+    status, text, exit_s, left = _interrupt(
+        tmp_path, _evaluate_argv(session, out, "--workers", "2"), moment, delay_s, slow_run_s, again_s
+    )
+    # a second Ctrl-C that comes once the command is done may end the interpreter's exit (killed by SIGINT)
+    _assert_interrupted(status, text, (130,) if again_s is None else (130, -signal.SIGINT))
     assert exit_s < limit_s, f"{exit_s:.1f} s from Ctrl-C to the exit"
     assert not left, f"left running: {left}"
-    assert not (out / "report.md").exists()
+    assert not out.exists()
+
+
+@pytest.mark.slow
+@pytest.mark.skipif(sys.platform == "win32", reason="SIGINT to a process group is POSIX")
+def test_ctrl_c_cancels_the_runs_on_a_scheduler_and_leaves_its_cluster_up(tmp_path, session):
+    from dask.distributed import Client, LocalCluster
+
+    cluster = LocalCluster(n_workers=1, threads_per_worker=1, processes=True, dashboard_address=":0",
+                           scheduler_kwargs={"dashboard": False})
+    try:
+        out = tmp_path / "report"
+        argv = _evaluate_argv(session, out, "--scheduler", cluster.scheduler_address)
+        status, text, exit_s, left = _interrupt(tmp_path, argv, "running", 1.5, slow_run_s=30)
+        with Client(cluster) as client:
+            workers = client.scheduler_info()["workers"]
+            held = client.run_on_scheduler(lambda dask_scheduler: len(dask_scheduler.tasks))
+    finally:
+        runner._kill_cluster(cluster)  # its worker would sleep on in the cancelled run
+    _assert_interrupted(status, text)
+    assert exit_s < 8, f"{exit_s:.1f} s from Ctrl-C to the exit"
+    assert not left, f"left running: {left}"
+    assert len(workers) == 1 and held == 0, (workers, held)
+    assert not out.exists()
 
 
 @contextlib.contextmanager

@@ -17,6 +17,7 @@ from __future__ import annotations
 import contextlib
 import functools
 import logging
+import os
 import signal
 import threading
 from collections.abc import Iterator
@@ -314,7 +315,8 @@ def run_all(
         Naming ``--scheduler`` when no dask scheduler answers at ``scheduler`` within
         :data:`SCHEDULER_TIMEOUT_S`.
     KeyboardInterrupt
-        On Ctrl-C, at any moment, the local cluster's start-up included; its workers are closed first.
+        On Ctrl-C, at any moment, the local cluster's start-up included: the runs are cancelled and the
+        local workers killed first (:func:`_kill_cluster`), within a second or two.
     """
     disable = (not progress) if progress is not None else None
     if scheduler is None and workers <= 1:
@@ -322,7 +324,7 @@ def run_all(
     from dask.distributed import Client, as_completed
 
     cluster = _start_local_cluster(workers) if scheduler is None else None
-    client = None
+    client, futures, interrupted = None, [], False
     try:
         if cluster is None:
             client = _connect(scheduler)
@@ -337,11 +339,17 @@ def run_all(
         ):
             out[order[future.key]] = future.result()
         return out  # type: ignore[return-value]
+    except KeyboardInterrupt:
+        interrupted = True
+        raise
     finally:
-        if client is not None:
-            client.close()
-        if cluster is not None:
-            _close_cluster(cluster)
+        with _ctrl_c_blocked() if interrupted else contextlib.nullcontext():  # a 2nd Ctrl-C waits for this
+            if client is not None:
+                if interrupted:
+                    client.cancel(futures)  # on --scheduler, the user's cluster drops them (it lives on)
+                client.close()
+            if cluster is not None:
+                (_kill_cluster if interrupted else _close_cluster)(cluster)
 
 
 def _start_local_cluster(workers: int):
@@ -388,7 +396,7 @@ def _start_local_cluster(workers: int):
         if thread.ident is not None:
             done.wait()
             if "cluster" in started:
-                _close_cluster(started["cluster"])
+                _kill_cluster(started["cluster"])
         raise
     if "error" in started:
         raise started["error"]
@@ -413,6 +421,21 @@ def _close_cluster(cluster) -> None:
     """Close a local cluster, each worker process with :data:`WORKER_CLOSE_TIMEOUT_S` to exit on its own."""
     cluster.sync(_close_workers, cluster, WORKER_CLOSE_TIMEOUT_S)
     cluster.close()
+
+
+def _kill_cluster(cluster) -> None:
+    """Close a local cluster at once (Ctrl-C): its worker processes are killed, not left to end the runs
+    under way (a worker cannot drop a run half-way; a long session's run takes minutes)."""
+    cluster.sync(_kill_workers, cluster)
+    cluster.close()
+
+
+async def _kill_workers(cluster) -> None:
+    for nanny in list(cluster.workers.values()):
+        nanny.close_gracefully(reason="ctrl-c")  # a nanny closing gracefully starts no worker in place
+        if (pid := nanny.pid) is not None:
+            with contextlib.suppress(ProcessLookupError):  # it exited meanwhile
+                os.kill(pid, getattr(signal, "SIGKILL", signal.SIGTERM))  # SIGTERM ends it on Windows
 
 
 def check_scheduler(address: str) -> None:
