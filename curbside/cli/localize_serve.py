@@ -9,8 +9,9 @@
 Without ``--map`` it tracks as ``localize run`` does without one. Tracks of ended sessions go to
 ``DATA_DIR/tracks`` (default: the user's data folder, ``CURBSIDE_DATA_DIR``); they are kept until
 ``DELETE /tracks/{id}``, or, with ``--keep-tracks-days`` or ``--max-tracks``, until they are older or
-beyond the count (checked at start and every minute). With a token (from
-``--token-file`` or ``CURBSIDE_TOKEN``) every request must carry ``Authorization: Bearer TOKEN``.
+beyond the count (checked at start and every minute; the count also as each track is written). With a
+token (from ``--token-file`` or ``CURBSIDE_TOKEN``) every request must carry ``Authorization: Bearer
+TOKEN``.
 """
 
 from __future__ import annotations
@@ -165,8 +166,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "--max-tracks",
         type=positive_int,
         metavar="N",
-        help="keep at most the N newest finished tracks, removing the oldest at start and every minute "
-        "(default: no limit)",
+        help="keep at most the N newest finished tracks, removing the oldest at start, every minute and "
+        "as each track is written (default: no limit)",
     )
     parser.add_argument(
         "--threads",

@@ -19,7 +19,7 @@ from typing import Annotated, Any
 
 from fastapi import Depends, FastAPI, Request, WebSocket, WebSocketDisconnect
 from fastapi.exceptions import RequestValidationError
-from fastapi.responses import FileResponse, JSONResponse
+from fastapi.responses import JSONResponse
 from fastapi.security import HTTPAuthorizationCredentials, HTTPBearer
 from pydantic import ValidationError
 from starlette.responses import Response
@@ -28,6 +28,7 @@ from starlette.types import ASGIApp, Receive, Scope, Send
 from curbside import __version__
 from curbside.io import json_ready
 from curbside.localize.live import IMU_COLUMNS
+from curbside.localize.serve.download import OpenFileResponse
 from curbside.localize.serve.models import (
     ErrorMessage,
     Estimate,
@@ -45,6 +46,11 @@ logger = logging.getLogger(__name__)
 
 #: Largest request body (and WebSocket message) accepted, bytes: ~30,000 IMU rows of JSON.
 MAX_BODY_BYTES = 4 * 2**20
+
+#: ``Content-Type`` of each file ``GET /tracks/{id}/{name}`` serves.
+_MEDIA_TYPES = {
+    "track.csv": "text/csv", "track.geojson": "application/geo+json", "run.json": "application/json"
+}
 
 _ERRORS = {status: {"model": ErrorMessage} for status in (400, 401, 404, 409, 410, 413, 422, 500, 503)}
 
@@ -275,11 +281,16 @@ def _add_track_routes(app: FastAPI, service: TrackingService, auth: list) -> Non
         return Response(body, media_type="application/json")
 
     @app.get("/tracks/{session_id}/{name}", dependencies=auth, tags=["tracks"])
-    async def get_track_file(session_id: str, name: str) -> FileResponse:
-        """One file of an ended session's track: ``track.csv``, ``track.geojson`` or ``run.json``."""
+    def get_track_file(session_id: str, name: str) -> OpenFileResponse:
+        """One file of an ended session's track: ``track.csv``, ``track.geojson`` or ``run.json`` (one
+        byte range too). A download that has started is sent whole even if the track is deleted."""
         if name not in TRACK_FILES:
             raise ServiceError(404, f"no such file; one of {', '.join(TRACK_FILES)}")
-        return FileResponse(service.track_folder(session_id) / name)
+        try:  # opened here, not once the route has returned: see OpenFileResponse
+            file = (service.track_folder(session_id) / name).open("rb")
+        except FileNotFoundError:  # deleted since it was found
+            raise ServiceError(404, "no such track (deleted)") from None
+        return OpenFileResponse(file, _MEDIA_TYPES[name])
 
     @app.delete("/tracks/{session_id}", response_model=TrackInfo, dependencies=auth, tags=["tracks"])
     async def delete_track(session_id: str) -> dict[str, Any]:

@@ -40,8 +40,9 @@ class ServiceConfig:
         What each session accepts (:class:`~curbside.localize.live.LiveLimits`).
     keep_tracks_days, max_tracks
         Retention (``None``: none): finished tracks older than this many days, and the oldest beyond
-        this many, are removed at start and every
-        :data:`~curbside.localize.serve.service.RETENTION_PERIOD_S`.
+        this many, are removed by a pass at start (in the background) and every
+        :data:`~curbside.localize.serve.service.RETENTION_PERIOD_S`; the count also holds as each track
+        is written.
     """
 
     map_path: str | None = None

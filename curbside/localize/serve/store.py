@@ -6,8 +6,9 @@ session id. The listing shows keys, so an operator sees what is stored, and only
 session's id can read its track: the id is the session's only key, and it is never written to disk.
 
 A track is removed by ``DELETE /tracks/{id}`` (:meth:`TrackStore.delete`) or by the opt-in retention
-limits (:meth:`TrackStore.retain`: older than ``max_age_s``, or the oldest beyond ``max_count``). Only
-a folder the service wrote is touched (:func:`foreign_reason`), and in it only the files it wrote.
+limits (:meth:`TrackStore.retention_pass`: older than ``max_age_s``, or the oldest beyond ``max_count``;
+the count is also kept at each :meth:`TrackStore.save`). Only a folder the service wrote is touched
+(:func:`foreign_reason`), and in it only the files it wrote.
 """
 
 from __future__ import annotations
@@ -19,6 +20,7 @@ import os
 import re
 import threading
 import time
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
@@ -51,8 +53,14 @@ class TrackStore:
 
     The listing is read from disk once, when the store is made, and kept up to date by :meth:`save` and
     :meth:`delete`: reading every ``run.json`` at each ``GET /tracks`` took 0.6 s with 5,000 tracks, with
-    every live session waiting. :meth:`save`, :meth:`delete` and :meth:`retain` may run on another
+    every live session waiting. :meth:`save`, :meth:`delete` and the retention pass may run on another
     thread than :meth:`list` (one thread for the three of them).
+
+    The store also knows which listed folders are its own tracks and when each was written: those it
+    wrote, and those a retention pass has checked (the pass also renews their ages). :meth:`save` keeps
+    ``max_count`` with that, one track out for the one in (a backlog is the pass's, in steps): the
+    oldest of a part of the tracks is never one of the newest ``max_count`` of them all, so this is right
+    even before the first pass has checked every folder.
 
     Parameters
     ----------
@@ -71,8 +79,9 @@ class TrackStore:
         self.max_age_s = max_age_s
         self.max_count = max_count
         self._lock = threading.Lock()
-        # Listed folders found to be the service's own tracks, or not (warned once): checked once each.
-        self._own: set[str] = set()
+        # Listed folders found to be the service's own tracks (with when their run.json was written, Unix
+        # s), or not (warned once): checked once each.
+        self._own: dict[str, float] = {}
         self._foreign: set[str] = set()
         self._listing: dict[str, dict[str, Any]] = {}
         for folder in sorted(p for p in self.root.iterdir() if p.is_dir()):
@@ -86,7 +95,10 @@ class TrackStore:
         return hashlib.sha256(session_id.encode()).hexdigest()[:32]
 
     def save(self, session_id: str, result: TrackResult, service_info: dict[str, Any]) -> Path:
-        """Write a session's track atomically; ``service_info`` goes into ``run.json``'s ``service``."""
+        """Write a session's track atomically; ``service_info`` goes into ``run.json``'s ``service``.
+
+        Then, over ``max_count`` tracks, the oldest the store knows goes (see the class docstring).
+        """
         key = self.key(session_id)
         track = result.track
         info = {
@@ -99,9 +111,14 @@ class TrackStore:
         }
         folder = write_track(result, self.root / key, info)
         listed = _listed(key, _read_json(folder / "run.json") or {})
+        written_s = (folder / "run.json").stat().st_mtime
         with self._lock:
             self._listing[key] = listed
-        self._own.add(key)
+            self._own[key] = written_s
+            over = self.max_count is not None and len(self._own) > self.max_count
+            oldest = min(self._own, key=lambda k: (self._own[k], k)) if over else None
+        if oldest is not None:
+            self._remove(oldest, f"over {self.max_count} tracks")
         return folder
 
     def folder(self, session_id: str) -> Path | None:
@@ -153,6 +170,7 @@ class TrackStore:
         written = set((read_marker(folder) or {}).get("files", []))
         with self._lock:
             listed = self._listing.pop(key, None) or _listed(key, _read_json(folder / "run.json") or {})
+            self._own.pop(key, None)
         for name in _OWN_FILES:  # run.json first: from then on it is no longer a track
             if name in written:
                 (folder / name).unlink(missing_ok=True)
@@ -163,15 +181,11 @@ class TrackStore:
             others = ", ".join(sorted(p.name for p in folder.iterdir()))
             logger.warning("%s: track removed; the folder stays for files the service did not write (%s)",
                            folder, others)
-        self._own.discard(key)
         logger.info("track %s removed (%s)", key, why)
         return listed
 
     def retain(self, now_s: float | None = None) -> list[str]:
-        """Remove the tracks beyond the retention limits; the keys removed.
-
-        A track's age is the time since its ``run.json`` was written (its modification time). Folders the
-        service did not write are left, and do not count towards ``max_count``.
+        """Remove the tracks beyond the retention limits at once (:meth:`retention_pass`, every step).
 
         Parameters
         ----------
@@ -183,46 +197,108 @@ class TrackStore:
         list of str
             The keys of the tracks removed, oldest first.
         """
+        return [key for key in self.retention_pass(now_s) if key is not None]
+
+    def retention_pass(self, now_s: float | None = None) -> Iterator[str | None]:
+        """Remove the tracks beyond the retention limits, one step at a time (see :func:`run_for`).
+
+        A track's age is the time since its ``run.json`` was written (its modification time). Folders the
+        service did not write are left, and do not count towards ``max_count``. A step checks one listed
+        folder (once per folder) and renews its age, or removes one track; between two steps the store
+        may save and delete tracks: each removal is decided on the store as it is then.
+
+        Parameters
+        ----------
+        now_s
+            The present, Unix seconds (default: when the pass starts).
+
+        Yields
+        ------
+        str or None
+            The key of the track a step removed (oldest first), else ``None``.
+        """
         if self.max_age_s is None and self.max_count is None:
-            return []
+            return
         now_s = time.time() if now_s is None else now_s
         with self._lock:
             keys = list(self._listing)
-        written_s = []
-        for key in filter(self._is_own, keys):
-            try:
-                written_s.append(((self.root / key / "run.json").stat().st_mtime, key))
-            except OSError:  # removed meanwhile
-                continue
-        written_s.sort()
-        left, removed = len(written_s), []
-        for mtime_s, key in written_s:
-            too_old = self.max_age_s is not None and now_s - mtime_s > self.max_age_s
-            if not too_old and (self.max_count is None or left <= self.max_count):
+        for key in keys:
+            with self._lock:
+                listed = key in self._listing  # not deleted since
+            if listed and self._is_own(key):
+                written_s = _written_s(self.root / key)
+                with self._lock:
+                    if written_s is None:  # removed by hand
+                        self._own.pop(key, None)
+                    elif key in self._own:
+                        self._own[key] = written_s
+            yield None
+        with self._lock:
+            by_age = sorted(self._own.items(), key=lambda item: (item[1], item[0]))
+        removed = 0
+        for key, written_s in by_age:
+            with self._lock:
+                if key not in self._own:  # deleted since
+                    continue
+                over = self.max_count is not None and len(self._own) > self.max_count
+            too_old = self.max_age_s is not None and now_s - written_s > self.max_age_s
+            if not too_old and not over:
                 break  # the rest are younger, and within the count
-            left -= 1
-            why = f"{(now_s - mtime_s) / 86400:.1f} days old" if too_old else f"over {self.max_count} tracks"
-            try:
-                if self.delete(key, why) is not None:
-                    removed.append(key)
-            except (ForeignFolderError, OSError) as exc:  # changed since it was checked; unremovable
-                reason = getattr(exc, "strerror", None) or exc
-                logger.warning("%s: cannot remove it (%s)", self.root / key, reason)
+            age_days = (now_s - written_s) / 86400
+            why = f"{age_days:.1f} days old" if too_old else f"over {self.max_count} tracks"
+            gone = self._remove(key, why)
+            removed += gone
+            yield key if gone else None
         if removed:
-            logger.info("retention removed %d track(s)", len(removed))
-        return removed
+            logger.info("retention removed %d track(s)", removed)
+
+    def _remove(self, key: str, why: str) -> bool:
+        """:meth:`delete` for the retention limits: whether the track went; it no longer counts anyway."""
+        try:
+            gone = self.delete(key, why) is not None
+        except (ForeignFolderError, OSError) as exc:  # changed since it was checked; unremovable
+            reason = getattr(exc, "strerror", None) or exc
+            logger.warning("%s: cannot remove it (%s)", self.root / key, reason)
+            gone = False
+        with self._lock:
+            self._own.pop(key, None)
+        return gone
 
     def _is_own(self, key: str) -> bool:
         """Whether the listed folder ``key`` is a track the service wrote (checked once per folder)."""
-        if key in self._own or key in self._foreign:
-            return key in self._own
+        with self._lock:
+            if key in self._own or key in self._foreign:
+                return key in self._own
         if not os.path.lexists(self.root / key):  # removed by hand
             return False
         reason = foreign_reason(self.root / key, key)
-        (self._foreign if reason else self._own).add(key)
+        written_s = None if reason else _written_s(self.root / key)
         if reason:
+            self._foreign.add(key)
             logger.warning("%s: %s", self.root / key, ForeignFolderError(key, reason))
-        return reason is None
+        elif written_s is not None:
+            with self._lock:
+                self._own[key] = written_s
+        return written_s is not None
+
+
+def run_for(steps: Iterator[Any], budget_s: float) -> bool:
+    """Take steps of ``steps`` (:meth:`TrackStore.retention_pass`) for about ``budget_s``.
+
+    Parameters
+    ----------
+    steps
+        The steps left.
+    budget_s
+        Seconds after which no further step starts.
+
+    Returns
+    -------
+    bool
+        Whether no step is left.
+    """
+    deadline_s = time.perf_counter() + budget_s
+    return all(time.perf_counter() < deadline_s for _ in steps)
 
 
 def foreign_reason(folder: Path, key: str) -> str | None:
@@ -272,6 +348,14 @@ def _listed(key: str, info: dict[str, Any]) -> dict[str, Any]:
         "t_start": service.get("t_start"),
         "t_end": service.get("t_end"),
     }
+
+
+def _written_s(folder: Path) -> float | None:
+    """When ``folder``'s ``run.json`` was written (Unix s); ``None`` when it is gone."""
+    try:
+        return (folder / "run.json").stat().st_mtime
+    except OSError:
+        return None
 
 
 def _read_json(path: Path) -> dict[str, Any] | None:
