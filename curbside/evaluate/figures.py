@@ -1,6 +1,7 @@
 """The report figures: the paper's Figs. 1, 3, 4 and 5, and the benchmark's per-session comparison.
 
-Every figure shows the four methods in the same colours (:data:`METHOD_COLORS`). Map figures draw
+Every figure shows the four methods in the same colours (:data:`METHOD_COLORS`, those of the replay
+pages, apart for colour-blind readers too). Map figures draw
 the map classes with a legend, a scale bar and the map's attribution ("© OpenStreetMap
 contributors"); figures of one configuration say which jaywalk weight and which map they show.
 """
@@ -25,9 +26,10 @@ from curbside import settings  # noqa: E402
 from curbside.evaluate.runner import METHOD_LABELS, METHODS  # noqa: E402
 from curbside.localize.filter.calibration import TAIL_DOF  # noqa: E402
 from curbside.osmseg.mapio import MapLayers  # noqa: E402
+from curbside.osmseg.style import GNSS_FIX_COLOUR, METHOD_COLOURS  # noqa: E402
 
-#: One colour per method, in every figure.
-METHOD_COLORS = {"gnss": "#d62728", "inertial": "#2ca02c", "paper": "#ff7f0e", "fused": "#9467bd"}
+#: One colour per method, in every figure (:data:`curbside.osmseg.style.METHOD_COLOURS`).
+METHOD_COLORS = METHOD_COLOURS
 #: Light fills of the map classes under the tracks (drawn bottom to top in this order).
 CLASS_COLORS = {"street": "#a9adb8", "crosswalk": "#f2e394", "sidewalk": "#bfe3b4", "building": "#c9a0a0"}
 CLASS_LABELS = {
@@ -112,8 +114,9 @@ def _method_handles(methods: list[str], marker_size: float = 6.0) -> list:
 
 
 def config_label(base: dict[str, Any]) -> str:
-    """``w = 0.4, map 'osm'``: which configuration a figure shows."""
-    return f"w = {base['jaywalk_weight']:g}, map '{base['map']}'"
+    """``jaywalk weight w = 0.4, map 'osm'``: which configuration a figure shows (``w`` as in the
+    report's tables)."""
+    return f"jaywalk weight w = {base['jaywalk_weight']:g}, map '{base['map']}'"
 
 
 def is_base(result: dict, base: dict[str, Any]) -> bool:
@@ -180,12 +183,13 @@ def fig_tracks(
     fig.legend(handles=handles, loc="lower center", ncol=ncol, fontsize=8, frameon=False)
     fig.suptitle(f"{title} ({config_label(base)})")
     legend_in = 0.22 * math.ceil(len(handles) / ncol) + 0.15
-    fig.tight_layout(rect=(0, legend_in / fig.get_figheight(), 1, 1))
+    # h_pad: room between a panel and the title of the one below, so that each title reads as its own
+    fig.tight_layout(rect=(0, legend_in / fig.get_figheight(), 1, 1), h_pad=2.0)
     return fig
 
 
 #: Colour of the GNSS fix and its accuracy circle in Fig. 3.
-FIX_COLOR = "#1f77b4"
+FIX_COLOR = GNSS_FIX_COLOUR
 #: Half the side of a Fig. 3 panel (m), around the ground truth.
 PARTICLE_PANEL_HALF_M = 45.0
 
@@ -206,11 +210,30 @@ def _fix_marker(ax: plt.Axes, fix: tuple[float, float, float], bounds: tuple[flo
     )
 
 
+def _cloud_off_panel(
+    ax: plt.Axes, x: np.ndarray, y: np.ndarray, truth: tuple[float, float], bounds: tuple[float, ...],
+    color: str,
+) -> None:
+    """When no particle of a cloud lies in the panel, say so in it, and how far its mean is from the
+    ground truth: an empty panel would read as a missing run."""
+    x0, y0, x1, y1 = bounds
+    x, y = np.asarray(x, float), np.asarray(y, float)
+    if len(x) == 0 or np.any((x >= x0) & (x <= x1) & (y >= y0) & (y <= y1)):
+        return
+    away_m = float(np.hypot(np.mean(x) - truth[0], np.mean(y) - truth[1]))
+    ax.text(
+        0.5, 0.82, f"cloud {away_m:.0f} m away,\noff the panel", transform=ax.transAxes, fontsize=8,
+        color=color, fontweight="bold", ha="center", va="center", zorder=6,
+        path_effects=[patheffects.withStroke(linewidth=3, foreground="white")],
+    )
+
+
 def fig_particles(results: list[dict], layers: MapLayers | None, base: dict[str, Any]) -> plt.Figure | None:
     """Fig. 3: particle clouds of every particle-filter method at the chosen moments of one session.
 
     One row per moment, one column per method, every panel of a row the same square around the ground
-    truth: no cloud hides another. The GNSS fix of the moment is in every panel of its row.
+    truth: no cloud hides another. The GNSS fix of the moment is in every panel of its row; a cloud with
+    no particle in its panel is named there, with its distance.
     """
     runs = [r for r in results if r["snapshots"]]
     if not runs:
@@ -236,6 +259,7 @@ def fig_particles(results: list[dict], layers: MapLayers | None, base: dict[str,
             draw_map(ax, layers, bounds)
             snap = by_method[m]["snapshots"][k]
             ax.scatter(snap["x"], snap["y"], s=3, alpha=0.6, color=METHOD_COLORS[m], linewidths=0, zorder=3)
+            _cloud_off_panel(ax, snap["x"], snap["y"], (cx, cy), bounds, METHOD_COLORS[m])
             if fix is not None:
                 _fix_marker(ax, fix, bounds)
             ax.plot(cx, cy, "k*", ms=11, zorder=5)
@@ -387,7 +411,10 @@ def fig_reliability(rows: list[dict[str, Any]], base: dict[str, Any]) -> plt.Fig
     groups = list(dict.fromkeys(r["subset"] for r in rows))
     radius = any(r.get("accuracy_curve") for r in rows)
     width = max(6.0, 4.3 * len(groups) + 0.4)
-    fig, axes = plt.subplots(1 + radius, len(groups), figsize=(width, 6.1 + 5.4 * radius), squeeze=False)
+    # constrained layout: it leaves room for the legends under the square top panels (tight_layout let
+    # them run over the titles below once there were two groups)
+    fig, axes = plt.subplots(1 + radius, len(groups), figsize=(width, 6.1 + 5.4 * radius), squeeze=False,
+                             layout="constrained")
     for k, group in enumerate(groups):
         in_group = [r for r in rows if r["subset"] == group]
         _segment_reliability_axes(axes[0][k], in_group, group)
@@ -399,7 +426,7 @@ def fig_reliability(rows: list[dict[str, Any]], base: dict[str, Any]) -> plt.Fig
     title = "How far to trust segment_prob" + (" and accuracy_m" if radius else "")
     note = "marker area (top): the bin's share of the footsteps"
     fig.suptitle(f"{title} ({config_label(base)})\n{note}", fontsize=11)
-    fig.tight_layout()
+    fig.get_layout_engine().set(hspace=0.05)
     return fig
 
 

@@ -116,7 +116,9 @@ class Table:
         head = "".join(f"<th>{html.escape(h)}</th>" for h in self.header)
         body = "".join("<tr>" + "".join(_td(c) for c in r) + "</tr>" for r in self.rows)
         note = f"<p class='note'>{html.escape(self.note)}</p>" if self.note else ""
-        return f"<h3>{html.escape(self.title)}</h3><table><tr>{head}</tr>{body}</table>{note}"
+        # wrapped: a table wider than a phone's screen scrolls on its own, the page's text does not
+        return (f"<h3>{html.escape(self.title)}</h3><div class='table'><table><tr>{head}</tr>{body}</table>"
+                f"</div>{note}")
 
 
 def _lookup(pooled: pd.DataFrame, method: str, **where: Any) -> pd.Series | None:
@@ -522,6 +524,42 @@ def _write_figures(
     return [(name, alt, save_png(fig, figdir / name)) for name, alt, fig in figs if fig is not None]
 
 
+#: What every report page's style starts with: a page that reads on a phone (tables scroll sideways in
+#: their own box, figures shrink to the screen).
+BASE_STYLE = (
+    "body{font-family:sans-serif;margin:auto;padding:1em}"
+    "table{border-collapse:collapse;margin:.5em 0}td,th{border:1px solid #bbb;padding:3px 8px;"
+    "text-align:right}th{background:#eee}.note{color:#555;font-size:90%}img{max-width:100%;height:auto}"
+    "td{white-space:nowrap}td:first-child{text-align:left}div.table{overflow-x:auto}figure{margin:1em 0}"
+)
+
+
+def html_document(title: str, style: str, body: str) -> str:
+    """A self-contained report page: ``<head>`` with the viewport of a phone's screen, ``title``
+    (escaped), ``style`` after :data:`BASE_STYLE`, then ``body`` (markup).
+
+    Parameters
+    ----------
+    title
+        The page title.
+    style
+        The page's own CSS.
+    body
+        The body's markup.
+
+    Returns
+    -------
+    str
+        The HTML document.
+    """
+    return (
+        "<!doctype html><html lang='en'><head><meta charset='utf-8'>"
+        "<meta name='viewport' content='width=device-width, initial-scale=1'>"
+        f"<title>{html.escape(title)}</title><style>{BASE_STYLE}{style}</style></head>"
+        f"<body>{body}</body></html>"
+    )
+
+
 def _html_page(
     intro: str, tables: list[Table], figures: list[tuple[str, str, bytes]], views: dict[str, str]
 ) -> str:
@@ -538,14 +576,9 @@ def _html_page(
         )
         + "</ul>"
     )
-    style = (
-        "body{font-family:sans-serif;max-width:1200px;margin:auto;padding:1em}"
-        "table{border-collapse:collapse;margin:.5em 0}td,th{border:1px solid #bbb;padding:3px 8px;"
-        "text-align:right}th{background:#eee}.note{color:#555;font-size:90%}img{max-width:100%}"
-    )
-    return (
-        f"<!doctype html><html><head><meta charset='utf-8'><title>curbside report</title>"
-        f"<style>{style}</style></head><body><h1>curbside evaluation report</h1>"
+    return html_document(
+        "curbside report", "body{max-width:1200px}",
+        f"<h1>curbside evaluation report</h1>"
         f"<p>{html.escape(intro)}</p>{''.join(t.html() for t in tables)}{imgs}{views_html}"
-        f"<p class='note'>{html.escape(settings.osm_attribution)}</p></body></html>"
+        f"<p class='note'>{html.escape(settings.osm_attribution)}</p>",
     )

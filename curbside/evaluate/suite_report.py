@@ -37,6 +37,7 @@ from curbside.evaluate.report import (
     Table,
     confidence_table,
     fmt_value,
+    html_document,
     interval_table,
     json_ready,
     paper_header,
@@ -53,10 +54,7 @@ if TYPE_CHECKING:
     from curbside.evaluate.suite import SuiteConfig
 
 _STYLE = (
-    "body{font-family:sans-serif;max-width:1250px;margin:auto;padding:1em}"
-    "table{border-collapse:collapse;margin:.5em 0}td,th{border:1px solid #bbb;padding:3px 8px;"
-    "text-align:right}th{background:#eee}.note{color:#555;font-size:90%}img{max-width:100%}"
-    "td:first-child{text-align:left;white-space:nowrap}td.pass{background:#d9f2d9}td.fail{background:#f7d4d4}"
+    "body{max-width:1250px}td.pass{background:#d9f2d9}td.fail{background:#f7d4d4}"
 )
 METRICS = ("csa", "euclid_median_m", "euclid_p90_m", "euclid_mean_m", "along_median_m", "across_median_m")
 HEADERS = ("CSA", "median m", "p90 m", "mean m", "along median m", "across median m")
@@ -467,11 +465,11 @@ def write_suite_report(
             "</figure>"
             for _, alt, data in figures
         )
-        page = (
-            f"<!doctype html><html><head><meta charset='utf-8'><title>curbside benchmark</title>"
-            f"<style>{_STYLE}</style></head><body><h1>curbside benchmark report</h1>"
-            f"<p>{html.escape(intro)}</p>{''.join(t.html() for t in tables)}{imgs}"
-            f"<p class='note'>Map data {html.escape(settings.osm_attribution)}</p></body></html>"
+        page = html_document(
+            "curbside benchmark", _STYLE,
+            f"<h1>curbside benchmark report</h1><p>{html.escape(intro)}</p>"
+            f"{''.join(t.html() for t in tables)}{imgs}"
+            f"<p class='note'>Map data {html.escape(settings.osm_attribution)}</p>",
         )
         (tmp / "report.html").write_text(page, encoding="utf-8")
     return {name: out_dir / name for name in ("metrics.json", "report.md", "report.html", "run.json")}

@@ -37,6 +37,7 @@ from curbside.localize.session import Session
 from curbside.localize.view_data import SegmentNamer, run_data, session_data
 from curbside.osmseg.mapio import MapLayers, read_map
 from curbside.osmseg.plot import clip_to_bbox
+from curbside.osmseg.style import GNSS_FIX_COLOUR, METHOD_COLOURS
 from curbside.osmseg.webmap import (
     asset_text,
     attribution,
@@ -49,12 +50,9 @@ from curbside.projection import LocalFrame
 
 log = logging.getLogger(__name__)
 
-#: Track colour of each method (the report's figures use the same).
-METHOD_COLOURS: dict[str, str] = {
-    "gnss": "#d62728", "inertial": "#2ca02c", "fused": "#9467bd", "paper": "#ff7f0e"
-}
-#: Colours of further runs, in turn.
-EXTRA_COLOURS: tuple[str, ...] = ("#1f77b4", "#8c564b", "#e377c2", "#17becf", "#bcbd22", "#7f7f7f")
+#: Colours of further runs, in turn (after :data:`~curbside.osmseg.style.METHOD_COLOURS`, the track
+#: colour of each method, the report's figures' too; none of them the GNSS fixes' blue or the buildings').
+EXTRA_COLOURS: tuple[str, ...] = ("#0072b2", "#cc79a7", "#d55e00", "#17becf", "#bcbd22", "#7f7f7f")
 #: Metres of map kept around the tracks and the ground truth (the fitted view leaves room for the panel
 #: beside the walk: that room shows map too).
 MAP_MARGIN_M = 150.0
@@ -282,7 +280,7 @@ def view_page(
     title = title or f"curbside replay: {', '.join(names)}"
     west, south, east, north = _extent(runs)
     data = {"runs": runs_data, "sessions": list(sessions.values()), "title": title,
-            "bounds": [[south, west], [north, east]]}
+            "bounds": [[south, west], [north, east]], "gnss_colour": GNSS_FIX_COLOUR}
     credits = " · ".join(dict.fromkeys(attribution(layers) for layers in maps.values()))
     script = "\n".join(
         [

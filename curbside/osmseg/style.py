@@ -23,6 +23,15 @@ CLASS_STYLE: dict[str, dict[str, object]] = {
     },
     "building": {"facecolor": "#6f4646", "edgecolor": "#3f2626", "linewidth": 0.2, "label": "building"},
 }
+#: One colour per tracking method, in every report figure and replay page: GNSS red, RoNIN+PF green,
+#: the paper's method orange, curbside fused purple. Picked (from the Okabe-Ito palette, the purple
+#: darkened) so that every pair stays apart for readers with red-green colour blindness too;
+#: matplotlib's default red, green and orange merge under deuteranopia and protanopia.
+METHOD_COLOURS: dict[str, str] = {
+    "gnss": "#c8102e", "inertial": "#009e73", "paper": "#e69f00", "fused": "#7b2d8e"
+}
+#: The GNSS fixes and their accuracy circles (apart from every method's colour in the same way).
+GNSS_FIX_COLOUR = "#3a9ad9"
 #: Where a map's buildings stand on its own sidewalks (a map assembled from two sources).
 CONFLICT_COLOUR = "#d62728"
 #: Colour of the space no polygon covers.

@@ -2,8 +2,9 @@
 
 Every page inlines the vendored Leaflet (``curbside/data/web``) and its data, loads nothing and uses no
 tile server: the map classes are drawn from the map itself. The page skeleton (:func:`leaflet_page`)
-creates ``map`` (canvas renderer), the © OpenStreetMap attribution, a scale bar and an expanded layer
-control ``layers``; each page adds its own script after that.
+creates ``map`` (canvas renderer), the © OpenStreetMap attribution, a scale bar and a layer control
+``layers``, expanded unless the map is narrower than :data:`NARROW_MAP_PX`; each page adds its own
+script after that.
 """
 
 from __future__ import annotations
@@ -25,6 +26,17 @@ from curbside.projection import WGS84
 #: Decimals of the lon/lat coordinates written into pages (6 decimals ~ 0.1 m: display only; the
 #: GeoJSON map files keep 7).
 COORDINATE_DECIMALS = 6
+
+#: A map narrower than this (CSS pixels: a phone held upright) gets its layer control folded.
+NARROW_MAP_PX = 600
+
+#: The layer control's button (three stacked sheets), inlined: Leaflet's own is a PNG file.
+LAYERS_ICON = (
+    "data:image/svg+xml,%3Csvg xmlns='http://www.w3.org/2000/svg' viewBox='0 0 26 26'%3E"
+    "%3Cg stroke='%23333' stroke-width='1.6' stroke-linejoin='round'%3E"
+    "%3Cpath d='M3 17l10 5 10-5' fill='none'/%3E%3Cpath d='M3 13l10 5 10-5' fill='none'/%3E"
+    "%3Cpath d='M13 4 3 9l10 5 10-5z' fill='%23fff'/%3E%3C/g%3E%3C/svg%3E"
+)
 
 #: The vendored web libraries (scripts, stylesheets, licences); see ``curbside/data/web/README.md``.
 WEB_ASSETS = Path(__file__).resolve().parents[1] / "data" / "web"
@@ -160,6 +172,11 @@ html, body {{ height: 100%; width: 100%; margin: 0; padding: 0; }}
 .leaflet-container {{ background: {background}; }}
 .leaflet-tooltip td:first-child {{ color: #666; padding-right: 0.6em; }}
 .swatch {{ display: inline-block; width: 0.9em; height: 0.9em; border: 1px solid; vertical-align: -0.1em; }}
+/* the folded layer control's button: leaflet.css would fetch images/layers.png from beside the page */
+.leaflet-control-layers-toggle, .leaflet-retina .leaflet-control-layers-toggle {{
+  background-image: url("{layers_icon}"); background-size: 26px 26px; }}
+/* the attribution wraps beside the scale bar (at most 100 px wide) instead of running over it */
+.leaflet-bottom.leaflet-right {{ max-width: calc(100% - 120px); }}
 {page_css}
 </style>
 {scripts}
@@ -171,7 +188,8 @@ html, body {{ height: 100%; width: 100%; margin: 0; padding: 0; }}
 const map = L.map("map", {{preferCanvas: true, maxZoom: 22, zoomSnap: 0.25}});
 map.attributionControl.addAttribution({attribution});
 L.control.scale().addTo(map);
-const layers = L.control.layers(null, null, {{collapsed: false}}).addTo(map);
+// on a phone-wide map the layer control folds into its button (tap it for the legend)
+const layers = L.control.layers(null, null, {{collapsed: map.getSize().x < {narrow_px}}}).addTo(map);
 const SEGMENT_FIELDS = [["segment", "segment_id"], ["OSM side", "side"]];
 function segmentTable(layer) {{
   const props = layer.feature.properties;
@@ -240,5 +258,7 @@ def leaflet_page(
         page_css=page_css,
         body=body,
         attribution=script_json(attribution_html),
+        narrow_px=NARROW_MAP_PX,
+        layers_icon=LAYERS_ICON,
         script=script,
     )

@@ -4,7 +4,7 @@
 // seconds on the session clock.
 
 const OFFSET_UNIT_DEG = 1e-6;
-const GNSS_COLOUR = "#1f77b4";
+const GNSS_COLOUR = VIEW.gnss_colour;  // curbside.osmseg.style.GNSS_FIX_COLOUR
 const ui = {
   panel: document.getElementById("panel"),
   panelToggle: document.getElementById("panel-toggle"),
