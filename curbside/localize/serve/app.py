@@ -4,8 +4,9 @@ Every error is a JSON ``{"detail": "one line"}`` with a 4xx status: 400 malforme
 wrong token, 404 unknown session or track, 409 session ending or still open (or a track folder the
 service did not write), 410 session ended, 413 body too large, 422 rows or configuration refused
 (nothing changed), 503 too many sessions or the service stopping; a bug is a 500 naming only the
-exception's type. The OpenAPI page is at ``/docs`` (the schema at ``/openapi.json``; both public: they
-hold no data).
+exception's type. The API reference is at ``/docs`` (a page that needs nothing from outside;
+Swagger UI, from a CDN, at ``/docs/swagger``; the schema at ``/openapi.json``; all public: they hold no
+data).
 """
 
 from __future__ import annotations
@@ -19,7 +20,8 @@ from typing import Annotated, Any
 
 from fastapi import Depends, FastAPI, Request, WebSocket, WebSocketDisconnect
 from fastapi.exceptions import RequestValidationError
-from fastapi.responses import JSONResponse
+from fastapi.openapi.docs import get_swagger_ui_html
+from fastapi.responses import HTMLResponse, JSONResponse
 from fastapi.security import HTTPAuthorizationCredentials, HTTPBearer
 from pydantic import ValidationError
 from starlette.responses import Response
@@ -28,6 +30,7 @@ from starlette.types import ASGIApp, Receive, Scope, Send
 from curbside import __version__
 from curbside.io import json_ready
 from curbside.localize.live import IMU_COLUMNS
+from curbside.localize.serve.apidocs import api_reference_html
 from curbside.localize.serve.download import OpenFileResponse
 from curbside.localize.serve.models import (
     ErrorMessage,
@@ -173,6 +176,8 @@ def create_app(config: ServiceConfig, service: TrackingService | None = None) ->
         description="See docs/service.md. Rows use the SPEC's imu.csv and gnss.csv column names and units.",
         lifespan=lifespan,
         responses=_ERRORS,
+        docs_url=None,  # Swagger UI loads from a CDN: /docs is the offline page of _add_docs_routes
+        redoc_url=None,
     )
     app.state.service = service
     app.state.token = config.token
@@ -209,7 +214,24 @@ def create_app(config: ServiceConfig, service: TrackingService | None = None) ->
 
     _add_session_routes(app, service, config, auth)
     _add_track_routes(app, service, auth)
+    _add_docs_routes(app)
     return app
+
+
+def _add_docs_routes(app: FastAPI) -> None:
+    """``/docs``: the API reference as one page that needs nothing from outside; ``/docs/swagger``:
+    FastAPI's Swagger UI, which the browser loads from the jsDelivr CDN."""
+    page: list[str] = []  # drawn at the first request, once every route is in the schema
+
+    @app.get("/docs", include_in_schema=False)
+    async def reference() -> HTMLResponse:
+        if not page:
+            page.append(api_reference_html(app.openapi()))
+        return HTMLResponse(page[0])
+
+    @app.get("/docs/swagger", include_in_schema=False)
+    async def swagger() -> HTMLResponse:
+        return get_swagger_ui_html(openapi_url=app.openapi_url, title=f"{app.title}: Swagger UI")
 
 
 def _add_session_routes(app: FastAPI, service: TrackingService, config: ServiceConfig, auth: list) -> None:
