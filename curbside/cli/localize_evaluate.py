@@ -96,8 +96,9 @@ def _simulate(args: argparse.Namespace) -> int:
         _check_on_map(args.map, layers, route, frame)
     write_session(session, args.output, overwrite=args.overwrite, command="localize simulate")
     print(
-        f"{args.output}: {route.spec.name}, {route.length_m:.0f} m, {route.crossings} crosswalk crossings, "
-        f"{route.jaywalks} jaywalks, {len(session.gnss)} GNSS fixes"
+        f"{args.output}: {route.spec.name}, {route.length_m:.0f} m, "
+        f"{_count(route.crossings, 'crosswalk crossing')}, {_count(route.jaywalks, 'jaywalk')}, "
+        f"{_count(len(session.gnss), 'GNSS fix', 'GNSS fixes')}"
     )
     return 0
 
@@ -201,6 +202,11 @@ def _check_ronin_weights(path: str) -> None:
             "localize train-ronin writes them)",
         )
     load_model(path)
+
+
+def _count(n: int, one: str, many: str | None = None) -> str:
+    """``1 jaywalk``, ``2 jaywalks``."""
+    return f"{n} {one if n == 1 else (many or one + 's')}"
 
 
 def _evaluate(args: argparse.Namespace) -> int:

@@ -264,9 +264,10 @@ def run_benchmark(
     table1 = route_table(sessions)
     intro = (
         f"Six simulated walks in downtown San Francisco shaped like the paper's Table 1, {seeds} "
-        "recording(s) each, tracked on the automatic OSM map. GNSS errors come from an urban-canyon "
-        "model driven by OSM building heights; inertial velocity is RoNIN-like (velocity.csv) with "
-        f"the '{profile}' error profile. Numbers in parentheses are the paper's (real walks, real RoNIN)."
+        f"recording{'' if seeds == 1 else 's'} each, tracked on the automatic OSM map. GNSS errors come "
+        "from an urban-canyon model driven by OSM building heights; inertial velocity is RoNIN-like "
+        f"(velocity.csv) with the '{profile}' error profile. Numbers in parentheses are the paper's "
+        "(real walks, real RoNIN)."
     )
     paths = write_report(
         results,
