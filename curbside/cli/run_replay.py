@@ -109,9 +109,12 @@ def changed_inputs(recorded: dict[str, Any], now: dict[str, Any], map_path: str 
     if recorded.get("map_sha256") != now.get("map_sha256"):
         changed.append(f"the map {map_path}" if map_path else "the map (none now)")
     if "ronin_weights" in recorded:
+        from curbside.localize.ronin.provenance import same_config
+
         was, used = recorded["ronin_weights"], ronin_weights_record(weights)
-        keys = [key for key in ("sha256", "config_sha256") if key in was]  # earlier run.json: no config
-        if any(was[key] != used[key] for key in keys):
+        # earlier run.json: no config, or the whole config file's digest
+        other_config = "config_sha256" in was and not same_config(was["config_sha256"], used["path"])
+        if ("sha256" in was and was["sha256"] != used["sha256"]) or other_config:
             changed.append(f"the RoNIN weights {used['path']}")
     return changed
 

@@ -406,15 +406,22 @@ def _start_local_cluster(workers: int):
 @contextlib.contextmanager
 def _ctrl_c_blocked() -> Iterator[None]:
     """Block SIGINT in this thread (the threads and processes it starts inherit the mask); a Ctrl-C
-    meanwhile is held, and raised as KeyboardInterrupt when the block ends."""
-    if not hasattr(signal, "pthread_sigmask"):  # Windows has no signal masks
-        yield
-        return
-    previous = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
+    meanwhile is held, and raised as KeyboardInterrupt when the block ends. The main thread's handler only
+    notes it meanwhile: the mask alone does not hold a Ctrl-C that another thread (tqdm's monitor) takes."""
+    held: list[int] = []
+    in_main = threading.current_thread() is threading.main_thread()
+    handler = signal.signal(signal.SIGINT, lambda signum, frame: held.append(signum)) if in_main else None
+    masked = hasattr(signal, "pthread_sigmask")  # Windows has no signal masks
+    previous = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT}) if masked else None
     try:
         yield
     finally:
-        signal.pthread_sigmask(signal.SIG_SETMASK, previous)
+        if masked:
+            signal.pthread_sigmask(signal.SIG_SETMASK, previous)
+        if in_main:
+            signal.signal(signal.SIGINT, signal.default_int_handler if handler is None else handler)
+            if held:
+                raise KeyboardInterrupt
 
 
 def _close_cluster(cluster) -> None:
@@ -487,9 +494,11 @@ def _probe_scheduler(address: str, timeout_s: float) -> None:
 
     from distributed.comm import connect
     from distributed.comm.addressing import get_address_host_port
+    from distributed.security import Security
 
     async def identity() -> object:
-        comm = await connect(address, timeout=timeout_s)
+        # the TLS settings of dask's config, as a Client has them (a tls:// scheduler needs them)
+        comm = await connect(address, timeout=timeout_s, **Security().get_connection_args("client"))
         try:
             await comm.write({"op": "identity"})
             return await comm.read()

@@ -382,20 +382,15 @@ def track_session(
     particles, jaywalk_weight, seed, velocity_source, use_start_pose
         Shortcuts for ``filter.n_particles``, ``filter.map.jaywalk_weight``, ``seed``,
         ``engine.velocity_source`` and ``use_start_pose``.
-    save_particles
-        Keep a particle snapshot per update in :attr:`TrackResult.snapshots` (on disk, a chunk written
-        as soon as it is full: the memory held stays bounded however long the walk).
+    save_particles, spill_dir
+        Keep each update's particle cloud in :attr:`TrackResult.snapshots`, on disk in ``spill_dir`` as
+        the walk goes (default: the system's temporary folder).
     progress
-        A progress bar over RoNIN's inference on a terminal (a command's single run; off for runs in a
-        batch, which have a bar of their own).
+        A progress bar over RoNIN's inference on a terminal (a command's single run; off in a batch).
     map_name
         How messages name the map, e.g. its path (default: "the map" alone).
     ronin_weights
         The RoNIN model (a loaded one, or a weights ``.pt`` with its ``.json``; default: the bundled one).
-    spill_dir
-        With ``save_particles``: where the clouds are kept on disk as the walk goes, e.g. the output
-        folder (default: the system's temporary folder;
-        :class:`~curbside.localize.particle_store.CloudRecorder`).
 
     Raises
     ------
@@ -413,9 +408,8 @@ def track_session(
     if config.mode != "gnss":
         velocity, velocity_source = _velocity(session, config, steps, progress, ronin_weights)
         if len(velocity) < 2:
-            raise CurbsideInputError(
-                session.source, f"the {velocity_source} velocity has fewer than two samples"
-            )
+            problem = f"the {velocity_source} velocity has fewer than two samples"
+            raise CurbsideInputError(session.source, problem)
         input_warnings.report_short_velocity(session, velocity["t"].to_numpy(float), velocity_source)
     fix_lag = _fix_lag(session, config, frame, velocity, velocity_source == "pdr")
     engine = SessionEngine(

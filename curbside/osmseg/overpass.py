@@ -113,7 +113,7 @@ def element_problem(element: Any) -> str | None:
         return f"{what} with tags that are not a JSON object"
     texts = [*tags, *tags.values()]
     if kind == "node":
-        fields_ok = all(_is_number(element.get(axis)) for axis in ("lat", "lon"))
+        fields_ok = all(_is_number(element.get(axis), limit) for axis, limit in (("lat", 90), ("lon", 180)))
     elif kind == "way":
         refs = element.get("nodes")
         fields_ok = isinstance(refs, list) and all(_is_id(ref) for ref in refs)
@@ -140,9 +140,9 @@ def _is_id(value: Any) -> bool:
     return type(value) is int and -(2**63) <= value < 2**63
 
 
-def _is_number(value: Any) -> bool:
-    """Whether ``value`` is a finite JSON number."""
-    return type(value) in (int, float) and math.isfinite(value)
+def _is_number(value: Any, limit: float) -> bool:
+    """Whether ``value`` is a JSON number within ``[-limit, limit]``."""
+    return type(value) in (int, float) and -limit <= value <= limit
 
 
 def overpass_reachable(url: str, timeout_s: float) -> bool:

@@ -139,6 +139,43 @@ def weights_record(path: str | Path) -> dict:
             "config_sha256": _config_digest(config) if config.is_file() else None}
 
 
+#: The whole-file ``config_sha256`` of a shipped config in run.json files written before the record
+#: digested the model fields alone (and before 3fdb898 added provenance to them), by the model-fields
+#: digest of that file, which is the shipped config's now.
+_EARLIER_SHIPPED_CONFIGS = {
+    "918074a23c242bf16b8b67d18d5127a7f699ab1bfefd1c75ca5eb59515622d31":  # ronin_compact.json
+        "0f9370c82d675d706a3de6623ccae0453b6d45d467f4486c3e6075b36a3f558c",
+    "644f2f4c21a84bdfc7d0d9d6e43493ffdec288a303766c6dad859d351264347d":  # benchmarks' ronin_ms_only.json
+        "fa8eef0d76fd3e9e4014b02659bc3e8ca25c855785f7338fd484be4106614a64",
+}  # fmt: skip
+
+
+def same_config(recorded_sha256: str | None, weights: str | Path) -> bool:
+    """Whether a ``config_sha256`` that run.json recorded is that of the config beside ``weights`` now.
+
+    Besides the model-fields digest of :func:`weights_record`, a run.json written before it holds the
+    digest of the whole file: the same file, or a shipped config before its provenance was added.
+
+    Parameters
+    ----------
+    recorded_sha256
+        ``inputs.ronin_weights.config_sha256`` of a run.json.
+    weights
+        The weights ``.pt``; its config is the ``.json`` beside it.
+
+    Returns
+    -------
+    bool
+        ``False`` when the model fields differ, or the config is gone (and a digest was recorded).
+    """
+    config = Path(weights).with_suffix(".json")
+    if not config.is_file():
+        return recorded_sha256 is None
+    fields = _config_digest(config)
+    earlier = _EARLIER_SHIPPED_CONFIGS.get(str(recorded_sha256))
+    return recorded_sha256 in (fields, file_digest(config).hex()) or earlier == fields
+
+
 def _config_digest(config: Path) -> str:
     try:
         fields = json.loads(config.read_text(encoding="utf-8"))
