@@ -280,33 +280,6 @@ def run_benchmark(
     return {"map": map_path, "sessions": out_dir / "sessions", "report": out_dir / "report", **paths}
 
 
-def benchmark_summary(report_dir: str | Path) -> str:
-    """A few lines per subset (or per method) from a report's ``metrics.json``: what a terminal shows.
-
-    A ``localize benchmark`` report gives :func:`curbside.evaluate.suite.suite_summary`; a
-    ``localize evaluate`` report gives CSA, median and p90 per method at its base configuration.
-    """
-    doc = json.loads((Path(report_dir) / "metrics.json").read_text(encoding="utf-8"))
-    if "suite" in doc:
-        from curbside.evaluate.suite import suite_summary
-
-        return suite_summary(report_dir)
-    base = doc["base"]
-    lines = [f"map '{base['map']}', w = {base['jaywalk_weight']:g}    CSA  median  p90 (m)"]
-    for row in doc["pooled"]:
-        at_base = row["map"] == base["map"] and (
-            row["method"] == "gnss"
-            or (row["jaywalk_weight"] == base["jaywalk_weight"] and row["particles"] == base["particles"]
-                and row["gnss_sigma_factor"] == base["gnss_sigma_factor"])
-        )
-        if at_base:
-            lines.append(
-                f"  {METHOD_LABELS[row['method']]:<16} {row['csa']:.2f}  {row['euclid_median_m']:5.1f}  "
-                f"{row['euclid_p90_m']:5.1f}"
-            )
-    return "\n".join(lines) + "\n"
-
-
 def ipin_errors(
     h5: str | Path,
     trials: int | None = None,

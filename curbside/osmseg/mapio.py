@@ -30,7 +30,6 @@ if TYPE_CHECKING:
 log = logging.getLogger(__name__)
 
 CLASSES: tuple[str, ...] = ("building", "street", "crosswalk", "sidewalk")
-SIDEWALK_COLUMNS: tuple[str, ...] = ("segment_id", "street", "side")
 #: Values of the ``buildings_source`` metadata, where a map's building polygons came from: ``osmseg
 #: build`` (OpenStreetMap), ``osmseg import-datasf`` (the DataSF 2013 footprints, with or without another
 #: map's streets) and ``osmseg edit`` (a map saved by the editor, whatever it was made from).
@@ -93,12 +92,6 @@ def buildings_source(meta: dict[str, Any]) -> str | None:
     if "DataSF" in str(meta.get("attribution") or ""):
         return "datasf"
     return "osm" if "osm_timestamp" in meta else None
-
-
-def _empty_gdf(crs) -> gpd.GeoDataFrame:
-    return gpd.GeoDataFrame(
-        {"class": [], "segment_id": [], "street": [], "side": []}, geometry=[], crs=crs
-    )
 
 
 def from_wgs84(gdf: gpd.GeoDataFrame, meta: dict[str, Any] | None = None) -> MapLayers:

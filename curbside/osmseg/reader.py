@@ -51,8 +51,6 @@ TAG_KEYS: tuple[str, ...] = (
     "sidewalk", "sidewalk:both", "sidewalk:left", "sidewalk:right",
 )  # fmt: skip
 
-_WAY_KEYS = ("highway",)
-_AREA_KEYS = ("building",)
 _NODE_HIGHWAY_VALUES = frozenset({"crossing"})
 
 
