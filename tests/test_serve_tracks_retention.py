@@ -234,6 +234,16 @@ def test_a_store_keeps_its_count_at_each_save_without_removing_a_newer_track(tmp
     assert [f.exists() for f in new] == [False, False, True] and len(store.list()) == 2
 
 
+def test_a_save_never_removes_the_track_it_wrote(tmp_path, walk_result):
+    # On a file system whose clock is coarse (1-2 s), or after a clock step, the new run.json can tie
+    # with or read older than a track already there; the save then removed the track it had just written.
+    store = TrackStore(tmp_path / "tracks", max_count=1)
+    old = store.save("b-old", walk_result, _info())
+    store._own[old.name] = time.time() + 60.0  # its run.json reads newer than the next one
+    new = store.save("a-new", walk_result, _info())
+    assert new.exists() and not old.exists()
+
+
 def test_a_pass_counts_the_tracks_as_they_are_when_it_removes(tmp_path, walk_result):
     root = tmp_path / "tracks"
     writer = TrackStore(root)

@@ -116,7 +116,8 @@ class TrackStore:
             self._listing[key] = listed
             self._own[key] = written_s
             over = self.max_count is not None and len(self._own) > self.max_count
-            oldest = min(self._own, key=lambda k: (self._own[k], k)) if over else None
+            others = [k for k in self._own if k != key]  # on a coarse clock the new one may tie: never it
+            oldest = min(others, key=lambda k: (self._own[k], k)) if over and others else None
         if oldest is not None:
             self._remove(oldest, f"over {self.max_count} tracks")
         return folder
