@@ -178,3 +178,15 @@ def test_unwritable_temporary_folder_is_one_line(server, tmp_path, capsys, monke
     line = _one_error(capsys.readouterr().err)
     assert code == 2 and str(missing) in line and "TMPDIR" in line
     assert not out.exists()
+
+
+def test_a_full_temporary_folder_is_one_line(server, tmp_path, capsys, monkeypatch):
+    # libosmium's writer raises RuntimeError when the disk fills: it was an internal error.
+    def full(elements, path):
+        raise RuntimeError("Write failed: No space left on device")
+
+    monkeypatch.setattr(overpass, "write_osm_file", full)
+    code, out = _build(tmp_path, "--bbox", *(str(v) for v in BBOX))
+    line = _one_error(capsys.readouterr().err)
+    assert code == 2 and "No space left on device" in line and "TMPDIR" in line
+    assert not out.exists()

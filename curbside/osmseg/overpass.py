@@ -210,15 +210,17 @@ def fetch_overpass(bbox: BBox, *, margin_m: float = 60.0) -> OsmData:
     url = ox.settings.overpass_url.rstrip("/")
     log.info("querying Overpass at %s for %s", url, query_bbox)
     answer = _overpass_answer(url, overpass_query(query_bbox, settings.overpass_timeout_s))
+    unwritable = "cannot write Overpass's answer there ({}); set TMPDIR to a writable folder"
     try:
         folder = tempfile.TemporaryDirectory(prefix="curbside-overpass-")
     except OSError as exc:
-        reason = exc.strerror or exc
-        problem = f"cannot write Overpass's answer there ({reason}); set TMPDIR to a writable folder"
-        raise CurbsideInputError(tempfile.gettempdir(), problem) from None
+        raise CurbsideInputError(tempfile.gettempdir(), unwritable.format(exc.strerror or exc)) from None
     with folder:
         osm_file = Path(folder.name) / "overpass-answer.osm.pbf"
-        write_osm_file(answer["elements"], osm_file)
+        try:
+            write_osm_file(answer["elements"], osm_file)
+        except (OSError, RuntimeError) as exc:  # libosmium's writer raises RuntimeError on a full disk
+            raise CurbsideInputError(tempfile.gettempdir(), unwritable.format(exc)) from None
         try:
             data = read_osm_file(osm_file, bbox, margin_m=margin_m)
         except CurbsideInputError:  # the reader found nothing it uses in the answer
