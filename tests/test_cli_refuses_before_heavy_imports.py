@@ -178,3 +178,18 @@ def test_the_early_map_check_leaves_the_features_to_read_map(tmp_path):
     check_map_file(other)
     with pytest.raises(CurbsideInputError, match="not a GeoJSON FeatureCollection"):
         read_map(other)
+
+
+def test_a_large_file_that_is_no_json_object_is_not_read_whole(tmp_path, monkeypatch):
+    # An OSM extract given as --map (hundreds of MB) was read whole by the "cheap" check.
+    big = tmp_path / "extract.osm.pbf"
+    with open(big, "wb") as fh:
+        fh.write(b"\x00\x00\x00\x0dOSMHeader")
+        fh.truncate(9 * 2**20)
+
+    def read_whole(*args, **kwargs):
+        raise AssertionError("read whole")
+
+    monkeypatch.setattr(Path, "read_text", read_whole)
+    with pytest.raises(CurbsideInputError, match="not a GeoJSON FeatureCollection"):
+        check_map_file(big)

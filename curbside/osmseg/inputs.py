@@ -36,6 +36,8 @@ FORMATS: dict[str, str] = {".png": "png", ".html": "html", ".htm": "html"}
 
 #: How much of a map file :func:`check_map_file` reads to see that it starts as a JSON object.
 _MAP_HEAD_BYTES = 4096
+#: A file larger than this that does not start as a JSON object is refused without reading it whole.
+_MAP_READ_WHOLE_MAX_BYTES = 8 * 2**20
 
 
 def _in_order(west: float, south: float, east: float, north: float) -> bool:
@@ -188,7 +190,8 @@ def check_map_file(path: str | Path) -> None:
 
     Only the first bytes are read; a file that does not start with ``{`` is then read whole by
     :func:`map_document`, whose refusal names the problem as :func:`~curbside.osmseg.mapio.read_map`
-    would. The features are checked when the map is read.
+    would, unless it is over 8 MiB (say an OSM extract given as the map), refused at once. The features
+    are checked when the map is read.
 
     Raises
     ------
@@ -203,4 +206,6 @@ def check_map_file(path: str | Path) -> None:
     except OSError as exc:
         raise _unreadable(path, exc) from None
     if not head.lstrip(b" \t\r\n").startswith(b"{"):  # JSON's blanks; a BOM is refused, as by read_map
+        if path.stat().st_size > _MAP_READ_WHOLE_MAX_BYTES:  # a .pbf given as --map: not read whole
+            raise CurbsideInputError(path, "not a GeoJSON FeatureCollection (it does not start with '{')")
         map_document(path)
