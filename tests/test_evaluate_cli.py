@@ -11,7 +11,7 @@ import pandas as pd
 import pytest
 
 from curbside.cli.localize import main
-from curbside.evaluate import runner
+from curbside.evaluate import dask_cluster, runner
 from curbside.evaluate.benchmark import expand_sessions, plan
 
 MAP = Path(__file__).parent / "data" / "evaluate" / "sf-path3.geojson"
@@ -98,7 +98,7 @@ def test_dask_results_equal_serial(sessions):
 
 
 def test_a_heartbeat_racing_the_shutdown_is_not_reported():
-    quiet = runner.HeartbeatAtShutdown()
+    quiet = dask_cluster.HeartbeatAtShutdown()
     message = "Failed to communicate with scheduler during heartbeat."
     record = logging.LogRecord("distributed.worker", logging.ERROR, "", 0, message, None, None)
     other = logging.LogRecord("distributed.worker", logging.ERROR, "", 0, "Compute Failed", None, None)
@@ -455,11 +455,11 @@ def test_a_session_without_ground_truth_is_refused_naming_its_file(tmp_path, cap
 def test_worker_processes_start_with_ctrl_c_blocked_and_the_mask_comes_back():
     import signal
 
-    from curbside.evaluate.runner import _ctrl_c_blocked
+    from curbside.evaluate.dask_cluster import ctrl_c_blocked
 
     before = signal.pthread_sigmask(signal.SIG_BLOCK, [])
     handler = signal.getsignal(signal.SIGINT)
-    with _ctrl_c_blocked():
+    with ctrl_c_blocked():
         # what the threads and worker processes started now inherit; the command still hears Ctrl-C (a
         # handler that holds it, not SIG_IGN, which the workers would inherit)
         assert signal.SIGINT in signal.pthread_sigmask(signal.SIG_BLOCK, [])

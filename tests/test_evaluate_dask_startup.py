@@ -23,7 +23,7 @@ import pytest
 
 from curbside.cli.localize import main
 from curbside.errors import CurbsideInputError
-from curbside.evaluate import runner, suite
+from curbside.evaluate import dask_cluster, runner, suite
 
 MAP = Path(__file__).parent / "data" / "evaluate" / "sf-path3.geojson"
 
@@ -178,7 +178,7 @@ def test_ctrl_c_cancels_the_runs_on_a_scheduler_and_leaves_its_cluster_up(tmp_pa
             workers = client.scheduler_info()["workers"]
             held = client.run_on_scheduler(lambda dask_scheduler: len(dask_scheduler.tasks))
     finally:
-        runner._kill_cluster(cluster)  # its worker would sleep on in the cancelled run
+        dask_cluster.kill_cluster(cluster)  # its worker would sleep on in the cancelled run
     _assert_interrupted(status, text)
     assert exit_s < 8, f"{exit_s:.1f} s from Ctrl-C to the exit"
     assert not left, f"left running: {left}"
@@ -251,8 +251,8 @@ def test_a_closed_scheduler_port_is_refused_at_once():
 
 @pytest.mark.parametrize("kind", ["unroutable", "silent"])
 def test_a_scheduler_that_does_not_answer_is_refused_within_the_timeout(monkeypatch, kind):
-    assert runner.SCHEDULER_TIMEOUT_S <= 5
-    monkeypatch.setattr(runner, "SCHEDULER_TIMEOUT_S", 1.0)  # the test's time, not the default's
+    assert dask_cluster.SCHEDULER_TIMEOUT_S <= 5
+    monkeypatch.setattr(dask_cluster, "SCHEDULER_TIMEOUT_S", 1.0)  # the test's time, not the default's
     with _server(kind) as address:
         error, took_s = _refusal(address, limit_s=6)
     assert "no answer within 1 s" in str(error) and took_s < 4
@@ -269,10 +269,10 @@ def test_a_running_scheduler_is_accepted_and_a_worker_address_named_for_what_it_
 
     with LocalCluster(n_workers=1, processes=False, protocol="tcp", dashboard_address=":0",
                       scheduler_kwargs={"dashboard": False}) as cluster:
-        runner.check_scheduler(cluster.scheduler_address)
+        dask_cluster.check_scheduler(cluster.scheduler_address)
         worker = next(iter(cluster.scheduler_info["workers"]))
         with pytest.raises(CurbsideInputError, match="not a dask scheduler but Worker"):
-            runner.check_scheduler(worker)
+            dask_cluster.check_scheduler(worker)
 
 
 def test_evaluate_refuses_an_unreachable_scheduler_before_reading_its_inputs(tmp_path, capsys):

@@ -46,11 +46,11 @@ def test_ctrl_c_is_held_while_blocked_though_another_thread_would_take_it():
     child = textwrap.dedent(
         """
         import os, signal, threading, time
-        from curbside.evaluate import runner
+        from curbside.evaluate import dask_cluster
 
         threading.Thread(target=threading.Event().wait, daemon=True).start()
         try:
-            with runner._ctrl_c_blocked():
+            with dask_cluster.ctrl_c_blocked():
                 os.kill(os.getpid(), signal.SIGINT)
                 time.sleep(0.3)
                 print("held", flush=True)
@@ -112,7 +112,7 @@ def test_a_tls_scheduler_that_dask_reaches_is_not_refused(tmp_path):
     from distributed import LocalCluster
     from distributed.security import Security
 
-    from curbside.evaluate import runner
+    from curbside.evaluate import dask_cluster
 
     cert, key = tmp_path / "cert.pem", tmp_path / "key.pem"
     subprocess.run(["openssl", "req", "-x509", "-newkey", "rsa:2048", "-nodes", "-keyout", str(key), "-out",
@@ -126,6 +126,6 @@ def test_a_tls_scheduler_that_dask_reaches_is_not_refused(tmp_path):
         cluster = LocalCluster(n_workers=0, processes=False, protocol="tls://", security=Security(),
                                dashboard_address=":0", scheduler_kwargs={"dashboard": False})
         try:
-            runner.check_scheduler(cluster.scheduler_address)
+            dask_cluster.check_scheduler(cluster.scheduler_address)
         finally:
             cluster.close()

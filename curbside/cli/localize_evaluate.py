@@ -211,8 +211,9 @@ def _count(n: int, one: str, many: str | None = None) -> str:
 
 def _evaluate(args: argparse.Namespace) -> int:
     from curbside.evaluate.benchmark import expand_sessions, ipin_table, plan, route_table
+    from curbside.evaluate.dask_cluster import check_scheduler
     from curbside.evaluate.report import write_report
-    from curbside.evaluate.runner import check_scheduler, check_sessions, run_all
+    from curbside.evaluate.runner import check_sessions, run_all
     from curbside.io import check_output_folder, output_folder
     from curbside.osmseg.mapio import read_map
 
@@ -269,7 +270,7 @@ def _evaluate(args: argparse.Namespace) -> int:
 
 
 def _benchmark(args: argparse.Namespace) -> int:
-    from curbside.evaluate.runner import check_scheduler
+    from curbside.evaluate.dask_cluster import check_scheduler
     from curbside.evaluate.suite import SuiteConfig, check_suite_folder, run_suite, suite_summary
 
     check_suite_folder(args.output, args.overwrite)  # before any map, model or walk

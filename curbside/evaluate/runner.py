@@ -17,10 +17,6 @@ from __future__ import annotations
 import contextlib
 import functools
 import logging
-import os
-import signal
-import threading
-from collections.abc import Iterator
 from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any
@@ -31,7 +27,7 @@ import pyproj
 from tqdm.auto import tqdm
 
 from curbside.errors import CurbsideInputError
-from curbside.evaluate import metrics
+from curbside.evaluate import dask_cluster, metrics
 from curbside.evaluate.groundtruth import groundtruth_at
 from curbside.localize.particle_store import select_footsteps, unpack_particles
 from curbside.localize.runconstants import MODES
@@ -53,13 +49,6 @@ METHOD_LABELS: dict[str, str] = {
 }
 #: The pseudo-method of :func:`smoothed_results`: curbside fused's fixed-lag smoothed positions (offline).
 SMOOTHED_METHOD = "fused_smoothed"
-#: Seconds a dask worker process is given to exit at shutdown. Finalising a worker's interpreter
-#: (numba, shapely, pandas) takes 1-2 s alone and more on a loaded machine, past the nanny's default
-#: of 4 s, which then logs "Worker process still alive ... killing" and kills it.
-WORKER_CLOSE_TIMEOUT_S = 60.0
-#: Seconds ``--scheduler`` is given to answer, instead of dask's 30 s connect timeout (a scheduler on a
-#: reachable host answers in milliseconds).
-SCHEDULER_TIMEOUT_S = 5.0
 #: Suffix of the metrics scored on the posterior-mode estimate (``csa_mode``...).
 MODE_SUFFIX = "_mode"
 
@@ -316,21 +305,22 @@ def run_all(
         :data:`SCHEDULER_TIMEOUT_S`.
     KeyboardInterrupt
         On Ctrl-C, at any moment, the local cluster's start-up included: the runs are cancelled and the
-        local workers killed first (:func:`_kill_cluster`), within a second or two.
+        local workers killed first (:func:`curbside.evaluate.dask_cluster.kill_cluster`), within a second
+        or two.
     """
     disable = (not progress) if progress is not None else None
     if scheduler is None and workers <= 1:
         return [run_one(s) for s in tqdm(specs, desc="evaluate", unit="run", disable=disable)]
     from dask.distributed import Client, as_completed
 
-    cluster = _start_local_cluster(workers) if scheduler is None else None
+    cluster = dask_cluster.start_local_cluster(workers) if scheduler is None else None
     client, futures, interrupted = None, [], False
     try:
         if cluster is None:
-            client = _connect(scheduler)
+            client = dask_cluster.connect(scheduler)
         else:
             client = Client(cluster)
-            client.run(_quiet_heartbeat_at_shutdown)
+            client.run(dask_cluster.quiet_heartbeat_at_shutdown)
         futures = client.map(run_one, specs, pure=False)
         order = {f.key: i for i, f in enumerate(futures)}
         out: list[dict[str, Any] | None] = [None] * len(specs)
@@ -343,215 +333,16 @@ def run_all(
         interrupted = True
         raise
     finally:
-        with _ctrl_c_blocked() if interrupted else contextlib.nullcontext():  # a 2nd Ctrl-C waits for this
+        # a second Ctrl-C waits for this
+        with dask_cluster.ctrl_c_blocked() if interrupted else contextlib.nullcontext():
+            if interrupted:
+                dask_cluster.silence_distributed()
             if client is not None:
                 if interrupted:
                     client.cancel(futures)  # on --scheduler, the user's cluster drops them (it lives on)
                 client.close()
             if cluster is not None:
-                (_kill_cluster if interrupted else _close_cluster)(cluster)
-
-
-def _start_local_cluster(workers: int):
-    """A :class:`dask.distributed.LocalCluster` of ``workers`` processes, started by a thread that blocks
-    SIGINT, which its worker processes inherit.
-
-    Ctrl-C then stops the command alone, which closes its workers, instead of printing every worker's
-    KeyboardInterrupt traceback; and this thread keeps SIGINT, so a Ctrl-C while the workers start (2-3 s)
-    is caught at once (it used to be ignored then, and lost). The cluster is closed, once up, before
-    KeyboardInterrupt propagates: a LocalCluster cut short while it starts would leave workers behind.
-    """
-    from multiprocessing import resource_tracker
-
-    from dask.distributed import LocalCluster
-
-    started: dict[str, Any] = {}
-    done = threading.Event()
-
-    def start() -> None:
-        try:
-            started["cluster"] = LocalCluster(
-                n_workers=workers,
-                threads_per_worker=1,
-                processes=True,
-                # no dashboard; the scheduler's HTTP routes on a free port, not 8787 (often taken)
-                dashboard_address=":0",
-                scheduler_kwargs={"dashboard": False},
-                silence_logs=logging.WARNING,
-            )
-        except BaseException as exc:  # noqa: BLE001 - raised again in the caller's thread
-            started["error"] = exc
-        finally:
-            done.set()
-
-    # multiprocessing's resource tracker unblocks SIGINT in the thread that starts it, which would be the
-    # one that starts the first worker: it starts here instead, in a thread that keeps SIGINT anyway.
-    resource_tracker.ensure_running()
-    thread = threading.Thread(target=start, name="curbside-dask-start", daemon=True)
-    try:
-        with _ctrl_c_blocked():
-            thread.start()
-        done.wait()
-    except KeyboardInterrupt:
-        if thread.ident is not None:
-            done.wait()
-            if "cluster" in started:
-                _kill_cluster(started["cluster"])
-        raise
-    if "error" in started:
-        raise started["error"]
-    return started["cluster"]
-
-
-@contextlib.contextmanager
-def _ctrl_c_blocked() -> Iterator[None]:
-    """Block SIGINT in this thread (the threads and processes it starts inherit the mask); a Ctrl-C
-    meanwhile is held, and raised as KeyboardInterrupt when the block ends. The main thread's handler only
-    notes it meanwhile: the mask alone does not hold a Ctrl-C that another thread (tqdm's monitor) takes."""
-    held: list[int] = []
-    in_main = threading.current_thread() is threading.main_thread()
-    handler = signal.signal(signal.SIGINT, lambda signum, frame: held.append(signum)) if in_main else None
-    masked = hasattr(signal, "pthread_sigmask")  # Windows has no signal masks
-    previous = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT}) if masked else None
-    try:
-        yield
-    finally:
-        if masked:
-            signal.pthread_sigmask(signal.SIG_SETMASK, previous)
-        if in_main:
-            signal.signal(signal.SIGINT, signal.default_int_handler if handler is None else handler)
-            if held:
-                raise KeyboardInterrupt
-
-
-def _close_cluster(cluster) -> None:
-    """Close a local cluster, each worker process with :data:`WORKER_CLOSE_TIMEOUT_S` to exit on its own."""
-    cluster.sync(_close_workers, cluster, WORKER_CLOSE_TIMEOUT_S)
-    cluster.close()
-
-
-def _kill_cluster(cluster) -> None:
-    """Close a local cluster at once (Ctrl-C): its worker processes are killed, not left to end the runs
-    under way (a worker cannot drop a run half-way; a long session's run takes minutes)."""
-    cluster.sync(_kill_workers, cluster)
-    cluster.close()
-
-
-async def _kill_workers(cluster) -> None:
-    for nanny in list(cluster.workers.values()):
-        nanny.close_gracefully(reason="ctrl-c")  # a nanny closing gracefully starts no worker in place
-        if (pid := nanny.pid) is not None:
-            with contextlib.suppress(ProcessLookupError):  # it exited meanwhile
-                os.kill(pid, getattr(signal, "SIGKILL", signal.SIGTERM))  # SIGTERM ends it on Windows
-
-
-def check_scheduler(address: str) -> None:
-    """Refuse a dask scheduler address where none answers within :data:`SCHEDULER_TIMEOUT_S`.
-
-    Parameters
-    ----------
-    address
-        ``[PROTOCOL://]HOST:PORT`` (``--scheduler``).
-
-    Raises
-    ------
-    CurbsideInputError
-        Naming ``--scheduler``: a closed port (at once), a host that does not answer, a server that is
-        not a dask scheduler.
-    """
-    try:
-        _probe_scheduler(address, SCHEDULER_TIMEOUT_S)
-    except (OSError, ValueError, TypeError) as exc:
-        raise _unreachable(address, exc) from None
-
-
-def _unreachable(address: str, exc: Exception) -> CurbsideInputError:
-    return CurbsideInputError("--scheduler", f"cannot reach a dask scheduler at {address!r} ({exc})")
-
-
-def _connect(scheduler: str):
-    """A client of the dask scheduler at ``scheduler``, or :class:`CurbsideInputError` naming the option
-    (:func:`check_scheduler`)."""
-    from dask.distributed import Client
-
-    check_scheduler(scheduler)
-    try:
-        return Client(scheduler, timeout=SCHEDULER_TIMEOUT_S)
-    except (OSError, ValueError, TypeError) as exc:  # it went away since
-        raise _unreachable(scheduler, exc) from None
-
-
-def _probe_scheduler(address: str, timeout_s: float) -> None:
-    """Raise :class:`OSError` unless a dask scheduler at ``address`` answers within ``timeout_s``.
-
-    dask's own connection retries a refused port for 30 s (``distributed.comm.timeouts.connect``) and
-    waits without end on a server that accepts but never answers; a server that answers something else
-    (an HTTP proxy) fails it with a MemoryError. A TCP connection first refuses a closed port at once.
-    """
-    import asyncio
-    import socket
-    from concurrent.futures import ThreadPoolExecutor
-
-    from distributed.comm import connect
-    from distributed.comm.addressing import get_address_host_port
-    from distributed.security import Security
-
-    async def identity() -> object:
-        # the TLS settings of dask's config, as a Client has them (a tls:// scheduler needs them)
-        comm = await connect(address, timeout=timeout_s, **Security().get_connection_args("client"))
-        try:
-            await comm.write({"op": "identity"})
-            return await comm.read()
-        finally:
-            await comm.close()
-
-    def ask() -> object:
-        try:
-            host_port = get_address_host_port(address)
-        except ValueError:  # an address without a TCP port (inproc://): dask's connection alone
-            pass
-        else:
-            socket.create_connection(host_port, timeout=timeout_s).close()
-        return asyncio.run(asyncio.wait_for(identity(), timeout_s))
-
-    try:
-        with ThreadPoolExecutor(1) as pool:  # a thread of its own: asyncio.run fails under a running loop
-            reply = pool.submit(ask).result()
-    except (TimeoutError, asyncio.TimeoutError):
-        raise OSError(f"no answer within {timeout_s:g} s") from None
-    except (OSError, ValueError, TypeError):
-        raise
-    except Exception as exc:  # noqa: BLE001 - whatever a server that is not dask's makes the reader raise
-        raise OSError(f"what answers is not a dask scheduler ({type(exc).__name__})") from None
-    kind = reply.get("type") if isinstance(reply, dict) else None
-    if kind != "Scheduler":
-        raise OSError(f"what answers is not a dask scheduler but {kind or 'something else'}")
-
-
-class HeartbeatAtShutdown(logging.Filter):
-    """Drops the noise of a worker whose cluster is closing: "Failed to communicate with scheduler during
-    heartbeat" (and its traceback), and, after Ctrl-C, "Async instruction ... ended with CancelledError".
-
-    When a local cluster closes, a worker's heartbeat can race the scheduler's exit and log that error,
-    a traceback at the end of a run that succeeded; Ctrl-C cancels the tasks under way, which each
-    worker logs. A scheduler that dies mid-run still fails the run through its futures.
-    """
-
-    def filter(self, record: logging.LogRecord) -> bool:
-        message = record.getMessage()
-        return "during heartbeat" not in message and "ended with CancelledError" not in message
-
-
-def _quiet_heartbeat_at_shutdown() -> None:
-    for name in ("distributed.worker", "distributed.worker.state_machine"):
-        logging.getLogger(name).addFilter(HeartbeatAtShutdown())
-
-
-async def _close_workers(cluster, timeout_s: float) -> None:
-    """Close a local cluster's worker processes, each with ``timeout_s`` to exit on its own."""
-    import asyncio
-
-    await asyncio.gather(*(w.close(timeout=timeout_s) for w in list(cluster.workers.values())))
+                (dask_cluster.kill_cluster if interrupted else dask_cluster.close_cluster)(cluster)
 
 
 def subset_of(result: dict[str, Any]) -> str:
