@@ -302,7 +302,7 @@ def run_all(
     ------
     CurbsideInputError
         Naming ``--scheduler`` when no dask scheduler answers at ``scheduler`` within
-        :data:`SCHEDULER_TIMEOUT_S`.
+        :data:`curbside.evaluate.dask_cluster.SCHEDULER_TIMEOUT_S`.
     KeyboardInterrupt
         On Ctrl-C, at any moment, the local cluster's start-up included: the runs are cancelled and the
         local workers killed first (:func:`curbside.evaluate.dask_cluster.kill_cluster`), within a second
