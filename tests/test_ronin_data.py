@@ -14,11 +14,14 @@ from curbside.localize.ronin.data import Recording, WindowSet
 G = 9.81
 
 
-def write_ronin_sequence(folder, speed=1.2, heading=0.4, game_yaw_offset=0.9, duration_s=12.0, seed=0):
+def write_ronin_sequence(folder, speed=1.2, heading=0.4, game_yaw_offset=0.9, duration_s=12.0, seed=0,
+                         gap_s=0.0):
     """A tiny sequence in the official RoNIN layout: a straight walk at ``speed`` along ``heading``
-    (Tango frame); the game rotation vector's yaw is off by ``game_yaw_offset``."""
+    (Tango frame); the game rotation vector's yaw is off by ``game_yaw_offset``; with ``gap_s``, the
+    recording stops that long half-way."""
     rng = np.random.default_rng(seed)
     t = np.arange(int(duration_s * 200)) / 200.0
+    t[len(t) // 2:] += gap_s
     yaw = heading + 0.05 * np.sin(2 * np.pi * 0.2 * t)
     tango = Rotation.from_euler("ZX", np.column_stack([yaw - np.pi / 2, np.full_like(t, 0.1)]))
     game = Rotation.from_euler("z", -game_yaw_offset) * tango
@@ -46,6 +49,14 @@ def test_ronin_layout_labels_are_in_the_game_rotation_frame(tmp_path):
     assert np.allclose(np.arctan2(v[:, 1], v[:, 0]), 0.4 - 0.9, atol=0.01)
     # the inputs are in the same (game) frame: gravity on +z
     assert np.median(rec.features[:, 5]) == pytest.approx(G, abs=0.05)
+
+
+def test_a_ronin_sequence_with_a_gap_gives_every_stretch(tmp_path):
+    write_ronin_sequence(tmp_path / "seq_g", duration_s=16.0, gap_s=3.0)
+    recs = data.read_ronin_dir(tmp_path, progress=False)
+    assert [r.name for r in recs] == ["ronin/seq_g", "ronin/seq_g#1"]
+    assert recs[0].t[-1] < 8.0 < 11.0 <= recs[1].t[0]
+    assert sum(len(r.t) for r in recs) >= 0.95 * 16 * 200
 
 
 def test_ronin_layout_missing_dataset_is_an_input_error(tmp_path):

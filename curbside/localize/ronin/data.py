@@ -325,8 +325,10 @@ def read_ipin(path: str | Path, min_heading_consistency: float = 0.8, progress: 
     return recordings
 
 
-def read_ronin_sequence(folder: str | Path) -> Recording:
-    """One sequence of the official RoNIN dataset layout (``folder/data.hdf5``), see the module docstring.
+def read_ronin_sequence(folder: str | Path) -> list[Recording]:
+    """One sequence of the official RoNIN dataset layout (``folder/data.hdf5``), see the module docstring:
+    a recording per gap-free stretch of its IMU (the second and later named ``NAME#1``..., as for the
+    MS-indoor paths).
 
     Raises
     ------
@@ -356,7 +358,7 @@ def read_ronin_sequence(folder: str | Path) -> Recording:
     recs = _recordings_from_imu(name, "ronin", imu, positions, str(path))
     if not recs:
         raise CurbsideInputError(path, "fewer than 2 finite pose/tango_pos rows")
-    return recs[0]
+    return recs
 
 
 def read_ronin_dir(root: str | Path, progress: bool = True) -> list[Recording]:
@@ -369,7 +371,8 @@ def read_ronin_dir(root: str | Path, progress: bool = True) -> list[Recording]:
         :func:`read_ronin_sequence`.
     """
     folders = [p.parent for p in ronin_sequence_files(root)]
-    return [read_ronin_sequence(f) for f in tqdm(folders, desc="ronin", disable=None if progress else True)]
+    disable = None if progress else True
+    return [rec for f in tqdm(folders, desc="ronin", disable=disable) for rec in read_ronin_sequence(f)]
 
 
 def save_recordings(recordings: Iterable[Recording], path: str | Path,
