@@ -55,6 +55,7 @@ def test_a_ronin_sequence_with_a_gap_gives_every_stretch(tmp_path):
     write_ronin_sequence(tmp_path / "seq_g", duration_s=16.0, gap_s=3.0)
     recs = data.read_ronin_dir(tmp_path, progress=False)
     assert [r.name for r in recs] == ["ronin/seq_g", "ronin/seq_g#1"]
+    assert recs[0].split == recs[1].split  # one sequence, one split: no stretch of it leaks into another
     assert recs[0].t[-1] < 8.0 < 11.0 <= recs[1].t[0]
     assert sum(len(r.t) for r in recs) >= 0.95 * 16 * 200
 
