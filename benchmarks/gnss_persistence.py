@@ -84,6 +84,21 @@ def main(argv: list[str] | None = None) -> int:
     return 0
 
 
+#: Colour by where the fixes come from (Okabe-Ito: apart under every common colour blindness), marker
+#: by subset: a source reads by its colour and its shape, not by colour alone.
+_FAMILY_COLOURS = {"IPIN": "#000000", "simulated tune/": "#0072b2", "simulated tune-persistent/": "#d55e00"}
+_SUBSET_MARKERS = {"paper6": "o", "downtown": "^", "open": "s"}
+
+
+def _line_style(source: str, dashes) -> dict:
+    """How one source's line is drawn: grey dashes for the AR(1) references."""
+    if source.startswith("AR(1)"):
+        return {"ls": next(dashes), "lw": 1.2, "color": "0.45"}
+    colour = next((c for prefix, c in _FAMILY_COLOURS.items() if source.startswith(prefix)), "#cc79a7")
+    marker = _SUBSET_MARKERS.get(source.rsplit("/", 1)[-1], "D")
+    return {"marker": marker, "lw": 2, "color": colour, "ls": "--" if "open" in source else "-"}
+
+
 def plot(table: pd.DataFrame, path: str, window_s: float) -> None:
     """Each source's median persistence against the lag; references dashed (written atomically)."""
     import matplotlib
@@ -98,8 +113,7 @@ def plot(table: pd.DataFrame, path: str, window_s: float) -> None:
     fig, ax = plt.subplots(figsize=(9.5, 4.2))
     dashes = iter([":", "--", "-.", (0, (5, 1, 1, 1, 1, 1))] * len(table))
     for _, row in table.iterrows():
-        reference = str(row["source"]).startswith("AR(1)")
-        style = {"ls": next(dashes), "lw": 1.2, "color": "0.45"} if reference else {"marker": "o", "lw": 2}
+        style = _line_style(str(row["source"]), dashes)
         ax.plot(x, [1.0] + [row[c] for c in lags], label=row["source"], **style)
     ax.set(xlabel="lag (s)", ylabel="share of a fix's error still there",
            title=f"How long a GNSS fix's error lasts ({window_s:g} s windows, medians)", ylim=(-0.05, 1.02))
