@@ -17,9 +17,10 @@ from curbside.errors import CurbsideInputError
 from curbside.evaluate import suite, suite_output
 from curbside.io import MARKER, note_written
 from curbside.localize.particle_store import pack_particles, read_particles, write_particles
+from curbside.localize.paths import config_path_for
 from curbside.localize.pipeline import resolve_config
 from curbside.localize.readers._tidy import tidy_table
-from curbside.localize.ronin.infer import config_path_for, load_model
+from curbside.localize.ronin.infer import load_model
 from curbside.localize.ronin.model import RoninConfig, RoninResNet
 from curbside.localize.ronin.train import save_weights
 from curbside.localize.runconfig import RunConfig

@@ -45,6 +45,12 @@ CASES = [
      "gone.geojson: no such file or folder (the map run.json names; give where it is now: --map MAP)"),
     ("run-single-csv", "localize", ["run", "single.csv", "-o", "out"],
      "single.csv: a single CSV is not a recording"),
+    ("run-missing-weights", "localize", ["run", GPX, "--ronin-weights", "gone.pt", "-o", "out"],
+     "gone.pt: no such RoNIN weights file"),
+    ("run-weights-without-config", "localize", ["run", GPX, "--ronin-weights", "lone.pt", "-o", "out"],
+     "lone.json: no such file: the config of lone.pt must sit beside it"),
+    ("run-weights-config-given", "localize", ["run", GPX, "--ronin-weights", "model.json", "-o", "out"],
+     "model.json: not a curbside RoNIN weights file (a .json is the config beside one: give the .pt)"),
     ("convert-missing", "localize", ["convert", "absent.zip", "dst"], "absent.zip: no such file or folder"),
     ("convert-output-under-a-file", "localize", ["convert", GPX, "file.txt/dst"],
      "file.txt/dst: cannot write here"),
@@ -121,6 +127,8 @@ def _inputs(folder: Path) -> None:
     (folder / "text.geojson").write_text("hello, not JSON\n")
     (folder / "single.csv").write_text("time,seconds_elapsed\n")
     (folder / "empty.osm").touch()
+    (folder / "lone.pt").write_bytes(b"weights without their config")
+    (folder / "model.json").write_text("{}")
     (folder / "folder").mkdir()
     (folder / "run").mkdir()
     (folder / "run" / "track.csv").write_text("t,lat,lon\n")

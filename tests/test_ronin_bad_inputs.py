@@ -15,10 +15,11 @@ from test_ronin_data import write_ronin_sequence
 
 from curbside.cli.localize import main as localize_main
 from curbside.errors import CurbsideInputError
+from curbside.localize.paths import config_path_for
 from curbside.localize.ronin import train as train_mod
 from curbside.localize.ronin.data import Recording
 from curbside.localize.ronin.evaluate import calibrate_output_scale
-from curbside.localize.ronin.infer import config_path_for, load_model
+from curbside.localize.ronin.infer import load_model
 from curbside.localize.ronin.model import RoninConfig, RoninResNet
 from curbside.localize.ronin.train import save_weights
 

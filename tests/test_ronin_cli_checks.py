@@ -14,8 +14,9 @@ from test_ronin_data import write_ronin_sequence
 
 from curbside.cli.localize import main as localize_main
 from curbside.errors import CurbsideInputError
+from curbside.localize.paths import config_path_for
 from curbside.localize.readers import read_any
-from curbside.localize.ronin.infer import config_path_for, load_model, ronin_velocity
+from curbside.localize.ronin.infer import load_model, ronin_velocity
 from curbside.localize.ronin.model import RoninConfig, RoninResNet
 from curbside.localize.ronin.train import save_weights
 from curbside.localize.session import validate_table

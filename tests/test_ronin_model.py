@@ -11,7 +11,8 @@ import torch
 
 from curbside import settings
 from curbside.errors import CurbsideInputError
-from curbside.localize.ronin.infer import config_path_for, load_model
+from curbside.localize.paths import config_path_for
+from curbside.localize.ronin.infer import load_model
 from curbside.localize.ronin.model import BasicBlock1D, RoninConfig, RoninResNet, count_parameters
 from curbside.localize.ronin.train import normalisation_stats, rotate_yaw, save_weights
 

@@ -14,7 +14,8 @@ from test_ronin_data import write_ronin_sequence
 
 from curbside import settings
 from curbside.cli.localize import main as localize_main
-from curbside.localize.ronin.infer import config_path_for, load_model
+from curbside.localize.paths import config_path_for
+from curbside.localize.ronin.infer import load_model
 
 ROOT = Path(__file__).resolve().parents[1]
 BUNDLED = Path(settings.ronin_default_weights)

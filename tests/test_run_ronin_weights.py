@@ -16,9 +16,9 @@ from serve_fixtures import TRIAL
 from curbside import settings
 from curbside.cli.localize import main
 from curbside.errors import CurbsideInputError
+from curbside.localize.paths import config_path_for
 from curbside.localize.pipeline import track_session
 from curbside.localize.readers import read_any
-from curbside.localize.ronin.infer import config_path_for
 from curbside.localize.ronin.model import RoninConfig, RoninResNet
 from curbside.localize.ronin.provenance import weights_record
 from curbside.localize.ronin.train import save_weights

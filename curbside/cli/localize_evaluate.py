@@ -192,7 +192,8 @@ def _check_ipin(path: str, held_out: bool) -> None:
 def _check_ronin_weights(path: str) -> None:
     """Refuse, before any walk, ``--ipin-ronin`` weights that are missing, lack their config or do not
     load."""
-    from curbside.localize.ronin.infer import config_path_for, load_model
+    from curbside.localize.paths import config_path_for
+    from curbside.localize.ronin.infer import load_model
 
     _check_is_file(path, "RoNIN weights")
     config = config_path_for(path)

@@ -108,7 +108,7 @@ def _check_not_prepared(outputs: tuple[Path, ...], args: argparse.Namespace) -> 
 def _check_train_outputs(args: argparse.Namespace) -> None:
     """Before hours of training: the weights, their config and the checkpoint can be written."""
     from curbside.io import check_output_file
-    from curbside.localize.ronin.infer import config_path_for
+    from curbside.localize.paths import config_path_for
 
     out = Path(args.output)
     if config_path_for(out) == out:
@@ -232,8 +232,9 @@ def _calibrate(model, val_recordings: list) -> float:
 def _evaluate(args: argparse.Namespace) -> int:
     from curbside import settings
     from curbside.io import atomic_path, check_output_file
+    from curbside.localize.paths import config_path_for
     from curbside.localize.ronin.evaluate import evaluate_recordings, format_summary
-    from curbside.localize.ronin.infer import config_path_for, load_model
+    from curbside.localize.ronin.infer import load_model
     from curbside.localize.ronin.provenance import software_record, weights_record
 
     if args.output:

@@ -72,7 +72,7 @@ def _checked_inputs(args: argparse.Namespace) -> tuple[dict, str, str | None]:
     """The replayed ``run.json`` (``{}`` without ``--config``), the session and the map, after the checks
     that need no heavy import: the output folder, then each input's path."""
     from curbside.io import check_output_folder
-    from curbside.localize.paths import check_source_path
+    from curbside.localize.paths import check_ronin_weights_path, check_source_path
     from curbside.osmseg.inputs import check_map_file
 
     check_output_folder(args.output, args.overwrite, "localize run")
@@ -88,6 +88,8 @@ def _checked_inputs(args: argparse.Namespace) -> tuple[dict, str, str | None]:
     check_source_path(session_path)
     if map_path:
         check_map_file(map_path)
+    if args.ronin_weights:
+        check_ronin_weights_path(args.ronin_weights)
     return info, session_path, map_path
 
 

@@ -1,5 +1,5 @@
 """The checks of localize's input paths that need no heavy import: a recording's path and name, a run
-folder.
+folder, RoNIN weights and their config.
 
 The console commands call them before they import numpy, pandas or torch, so a missing or misnamed input
 is refused in a fraction of a second; :func:`~curbside.localize.readers.detect_format` and
@@ -90,3 +90,37 @@ def check_run_folder(folder: str | Path) -> tuple[Path, Path]:
     if not track_csv.is_file():
         raise CurbsideInputError(folder, "not a run folder (no track.csv; write one with `localize run -o`)")
     return track_csv, folder / "run.json"
+
+
+def config_path_for(weights: str | Path) -> Path:
+    """The JSON config stored beside a RoNIN weights file (``x.pt`` -> ``x.json``)."""
+    return Path(weights).with_suffix(".json")
+
+
+def check_ronin_weights_path(weights: str | Path) -> tuple[Path, Path]:
+    """Check that ``weights`` is a RoNIN weights file with its config beside it, by their paths alone.
+
+    Returns
+    -------
+    (pathlib.Path, pathlib.Path)
+        The weights file and its config (:func:`config_path_for`).
+
+    Raises
+    ------
+    CurbsideInputError
+        ``weights`` is the config itself, a folder or missing, or its config is missing.
+    """
+    weights = Path(weights)
+    cfg_path = config_path_for(weights)
+    if cfg_path == weights:
+        raise CurbsideInputError(
+            weights, "not a curbside RoNIN weights file (a .json is the config beside one: give the .pt)"
+        )
+    if weights.is_dir():
+        raise CurbsideInputError(weights, "is a folder; give the RoNIN weights file (.pt)")
+    if not weights.is_file():
+        raise CurbsideInputError(weights, "no such RoNIN weights file")
+    if not cfg_path.is_file():
+        raise CurbsideInputError(cfg_path, f"no such file: the config of {weights.name} must sit beside it "
+                                           "(train-ronin writes both)")
+    return weights, cfg_path

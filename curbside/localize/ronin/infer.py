@@ -23,15 +23,11 @@ from tqdm.auto import tqdm
 
 from curbside import settings
 from curbside.errors import CurbsideInputError
+from curbside.localize.paths import check_ronin_weights_path
 from curbside.localize.ronin.model import RoninConfig, RoninResNet
 from curbside.localize.ronin.stream import RoninStream, RoninStreamConfig
 
 logger = logging.getLogger(__name__)
-
-
-def config_path_for(weights: str | Path) -> Path:
-    """The JSON config stored beside a weights file (``x.pt`` -> ``x.json``)."""
-    return Path(weights).with_suffix(".json")
 
 
 def load_model(weights: str | Path | None = None) -> RoninResNet:
@@ -53,19 +49,7 @@ def load_model(weights: str | Path | None = None) -> RoninResNet:
         Missing or unreadable weights or config, a file that is not a weights file, or weights
         that do not fit the config.
     """
-    weights = Path(weights or settings.ronin_default_weights)
-    cfg_path = config_path_for(weights)
-    if cfg_path == weights:
-        raise CurbsideInputError(
-            weights, "not a curbside RoNIN weights file (a .json is the config beside one: give the .pt)"
-        )
-    if weights.is_dir():
-        raise CurbsideInputError(weights, "is a folder; give the RoNIN weights file (.pt)")
-    if not weights.is_file():
-        raise CurbsideInputError(weights, "no such RoNIN weights file")
-    if not cfg_path.is_file():
-        raise CurbsideInputError(cfg_path, f"no such file: the config of {weights.name} must sit beside it "
-                                           "(train-ronin writes both)")
+    weights, cfg_path = check_ronin_weights_path(weights or settings.ronin_default_weights)
     model = RoninResNet(_read_config(cfg_path))
     state = _read_state_dict(weights)
     problem = _state_dict_mismatch(model.state_dict(), state)

@@ -28,8 +28,8 @@ from tqdm.auto import tqdm
 from curbside.cache import content_key
 from curbside.errors import CurbsideInputError
 from curbside.io import atomic_path, note_written
+from curbside.localize.paths import config_path_for
 from curbside.localize.ronin.data import WindowSet
-from curbside.localize.ronin.infer import config_path_for
 from curbside.localize.ronin.model import RoninConfig, RoninResNet, count_parameters
 
 logger = logging.getLogger(__name__)
