@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import contextlib
 import os
+import shutil
 import signal
 import socket
 import subprocess
@@ -29,7 +30,8 @@ MAP = Path(__file__).parent / "data" / "evaluate" / "sf-path3.geojson"
 
 #: ``localize`` with a line on stderr when the LocalCluster starts (``@starting``) and when the runs
 #: are handed to the workers (``@running``), so that the test knows when to press Ctrl-C; with
-#: ``SLOW_RUN_S`` in its environment, each run first sleeps that long (a long session's run).
+#: ``SLOW_RUN_S`` in its environment, each run first sleeps that long (a long session's run), but the run
+#: of a session named ``broken`` fails at once.
 _CHILD = textwrap.dedent(
     """
     import os
@@ -45,6 +47,8 @@ _CHILD = textwrap.dedent(
         run_one, slow_s = runner.run_one, float(os.environ["SLOW_RUN_S"])
 
         def slow_run_one(spec):  # defined in __main__: dask ships it to the workers by value
+            if os.path.basename(spec.session) == "broken":
+                raise RuntimeError("this run fails")
             time.sleep(slow_s)
             return run_one(spec)
 
@@ -159,6 +163,35 @@ def test_ctrl_c_ends_a_dask_run_at_once(tmp_path, session, moment, delay_s, slow
     # a second Ctrl-C that comes once the command is done may end the interpreter's exit (killed by SIGINT)
     _assert_interrupted(status, text, (130,) if again_s is None else (130, -signal.SIGINT))
     assert exit_s < limit_s, f"{exit_s:.1f} s from Ctrl-C to the exit"
+    assert not left, f"left running: {left}"
+    assert not out.exists()
+
+
+@pytest.mark.slow
+def test_a_run_that_fails_stops_the_others_at_once(tmp_path, session):
+    """The failing run's error comes within seconds, not once the other runs end (30 s each here, then
+    up to 60 s for the workers to close); no worker is left and no report written."""
+    broken = tmp_path / "walks" / "broken"
+    shutil.copytree(session, broken)
+    out = tmp_path / "report"
+    argv = _evaluate_argv(session, out, "--workers", "2")
+    argv[1:2] = [str(broken), str(session)]  # the failing runs first: the workers start them at once
+    start = time.monotonic()
+    proc = subprocess.Popen([sys.executable, "-c", _CHILD, *argv], cwd=tmp_path, stdout=subprocess.DEVNULL,
+                            stderr=subprocess.PIPE, text=True, env={**os.environ, "SLOW_RUN_S": "30"},
+                            start_new_session=True)
+    try:
+        _, err = proc.communicate(timeout=120)
+        took_s = time.monotonic() - start
+        deadline = time.monotonic() + 5  # multiprocessing's resource tracker exits after the command
+        while (left := _alive_in_session(proc.pid)) and time.monotonic() < deadline:
+            time.sleep(0.2)
+    finally:
+        with contextlib.suppress(ProcessLookupError):
+            os.killpg(proc.pid, signal.SIGKILL)
+    assert proc.returncode not in (0, 130), err
+    assert "this run fails" in err, err
+    assert took_s < 25, f"{took_s:.1f} s to report a run that failed at once"
     assert not left, f"left running: {left}"
     assert not out.exists()
 

@@ -306,7 +306,7 @@ def run_all(
     KeyboardInterrupt
         On Ctrl-C, at any moment, the local cluster's start-up included: the runs are cancelled and the
         local workers killed first (:func:`curbside.evaluate.dask_cluster.kill_cluster`), within a second
-        or two.
+        or two. A run that raises stops the others the same way before its error propagates.
     """
     disable = (not progress) if progress is not None else None
     if scheduler is None and workers <= 1:
@@ -314,7 +314,7 @@ def run_all(
     from dask.distributed import Client, as_completed
 
     cluster = dask_cluster.start_local_cluster(workers) if scheduler is None else None
-    client, futures, interrupted = None, [], False
+    client, futures, stopped, interrupted = None, [], False, False
     try:
         if cluster is None:
             client = dask_cluster.connect(scheduler)
@@ -329,20 +329,20 @@ def run_all(
         ):
             out[order[future.key]] = future.result()
         return out  # type: ignore[return-value]
-    except KeyboardInterrupt:
-        interrupted = True
+    except BaseException as exc:  # Ctrl-C, or a run that failed: the other runs are of no use now
+        stopped, interrupted = True, isinstance(exc, KeyboardInterrupt)
         raise
     finally:
         # a second Ctrl-C waits for this
         with dask_cluster.ctrl_c_blocked() if interrupted else contextlib.nullcontext():
-            if interrupted:
+            if stopped:
                 dask_cluster.silence_distributed()
             if client is not None:
-                if interrupted:
+                if stopped:
                     client.cancel(futures)  # on --scheduler, the user's cluster drops them (it lives on)
                 client.close()
             if cluster is not None:
-                (dask_cluster.kill_cluster if interrupted else dask_cluster.close_cluster)(cluster)
+                (dask_cluster.kill_cluster if stopped else dask_cluster.close_cluster)(cluster)
 
 
 def subset_of(result: dict[str, Any]) -> str:
