@@ -105,13 +105,13 @@ def _read_up_to(stream, mark: bytes) -> bytes:
 
 def _interrupt(
     tmp_path: Path, argv: list[str], moment: str, delay_s: float, slow_run_s: float = 0.0,
-    again_s: float | None = None,
+    again_s: float | None = None, child: str = _CHILD,
 ):
     """Run ``localize ARGV`` in a session of its own, SIGINT its process group ``delay_s`` after
     ``@moment`` (and again ``again_s`` later); its exit status, stderr, seconds from the (first) SIGINT to
     its exit, processes left running."""
     env = {**os.environ, "SLOW_RUN_S": str(slow_run_s) if slow_run_s else ""}
-    proc = subprocess.Popen([sys.executable, "-c", _CHILD, *argv], cwd=tmp_path, stdout=subprocess.DEVNULL,
+    proc = subprocess.Popen([sys.executable, "-c", child, *argv], cwd=tmp_path, stdout=subprocess.DEVNULL,
                             stderr=subprocess.PIPE, start_new_session=True, env=env)
     try:
         _read_up_to(proc.stderr, f"@{moment}".encode())
@@ -274,6 +274,39 @@ def _refusal(address: str, limit_s: float) -> tuple[CurbsideInputError, float]:
     assert isinstance(error, CurbsideInputError), repr(error)
     assert str(error).startswith(f"--scheduler: cannot reach a dask scheduler at '{address}'"), error
     return error, float(outcome["s"])
+
+
+#: ``localize`` with a line on stderr (``@probing``) when it starts to probe ``--scheduler``.
+_PROBE_CHILD = textwrap.dedent(
+    """
+    import sys
+
+    from curbside.cli.localize import main
+    from curbside.evaluate import dask_cluster
+
+    probe = dask_cluster._probe_scheduler
+
+    def probing(*args):
+        sys.stderr.write("@probing\\n")
+        sys.stderr.flush()
+        return probe(*args)
+
+    dask_cluster._probe_scheduler = probing
+    sys.exit(main(sys.argv[1:]))
+    """
+)
+
+
+@pytest.mark.skipif(sys.platform == "win32", reason="SIGINT to a process group is POSIX")
+def test_ctrl_c_while_a_silent_scheduler_is_probed_ends_at_once(tmp_path, session):
+    """The probe waits up to 5 s for the connection and 5 s for the answer; Ctrl-C does not wait for it
+    (it took up to 10 s: the probe's thread was joined on the way out)."""
+    with _server("silent") as address:
+        argv = _evaluate_argv(session, tmp_path / "report", "--scheduler", address)
+        status, text, exit_s, left = _interrupt(tmp_path, argv, "probing", 0.5, child=_PROBE_CHILD)
+    _assert_interrupted(status, text)
+    assert exit_s < 2, f"{exit_s:.1f} s from Ctrl-C to the exit"
+    assert not left, f"left running: {left}"
 
 
 def test_a_closed_scheduler_port_is_refused_at_once():

@@ -9,7 +9,7 @@ import logging
 import os
 import signal
 import threading
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from typing import Any
 
 from curbside.errors import CurbsideInputError
@@ -162,7 +162,6 @@ def _probe_scheduler(address: str, timeout_s: float) -> None:
     """
     import asyncio
     import socket
-    from concurrent.futures import ThreadPoolExecutor
 
     from distributed.comm import connect
     from distributed.comm.addressing import get_address_host_port
@@ -187,8 +186,7 @@ def _probe_scheduler(address: str, timeout_s: float) -> None:
         return asyncio.run(asyncio.wait_for(identity(), timeout_s))
 
     try:
-        with ThreadPoolExecutor(1) as pool:  # a thread of its own: asyncio.run fails under a running loop
-            reply = pool.submit(ask).result()
+        reply = _in_daemon_thread(ask)  # a thread of its own: asyncio.run fails under a running loop
     except (TimeoutError, asyncio.TimeoutError):
         raise OSError(f"no answer within {timeout_s:g} s") from None
     except (OSError, ValueError, TypeError):
@@ -198,6 +196,25 @@ def _probe_scheduler(address: str, timeout_s: float) -> None:
     kind = reply.get("type") if isinstance(reply, dict) else None
     if kind != "Scheduler":
         raise OSError(f"what answers is not a dask scheduler but {kind or 'something else'}")
+
+
+def _in_daemon_thread(work: Callable[[], Any]) -> Any:
+    """``work()``'s result (or error) from a daemon thread. A Ctrl-C ends the wait at once: neither a
+    thread pool's shutdown nor the interpreter's exit waits for the thread, up to 10 s on a silent host."""
+    outcome: dict[str, Any] = {}
+
+    def run() -> None:
+        try:
+            outcome["result"] = work()
+        except BaseException as exc:  # noqa: BLE001 - raised again in the caller's thread
+            outcome["error"] = exc
+
+    thread = threading.Thread(target=run, name="curbside-scheduler-probe", daemon=True)
+    thread.start()
+    thread.join()
+    if "error" in outcome:
+        raise outcome["error"]
+    return outcome["result"]
 
 
 class HeartbeatAtShutdown(logging.Filter):
