@@ -59,6 +59,14 @@ CASES = [
      "--platform: applies to Sensor Logger exports only"),
     ("convert-list-missing", "localize", ["convert", "absent.zip", "--list"],
      "absent.zip: no such file or folder"),
+    ("evaluate-missing-session", "localize", ["evaluate", "absent", "--maps", MAP, "-o", "r"],
+     "absent: no such session folder"),
+    ("evaluate-not-sessions", "localize", ["evaluate", "folder", "--maps", MAP, "-o", "r"],
+     "folder: neither a session folder nor a folder of sessions"),
+    ("evaluate-missing-map", "localize", ["evaluate", "sessions", "--maps", "gone.geojson", "-o", "r"],
+     "gone.geojson: no such map file"),
+    ("evaluate-output-under-a-file", "localize", ["evaluate", "sessions", "--maps", MAP, "-o", "file.txt/r"],
+     "file.txt/r: cannot write here"),
     ("view-missing-run", "localize", ["view", "absent", "-o", "v.html"], "absent: no such run folder"),
     ("view-not-a-run", "localize", ["view", "folder", "-o", "v.html"], "folder: not a run folder"),
     ("view-not-html", "localize", ["view", "run", "-o", "v.txt"], "v.txt: the viewer is an HTML page"),
@@ -131,6 +139,8 @@ def _inputs(folder: Path) -> None:
     (folder / "model.json").write_text("{}")
     (folder / "folder").mkdir()
     (folder / "run").mkdir()
+    (folder / "sessions" / "s1").mkdir(parents=True)
+    (folder / "sessions" / "s1" / "gnss.csv").write_text("t,lat,lon,accuracy_m\n")
     (folder / "run" / "track.csv").write_text("t,lat,lon\n")
     (folder / "run.json").write_text(json.dumps({"config": {}, "session": GPX, "map": "gone.geojson"}))
 

@@ -12,7 +12,8 @@ import pytest
 
 from curbside.cli.localize import main
 from curbside.evaluate import dask_cluster, runner
-from curbside.evaluate.benchmark import expand_sessions, plan
+from curbside.evaluate.benchmark import plan
+from curbside.localize.paths import expand_sessions
 
 MAP = Path(__file__).parent / "data" / "evaluate" / "sf-path3.geojson"
 

@@ -211,12 +211,9 @@ def _count(n: int, one: str, many: str | None = None) -> str:
 
 
 def _evaluate(args: argparse.Namespace) -> int:
-    from curbside.evaluate.benchmark import expand_sessions, ipin_table, plan, route_table
     from curbside.evaluate.dask_cluster import check_scheduler
-    from curbside.evaluate.report import write_report
-    from curbside.evaluate.runner import check_sessions, run_all
     from curbside.io import check_output_folder, output_folder
-    from curbside.osmseg.mapio import read_map
+    from curbside.localize.paths import expand_sessions
 
     check_output_folder(args.output, args.overwrite, "localize evaluate")  # before minutes of runs
     if args.scheduler:
@@ -226,6 +223,12 @@ def _evaluate(args: argparse.Namespace) -> int:
         _check_is_file(m, "map")
     if args.ipin:
         _check_ipin(args.ipin, held_out=False)  # before the runs, not after them
+    # the heavy imports, once the cheap checks passed
+    from curbside.evaluate.benchmark import ipin_table, plan, route_table
+    from curbside.evaluate.report import write_report
+    from curbside.evaluate.runner import check_sessions, run_all
+    from curbside.osmseg.mapio import read_map
+
     names = args.map_names or [Path(m).stem for m in args.maps]
     if len(names) != len(args.maps) or len(set(names)) != len(names):
         raise CurbsideInputError("--map-names", "give one distinct name per map")

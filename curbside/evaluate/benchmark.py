@@ -39,28 +39,6 @@ PAPER_TABLE1 = {
 }
 
 
-def expand_sessions(paths: list[str | Path]) -> list[Path]:
-    """Session folders from arguments that are sessions or folders of sessions (sorted).
-
-    Raises
-    ------
-    CurbsideInputError
-        A path does not exist or holds no session.
-    """
-    out: list[Path] = []
-    for p in map(Path, paths):
-        if not p.is_dir():
-            raise CurbsideInputError(p, "no such session folder")
-        if any(p.glob("*.csv")):
-            out.append(p)
-            continue
-        subs = sorted(d for d in p.iterdir() if d.is_dir() and any(d.glob("*.csv")))
-        if not subs:
-            raise CurbsideInputError(p, "neither a session folder nor a folder of sessions")
-        out += subs
-    return out
-
-
 def plan(
     sessions: list[Path],
     maps: dict[str, str],

@@ -1,5 +1,5 @@
 """The checks of localize's input paths that need no heavy import: a recording's path and name, a run
-folder, RoNIN weights and their config.
+folder, session folders, RoNIN weights and their config.
 
 The console commands call them before they import numpy, pandas or torch, so a missing or misnamed input
 is refused in a fraction of a second; :func:`~curbside.localize.readers.detect_format` and
@@ -124,3 +124,25 @@ def check_ronin_weights_path(weights: str | Path) -> tuple[Path, Path]:
         raise CurbsideInputError(cfg_path, f"no such file: the config of {weights.name} must sit beside it "
                                            "(train-ronin writes both)")
     return weights, cfg_path
+
+
+def expand_sessions(paths: list[str | Path]) -> list[Path]:
+    """Session folders from arguments that are sessions or folders of sessions (sorted).
+
+    Raises
+    ------
+    CurbsideInputError
+        A path does not exist or holds no session.
+    """
+    out: list[Path] = []
+    for p in map(Path, paths):
+        if not p.is_dir():
+            raise CurbsideInputError(p, "no such session folder")
+        if any(p.glob("*.csv")):
+            out.append(p)
+            continue
+        subs = sorted(d for d in p.iterdir() if d.is_dir() and any(d.glob("*.csv")))
+        if not subs:
+            raise CurbsideInputError(p, "neither a session folder nor a folder of sessions")
+        out += subs
+    return out
