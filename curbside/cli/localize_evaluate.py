@@ -275,7 +275,8 @@ def _evaluate(args: argparse.Namespace) -> int:
 
 def _benchmark(args: argparse.Namespace) -> int:
     from curbside.evaluate.dask_cluster import check_scheduler
-    from curbside.evaluate.suite import SuiteConfig, check_suite_folder, run_suite, suite_summary
+    from curbside.evaluate.suite_output import check_suite_folder
+    from curbside.osmseg.inputs import check_map_file
 
     check_suite_folder(args.output, args.overwrite)  # before any map, model or walk
     if args.scheduler:
@@ -284,6 +285,11 @@ def _benchmark(args: argparse.Namespace) -> int:
         raise CurbsideInputError("--ipin-ronin", "needs --ipin (the trials to score)")
     for path in args.datasf_tiles or []:
         _check_is_file(path, "DataSF tile")
+    if args.map:
+        check_map_file(args.map)
+    # the heavy imports, once the cheap checks passed
+    from curbside.evaluate.suite import SuiteConfig, run_suite, suite_summary
+
     if args.ipin_ronin:  # IPIN is scored after every walk: a bad model or file fails now, not then
         _check_ronin_weights(args.ipin_ronin)
     if args.ipin:

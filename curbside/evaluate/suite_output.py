@@ -14,12 +14,13 @@ import os
 import shutil
 from collections.abc import Iterator
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from curbside.errors import CurbsideInputError
-from curbside.evaluate.benchmark import datasf_osm_map
-from curbside.evaluate.subsets import SKY_BBOX
 from curbside.io import MARKER, check_output_folder, note_written, read_marker, written_by_curbside
-from curbside.osmseg.mapio import MapLayers, write_map
+
+if TYPE_CHECKING:  # the map's modules load geopandas: check_suite_folder runs before they are imported
+    from curbside.osmseg.mapio import MapLayers
 
 log = logging.getLogger(__name__)
 
@@ -89,6 +90,9 @@ def benchmark_maps(
     out_dir: Path, map_path: str | Path | None, datasf_tiles: list[str | Path] | None, overwrite: bool = False
 ) -> dict[str, str]:
     """The OSM map (built into ``out_dir`` unless given or already there) and the DataSF one."""
+    from curbside.evaluate.benchmark import datasf_osm_map
+    from curbside.osmseg.mapio import write_map
+
     if map_path is None:
         map_path = out_dir / "map.geojson"
         if not _own_file(map_path, overwrite):
@@ -124,6 +128,8 @@ def check_map_area(map_path: str | Path, layers: MapLayers) -> None:
     CurbsideInputError
         Naming the map, its extent and the area, both in degrees.
     """
+    from curbside.evaluate.subsets import SKY_BBOX
+
     west, south, east, north = layers.gdf.to_crs(4326).total_bounds
     w, s, e, n = SKY_BBOX
     if west > e or east < w or south > n or north < s:
