@@ -121,16 +121,27 @@ def _interrupt(
         if again_s is not None:
             time.sleep(again_s)
             os.killpg(proc.pid, signal.SIGINT)
+    except BaseException:
+        _finish(proc)
+        raise
+    err, ended, left = _finish(proc)
+    return proc.returncode, err.decode(), ended - sent, left
+
+
+def _finish(proc: subprocess.Popen) -> tuple[bytes, float, list[str]]:
+    """Wait for a command started in a session of its own: its stderr, when it exited, and the processes
+    of its session still running a few seconds later (then killed)."""
+    try:
         _, err = proc.communicate(timeout=90)
-        exit_s = time.monotonic() - sent
-        deadline = time.monotonic() + 5  # multiprocessing's resource tracker exits after the command
+        ended = time.monotonic()
+        deadline = ended + 5  # multiprocessing's resource tracker exits after the command
         while (left := _alive_in_session(proc.pid)) and time.monotonic() < deadline:
             time.sleep(0.2)
     finally:
         with contextlib.suppress(ProcessLookupError):
             os.killpg(proc.pid, signal.SIGKILL)
         proc.communicate()
-    return proc.returncode, err.decode(), exit_s, left
+    return err, ended, left
 
 
 def _assert_interrupted(status: int, text: str, statuses: tuple[int, ...] = (130,)) -> None:
@@ -178,17 +189,10 @@ def test_a_run_that_fails_stops_the_others_at_once(tmp_path, session):
     argv[1:2] = [str(broken), str(session)]  # the failing runs first: the workers start them at once
     start = time.monotonic()
     proc = subprocess.Popen([sys.executable, "-c", _CHILD, *argv], cwd=tmp_path, stdout=subprocess.DEVNULL,
-                            stderr=subprocess.PIPE, text=True, env={**os.environ, "SLOW_RUN_S": "30"},
+                            stderr=subprocess.PIPE, env={**os.environ, "SLOW_RUN_S": "30"},
                             start_new_session=True)
-    try:
-        _, err = proc.communicate(timeout=120)
-        took_s = time.monotonic() - start
-        deadline = time.monotonic() + 5  # multiprocessing's resource tracker exits after the command
-        while (left := _alive_in_session(proc.pid)) and time.monotonic() < deadline:
-            time.sleep(0.2)
-    finally:
-        with contextlib.suppress(ProcessLookupError):
-            os.killpg(proc.pid, signal.SIGKILL)
+    err_bytes, ended, left = _finish(proc)
+    err, took_s = err_bytes.decode(), ended - start
     assert proc.returncode not in (0, 130), err
     assert "this run fails" in err, err
     assert took_s < 25, f"{took_s:.1f} s to report a run that failed at once"
