@@ -231,11 +231,15 @@ class HeartbeatAtShutdown(logging.Filter):
         return "during heartbeat" not in message and "ended with CancelledError" not in message
 
 
+def _drop_every_record(record: logging.LogRecord) -> bool:
+    return False
+
+
 def silence_distributed() -> None:
     """Drop whatever dask logs from now on in this process: after Ctrl-C the scheduler's broadcasts to the
     workers being killed fail, and dask logs each, with tracebacks, under "localize: interrupted"."""
     for handler in logging.getLogger("distributed").handlers:
-        handler.addFilter(lambda record: False)
+        handler.addFilter(_drop_every_record)  # once per handler, however often it is called
 
 
 def quiet_heartbeat_at_shutdown() -> None:
