@@ -396,7 +396,8 @@ def test_a_track_file_is_sent_whole_or_as_one_byte_range(tmp_path, ronin_model, 
     asked = {
         "bytes=10-19": (206, data[10:20]), "bytes=1500-": (206, data[1500:]), "bytes=-7": (206, data[-7:]),
         f"bytes=10-{size + 100}": (206, data[10:]), f"bytes={size}-": (416, b""), "bytes=-0": (416, b""),
-        "bytes=0-9,20-29": (200, data), "items=0-9": (200, data), "bytes=9-0": (200, data), "": (200, data),
+        "bytes=0-9,20-29": (206, data[:30]), "items=0-9": (200, data), "bytes=9-0": (200, data),
+        "": (200, data),
     }
     with client_for(tmp_path, ronin_model) as client:
         for header, (status, body) in asked.items():

@@ -12,14 +12,15 @@ import html
 import json
 from typing import Any
 
-_METHODS = ("get", "post", "put", "patch", "delete")
+_METHODS = ("get", "head", "post", "put", "patch", "delete")
 
 _STYLE = """
 body{font:15px/1.45 system-ui,sans-serif;margin:0 auto;max-width:60rem;padding:1rem;color:#222}
 h1{font-size:1.5rem;margin-bottom:.2rem}h2{margin-top:2rem;border-bottom:1px solid #ccc}
 h3{font-size:1.05rem;margin:1.4rem 0 .3rem;font-family:ui-monospace,monospace;word-break:break-all}
 .m{display:inline-block;min-width:4.2em;padding:0 .4em;border-radius:3px;color:#fff;text-align:center}
-.get{background:#1f6feb}.post{background:#2da44e}.put,.patch{background:#bf8700}.delete{background:#cf222e}
+.get{background:#1f6feb}.head{background:#0a7ea4}.post{background:#2da44e}.put,.patch{background:#bf8700}
+.delete{background:#cf222e}
 .tok{font:600 .75rem system-ui,sans-serif;color:#8250df;border:1px solid #8250df;border-radius:3px;
 padding:0 .3em}
 .scroll{overflow-x:auto}table{border-collapse:collapse;margin:.3rem 0 .8rem}
@@ -60,10 +61,12 @@ def api_reference_html(schema: dict[str, Any], swagger_url: str = "/docs/swagger
         "(<code>Authorization: Bearer TOKEN</code>) when it has one.</p>",
         "<h2>Routes</h2>",
     ]
-    for path, item in schema.get("paths", {}).items():
-        for method in _METHODS:
-            if method in item:
-                parts.append(_operation(path, method, item[method]))
+    operations = [(path, method, item[method]) for path, item in schema.get("paths", {}).items()
+                  for method in _METHODS if method in item]
+    # the error statuses every route declares share one row; one route's own (416) has its own
+    declared = [set(op.get("responses", {})) for *_, op in operations]
+    shared = set.intersection(*declared) if declared else set()
+    parts.extend(_operation(path, method, op, shared) for path, method, op in operations)
     components = schema.get("components", {}).get("schemas", {})
     if components:
         parts.append("<h2>Schemas</h2>")
@@ -72,7 +75,7 @@ def api_reference_html(schema: dict[str, Any], swagger_url: str = "/docs/swagger
     return "\n".join(parts)
 
 
-def _operation(path: str, method: str, op: dict[str, Any]) -> str:
+def _operation(path: str, method: str, op: dict[str, Any], shared: set[str]) -> str:
     lock = ' <span class="tok" title="needs the service\'s token">token</span>' if op.get("security") else ""
     out = [f'<h3 id="{_e(op.get("operationId", method + path))}"><span class="m {method}">'
            f"{method.upper()}</span> {_e(path)}{lock}</h3>"]
@@ -92,9 +95,10 @@ def _operation(path: str, method: str, op: dict[str, Any]) -> str:
                 for kind, media in body.get("content", {}).items()]
         out.append(_table(("request body", "schema"), rows))
     responses = op.get("responses", {})
+    errors = {status: resp for status, resp in responses.items()
+              if status.startswith(("4", "5")) and status in shared}
     rows = [(f"<code>{_e(status)}</code>", _e(resp.get("description", "")), _bodies(resp))
-            for status, resp in responses.items() if not status.startswith(("4", "5"))]
-    errors = {status: resp for status, resp in responses.items() if status.startswith(("4", "5"))}
+            for status, resp in responses.items() if status not in errors]
     if errors:  # every route declares the same error statuses: one row, not ten
         codes = ", ".join(f'<code title="{_e(_description(r))}">{_e(s)}</code>' for s, r in errors.items())
         bodies = " | ".join(sorted({_bodies(r) for r in errors.values()}))
@@ -109,7 +113,9 @@ def _description(item: dict[str, Any]) -> str:
 
 
 def _bodies(response: dict[str, Any]) -> str:
-    return ", ".join(_type_of(m.get("schema", {})) for m in response.get("content", {}).values())
+    """The response's bodies: each schema's type, or the media type of a file (a binary string)."""
+    return ", ".join(f"<code>{_e(kind)}</code>" if m.get("schema", {}).get("format") == "binary"
+                     else _type_of(m.get("schema", {})) for kind, m in response.get("content", {}).items())
 
 
 def _component(name: str, body: dict[str, Any]) -> str:

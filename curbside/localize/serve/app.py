@@ -55,6 +55,9 @@ _MEDIA_TYPES = {
     "track.csv": "text/csv", "track.geojson": "application/geo+json", "run.json": "application/json"
 }
 
+#: The bodies ``GET /tracks/{id}/{name}`` may send, for the OpenAPI schema.
+_FILE_BODIES = {media: {"schema": {"type": "string", "format": "binary"}} for media in _MEDIA_TYPES.values()}
+
 _ERRORS = {status: {"model": ErrorMessage} for status in (400, 401, 404, 409, 410, 413, 422, 500, 503)}
 
 
@@ -302,23 +305,51 @@ def _add_track_routes(app: FastAPI, service: TrackingService, auth: list) -> Non
         body = b'{"run": ' + json.dumps(run, allow_nan=False).encode() + b', "track": ' + track + b"}"
         return Response(body, media_type="application/json")
 
-    @app.get("/tracks/{session_id}/{name}", dependencies=auth, tags=["tracks"])
+    @app.get("/tracks/{session_id}/{name}", dependencies=auth, tags=["tracks"], response_class=Response,
+             responses=_file_responses(head=False))
     def get_track_file(session_id: str, name: str) -> OpenFileResponse:
-        """One file of an ended session's track: ``track.csv``, ``track.geojson`` or ``run.json`` (one
-        byte range too). A download that has started is sent whole even if the track is deleted."""
-        if name not in TRACK_FILES:
-            raise ServiceError(404, f"no such file; one of {', '.join(TRACK_FILES)}")
-        try:  # opened here, not once the route has returned: see OpenFileResponse
-            file = (service.track_folder(session_id) / name).open("rb")
-        except FileNotFoundError:  # deleted since it was found
-            raise ServiceError(404, "no such track (deleted)") from None
-        return OpenFileResponse(file, _MEDIA_TYPES[name])
+        """One file of an ended session's track: ``track.csv``, ``track.geojson`` or ``run.json``.
+        ``Range: bytes=A-B`` (``A-``, ``-N``) gets a 206 with those bytes, several ranges (at most 16)
+        a 206 ``multipart/byteranges``. A download that has started is sent whole even if the track is
+        deleted."""
+        return _track_file(service, session_id, name)
+
+    @app.head("/tracks/{session_id}/{name}", dependencies=auth, tags=["tracks"], response_class=Response,
+              responses=_file_responses(head=True))
+    def head_track_file(session_id: str, name: str) -> OpenFileResponse:
+        """The headers ``GET`` would send for the file and the same ``Range``, without the body: its size
+        (``Content-Length``), ``ETag``, ``Last-Modified`` and ``Accept-Ranges``."""
+        return _track_file(service, session_id, name)
 
     @app.delete("/tracks/{session_id}", response_model=TrackInfo, dependencies=auth, tags=["tracks"])
     async def delete_track(session_id: str) -> dict[str, Any]:
         """Remove an ended session's track (its listing entry is the reply). Only a folder the service
         wrote is removed, and in it only the files it wrote; 409 while the session is open."""
         return await service.delete_track(session_id)
+
+
+def _file_responses(head: bool) -> dict[int | str, dict[str, Any]]:
+    """The answers of ``GET`` (``head``: ``HEAD``) ``/tracks/{id}/{name}`` for the OpenAPI schema."""
+    only = ": its headers, no body" if head else ""
+    answers = {
+        200: ("the whole file (no Range, or one not served: see docs/service.md)", _FILE_BODIES),
+        206: ("the range asked for (Content-Range says which); several ranges as multipart/byteranges",
+              {**_FILE_BODIES, "multipart/byteranges": {"schema": {"type": "string", "format": "binary"}}}),
+        416: ("no range asked for starts before the end of the file (Content-Range: bytes */SIZE)", {}),
+    }
+    return {status: {"description": what + only, **({} if head or not bodies else {"content": bodies})}
+            for status, (what, bodies) in answers.items()}
+
+
+def _track_file(service: TrackingService, session_id: str, name: str) -> OpenFileResponse:
+    """The reply to ``GET`` or ``HEAD /tracks/{session_id}/{name}``, its file already open."""
+    if name not in TRACK_FILES:
+        raise ServiceError(404, f"no such file; one of {', '.join(TRACK_FILES)}")
+    try:  # opened here, not once the route has returned: see OpenFileResponse
+        file = (service.track_folder(session_id) / name).open("rb")
+    except FileNotFoundError:  # deleted since it was found
+        raise ServiceError(404, "no such track (deleted)") from None
+    return OpenFileResponse(file, _MEDIA_TYPES[name])
 
 
 async def _push(service: TrackingService, session_id: str, body: Samples) -> dict[str, Any]:
