@@ -16,6 +16,7 @@ from curbside.evaluate import simulate as sim
 from curbside.evaluate.figures import is_base
 from curbside.evaluate.report import PAPER_NOTE
 from curbside.evaluate.runner import run_all
+from curbside.evaluate.suite_ipin import FAMILIAR_VELOCITY_RUN, UNSEEN_VELOCITY_RUN, ipin_runs, ipin_summary
 from curbside.evaluate.suite_report import figure_base, sweep_table, write_suite_report
 from curbside.localize.filter import FilterConfig
 from curbside.localize.session import write_session
@@ -86,17 +87,17 @@ def test_unseen_velocity_runs_curbside_fused_with_the_preset_and_nothing_else(se
     assert all(dict(s.overrides) == {"unseen_velocity.mode": "on"} for s in preset if s.method == "fused")
     assert not any(s.overrides for s in preset if s.method != "fused")
     assert sum(s.method == "fused" and s.map_name == "datasf" for s in preset) == 2
-    runs = suite._ipin_runs(suite.SuiteConfig())
-    judged = suite._ipin_runs(suite.SuiteConfig(unseen_velocity="on"))
-    assert set(runs) == {criteria.IPIN_BASELINE_RUN, suite.UNSEEN_VELOCITY_RUN, suite.FAMILIAR_VELOCITY_RUN}
-    assert set(judged) == {criteria.IPIN_BASELINE_RUN, suite.FAMILIAR_VELOCITY_RUN, "fused"}
-    assert runs[suite.FAMILIAR_VELOCITY_RUN].familiar_velocity.mode == "auto"
-    assert judged["fused"] == runs[suite.UNSEEN_VELOCITY_RUN]
+    runs = ipin_runs(suite.SuiteConfig())
+    judged = ipin_runs(suite.SuiteConfig(unseen_velocity="on"))
+    assert set(runs) == {criteria.IPIN_BASELINE_RUN, UNSEEN_VELOCITY_RUN, FAMILIAR_VELOCITY_RUN}
+    assert set(judged) == {criteria.IPIN_BASELINE_RUN, FAMILIAR_VELOCITY_RUN, "fused"}
+    assert runs[FAMILIAR_VELOCITY_RUN].familiar_velocity.mode == "auto"
+    assert judged["fused"] == runs[UNSEEN_VELOCITY_RUN]
     assert judged[criteria.IPIN_BASELINE_RUN] == runs[criteria.IPIN_BASELINE_RUN]
     assert judged["fused"].unseen_velocity.mode == "on"
     assert judged[criteria.IPIN_BASELINE_RUN].unseen_velocity.mode == "off"
-    off = suite._ipin_runs(suite.SuiteConfig(unseen_velocity="off"))
-    assert off["fused"].unseen_velocity.mode == "off" and off[suite.UNSEEN_VELOCITY_RUN] == judged["fused"]
+    off = ipin_runs(suite.SuiteConfig(unseen_velocity="off"))
+    assert off["fused"].unseen_velocity.mode == "off" and off[UNSEEN_VELOCITY_RUN] == judged["fused"]
     assert all(s.overrides == (("unseen_velocity.mode", "off"),) for s in suite.plan_suite(
         sessions, maps, suite.SuiteConfig(subsets=subsets, unseen_velocity="off")) if s.method == "fused")
     with pytest.raises(CurbsideInputError, match="--unseen-velocity"):
@@ -124,7 +125,7 @@ def test_report_has_tables_checks_and_figures(sessions, tmp_path):
         read_map(MAP),
         run_info,
         {"track_s": 1.0},
-        [suite._ipin_summary(IPIN_CUT, range(0, 1), suite._ipin_runs(config), MS_ONLY)],
+        [ipin_summary(IPIN_CUT, range(0, 1), ipin_runs(config), MS_ONLY)],
     )
     md = paths["report.md"].read_text()
     assert "no map, RoNIN ronin_ms_only.pt): error at surveyed waypoints" in md

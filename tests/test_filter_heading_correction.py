@@ -9,7 +9,7 @@ import pyproj
 import pytest
 
 from curbside.localize.filter import FilterConfig, GnssFix, Tracker
-from curbside.localize.filter.config import HeadingCorrectionConfig
+from curbside.localize.filter.correction_config import HeadingCorrectionConfig
 from curbside.localize.filter.heading_correction import HeadingCorrection
 from curbside.localize.filter.pathfit import fit_similarity
 from curbside.projection import LocalFrame

@@ -9,7 +9,7 @@ import pyproj
 import pytest
 
 from curbside.localize.filter import FilterConfig, GnssFix, Tracker
-from curbside.localize.filter.config import ScaleCorrectionConfig
+from curbside.localize.filter.correction_config import ScaleCorrectionConfig
 from curbside.localize.filter.scale import ScaleCorrection, fit_scale, robust_fit
 from curbside.projection import LocalFrame
 

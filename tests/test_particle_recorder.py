@@ -10,9 +10,8 @@ from test_run import KeepsTheFloats, block_layers, write_walk
 from viewer_fixtures import CROSSROADS, write_session
 
 from curbside.localize.engine import SessionEngine
+from curbside.localize.particle_recorder import CHUNK_BYTES, CloudRecorder
 from curbside.localize.particle_store import (
-    CHUNK_BYTES,
-    CloudRecorder,
     pack_particles,
     pack_snapshots,
     read_particles,

@@ -13,15 +13,10 @@ import pytest
 from test_particle_recorder import UTM10N, npz_bytes, packed_at_the_end, recorded, walk_clouds
 from test_run import block_layers, run_cli, write_walk
 
-from curbside.localize import particle_store
-from curbside.localize.particle_store import (
-    CHUNK_BYTES,
-    WRITE_BYTES,
-    CloudRecorder,
-    SpilledClouds,
-    read_particles,
-    write_particles,
-)
+from curbside.localize import particle_recorder, particle_spill
+from curbside.localize.particle_recorder import CHUNK_BYTES, CloudRecorder
+from curbside.localize.particle_spill import WRITE_BYTES, SpilledClouds
+from curbside.localize.particle_store import read_particles, write_particles
 from curbside.osmseg.mapio import write_map
 
 #: The system's, before a test puts a spy in its place.
@@ -60,7 +55,7 @@ def test_the_memory_held_stays_one_chunk_however_long_the_walk(tmp_path):
 
 
 def test_a_file_streamed_in_many_blocks_is_the_file_written_from_memory(tmp_path, monkeypatch):
-    monkeypatch.setattr(particle_store, "WRITE_BYTES", 1000)  # blocks of 2 footsteps at N = 200
+    monkeypatch.setattr(particle_spill, "WRITE_BYTES", 1000)  # blocks of 2 footsteps at N = 200
     t, ref_x, ref_y, clouds = walk_clouds(41, 200, uniform=False)
     spilled = recorded(t, ref_x, ref_y, clouds, chunk_bytes=5000, spill_dir=tmp_path).packed()
     before = packed_at_the_end(clouds, t, ref_x, ref_y, UTM10N)
@@ -110,8 +105,8 @@ def test_a_run_spills_beside_its_output_and_writes_the_old_file(tmp_path, map_fi
     assert run_cli(session, "--map", map_file, "--particles", 200, "--seed", 4, "--save-particles",
                    "-o", tmp_path / "held") == 0
     spy = SpillSpy()
-    monkeypatch.setattr(particle_store, "CHUNK_BYTES", 5 * (9 * 200 + 24))  # 5 footsteps
-    monkeypatch.setattr(particle_store.tempfile, "TemporaryFile", spy)
+    monkeypatch.setattr(particle_recorder, "CHUNK_BYTES", 5 * (9 * 200 + 24))  # 5 footsteps
+    monkeypatch.setattr(particle_spill.tempfile, "TemporaryFile", spy)
     out = tmp_path / "runs" / "spilled"
     assert run_cli(session, "--map", map_file, "--particles", 200, "--seed", 4, "--save-particles",
                    "-o", out) == 0
@@ -152,8 +147,8 @@ def test_ctrl_c_leaves_no_output_and_no_temporary_file(tmp_path, map_file, monke
 
 def test_a_full_disk_while_walking_is_named_in_one_line(tmp_path, map_file, monkeypatch, capsys):
     session = write_walk(tmp_path / "walk", duration_s=40.0)
-    monkeypatch.setattr(particle_store, "CHUNK_BYTES", 10 * (9 * 100 + 24))
-    monkeypatch.setattr(particle_store.tempfile, "TemporaryFile", SpillSpy(fail_on=12))  # the 2nd chunk
+    monkeypatch.setattr(particle_recorder, "CHUNK_BYTES", 10 * (9 * 100 + 24))
+    monkeypatch.setattr(particle_spill.tempfile, "TemporaryFile", SpillSpy(fail_on=12))  # the 2nd chunk
     out = tmp_path / "out"
     assert run_cli(session, "--map", map_file, "--particles", 100, "--save-particles", "-o", out) == 2
     err = capsys.readouterr().err.strip()

@@ -24,7 +24,8 @@ from curbside import settings
 from curbside.cli.localize import main as localize_main
 from curbside.errors import CurbsideInputError
 from curbside.localize import engine as engine_module
-from curbside.localize.particle_store import CloudRecorder, unpack_particles
+from curbside.localize.particle_recorder import CloudRecorder
+from curbside.localize.particle_store import unpack_particles
 from curbside.localize.pipeline import track_session
 from curbside.localize.raster import BUILDING, rasterize_map
 from curbside.localize.runconfig import RunConfig

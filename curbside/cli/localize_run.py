@@ -47,10 +47,10 @@ from curbside.localize.runconstants import MODES, VELOCITY_SOURCES
 if TYPE_CHECKING:
     import pandas as pd
 
-    from curbside.localize.pipeline import TrackResult
     from curbside.localize.ronin.model import RoninResNet
     from curbside.localize.runconfig import RunConfig
     from curbside.localize.session import Session
+    from curbside.localize.track_result import TrackResult
 
 logger = logging.getLogger(__name__)
 

@@ -6,7 +6,8 @@ simulates (or reuses) every session of the requested subsets and split
 fused at the base jaywalk weight (and at every weight of the sweep on ``paper6``, the paper's
 Table 2); scores every run against the OSM map's sidewalk segments; checks the issue's "done when"
 (:mod:`curbside.evaluate.criteria`) and writes ``report.md``, ``report.html``, ``metrics.json`` and
-``run.json`` (every parameter, the timings) under ``OUT/report/``.
+``run.json`` (every parameter, the timings) under ``OUT/report/``. The IPIN trials scored beside the
+walks (``--ipin``) are :mod:`curbside.evaluate.suite_ipin`'s.
 """
 
 from __future__ import annotations
@@ -21,7 +22,6 @@ from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 from typing import Any
 
-import numpy as np
 import pandas as pd
 
 import curbside
@@ -40,6 +40,7 @@ from curbside.evaluate.runner import (
 )
 from curbside.evaluate.simulate import PROFILES, SimulationConfig
 from curbside.evaluate.subsets import DEFAULT_ROUTES, SPLITS, SUBSETS, benchmark_sessions, load_world
+from curbside.evaluate.suite_ipin import ipin_info, ipin_scorings
 from curbside.evaluate.suite_output import (
     DATASF_MAP,
     OSM_MAP,
@@ -49,7 +50,7 @@ from curbside.evaluate.suite_output import (
     folder_for_run,
 )
 from curbside.localize.filter import FilterConfig
-from curbside.localize.runconfig import UNSEEN_VELOCITY_MODES, RunConfig, UnseenVelocityConfig
+from curbside.localize.runconfig import UNSEEN_VELOCITY_MODES, UnseenVelocityConfig
 from curbside.localize.session import read_session
 from curbside.osmseg.mapio import read_map
 
@@ -265,96 +266,13 @@ def _git_commit() -> str | None:
     return out.stdout.strip() or None
 
 
-#: curbside fused with ``--unseen-velocity on`` (:class:`~curbside.localize.runconfig.UnseenVelocityConfig`;
-#: docs/filter.md), run beside the defaults on the IPIN trials: the preset for a velocity model that has
-#: not seen the place.
-UNSEEN_VELOCITY_RUN = "curbside fused, --unseen-velocity"
-#: curbside fused with ``--familiar-velocity auto`` (:class:`~curbside.localize.runconfig.
-#: FamiliarVelocityConfig`), run beside the defaults on the IPIN trials: the opt-in calm motion model for a
-#: velocity model fitted to the walker, where the walk's smooth speed says so.
-FAMILIAR_VELOCITY_RUN = "curbside fused, --familiar-velocity"
-
-
-def _ipin_runs(config: SuiteConfig) -> dict[str, RunConfig]:
-    """The IPIN runs beside the methods: version 0.1's fused filter, ``--familiar-velocity auto``, and
-    ``--unseen-velocity on`` (as curbside fused itself when the suite runs with it; curbside fused with
-    another mode when asked)."""
-    fused = RunConfig.for_mode("fused")
-    preset = fused.with_overrides({"unseen_velocity.mode": "on"})
-    runs = {criteria.IPIN_BASELINE_RUN: fused.with_overrides(criteria.FUSED_0_1_OVERRIDES),
-            FAMILIAR_VELOCITY_RUN: fused.with_overrides({"familiar_velocity.mode": "auto"})}
-    runs["fused" if config.unseen_velocity == "on" else UNSEEN_VELOCITY_RUN] = preset
-    if config.unseen_velocity not in ("on", fused.unseen_velocity.mode):
-        runs["fused"] = fused.with_overrides({"unseen_velocity.mode": config.unseen_velocity})
-    return runs
-
-
-def _ipin_summary(
-    h5: str | Path, seeds: range, extra_runs: dict[str, RunConfig], ronin_weights: str | Path | None = None
-) -> IpinScores:
-    """Every method and ``extra_runs`` (:func:`_ipin_runs`) on the IPIN trials, at the same waypoints,
-    pooled over the filter ``seeds``: pooled figures, their table, and trial-bootstrap intervals (fused
-    against 0.1 and the baselines). With the bundled RoNIN, the held-out trials; with ``ronin_weights``
-    (a model that never saw the venue), every trial."""
-    from curbside.evaluate.benchmark import accuracy_held, ipin_errors, ipin_errors_table, trials_above_gnss
-    from curbside.evaluate.uncertainty import waypoint_intervals
-
-    errors: dict[str, list[np.ndarray]] = {}
-    rows: list[dict] = []
-    for seed in seeds:
-        by_method, seed_rows, n_trials = ipin_errors(
-            h5, seed=seed, held_out=ronin_weights is None, ronin_weights=ronin_weights, extra_runs=extra_runs
-        )
-        for method, e in by_method.items():
-            errors.setdefault(method, []).append(e)
-        rows += seed_rows
-    errors = {method: np.concatenate(parts) for method, parts in errors.items()}
-    summary = {
-        m: {"n": len(e), "median_m": float(np.median(e)), "p90_m": float(np.percentile(e, 90))}
-        for m, e in errors.items()
-        if len(e)
-    }
-    for m, (above, scored) in trials_above_gnss(rows).items():
-        if m in summary:
-            summary[m] |= {"trials_above_gnss": above, "trials_scored": scored}
-    for m, share in accuracy_held(rows).items():
-        if m in summary:
-            summary[m]["accuracy_held"] = share
-    baselines = (criteria.IPIN_BASELINE_RUN, "paper", "gnss")
-    intervals = waypoint_intervals(errors, rows, "fused", baselines, seed=seeds[0])
-    table = ipin_errors_table(errors, n_trials, ronin_weights is None, len(seeds), ronin_weights, rows)
-    if ronin_weights is None:
-        title = "IPIN 2023 held-out: how sure (m)"
-        return IpinScores("ipin_held_out", "ipin_intervals_95", summary, table, intervals, title)
-    title = f"IPIN 2023, RoNIN {Path(ronin_weights).name}: how sure (m)"
-    return IpinScores("ipin_unseen_ronin", "ipin_unseen_ronin_intervals_95", summary, table, intervals, title)
-
-
-def _ipin_scorings(
-    ipin: str | Path, ipin_ronin: str | Path | None, config: SuiteConfig
-) -> list[IpinScores]:
-    """The held-out IPIN trials with the bundled RoNIN, then (with ``ipin_ronin``) all of them with it."""
-    seeds = range(config.filter_seed, config.filter_seed + config.filter_seeds)
-    runs = _ipin_runs(config)
-    scorings = [_ipin_summary(ipin, seeds, runs)]
-    if ipin_ronin:
-        scorings.append(_ipin_summary(ipin, seeds, runs, ipin_ronin))
-    return scorings
-
-
-def _ipin_info(ipin: str | Path | None, ipin_ronin: str | Path | None) -> dict[str, Any]:
-    """``run.json``'s IPIN entries."""
-    return {
-        "ipin": str(ipin) if ipin else None,
-        "ipin_baseline_overrides": criteria.FUSED_0_1_OVERRIDES if ipin else None,
-        "ipin_ronin": str(ipin_ronin) if ipin and ipin_ronin else None,
-    }
-
-
 def _run_info(
-    config: SuiteConfig, maps: dict[str, str], specs: list[RunSpec], sessions: dict[str, list[Path]]
+    config: SuiteConfig, maps: dict[str, str], specs: list[RunSpec], sessions: dict[str, list[Path]],
+    datasf_tiles: list[str | Path] | None, ipin: str | Path | None, ipin_ronin: str | Path | None,
+    workers: int, scheduler: str | None,
 ) -> dict[str, Any]:
-    """What ``run.json`` records besides the inputs: versions, parameters, machine, every run."""
+    """What ``run.json`` records: versions, parameters, machine, every run, then :func:`run_suite`'s other
+    inputs."""
     return {
         "generator": f"curbside {curbside.__version__}",
         "git_commit": _git_commit(),
@@ -368,6 +286,10 @@ def _run_info(
         },
         "runs": [asdict(s) for s in specs],
         "sessions": {k: [p.name for p in v] for k, v in sessions.items()},
+        "datasf_tiles": [str(t) for t in datasf_tiles or []],
+        **ipin_info(ipin, ipin_ronin),
+        "workers": workers,
+        "scheduler": scheduler,
     }
 
 
@@ -400,12 +322,14 @@ def simulate_suite(
 
 
 def _scores(
-    results: list[dict], config: SuiteConfig, maps: dict[str, str], ipin_summary: dict | None
+    results: list[dict], config: SuiteConfig, maps: dict[str, str], ipin_scores: list[IpinScores]
 ) -> tuple[pd.DataFrame, pd.DataFrame, list[criteria.Check]]:
-    """Pooled and per-session metrics and the done-when checks of a suite's results."""
+    """Pooled and per-session metrics and the done-when checks of a suite's results (and of the held-out
+    IPIN trials' figures, the first of ``ipin_scores``, when they were scored)."""
     pooled = pooled_by_subset(results)
     per_session = pooled_by_subset(results, ("session",))
     datasf = DATASF_MAP if DATASF_MAP in maps else None
+    ipin_summary = ipin_scores[0].summary if ipin_scores else None
     ipin_fused = ipin_summary["fused"] if ipin_summary else None
     ipin_baseline = ipin_summary.get(criteria.IPIN_BASELINE_RUN) if ipin_summary else None
     checks = criteria.done_when(
@@ -437,6 +361,53 @@ def _maps_and_sessions(
         sessions = simulate_suite(out_dir, config, osm_file)
         timings["simulate_s"] = time.perf_counter() - start
     return maps, sessions
+
+
+def _track(
+    sessions: dict[str, list[Path]], maps: dict[str, str], config: SuiteConfig, workers: int,
+    scheduler: str | None, timings: dict[str, float],
+) -> tuple[list[RunSpec], list[dict]]:
+    """:func:`run_suite`'s runs (:func:`plan_suite`) and their results, once every session is checked
+    against every map; the tracking's seconds go into ``timings``."""
+    # a map that misses some walks fails now, naming the map, not in the middle of the tracking
+    check_sessions([s for group in sessions.values() for s in group], {p: read_map(p) for p in maps.values()})
+    specs = plan_suite(sessions, maps, config)
+    log.info("benchmark: %d runs over %d sessions", len(specs), sum(map(len, sessions.values())))
+    start = time.perf_counter()
+    results = run_all(specs, workers=workers, scheduler=scheduler)
+    results += smoothed_results(results)
+    timings["track_s"] = time.perf_counter() - start
+    return specs, results
+
+
+def _ipin_scores(
+    ipin: str | Path | None, ipin_ronin: str | Path | None, config: SuiteConfig, timings: dict[str, float]
+) -> list[IpinScores]:
+    """:func:`~curbside.evaluate.suite_ipin.ipin_scorings` (none without ``ipin``); their seconds go into
+    ``timings``."""
+    if not ipin:
+        return []
+    start = time.perf_counter()
+    scorings = ipin_scorings(ipin, ipin_ronin, config)
+    timings["ipin_s"] = time.perf_counter() - start
+    return scorings
+
+
+def _write_report(
+    results: list[dict], report_dir: Path, config: SuiteConfig, maps: dict[str, str],
+    scores: tuple[pd.DataFrame, pd.DataFrame, list[criteria.Check]], run_info: dict[str, Any],
+    timings: dict[str, float], ipin_scores: list[IpinScores],
+) -> dict[str, Path]:
+    """:func:`run_suite`'s report in ``report_dir``
+    (:func:`~curbside.evaluate.suite_report.write_suite_report`): its files by name."""
+    from curbside.evaluate.suite_report import write_suite_report
+
+    start = time.perf_counter()
+    layers = read_map(maps[OSM_MAP])
+    tables_in = (*scores, layers, run_info, timings)
+    paths = write_suite_report(results, report_dir, config, *tables_in, ipin_scores)
+    log.info("report written in %.0f s", time.perf_counter() - start)
+    return paths
 
 
 def run_suite(
@@ -483,40 +454,15 @@ def run_suite(
     dict
         ``report`` and the report's files by name.
     """
-    from curbside.evaluate.suite_report import write_suite_report
-
     config = config or SuiteConfig()
     out_dir = check_suite_folder(out_dir, overwrite)
     timings: dict[str, float] = {}
     maps, sessions = _maps_and_sessions(out_dir, config, map_path, datasf_tiles, osm_file, overwrite, timings)
-    # a map that misses some walks fails now, naming the map, not in the middle of the tracking
-    check_sessions([s for group in sessions.values() for s in group], {p: read_map(p) for p in maps.values()})
-    specs = plan_suite(sessions, maps, config)
-    log.info("benchmark: %d runs over %d sessions", len(specs), sum(map(len, sessions.values())))
-    start = time.perf_counter()
-    results = run_all(specs, workers=workers, scheduler=scheduler)
-    results += smoothed_results(results)
-    timings["track_s"] = time.perf_counter() - start
-
-    start = time.perf_counter()
-    ipin_scores = _ipin_scorings(ipin, ipin_ronin, config) if ipin else []
-    if ipin:
-        timings["ipin_s"] = time.perf_counter() - start
-
-    held_out = ipin_scores[0].summary if ipin_scores else None
-    pooled, per_session, checks = _scores(results, config, maps, held_out)
-    run_info = {
-        **_run_info(config, maps, specs, sessions),
-        "datasf_tiles": [str(t) for t in datasf_tiles or []],
-        **_ipin_info(ipin, ipin_ronin),
-        "workers": workers,
-        "scheduler": scheduler,
-    }
-    start = time.perf_counter()
-    layers = read_map(maps[OSM_MAP])
-    tables_in = (pooled, per_session, checks, layers, run_info, timings)
-    paths = write_suite_report(results, out_dir / "report", config, *tables_in, ipin_scores)
-    log.info("report written in %.0f s", time.perf_counter() - start)
+    specs, results = _track(sessions, maps, config, workers, scheduler, timings)
+    ipin_scores = _ipin_scores(ipin, ipin_ronin, config, timings)
+    scores = _scores(results, config, maps, ipin_scores)
+    run_info = _run_info(config, maps, specs, sessions, datasf_tiles, ipin, ipin_ronin, workers, scheduler)
+    paths = _write_report(results, out_dir / "report", config, maps, scores, run_info, timings, ipin_scores)
     return {"report": out_dir / "report", **paths}
 
 

@@ -56,7 +56,7 @@ from curbside.errors import CurbsideInputError
 from curbside.localize.filter.particles import SCALE, THETA, X, Y
 from curbside.localize.filter.tracker import Tracker
 from curbside.localize.fix_lag import LagCompensator
-from curbside.localize.particle_store import CloudRecorder
+from curbside.localize.particle_recorder import CloudRecorder
 from curbside.localize.raster import MapRaster
 from curbside.localize.runconfig import RunConfig
 from curbside.localize.streams import DisplacementIntegrator, FixStore, StepTimes
@@ -147,10 +147,10 @@ class SessionEngine:
         Footsteps come from a fixed cadence (no step file and no IMU).
     save_particles
         Pack the particles' ``x, y, theta, scale`` and weights at each update, around its estimate, into
-        :attr:`snapshots` (a :class:`~curbside.localize.particle_store.CloudRecorder`).
+        :attr:`snapshots` (a :class:`~curbside.localize.particle_recorder.CloudRecorder`).
     spill_dir
         Where :attr:`snapshots` keeps the clouds on disk as the walk goes (default: the system's
-        temporary folder; see :class:`~curbside.localize.particle_store.CloudRecorder`).
+        temporary folder; see :class:`~curbside.localize.particle_recorder.CloudRecorder`).
     step_means_velocity
         The velocity rows are per-step means (PDR), not samples (see
         :class:`~curbside.localize.streams.DisplacementIntegrator`).

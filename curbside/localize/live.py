@@ -44,12 +44,12 @@ from curbside.localize.live_input import (
     check_imu,
     check_time_value,
 )
-from curbside.localize.pipeline import TrackResult, track_table, tracker_record
 from curbside.localize.raster import MapRaster, load_or_build_raster
 from curbside.localize.ronin.stream import InferenceQueue, RoninStream, RoninStreamConfig
 from curbside.localize.runconfig import RunConfig
 from curbside.localize.session import Session
 from curbside.localize.steps import StepDetector
+from curbside.localize.track_result import TrackResult, track_table, tracker_record
 from curbside.osmseg.mapio import MapLayers
 from curbside.projection import LocalFrame
 

@@ -22,29 +22,28 @@ The rounding errors are at most 5 cm, 0.05 degrees and 0.00005. An offset beyond
 clipped (a particle more than 3.2 km from the estimate; a warning says how many). With the paper's
 resampling at every footstep the weights are uniform and are not stored.
 
-A run packs each footstep's cloud as soon as it is taken (:class:`CloudRecorder`), 9 bytes per particle
-and footstep (18 kB at N = 2000), and puts it on disk a chunk of :data:`CHUNK_BYTES` at a time, so that
-the memory it holds does not grow with the walk; :func:`write_particles` streams the chunks into
-``particles.npz`` at the end. The file is the same as when runs held every cloud in memory.
+A run packs each footstep's cloud as soon as it is taken
+(:class:`~curbside.localize.particle_recorder.CloudRecorder`) and puts it on disk a chunk at a time
+(:mod:`curbside.localize.particle_spill`); :func:`write_particles` streams the chunks into
+``particles.npz`` at the end. The file is the same as when runs held every cloud in memory: the recorder
+and :func:`pack_particles` store each member with the same ``encode_*`` function.
 """
 
 from __future__ import annotations
 
 import logging
-import os
-import tempfile
 import zipfile
 import zlib
 from collections import Counter
-from collections.abc import Iterator, Mapping
+from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
-from typing import BinaryIO
 
 import numpy as np
 
 from curbside.errors import CurbsideInputError
 from curbside.io import atomic_path
+from curbside.localize.particle_spill import SpilledClouds
 
 log = logging.getLogger(__name__)
 
@@ -58,17 +57,14 @@ THETA_UNIT_DEG = 0.1
 SCALE_UNIT = 1e-4
 _INT16 = np.iinfo(np.int16)
 _UINT16 = np.iinfo(np.uint16)
-#: The most a :class:`CloudRecorder` holds in memory (one chunk of footsteps; the others are on disk).
-CHUNK_BYTES = 4 * 2**20
-#: The most :func:`write_particles` reads from disk at once (zlib holds about twice that while it packs).
-WRITE_BYTES = 2**20
-#: The members with a particle per column that a :class:`CloudRecorder` packs, and their types.
-_STORED = {"dx_dm": np.int16, "dy_dm": np.int16, "theta_ddeg": np.int16, "scale_e4": np.uint16,
-           "weight_u8": np.uint8}
+#: The members with a particle per column that a :class:`~curbside.localize.particle_recorder.CloudRecorder`
+#: packs, and their types.
+PARTICLE_MEMBERS = {"dx_dm": np.int16, "dy_dm": np.int16, "theta_ddeg": np.int16, "scale_e4": np.uint16,
+                    "weight_u8": np.uint8}
 #: The members with one value per footstep, and their types.
-_SCALARS = {"t": np.float64, "ref_x_m": np.float64, "ref_y_m": np.float64}
+FOOTSTEP_MEMBERS = {"t": np.float64, "ref_x_m": np.float64, "ref_y_m": np.float64}
 #: The members with a row per footstep, in either format that :func:`unpack_particles` reads.
-_PER_FOOTSTEP = ("t", "ref_x_m", "ref_y_m", *_STORED, "x", "y", "theta", "scale", "weight")
+_PER_FOOTSTEP = ("t", "ref_x_m", "ref_y_m", *PARTICLE_MEMBERS, "x", "y", "theta", "scale", "weight")
 
 
 @dataclass
@@ -110,6 +106,91 @@ def _fixed(values: np.ndarray, unit: float, info: np.iinfo, clipped: Counter[str
     scaled = np.rint(np.asarray(values, np.float64) / unit)
     clipped[what] += int(np.count_nonzero((scaled < info.min) | (scaled > info.max)))
     return np.clip(scaled, info.min, info.max).astype(info.dtype)
+
+
+def encode_offset_dm(offset_m: np.ndarray, clipped: Counter[str], axis: str) -> np.ndarray:
+    """Particle offsets from the estimate as stored (``dx_dm``, ``dy_dm``).
+
+    Parameters
+    ----------
+    offset_m
+        Offsets along ``axis``, metres.
+    clipped
+        Counts of clipped values, by what they are (:func:`warn_clipped`); this adds its own.
+    axis
+        ``"x"`` or ``"y"``.
+
+    Returns
+    -------
+    numpy.ndarray
+        int16 decimetres, clipped to the int16 range.
+    """
+    return _fixed(offset_m, OFFSET_UNIT_M, _INT16, clipped, f"particle {axis} offset")
+
+
+def encode_theta_ddeg(theta_rad: np.ndarray, clipped: Counter[str]) -> np.ndarray:
+    """Heading drift as stored (``theta_ddeg``): radians to int16 tenths of a degree in [-180, 180).
+
+    Parameters
+    ----------
+    theta_rad
+        Heading drift, radians (any turn: it is wrapped).
+    clipped
+        Counts of clipped values (:func:`warn_clipped`).
+
+    Returns
+    -------
+    numpy.ndarray
+    """
+    wrapped = (np.degrees(np.asarray(theta_rad, np.float64)) + 180.0) % 360.0 - 180.0
+    return _fixed(wrapped, THETA_UNIT_DEG, _INT16, clipped, "heading drift")
+
+
+def encode_scale_e4(scale: np.ndarray, clipped: Counter[str]) -> np.ndarray:
+    """Speed scale as stored (``scale_e4``): uint16 ten-thousandths, clipped to 0 .. 6.5.
+
+    Parameters
+    ----------
+    scale
+        Speed scale.
+    clipped
+        Counts of clipped values (:func:`warn_clipped`).
+
+    Returns
+    -------
+    numpy.ndarray
+    """
+    return _fixed(scale, SCALE_UNIT, _UINT16, clipped, "speed scale")
+
+
+def encode_weight_u8(weight: np.ndarray) -> np.ndarray:
+    """Weights as stored (``weight_u8``): uint8, 255 for the largest of each footstep (the last axis).
+
+    Parameters
+    ----------
+    weight
+        ``(..., N)`` particle weights.
+
+    Returns
+    -------
+    numpy.ndarray
+    """
+    w = np.asarray(weight, np.float64)
+    peak = np.maximum(w.max(axis=-1, keepdims=True), np.finfo(float).tiny)
+    return np.rint(255.0 * w / peak).astype(np.uint8)
+
+
+def warn_clipped(clipped: Counter[str]) -> None:
+    """Log a warning for each kind of value that was clipped to its stored range.
+
+    Parameters
+    ----------
+    clipped
+        Counts by what the values are, as the ``encode_*`` functions leave them.
+    """
+    for what, count in clipped.items():
+        if count:
+            log.warning("%d %s value(s) out of the stored range were clipped", count, what)
 
 
 def pack_particles(
@@ -163,34 +244,17 @@ def pack_particles(
         ref_x_m,
         ref_y_m,
         crs,
-        _fixed(x - ref_x_m[:, None], OFFSET_UNIT_M, _INT16, clipped, "particle x offset"),
-        _fixed(y - ref_y_m[:, None], OFFSET_UNIT_M, _INT16, clipped, "particle y offset"),
-        None if theta_rad is None else _fixed_theta(theta_rad, clipped),
-        None if scale is None else _fixed(scale, SCALE_UNIT, _UINT16, clipped, "speed scale"),
-        None if weight is None else _weight_u8(weight),
+        encode_offset_dm(x - ref_x_m[:, None], clipped, "x"),
+        encode_offset_dm(y - ref_y_m[:, None], clipped, "y"),
+        None if theta_rad is None else encode_theta_ddeg(theta_rad, clipped),
+        None if scale is None else encode_scale_e4(scale, clipped),
+        None if weight is None else encode_weight_u8(weight),
     )
-    _warn_clipped(clipped)
+    warn_clipped(clipped)
     for name in ("theta_ddeg", "scale_e4", "weight_u8"):
         if name in packed and packed[name].shape != x.shape:
             raise ValueError(f"{name} has shape {packed[name].shape}, expected {x.shape}")
     return packed
-
-
-def _fixed_theta(theta_rad: np.ndarray, clipped: Counter[str]) -> np.ndarray:
-    wrapped = (np.degrees(np.asarray(theta_rad, np.float64)) + 180.0) % 360.0 - 180.0
-    return _fixed(wrapped, THETA_UNIT_DEG, _INT16, clipped, "heading drift")
-
-
-def _weight_u8(weight: np.ndarray) -> np.ndarray:
-    w = np.asarray(weight, np.float64)
-    peak = np.maximum(w.max(axis=-1, keepdims=True), np.finfo(float).tiny)
-    return np.rint(255.0 * w / peak).astype(np.uint8)
-
-
-def _warn_clipped(clipped: Counter[str]) -> None:
-    for what, count in clipped.items():
-        if count:
-            log.warning("%d %s value(s) out of the stored range were clipped", count, what)
 
 
 def _assemble(
@@ -220,7 +284,7 @@ def _assemble(
 
 def pack_snapshots(snapshots: dict[str, np.ndarray], ref_x_m: np.ndarray, ref_y_m: np.ndarray) -> dict:
     """Pack float32 snapshots: the ``particles.npz`` of curbside versions before :data:`FORMAT` (runs now
-    pack as they walk, with :class:`CloudRecorder`, into the same bytes).
+    pack as they walk, with :class:`~curbside.localize.particle_recorder.CloudRecorder`, into the same bytes).
 
     Parameters
     ----------
@@ -247,227 +311,6 @@ def pack_snapshots(snapshots: dict[str, np.ndarray], ref_x_m: np.ndarray, ref_y_
         scale=snapshots.get("scale"),
         weight=snapshots.get("weight"),
     )
-
-
-class _Spill:
-    """One member's rows on disk, appended a chunk at a time, in an unnamed temporary file: it has no name
-    in ``folder``, and goes when it is closed or the process ends, however it ends."""
-
-    def __init__(self, folder: Path, dtype: np.dtype, row_shape: tuple[int, ...]) -> None:
-        self.folder, self.dtype, self.row_shape = folder, np.dtype(dtype), row_shape
-        self.row_bytes = self.dtype.itemsize * int(np.prod(row_shape))
-        try:
-            self.file = tempfile.TemporaryFile(dir=folder)  # noqa: SIM115 (open for the recorder's life)
-        except OSError as exc:
-            raise _cannot_spill(folder, exc) from None
-
-    def append(self, rows: np.ndarray) -> None:
-        try:
-            self.file.write(np.ascontiguousarray(rows, self.dtype).data)
-            self.file.flush()
-        except OSError as exc:
-            raise _cannot_spill(self.folder, exc) from None
-
-    def array(self, rows: int) -> np.ndarray:
-        """The first ``rows`` rows, mapped read-only: only the rows indexed are read."""
-        return np.memmap(self.file, self.dtype, "r", shape=(rows, *self.row_shape))
-
-    def blocks(self, rows: int, block_bytes: int) -> Iterator[np.ndarray]:
-        """The first ``rows`` rows, ``block_bytes`` (or a row) at a time, each mapped while handed out."""
-        step = max(1, block_bytes // max(self.row_bytes, 1))
-        for start in range(0, rows, step):
-            shape = (min(step, rows - start), *self.row_shape)
-            yield np.memmap(self.file, self.dtype, "r", offset=start * self.row_bytes, shape=shape)
-
-
-def _cannot_spill(folder: Path, exc: OSError) -> CurbsideInputError:
-    return CurbsideInputError(folder, f"cannot hold the particle clouds on disk here ({exc.strerror or exc})")
-
-
-def _spill_folder(near: str | Path | None) -> Path:
-    """``near`` if it is a folder, else its nearest existing parent (``None``: the temporary folder)."""
-    if near is None:
-        return Path(tempfile.gettempdir())
-    folder = Path(os.path.abspath(near))
-    while not folder.is_dir() and folder != folder.parent:
-        folder = folder.parent
-    return folder
-
-
-class SpilledClouds(Mapping[str, np.ndarray]):
-    """The arrays of :func:`pack_particles` for a :class:`CloudRecorder`'s footsteps, their rows on disk.
-
-    A member with a row per footstep reads as a read-only :class:`numpy.memmap` (indexing a few rows
-    reads only them: :func:`select_footsteps`); :func:`write_particles` streams each member into
-    ``particles.npz`` a block at a time.
-    """
-
-    def __init__(self, small: dict[str, np.ndarray], spills: dict[str, _Spill], rows: int,
-                 order: list[str]) -> None:
-        self._small, self._spills, self._rows, self._order = small, spills, rows, order
-
-    def __getitem__(self, name: str) -> np.ndarray:
-        if name not in self._order:
-            raise KeyError(name)
-        return self._small[name] if name in self._small else self._spills[name].array(self._rows)
-
-    def __iter__(self) -> Iterator[str]:
-        return iter(self._order)
-
-    def __len__(self) -> int:
-        return len(self._order)
-
-    def write_npz(self, fh: BinaryIO) -> None:
-        """Write the members as :func:`numpy.savez_compressed` does (the same members, in the same order,
-        as the same bytes), reading :data:`WRITE_BYTES` of them at a time."""
-        with zipfile.ZipFile(fh, "w", zipfile.ZIP_DEFLATED, allowZip64=True) as npz:
-            for name in self._order:
-                with npz.open(f"{name}.npy", "w", force_zip64=True) as member:
-                    if name in self._small:
-                        np.lib.format.write_array(member, self._small[name], allow_pickle=False)
-                        continue
-                    spill = self._spills[name]
-                    np.lib.format.write_array_header_1_0(member, {
-                        "descr": np.lib.format.dtype_to_descr(spill.dtype),
-                        "fortran_order": False,
-                        "shape": (self._rows, *spill.row_shape),
-                    })
-                    for block in spill.blocks(self._rows, WRITE_BYTES):
-                        member.write(block.tobytes())
-
-
-class CloudRecorder:
-    """A run's particle clouds, each packed as soon as it is taken and written to disk a chunk at a time
-    (``localize run --save-particles``).
-
-    The clouds are packed into the int16/uint16/uint8 form of the module's table, 9 bytes per particle
-    and footstep, not floats, into a buffer of one chunk (at most ``chunk_bytes``); a full chunk is
-    appended to unnamed temporary files in ``spill_dir``, so that the memory held stays that of one
-    chunk however long the walk. :meth:`packed` gives the arrays of :func:`pack_particles`, byte for byte
-    those that :func:`pack_snapshots` gives for the float32 snapshots (relative to the first estimate)
-    that earlier versions held until the end of the walk.
-
-    Parameters
-    ----------
-    crs
-        WKT of the metric CRS of the particles.
-    spill_dir
-        Where the clouds go on disk: this folder, or its nearest existing parent (``localize run``
-        gives its output folder); ``None``: the system's temporary folder. The files have no name
-        there and go with the recorder (or the process).
-    chunk_bytes
-        The most the buffer holds (at least one footstep; default :data:`CHUNK_BYTES`).
-    """
-
-    def __init__(self, crs: str, spill_dir: str | Path | None = None, chunk_bytes: int | None = None) -> None:
-        self.crs = str(crs)
-        self.spill_dir = spill_dir
-        self.chunk_bytes = CHUNK_BYTES if chunk_bytes is None else int(chunk_bytes)
-        self._k = 0
-        self._buffered = 0
-        self._buffer: dict[str, np.ndarray] = {}
-        self._spills: dict[str, _Spill] = {}
-        self._origin_m = (0.0, 0.0)
-        self._uniform = True
-        self._clipped: Counter[str] = Counter()
-
-    def __len__(self) -> int:
-        return self._k
-
-    @property
-    def buffer_bytes(self) -> int:
-        """Bytes of the in-memory buffer (one chunk)."""
-        return sum(values.nbytes for values in self._buffer.values())
-
-    def add(
-        self,
-        t: float,
-        ref_x_m: float,
-        ref_y_m: float,
-        x: np.ndarray,
-        y: np.ndarray,
-        theta_rad: np.ndarray,
-        scale: np.ndarray,
-        weight: np.ndarray,
-    ) -> None:
-        """Pack one footstep's cloud.
-
-        Parameters
-        ----------
-        t
-            Footstep time, s.
-        ref_x_m, ref_y_m
-            The estimate at this footstep (the offsets' origin), metres in ``crs``.
-        x, y
-            ``(N,)`` particle positions, metres in ``crs``.
-        theta_rad, scale, weight
-            ``(N,)`` heading drift (rad), speed scale and weights.
-
-        Raises
-        ------
-        CurbsideInputError
-            The spill folder cannot be written (full disk...).
-        """
-        if not self._k:
-            self._origin_m = (float(ref_x_m), float(ref_y_m))
-            self._start(len(x))
-        i, rows, clipped = self._buffered, self._buffer, self._clipped
-        (ox, oy), ref = self._origin_m, {"x": float(ref_x_m), "y": float(ref_y_m)}
-        for axis, values, origin in (("x", x, ox), ("y", y, oy)):
-            # Through float32 relative to the first estimate, as the snapshots were once held until the end
-            # of the walk: the file keeps the bytes it had then.
-            held = (np.asarray(values, np.float64) - origin).astype(np.float32)
-            offset = held.astype(np.float64) + origin - ref[axis]
-            what = f"particle {axis} offset"
-            rows[f"d{axis}_dm"][i] = _fixed(offset, OFFSET_UNIT_M, _INT16, clipped, what)
-        rows["theta_ddeg"][i] = _fixed_theta(np.asarray(theta_rad, np.float32), clipped)
-        held_scale = np.asarray(scale, np.float32)
-        rows["scale_e4"][i] = _fixed(held_scale, SCALE_UNIT, _UINT16, clipped, "speed scale")
-        w = np.asarray(weight, np.float64)
-        self._uniform = self._uniform and bool(np.allclose(w, w[:1], rtol=0, atol=1e-12))
-        rows["weight_u8"][i] = _weight_u8(w)
-        rows["t"][i], rows["ref_x_m"][i], rows["ref_y_m"][i] = t, ref_x_m, ref_y_m
-        self._k += 1
-        self._buffered += 1
-        if self._buffered == len(rows["t"]):
-            self._spill()
-
-    def _start(self, n: int) -> None:
-        """The buffer, one chunk of footsteps of ``n`` particles, and the files its chunks go to."""
-        folder = _spill_folder(self.spill_dir)
-        shapes = {name: (n,) for name in _STORED} | {name: () for name in _SCALARS}
-        dtypes = _STORED | _SCALARS
-        row_bytes = sum(np.dtype(dtypes[name]).itemsize * int(np.prod(shapes[name])) for name in dtypes)
-        steps = max(1, self.chunk_bytes // row_bytes)
-        self._buffer = {name: np.empty((steps, *shapes[name]), dtypes[name]) for name in dtypes}
-        self._spills = {name: _Spill(folder, dtypes[name], shapes[name]) for name in dtypes}
-
-    def _spill(self) -> None:
-        """Append the buffered footsteps to the files; the buffer is free again."""
-        for name, values in self._buffer.items():
-            self._spills[name].append(values[: self._buffered])
-        self._buffered = 0
-
-    def packed(self) -> SpilledClouds:
-        """The arrays of :func:`pack_particles` for the footsteps so far (later footsteps leave them as
-        they are).
-
-        Raises
-        ------
-        ValueError
-            No footstep yet.
-        CurbsideInputError
-            The spill folder cannot be written.
-        """
-        if not self._k:
-            raise ValueError("no particle cloud recorded")
-        self._spill()
-        _warn_clipped(self._clipped)
-        self._clipped.clear()
-        stored = [name for name in _STORED if name != "weight_u8" or not self._uniform]
-        small = {"format": np.array(FORMAT), "crs": np.array(self.crs)}
-        order = ["format", *_SCALARS, "dx_dm", "dy_dm", "crs", *stored[2:]]
-        return SpilledClouds(small, self._spills, self._k, order)
 
 
 def select_footsteps(packed: Mapping[str, np.ndarray], rows: np.ndarray | list[int]) -> dict[str, np.ndarray]:
@@ -555,8 +398,10 @@ def write_particles(packed: Mapping[str, np.ndarray], path: str | Path) -> Path:
     Parameters
     ----------
     packed
-        The arrays of :func:`pack_particles`, or a :class:`CloudRecorder`'s :class:`SpilledClouds`
-        (streamed from disk, :data:`WRITE_BYTES` at a time).
+        The arrays of :func:`pack_particles`, or a
+        :class:`~curbside.localize.particle_recorder.CloudRecorder`'s
+        :class:`~curbside.localize.particle_spill.SpilledClouds` (streamed from disk,
+        :data:`~curbside.localize.particle_spill.WRITE_BYTES` at a time).
     path
         The ``.npz`` to write.
 

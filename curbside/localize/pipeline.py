@@ -24,7 +24,6 @@ from __future__ import annotations
 
 import logging
 import math
-from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -32,17 +31,16 @@ from typing import TYPE_CHECKING
 import numpy as np
 import pandas as pd
 import pyproj
-import shapely
 
 from curbside.errors import CurbsideInputError
 from curbside.localize import input_warnings
-from curbside.localize.engine import Row, SessionEngine, StartPose, require_rows
-from curbside.localize.filter.tracker import Tracker
+from curbside.localize.engine import SessionEngine, StartPose, require_rows
 from curbside.localize.fix_lag import estimate_fix_lag
 from curbside.localize.raster import MapRaster, load_or_build_raster
 from curbside.localize.runconfig import MODES, VELOCITY_SOURCES, RunConfig
 from curbside.localize.session import Session, warn_if_simulated_imu
 from curbside.localize.streams import DisplacementIntegrator
+from curbside.localize.track_result import TrackResult, track_table, tracker_record
 from curbside.osmseg.mapio import MapLayers
 from curbside.projection import LocalFrame
 
@@ -52,90 +50,6 @@ if TYPE_CHECKING:
 logger = logging.getLogger(__name__)
 
 __all__ = ["MODES", "VELOCITY_SOURCES", "TrackResult", "track_session", "run_session"]
-
-#: Columns of ``track.csv`` in order (:data:`SEGMENT_COLUMNS` follow when the map has sidewalks).
-TRACK_COLUMNS = (
-    "t",
-    "lat",
-    "lon",
-    "x_m",
-    "y_m",
-    "accuracy_m",
-    "update",
-    "gnss_used",
-    "theta_drift_deg",
-    "speed_scale",
-    "n_eff",
-    "recovered",
-    "injected",
-    "motion",
-)
-
-#: Columns added with a map that has sidewalk segments: the filter's MAP segment (the polygon under the
-#: estimate in ``gnss`` mode), its posterior probability (empty in ``gnss`` mode) and the mode estimate.
-SEGMENT_COLUMNS = ("sidewalk_segment_id", "segment_prob", "mode_lat", "mode_lon")
-
-
-@dataclass
-class TrackResult:
-    """The output of :func:`track_session`.
-
-    Attributes
-    ----------
-    track
-        One row per update: :data:`TRACK_COLUMNS` (and :data:`SEGMENT_COLUMNS` with a map with sidewalks).
-    config
-        The whole run configuration (``run.json``'s ``config``).
-    velocity_source, step_source
-        Where the velocity and the footsteps came from (``None`` for velocity in ``gnss`` mode).
-    recoveries, injections, heading_corrections
-        Collapses re-seeded; particles injected by the divergence recovery; re-draws of the heading
-        correction (:func:`tracker_record`).
-    calibration
-        The calibration of ``segment_prob`` and ``accuracy_m`` at the end of the walk: the fixes'
-        persistence, the temperature and the pairs it was read from (``None`` without one).
-    unseen_velocity_from_s
-        Time from which the filter moved with the unseen-velocity motion model (``None``: never).
-    familiar_velocity
-        The familiar-velocity test's record (``None`` when it did not run; see
-        :attr:`~curbside.localize.engine.SessionEngine.familiar_velocity`).
-    fix_lag
-        The fixes' lag compensated: ``mode`` and ``lag_s``, and under ``auto`` the estimate's blocks and
-        residual per candidate (``None`` with ``fix_lag.mode = off`` or without fixes to compensate).
-    wall_tolerance_m
-        How soft the walls were (m; ``None`` without a map): ``filter.map.wall_tolerance_m``, or
-        ``conflict_wall_tolerance_m`` on a map whose buildings cover its sidewalks.
-    walkable_first
-        Whether the map's sidewalks and crosswalks won over its buildings (``filter.map.conflict_*``;
-        ``None`` without a map).
-    snapshots
-        With ``save_particles``: the cloud at each update, packed as it was taken: the arrays of
-        ``particles.npz`` (:mod:`curbside.localize.particle_store`; ``unpack_particles`` reads them), on
-        disk (a :class:`~curbside.localize.particle_store.SpilledClouds`, read as memory maps), with
-        ``weight_u8`` when the weights are not all uniform (particles killed by the map keep their place,
-        with no weight, until the next resampling).
-    """
-
-    track: pd.DataFrame
-    config: RunConfig
-    velocity_source: str | None
-    step_source: str
-    recoveries: int = 0
-    injections: int = 0
-    snapshots: Mapping[str, np.ndarray] | None = None
-    unseen_velocity_from_s: float | None = None
-    wall_tolerance_m: float | None = None
-    walkable_first: bool | None = None
-    familiar_velocity: dict[str, object] | None = None
-    fix_lag: dict[str, object] | None = None
-    heading_corrections: int = 0
-    calibration: dict[str, float] | None = None
-
-    @property
-    def mode(self) -> str:
-        """The method run."""
-        return self.config.mode
-
 
 def resolve_config(
     config: RunConfig | None,
@@ -400,6 +314,33 @@ def track_session(
     """
     config = resolve_config(config, mode, particles=particles, jaywalk_weight=jaywalk_weight, seed=seed,
                             velocity_source=velocity_source, use_start_pose=use_start_pose)
+    inputs = _inputs(session, map_layers, config, map_name, progress, ronin_weights)
+    engine = _run_engine(session, map_layers, config, inputs, save_particles, spill_dir)
+    if config.mode == "gnss":
+        input_warnings.report_gnss_holds(session, config)
+    return _result(session.source, engine, inputs, map_layers, save_particles)
+
+
+@dataclass
+class _Inputs:
+    """What :func:`track_session` feeds the engine, and where it came from."""
+
+    frame: LocalFrame
+    start: StartPose | None
+    t_begin: float | None
+    steps: np.ndarray | None
+    step_source: str
+    velocity: pd.DataFrame | None
+    velocity_source: str | None
+    fix_lag: dict[str, object] | None
+
+
+def _inputs(
+    session: Session, map_layers: MapLayers | None, config: RunConfig, map_name: str | None, progress: bool,
+    ronin_weights: RoninResNet | str | Path | None,
+) -> _Inputs:
+    """The run's frame, start, footsteps, velocity (none in ``gnss`` mode) and fixes' lag, once the session
+    is checked against the map (see the module docstring)."""
     frame = _frame_for(session, map_layers)
     start, t_begin = _start_of(session)
     _check_inputs(session, map_layers, config, frame, start, map_name)
@@ -412,24 +353,29 @@ def track_session(
             raise CurbsideInputError(session.source, problem)
         input_warnings.report_short_velocity(session, velocity["t"].to_numpy(float), velocity_source)
     fix_lag = _fix_lag(session, config, frame, velocity, velocity_source == "pdr")
+    return _Inputs(frame, start, t_begin, steps, step_source, velocity, velocity_source, fix_lag)
+
+
+def _run_engine(
+    session: Session, map_layers: MapLayers | None, config: RunConfig, inputs: _Inputs, save_particles: bool,
+    spill_dir: str | Path | None,
+) -> SessionEngine:
+    """The engine, fed the whole session and finished (refused when it gave no estimate)."""
+    pdr = inputs.velocity_source == "pdr"
     engine = SessionEngine(
-        config, frame, _raster_for(map_layers, config), start=start, t_begin=t_begin, cadence=steps is None,
-        save_particles=save_particles, step_means_velocity=velocity_source == "pdr",
-        fix_lag_s=None if fix_lag is None else float(fix_lag["lag_s"]), spill_dir=spill_dir,
+        config, inputs.frame, _raster_for(map_layers, config), start=inputs.start, t_begin=inputs.t_begin,
+        cadence=inputs.steps is None, save_particles=save_particles, step_means_velocity=pdr,
+        fix_lag_s=None if inputs.fix_lag is None else float(inputs.fix_lag["lag_s"]), spill_dir=spill_dir,
     )
+    velocity = inputs.velocity
     if velocity is not None:
         engine.push_velocity(velocity["t"].to_numpy(float), velocity[["ve", "vn"]].to_numpy(float))
-    if steps is not None:
-        engine.push_steps(steps, math.inf)
+    if inputs.steps is not None:
+        engine.push_steps(inputs.steps, math.inf)
     engine.push_gnss(session.gnss)
     engine.finish()
     require_rows(engine.rows, session.source)
-    if config.mode == "gnss":
-        input_warnings.report_gnss_holds(session, config)
-    sources = (velocity_source, step_source)
-    result = _result(session.source, engine, frame, map_layers, sources, save_particles)
-    result.fix_lag = fix_lag
-    return result
+    return engine
 
 
 def _fix_lag(
@@ -467,25 +413,11 @@ def _raster_for(map_layers: MapLayers | None, config: RunConfig) -> MapRaster | 
     )
 
 
-def tracker_record(tracker: Tracker | None) -> dict[str, object]:
-    """``recoveries``, ``injections`` and ``heading_corrections`` of a finished tracker (0 without one),
-    and its ``calibration`` record (``None`` without one)."""
-    if tracker is None:
-        return {"recoveries": 0, "injections": 0, "heading_corrections": 0, "calibration": None}
-    return {
-        "recoveries": tracker.recoveries,
-        "injections": 0 if tracker.divergence is None else tracker.divergence.injections,
-        "heading_corrections": 0 if tracker.turn is None else tracker.turn.corrections,
-        "calibration": None if tracker.calibration is None else tracker.calibration.record(),
-    }
-
-
 def _result(
     name: str,
     engine: SessionEngine,
-    frame: LocalFrame,
+    inputs: _Inputs,
     map_layers: MapLayers | None,
-    sources: tuple[str | None, str],
     save_particles: bool,
 ) -> TrackResult:
     """The finished engine's track table, counts and particle snapshots."""
@@ -494,7 +426,7 @@ def _result(
         logger.info("%s: the particle cloud collapsed %d time(s)", name, tracker.recoveries)
     track = track_table(
         engine.rows,
-        frame,
+        inputs.frame,
         map_layers,
         segments=tracker is not None and tracker.segments is not None,
         smoothed=tracker is not None and tracker.smoother is not None,
@@ -503,71 +435,16 @@ def _result(
     return TrackResult(
         track,
         engine.config,
-        *sources,
+        inputs.velocity_source,
+        inputs.step_source,
         snapshots=snapshots,
         unseen_velocity_from_s=engine.unseen_velocity_from_s,
         wall_tolerance_m=None if tracker is None else tracker.wall_tolerance_m,
         walkable_first=None if tracker is None else tracker.walkable_first,
         familiar_velocity=engine.familiar_velocity,
+        fix_lag=inputs.fix_lag,
         **tracker_record(tracker),
     )
-
-
-def track_table(
-    rows: list[Row], frame: LocalFrame, map_layers: MapLayers | None, segments: bool, smoothed: bool = False
-) -> pd.DataFrame:
-    """The ``track.csv`` table of the engine's rows (``smooth_lat, smooth_lon`` when ``smoothed``)."""
-    x = np.array([r.x for r in rows])
-    y = np.array([r.y for r in rows])
-    lon, lat = frame.to_lonlat(x, y)
-    track = pd.DataFrame(
-        {
-            "t": [r.t for r in rows],
-            "lat": np.atleast_1d(lat),
-            "lon": np.atleast_1d(lon),
-            "x_m": x,
-            "y_m": y,
-            "accuracy_m": [r.accuracy_m for r in rows],
-            "update": [r.kind for r in rows],
-            "gnss_used": np.array([r.fix_used for r in rows], dtype=int),
-            "theta_drift_deg": np.degrees([r.theta for r in rows]),
-            "speed_scale": [r.scale for r in rows],
-            "n_eff": [r.n_eff for r in rows],
-            "recovered": np.array([r.recovered for r in rows], dtype=int),
-            "injected": np.array([r.injected for r in rows], dtype=int),
-            "motion": [r.motion for r in rows],
-        }
-    )
-    if smoothed:
-        smooth_lon, smooth_lat = frame.to_lonlat(
-            np.array([r.smooth_x for r in rows]), np.array([r.smooth_y for r in rows])
-        )
-        track["smooth_lat"], track["smooth_lon"] = np.atleast_1d(smooth_lat), np.atleast_1d(smooth_lon)
-    if map_layers is None or not len(map_layers.layer("sidewalk")):
-        return track
-    if segments:
-        mode_lon, mode_lat = frame.to_lonlat(
-            np.array([r.mode_x for r in rows]), np.array([r.mode_y for r in rows])
-        )
-        track["sidewalk_segment_id"] = np.array([r.segment_id for r in rows], dtype=object)
-        track["segment_prob"] = [r.segment_prob for r in rows]
-        track["mode_lat"], track["mode_lon"] = np.atleast_1d(mode_lat), np.atleast_1d(mode_lon)
-    else:  # no particles (gnss mode) or no segment estimate: the polygon under the track's position
-        track["sidewalk_segment_id"] = sidewalk_segments_at(map_layers, x, y)
-        track["segment_prob"] = np.nan
-        track["mode_lat"], track["mode_lon"] = track["lat"], track["lon"]
-    return track
-
-
-def sidewalk_segments_at(map_layers: MapLayers, x: np.ndarray, y: np.ndarray) -> np.ndarray:
-    """``segment_id`` of the sidewalk polygon under each point (``None`` off sidewalks)."""
-    sidewalks = map_layers.layer("sidewalk")
-    out = np.full(len(x), None, dtype=object)
-    if len(sidewalks) == 0 or len(x) == 0:
-        return out
-    point_idx, poly_idx = sidewalks.sindex.query(shapely.points(x, y), predicate="within")
-    out[point_idx[::-1]] = sidewalks["segment_id"].to_numpy()[poly_idx[::-1]]  # first match wins
-    return out
 
 
 def run_session(

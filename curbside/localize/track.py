@@ -16,7 +16,7 @@ import pandas as pd
 from curbside import __version__
 from curbside.io import json_ready, output_folder
 from curbside.localize.particle_store import write_particles
-from curbside.localize.pipeline import TrackResult
+from curbside.localize.track_result import TrackResult
 
 #: Decimal places of lon/lat in ``track.geojson`` (1e-7 degree is about 1 cm).
 COORD_DECIMALS = 7

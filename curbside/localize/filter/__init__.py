@@ -4,6 +4,7 @@
 module                     part
 =========================  ==================================================================
 :mod:`.config`             every parameter: :class:`FilterConfig` and its sections
+:mod:`.correction_config`  the sections of the parts that re-draw particles (recovery, corrections)
 :mod:`.particles`          :class:`ParticleSet`, normalisation, the weighted :class:`Estimate`
 :mod:`.parts`              :class:`Update`, :class:`GnssFix` and the part interfaces
 :mod:`.predict`            :class:`InertialPredictor` (heading drift, jumps, speed scale)
@@ -31,15 +32,14 @@ from curbside.localize.filter.calibration import CalibrationConfig, SegmentCalib
 from curbside.localize.filter.config import (
     FilterConfig,
     GnssConfig,
-    HeadingCorrectionConfig,
     MapConfig,
     MotionConfig,
-    RecoveryConfig,
     ResampleConfig,
     SmootherConfig,
     StartConfig,
     StreetHeadingConfig,
 )
+from curbside.localize.filter.correction_config import HeadingCorrectionConfig, RecoveryConfig
 from curbside.localize.filter.gnss import GnssLikelihood
 from curbside.localize.filter.heading_correction import HeadingCorrection
 from curbside.localize.filter.initiate import Initiator

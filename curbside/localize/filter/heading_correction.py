@@ -23,8 +23,8 @@ Then, after resampling, a share ``fraction`` of the particles, picked at random,
 fit puts the walker now (σ = ``position_sigma_factor`` x the median accuracy), with the cloud's heading
 offset plus the fitted turn and the fitted speed scale (each with a small spread). The likelihoods then
 keep them or not, as they do the divergence recovery's. Parameters:
-:class:`~curbside.localize.filter.config.HeadingCorrectionConfig`; docs/filter.md, "Heading correction
-from GNSS".
+:class:`~curbside.localize.filter.correction_config.HeadingCorrectionConfig`; docs/filter.md,
+"Heading correction from GNSS".
 """
 
 from __future__ import annotations
@@ -34,7 +34,7 @@ import math
 
 import numpy as np
 
-from curbside.localize.filter.config import HeadingCorrectionConfig
+from curbside.localize.filter.correction_config import HeadingCorrectionConfig
 from curbside.localize.filter.gnss import GnssLikelihood
 from curbside.localize.filter.particles import SCALE, THETA, Estimate, ParticleSet, X, Y
 from curbside.localize.filter.parts import Update

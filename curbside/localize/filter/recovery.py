@@ -38,7 +38,7 @@ import math
 import numba
 import numpy as np
 
-from curbside.localize.filter.config import RecoveryConfig
+from curbside.localize.filter.correction_config import RecoveryConfig
 from curbside.localize.filter.gnss import GnssLikelihood
 from curbside.localize.filter.kernelmath import exp
 from curbside.localize.filter.map_likelihood import MapLikelihood

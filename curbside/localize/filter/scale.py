@@ -16,7 +16,7 @@ by more than ``significance`` standard errors, and the fitted rotation is under 
 (a fit that needs a large turn does not describe this path), a share ``fraction`` of the particles,
 picked at random after resampling, re-draws its scale as ``fitted * exp(sigma * N(0, 1))`` clipped to
 ``[min_scale, max_scale]``; the likelihoods then decide which of them survive. A fit is made at most
-every quarter window. Parameters: :class:`~curbside.localize.filter.config.ScaleCorrectionConfig`.
+every quarter window. Parameters: :class:`~curbside.localize.filter.correction_config.ScaleCorrectionConfig`.
 """
 
 from __future__ import annotations
@@ -26,7 +26,7 @@ import math
 
 import numpy as np
 
-from curbside.localize.filter.config import ScaleCorrectionConfig
+from curbside.localize.filter.correction_config import ScaleCorrectionConfig
 from curbside.localize.filter.gnss import GnssLikelihood
 from curbside.localize.filter.particles import SCALE, Estimate, ParticleSet
 from curbside.localize.filter.parts import Update

@@ -36,7 +36,8 @@ import pyproj
 
 from curbside.errors import CurbsideInputError
 from curbside.localize.filter.calibration import SegmentCalibration, accuracy_radius_m
-from curbside.localize.filter.config import FilterConfig, GnssConfig, MotionConfig, ScaleCorrectionConfig
+from curbside.localize.filter.config import FilterConfig, GnssConfig, MotionConfig
+from curbside.localize.filter.correction_config import ScaleCorrectionConfig
 from curbside.localize.filter.gnss import GnssLikelihood
 from curbside.localize.filter.heading_correction import HeadingCorrection
 from curbside.localize.filter.initiate import Initiator

@@ -25,8 +25,8 @@ from pathlib import Path
 from typing import Any
 
 from curbside.io import MARKER, read_marker
-from curbside.localize.pipeline import TrackResult
 from curbside.localize.track import write_track
+from curbside.localize.track_result import TrackResult
 
 logger = logging.getLogger(__name__)
 

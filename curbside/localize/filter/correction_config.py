@@ -1,0 +1,216 @@
+"""The parameters of the parts that repair a cloud gone wrong by re-drawing particles: sections of
+:class:`~curbside.localize.filter.config.FilterConfig`.
+
+:class:`RecoveryConfig` (:mod:`~curbside.localize.filter.recovery`: a collapsed cloud, a cloud that no
+longer agrees with GNSS, a cloud the walls hold still), :class:`ScaleCorrectionConfig`
+(:mod:`~curbside.localize.filter.scale`: a speed scale the fixes disagree with) and
+:class:`HeadingCorrectionConfig` (:mod:`~curbside.localize.filter.heading_correction`: a velocity that
+turned). ``docs/filter.md`` gives the reasoning behind each value.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+
+def _check(condition: bool, message: str) -> None:
+    if not condition:
+        raise ValueError(message)
+
+
+@dataclass(frozen=True)
+class RecoveryConfig:
+    """Recovery from a collapsed cloud and from a cloud that no longer agrees with GNSS.
+
+    Attributes
+    ----------
+    collapse_sigma_m
+        Spread of particles re-seeded around the last estimate after every weight went to zero.
+    alpha_fast, alpha_slow
+        Rates (per fix) of the short- and long-term averages of the cloud's GNSS agreement (Augmented
+        MCL, Thrun et al. 2005, table 8.3).
+    trigger_ratio
+        Particles are injected once the short-term average falls below this fraction of the long one.
+        0.4 (version 0.1: 0.5): a phone's fixes can be off the same way for a minute, and at 0.5 such
+        an episode read as a divergence and re-drew the cloud around the wrong fixes.
+    kernel_scale
+        The agreement kernel's sigma as a multiple of the GNSS likelihood's sigma.
+    max_fraction
+        At most this fraction of the particles is re-drawn around a fix at one update (0: off).
+    inject_heading_sigma_deg
+        A re-drawn particle takes a random particle's heading offset plus a Gaussian jitter of this
+        sigma (degrees; 0: the offset as it is). A cloud often diverges because its heading offset is
+        wrong, and particles that inherit it exactly run off the same way.
+    stall_ratio
+        The cloud is *stalled* when its estimate moved less than this fraction of the inertial
+        displacement over the last ``stall_window_s`` (0: never). Walkers do not walk into walls, so a cloud
+        that the map holds still while the phone walks on is in the wrong place.
+    stall_window_s, stall_min_speed_mps
+        The window, and the least net inertial speed over it for the test to apply (standing, or
+        turning back, is no stall).
+    stall_blocked_share
+        ... and only when the map stopped at least this share of the particles (weight under 1 %) at
+        an average update of the window: the walls hold the cloud, not fixes that pull it back.
+    stall_fraction
+        While stalled, this fraction of the particles (at most ``max_fraction``) is re-drawn around
+        each usable fix, as for a divergence.
+    """
+
+    collapse_sigma_m: float = 5.0
+    alpha_fast: float = 0.02
+    alpha_slow: float = 0.002
+    trigger_ratio: float = 0.4
+    kernel_scale: float = 5.0
+    max_fraction: float = 0.25
+    inject_heading_sigma_deg: float = 30.0
+    stall_ratio: float = 0.2
+    stall_window_s: float = 10.0
+    stall_min_speed_mps: float = 0.5
+    stall_blocked_share: float = 0.3
+    stall_fraction: float = 0.1
+
+    def __post_init__(self) -> None:
+        _check(self.collapse_sigma_m > 0, f"collapse_sigma_m must be positive, got {self.collapse_sigma_m}")
+        _check(
+            0.0 <= self.stall_ratio < 1.0 and min(self.stall_fraction, self.stall_blocked_share) >= 0.0
+            and max(self.stall_fraction, self.stall_blocked_share) <= 1.0,
+            f"need 0 <= stall_ratio < 1 and stall_fraction, stall_blocked_share in [0, 1], got "
+            f"{self.stall_ratio}, {self.stall_fraction}, {self.stall_blocked_share}",
+        )
+        _check(
+            self.stall_window_s > 0 and self.stall_min_speed_mps > 0,
+            f"stall_window_s and stall_min_speed_mps must be positive, got {self.stall_window_s}, "
+            f"{self.stall_min_speed_mps}",
+        )
+        _check(0.0 <= self.max_fraction <= 1.0, f"max_fraction must lie in [0, 1], got {self.max_fraction}")
+        _check(
+            self.inject_heading_sigma_deg >= 0,
+            f"inject_heading_sigma_deg must be non-negative, got {self.inject_heading_sigma_deg}",
+        )
+        _check(
+            0.0 < self.alpha_slow < self.alpha_fast <= 1.0
+            and 0.0 < self.trigger_ratio <= 1.0
+            and self.kernel_scale > 0,
+            "need 0 < alpha_slow < alpha_fast <= 1, 0 < trigger_ratio <= 1, kernel_scale > 0; got "
+            f"{self.alpha_slow}, {self.alpha_fast}, {self.trigger_ratio}, {self.kernel_scale}",
+        )
+
+
+@dataclass(frozen=True)
+class ScaleCorrectionConfig:
+    """GNSS-driven speed-scale correction (:class:`~curbside.localize.filter.scale.ScaleCorrection`).
+
+    Attributes
+    ----------
+    fraction
+        Share of the particles whose speed scale is re-drawn around the fitted one when a fit disagrees
+        with the cloud (0, the default: off; 0.05 is the value tried, see ``docs/filter.md``).
+    window_s
+        The fixes of the last this many seconds are fitted against the cloud's inertial path; a fit is
+        made at most every quarter window, once the window is three quarters full.
+    trigger
+        A fit acts only when its scale differs from the cloud's mean by more than this (relative) ...
+    significance
+        ... and by more than this many of its standard errors ...
+    max_rotation_deg
+        ... and it needs a rotation under this (a fit that turns the path a lot does not describe it).
+    sigma
+        Log-normal spread of the re-drawn scales around the fitted one.
+    min_scale, max_scale
+        Re-drawn scales are clipped to this range.
+    min_path_m
+        A fit needs a path spanning at least ``max(min_path_m, 3 sqrt(2) median accuracy)``.
+    trim_share
+        The fit is repeated without this share of the fixes farthest from the first fit.
+    correlation_s
+        The fit's standard error counts one independent fix per this many seconds (successive fixes
+        share most of their error).
+    """
+
+    fraction: float = 0.0
+    window_s: float = 60.0
+    trigger: float = 0.15
+    significance: float = 3.0
+    max_rotation_deg: float = 20.0
+    sigma: float = 0.05
+    min_scale: float = 0.6
+    max_scale: float = 1.6
+    min_path_m: float = 20.0
+    trim_share: float = 0.2
+    correlation_s: float = 30.0
+
+    def __post_init__(self) -> None:
+        _check(0.0 <= self.fraction <= 1.0, f"fraction must lie in [0, 1], got {self.fraction}")
+        _check(0.0 <= self.trim_share < 1.0, f"trim_share must lie in [0, 1), got {self.trim_share}")
+        _check(
+            0.0 < self.min_scale < self.max_scale,
+            f"need 0 < min_scale < max_scale, got {self.min_scale}, {self.max_scale}",
+        )
+        _check(
+            min(self.window_s, self.trigger, self.significance, self.max_rotation_deg, self.correlation_s) > 0
+            and min(self.sigma, self.min_path_m) >= 0,
+            "window_s, trigger, significance, max_rotation_deg and correlation_s must be positive, sigma "
+            "and min_path_m non-negative",
+        )
+
+
+@dataclass(frozen=True)
+class HeadingCorrectionConfig:
+    """GNSS-driven correction of a velocity that turned (:mod:`~curbside.localize.filter.heading_correction`).
+
+    Attributes
+    ----------
+    fraction
+        Share of the particles re-drawn, after resampling, where the fit puts the walker, with the
+        fitted turn and speed scale, when the gates below pass (0: off; the paper's preset).
+    window_s
+        The accepted fixes of the last this many seconds are fitted on the cloud's inertial path and on
+        its estimated track; a fit is made at most every quarter window, once three quarters are in.
+    max_accuracy_m
+        The fixes' median reported accuracy must be at most this: only fixes good enough to steer by.
+    max_residual_ratio
+        The fixes must lie this close to the fitted path: root mean square distance at most this times
+        their median accuracy (fixes that wander with multipath do not fit a turned walk).
+    min_rotation_deg
+        The fit must turn the inertial path by at least this ...
+    min_estimate_rotation_deg
+        ... and the filter's own track by at least this: the cloud really walks off the fixes.
+    min_scale, max_scale
+        The fitted speed scale must lie in this range (a fit outside it describes no walk).
+    min_path_m, min_fix_span_m
+        The window's inertial path must span at least ``min_path_m`` and its fixes
+        ``max(min_fix_span_m, 3 sqrt(2) median accuracy)``.
+    heading_sigma_deg, scale_sigma, position_sigma_factor
+        Spread of the re-drawn particles: heading offset (degrees) around the cloud's own plus the
+        fitted turn, log-normal speed scale around the fitted one, position around where the fit puts
+        the walker (times the median accuracy).
+    """
+
+    fraction: float = 0.1
+    window_s: float = 30.0
+    max_accuracy_m: float = 6.0
+    max_residual_ratio: float = 0.5
+    min_rotation_deg: float = 30.0
+    min_estimate_rotation_deg: float = 20.0
+    min_scale: float = 0.5
+    max_scale: float = 2.2
+    min_path_m: float = 5.0
+    min_fix_span_m: float = 10.0
+    heading_sigma_deg: float = 10.0
+    scale_sigma: float = 0.05
+    position_sigma_factor: float = 0.66
+
+    def __post_init__(self) -> None:
+        _check(0.0 <= self.fraction <= 1.0, f"fraction must lie in [0, 1], got {self.fraction}")
+        _check(
+            0.0 < self.min_scale < self.max_scale,
+            f"need 0 < min_scale < max_scale, got {self.min_scale}, {self.max_scale}",
+        )
+        _check(
+            min(self.window_s, self.max_accuracy_m, self.max_residual_ratio) > 0
+            and min(self.min_rotation_deg, self.min_estimate_rotation_deg, self.min_path_m,
+                    self.min_fix_span_m, self.heading_sigma_deg, self.scale_sigma,
+                    self.position_sigma_factor) >= 0,
+            "window_s, max_accuracy_m and max_residual_ratio must be positive, the other gates and "
+            "spreads non-negative",
+        )
