@@ -50,6 +50,7 @@ def _ronin(args: argparse.Namespace) -> int:
     from curbside import settings
     from curbside.io import atomic_path, check_output_file, note_written
     from curbside.localize.readers import read_any
+    from curbside.localize.ronin.familiarity import session_familiarity
     from curbside.localize.ronin.infer import load_model, ronin_velocity
     from curbside.localize.ronin.provenance import weights_record
     from curbside.localize.session import warn_if_simulated_imu
@@ -73,6 +74,7 @@ def _ronin(args: argparse.Namespace) -> int:
     weights = weights_record(args.weights or settings.ronin_default_weights)
     sys.stdout.write(f"{out}: {len(velocity)} velocities over {span:.1f} s (weights "
                      f"{Path(weights['path']).name}, sha256 {weights['sha256'][:12]})\n")
+    sys.stdout.write(f"{out}: {session_familiarity(model, session.imu, config, imu_source).describe()}\n")
     return 0
 
 

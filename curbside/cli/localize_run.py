@@ -238,6 +238,12 @@ def _print_summary(output: str, result: TrackResult, summary: dict | None) -> No
             f"the next ({familiar['samples']} samples, {familiar['verdict']}): "
             f"{100 * share:.0f} % of the track follows the calm motion model (--familiar-velocity)"
         )
+    known = result.ronin_familiarity
+    if known is not None and known["familiar"] is not None:
+        advice = "" if known["familiar"] else ": its heading and speed may be off; consider --unseen-velocity"
+        print(f"{output}: the RoNIN model {'knows' if known['familiar'] else 'does not know'} this recording "
+              f"(yaw-equivariance spread {known['spread_mps']:.3f} m/s while walking; unfamiliar above "
+              f"{known['unfamiliar_above_mps']:g}){advice}")
     lag = result.fix_lag
     if lag is not None and lag["lag_s"] > 0:
         how = "estimated from the recording" if lag["mode"] == "auto" else "fix_lag.lag_s"

@@ -210,13 +210,14 @@ def _ronin_model(weights: RoninResNet | str | Path | None, config: RunConfig) ->
 def _velocity(
     session: Session, config: RunConfig, steps: np.ndarray | None, progress: bool = False,
     ronin_weights: RoninResNet | str | Path | None = None,
-) -> tuple[pd.DataFrame, str]:
-    """The session's world-frame velocity and its source name (see the module docstring); ``progress``: a
-    progress bar over RoNIN's inference on a terminal; ``ronin_weights``: the RoNIN model (default: the
-    bundled one)."""
+) -> tuple[pd.DataFrame, str, dict | None]:
+    """The session's world-frame velocity, its source name and, for RoNIN, whether the model knows the
+    recording (``run.json``'s ``ronin_familiarity``; see the module docstring); ``progress``: a progress
+    bar over RoNIN's inference on a terminal; ``ronin_weights``: the RoNIN model (default: the bundled
+    one)."""
     source = config.engine.velocity_source
     if source in ("auto", "file") and session.velocity is not None:
-        return session.velocity, "file"
+        return session.velocity, "file", None
     if source == "file":
         raise CurbsideInputError(session.file_source("velocity.csv"), "no velocity.csv in the session")
     if session.imu is None:
@@ -232,20 +233,32 @@ def _velocity(
     if source in ("auto", "ronin"):
         model = _ronin_model(ronin_weights, config)
         try:
-            from curbside.localize.ronin.infer import ronin_velocity
-
-            source_name = session.file_source("imu.csv")
-            warn_if_simulated_imu(session, source_name)
-            velocity = ronin_velocity(session.imu, model=model, config=config.engine.ronin,
-                                      source=source_name, progress=progress)
-            return velocity, "ronin"
+            return _ronin_velocity(session, config, model, progress)
         except (ImportError, CurbsideInputError) as exc:
             if source == "ronin":
                 raise
             logger.warning("RoNIN unavailable (%s): falling back to PDR", exc)
     from curbside.localize.pdr import pdr_velocity
 
-    return pdr_velocity(session.imu, steps, config.engine.pdr, config.engine.steps), "pdr"
+    return pdr_velocity(session.imu, steps, config.engine.pdr, config.engine.steps), "pdr", None
+
+
+def _ronin_velocity(
+    session: Session, config: RunConfig, model: RoninResNet | None, progress: bool
+) -> tuple[pd.DataFrame, str, dict]:
+    """RoNIN's velocity of the session (``model`` ``None``: the bundled one) and the model's familiarity
+    with it (:mod:`curbside.localize.ronin.familiarity`)."""
+    from curbside.localize.ronin.familiarity import session_familiarity
+    from curbside.localize.ronin.infer import load_model, ronin_velocity
+
+    model = model or load_model(None)
+    source_name = session.file_source("imu.csv")
+    warn_if_simulated_imu(session, source_name)
+    velocity = ronin_velocity(session.imu, model=model, config=config.engine.ronin, source=source_name,
+                              progress=progress)
+    familiarity = session_familiarity(model, session.imu, config.engine.ronin, source_name)
+    logger.info("%s: %s", session.source, familiarity.describe())
+    return velocity, "ronin", familiarity.to_dict()
 
 
 def _steps(session: Session, config: RunConfig) -> tuple[np.ndarray | None, str]:
@@ -333,6 +346,7 @@ class _Inputs:
     velocity: pd.DataFrame | None
     velocity_source: str | None
     fix_lag: dict[str, object] | None
+    ronin_familiarity: dict | None
 
 
 def _inputs(
@@ -345,15 +359,17 @@ def _inputs(
     start, t_begin = _start_of(session)
     _check_inputs(session, map_layers, config, frame, start, map_name)
     steps, step_source = _steps(session, config)
-    velocity, velocity_source = None, None
+    velocity, velocity_source, ronin_familiarity = None, None, None
     if config.mode != "gnss":
-        velocity, velocity_source = _velocity(session, config, steps, progress, ronin_weights)
+        velocity, velocity_source, ronin_familiarity = _velocity(session, config, steps, progress,
+                                                                 ronin_weights)
         if len(velocity) < 2:
             problem = f"the {velocity_source} velocity has fewer than two samples"
             raise CurbsideInputError(session.source, problem)
         input_warnings.report_short_velocity(session, velocity["t"].to_numpy(float), velocity_source)
     fix_lag = _fix_lag(session, config, frame, velocity, velocity_source == "pdr")
-    return _Inputs(frame, start, t_begin, steps, step_source, velocity, velocity_source, fix_lag)
+    return _Inputs(frame, start, t_begin, steps, step_source, velocity, velocity_source, fix_lag,
+                   ronin_familiarity)
 
 
 def _run_engine(
@@ -443,6 +459,7 @@ def _result(
         walkable_first=None if tracker is None else tracker.walkable_first,
         familiar_velocity=engine.familiar_velocity,
         fix_lag=inputs.fix_lag,
+        ronin_familiarity=inputs.ronin_familiarity,
         **tracker_record(tracker),
     )
 

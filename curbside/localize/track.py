@@ -109,6 +109,7 @@ def write_track(
         "unseen_velocity_from_s": result.unseen_velocity_from_s,
         "familiar_velocity": result.familiar_velocity,
         "fix_lag": result.fix_lag,
+        "ronin_familiarity": result.ronin_familiarity,
         "wall_tolerance_m": result.wall_tolerance_m,
         "walkable_first": result.walkable_first,
     }) | {"config": result.config.to_dict()}

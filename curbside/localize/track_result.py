@@ -67,6 +67,9 @@ class TrackResult:
     fix_lag
         The fixes' lag compensated: ``mode`` and ``lag_s``, and under ``auto`` the estimate's blocks and
         residual per candidate (``None`` with ``fix_lag.mode = off`` or without fixes to compensate).
+    ronin_familiarity
+        Whether the RoNIN model knows the recording, by its yaw-equivariance spread
+        (:meth:`curbside.localize.ronin.familiarity.Familiarity.to_dict`; ``None`` without RoNIN).
     wall_tolerance_m
         How soft the walls were (m; ``None`` without a map): ``filter.map.wall_tolerance_m``, or
         ``conflict_wall_tolerance_m`` on a map whose buildings cover its sidewalks.
@@ -93,6 +96,7 @@ class TrackResult:
     walkable_first: bool | None = None
     familiar_velocity: dict[str, object] | None = None
     fix_lag: dict[str, object] | None = None
+    ronin_familiarity: dict | None = None
     heading_corrections: int = 0
     calibration: dict[str, float] | None = None
 

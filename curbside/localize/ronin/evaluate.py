@@ -27,6 +27,10 @@ Metrics per recording
     north for IPIN, whose ground truth is surveyed).
 ``waypoint_errors_m``
     Distances between the (unrotated) trajectory and each ground-truth waypoint inside the span.
+``yaw_spread_mps``, ``early_yaw_spread_mps``, ``familiar`` (RoNIN only)
+    The model's yaw-equivariance spread, median over the recording and over its first 30 s, and whether
+    the model knows the recording by it (:mod:`curbside.localize.ronin.familiarity`; no ground truth
+    needed).
 """
 
 from __future__ import annotations
@@ -40,6 +44,7 @@ from tqdm.auto import tqdm
 
 from curbside.localize.imu import WorldSamples
 from curbside.localize.ronin.data import Recording
+from curbside.localize.ronin.familiarity import familiarity
 from curbside.localize.ronin.infer import check_compatible, infer_windows
 from curbside.localize.ronin.model import RoninResNet
 from curbside.localize.ronin.stream import RoninStreamConfig, WindowCutter
@@ -120,24 +125,30 @@ def trajectory_metrics(t: np.ndarray, estimate: np.ndarray, truth: np.ndarray,
     return out
 
 
-def ronin_trajectory(model: RoninResNet, recording: Recording, config: RoninStreamConfig | None = None,
-                     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Window-centre times, RoNIN trajectory and ground-truth positions over the ground-truth span.
+def truth_windows(recording: Recording, config: RoninStreamConfig) -> tuple[np.ndarray, np.ndarray]:
+    """Window-centre times and windows of ``recording`` lying wholly inside its ground-truth span.
 
     The recording's world-frame samples go through the streaming path's
     :class:`~curbside.localize.ronin.stream.WindowCutter` (grid anchored at the recording's first
-    sample, a window every ``config.stride`` samples) and :func:`infer_windows`; windows lying
-    wholly inside the ground-truth span are kept.
+    sample, a window every ``config.stride`` samples).
     """
-    config = config or RoninStreamConfig()
-    check_compatible(model, config)
     cutter = WindowCutter(config, recording.name)
     cutter.add(WorldSamples(recording.t, recording.features.astype(float), np.zeros(len(recording.t), int)))
     cutter.finish()
     t_c, windows = cutter.take()
     gt_t = recording.positions[:, 0]
     inside = (t_c - config.half_window_s >= gt_t[0]) & (t_c + config.half_window_s <= gt_t[-1])
-    t_c, windows = t_c[inside], windows[inside]
+    return t_c[inside], windows[inside]
+
+
+def ronin_trajectory(model: RoninResNet, recording: Recording, config: RoninStreamConfig | None = None,
+                     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Window-centre times, RoNIN trajectory and ground-truth positions over the ground-truth span:
+    the windows of :func:`truth_windows` through :func:`infer_windows`."""
+    config = config or RoninStreamConfig()
+    check_compatible(model, config)
+    t_c, windows = truth_windows(recording, config)
+    gt_t = recording.positions[:, 0]
     if len(t_c) < 2:
         return np.zeros(0), np.zeros((0, 2)), np.zeros((0, 2))
     vel = infer_windows(model, windows, config.batch_size)
@@ -193,12 +204,20 @@ def evaluate_recordings(recordings: list[Recording], model: RoninResNet, with_pd
             continue
         wp = rec.positions
         per[rec.name] = {"source": rec.source, "ronin": trajectory_metrics(t_c, est, truth, wp)}
+        per[rec.name]["ronin"].update(_familiarity_metrics(model, rec, config or RoninStreamConfig()))
         if with_pdr:
             pdr = pdr_trajectory(rec, t_c, truth[0])
             if pdr is not None:
                 per[rec.name]["pdr"] = trajectory_metrics(t_c, pdr, truth, wp)
     return {"model": {"arch": model.config.arch, "extra_best_epoch": model.config.extra.get("best_epoch")},
             "stream": asdict(config or RoninStreamConfig()), "recordings": per, "summary": summarise(per)}
+
+
+def _familiarity_metrics(model: RoninResNet, recording: Recording, config: RoninStreamConfig) -> dict:
+    """The model's yaw-equivariance spread on the recording (:mod:`curbside.localize.ronin.familiarity`)."""
+    record = familiarity(model, *truth_windows(recording, config)).to_dict()
+    return {"yaw_spread_mps": record["spread_mps"], "early_yaw_spread_mps": record["early_spread_mps"],
+            "walking_windows": record["walking_windows"], "familiar": record["familiar"]}
 
 
 def summarise(per: dict[str, dict]) -> dict:
@@ -211,13 +230,17 @@ def summarise(per: dict[str, dict]) -> dict:
             if not rows:
                 continue
             entry: dict[str, float | int] = {"n_recordings": len(rows)}
-            for key in ("distance_ratio", "speed_error_mps", "ate_m", "ate_raw_m", "rte_m"):
-                vals = np.array([r[key] for r in rows], float)
+            for key in ("distance_ratio", "speed_error_mps", "ate_m", "ate_raw_m", "rte_m", "yaw_spread_mps"):
+                vals = np.array([r.get(key) for r in rows], float)
+                if key == "yaw_spread_mps" and not np.isfinite(vals).any():  # no walking, or PDR
+                    continue
                 q1, med, q3 = np.nanpercentile(vals, [25, 50, 75])
                 entry[f"{key}_median"] = float(med)
                 entry[f"{key}_iqr"] = [float(q1), float(q3)]
                 entry[f"{key}_mean"] = float(np.nanmean(vals))
             wps = np.concatenate([r.get("waypoint_errors_m", []) for r in rows])
+            if "yaw_spread_mps_median" in entry:
+                entry["familiar"] = sum(r["familiar"] is True for r in rows)
             if len(wps):
                 entry["waypoint_error_median_m"] = float(np.median(wps))
                 entry["waypoint_error_p90_m"] = float(np.percentile(wps, 90))
@@ -246,7 +269,8 @@ def format_summary(report: dict) -> str:
     lines.append("medians over recordings (waypoint errors: over all waypoints); distances in m, "
                  "speeds in m/s")
     lines.append(f"{'source':<6} {'method':<6} {'n':>4} {'dist ratio [IQR]':>22} {'speed err':>9} "
-                 f"{'ATE':>8} {'RTE':>8} {'raw ATE':>8} {'wp err':>8} {'wp p90':>8}")
+                 f"{'ATE':>8} {'RTE':>8} {'raw ATE':>8} {'wp err':>8} {'wp p90':>8} {'yaw spread':>10} "
+                 f"{'familiar':>8}")
     for source, methods in report["summary"].items():
         for method, e in methods.items():
             iqr = e["distance_ratio_iqr"]
@@ -255,9 +279,16 @@ def format_summary(report: dict) -> str:
                 f"{e['distance_ratio_median']:>8.3f} [{iqr[0]:.2f},{iqr[1]:.2f}] "
                 f"{e['speed_error_mps_median']:>9.3f} {e['ate_m_median']:>8.2f} {e['rte_m_median']:>8.2f} "
                 f"{e['ate_raw_m_median']:>8.2f} {e.get('waypoint_error_median_m', float('nan')):>8.2f} "
-                f"{e.get('waypoint_error_p90_m', float('nan')):>8.2f}"
+                f"{e.get('waypoint_error_p90_m', float('nan')):>8.2f} {_spread_cells(e)}"
             )
     return "\n".join(lines) + "\n"
+
+
+def _spread_cells(entry: dict) -> str:
+    """The yaw spread and familiar-count cells of a summary row (blank for PDR)."""
+    if "yaw_spread_mps_median" not in entry:
+        return f"{'':>10} {'':>8}"
+    return f"{entry['yaw_spread_mps_median']:>10.3f} {entry['familiar']:>3}/{entry['n_recordings']:<4}"
 
 
 def calibrate_output_scale(model: RoninResNet, recordings: list[Recording]) -> float:

@@ -229,6 +229,20 @@ def ronin_velocity(imu_df: pd.DataFrame, model: RoninResNet | str | Path | None 
         model = load_model(model)
     config = config or RoninStreamConfig()
     check_compatible(model, config)
+    t_mid, windows = imu_windows(imu_df, config, source)
+    velocity = infer_windows(model, windows, config.batch_size, progress)
+    return pd.DataFrame({"t": t_mid, "ve": velocity[:, 0], "vn": velocity[:, 1]})
+
+
+def imu_windows(imu_df: pd.DataFrame, config: RoninStreamConfig, source: str = "imu.csv",
+                ) -> tuple[np.ndarray, np.ndarray]:
+    """The window-centre times and world-frame windows :func:`ronin_velocity` runs the model on.
+
+    Raises
+    ------
+    CurbsideInputError
+        Bad IMU input, or no stretch as long as one window.
+    """
     stream = RoninStream(config, source)
     stream.push(imu_df)
     stream.finish()
@@ -236,8 +250,7 @@ def ronin_velocity(imu_df: pd.DataFrame, model: RoninResNet | str | Path | None 
     if not len(t_mid):
         raise CurbsideInputError(source, f"no stretch of IMU data without gaps lasts one "
                                          f"{config.window / config.rate_hz:g} s window")
-    velocity = infer_windows(model, windows, config.batch_size, progress)
-    return pd.DataFrame({"t": t_mid, "ve": velocity[:, 0], "vn": velocity[:, 1]})
+    return t_mid, windows
 
 
 def check_compatible(model: RoninResNet, config: RoninStreamConfig) -> None:
