@@ -299,6 +299,19 @@ class SessionEngine:
             "verdict": verdict,
         }
 
+    def no_estimate_problem(self) -> str:
+        """Why a finished run made no update: nothing to start from, or a recording that ends first."""
+        fixes = self.fixes.fixes.rows()
+        usable = fixes[fixes[:, 3] < self.config.filter.gnss.max_accuracy_m, 0]
+        if self.start is None and not len(usable):
+            return NO_START
+        if self.tracker is None or not math.isfinite(self.displacement.first_t):
+            return NO_START
+        anchor = f"the first usable fix (t = {usable[0]:.1f} s)" if self.start is None else "the start pose"
+        return (f"no estimate: the recording is too short: its inertial data covers only t = "
+                f"{self.displacement.first_t:.1f}-{self.displacement.complete_until:.1f} s, too little to "
+                f"start from {anchor} and make an update")
+
     @property
     def data_end(self) -> float:
         """The last time updates can be made for (velocity known; the GNSS span in ``gnss`` mode)."""
@@ -535,7 +548,13 @@ class SessionEngine:
         self.rows.append(row)
 
 
-def require_rows(rows: list[Row], name: str) -> None:
-    """Raise the one-line input error of a run that produced no estimate."""
-    if not rows:
-        raise CurbsideInputError(name, "no estimate: no start pose and no usable GNSS fix to start from")
+NO_START = "no estimate: no start pose and no usable GNSS fix to start from"
+
+
+def require_rows(engine: SessionEngine | None, name: str) -> None:
+    """Raise the one-line input error of a run that produced no estimate (``engine`` ``None``: none was
+    made, for want of a fix to set the frame)."""
+    if engine is None:
+        raise CurbsideInputError(name, NO_START)
+    if not engine.rows:
+        raise CurbsideInputError(name, engine.no_estimate_problem())

@@ -33,7 +33,7 @@ import numpy as np
 import pandas as pd
 
 from curbside.errors import CurbsideInputError
-from curbside.localize.engine import Row, SessionEngine, StartPose
+from curbside.localize.engine import Row, SessionEngine, StartPose, require_rows
 from curbside.localize.live_input import (
     GNSS_COLUMNS,
     IMU_COLUMNS,
@@ -507,7 +507,5 @@ def stream_session(
     live.advance()
     result = live.result()
     if result is None:
-        raise CurbsideInputError(
-            session.name, "no estimate: no start pose and no usable GNSS fix to start from"
-        )
+        require_rows(live.engine, session.name)
     return result

@@ -390,7 +390,7 @@ def _run_engine(
         engine.push_steps(inputs.steps, math.inf)
     engine.push_gnss(session.gnss)
     engine.finish()
-    require_rows(engine.rows, session.source)
+    require_rows(engine, session.source)
     return engine
 
 
