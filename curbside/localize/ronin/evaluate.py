@@ -279,7 +279,7 @@ def format_summary(report: dict) -> str:
                 f"{e['distance_ratio_median']:>8.3f} [{iqr[0]:.2f},{iqr[1]:.2f}] "
                 f"{e['speed_error_mps_median']:>9.3f} {e['ate_m_median']:>8.2f} {e['rte_m_median']:>8.2f} "
                 f"{e['ate_raw_m_median']:>8.2f} {e.get('waypoint_error_median_m', float('nan')):>8.2f} "
-                f"{e.get('waypoint_error_p90_m', float('nan')):>8.2f} {_spread_cells(e)}"
+                f"{e.get('waypoint_error_p90_m', float('nan')):>8.2f} {_spread_cells(e)}".rstrip()
             )
     return "\n".join(lines) + "\n"
 
