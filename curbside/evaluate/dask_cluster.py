@@ -159,17 +159,19 @@ def _probe_scheduler(address: str, timeout_s: float) -> None:
     dask's own connection retries a refused port for 30 s (``distributed.comm.timeouts.connect``) and
     waits without end on a server that accepts but never answers; a server that answers something else
     (an HTTP proxy) fails it with a MemoryError. A TCP connection first refuses a closed port at once.
+    What tornado and asyncio log meanwhile is dropped (:data:`_PROBE_LOGGERS`): the error says it.
     """
     import asyncio
     import socket
 
     from distributed.comm import connect
-    from distributed.comm.addressing import get_address_host_port
+    from distributed.comm.addressing import get_address_host_port, parse_address
     from distributed.security import Security
 
-    async def identity() -> object:
-        # the TLS settings of dask's config, as a Client has them (a tls:// scheduler needs them)
-        comm = await connect(address, timeout=timeout_s, **Security().get_connection_args("client"))
+    tls = parse_address(address)[0] == "tls"
+
+    async def identity(connection_args: dict[str, Any]) -> object:
+        comm = await connect(address, timeout=timeout_s, **connection_args)
         try:
             await comm.write({"op": "identity"})
             return await comm.read()
@@ -177,25 +179,88 @@ def _probe_scheduler(address: str, timeout_s: float) -> None:
             await comm.close()
 
     def ask() -> object:
+        # the TLS settings of dask's config, as a Client has them (a tls:// scheduler needs them)
+        connection_args = Security().get_connection_args("client")
+        if tls and connection_args.get("ssl_context") is None:
+            raise ValueError(_NO_TLS_SETTINGS)
         try:
             host_port = get_address_host_port(address)
         except ValueError:  # an address without a TCP port (inproc://): dask's connection alone
             pass
         else:
             socket.create_connection(host_port, timeout=timeout_s).close()
-        return asyncio.run(asyncio.wait_for(identity(), timeout_s))
+        with _unlogged_in_this_thread(_PROBE_LOGGERS):
+            return asyncio.run(asyncio.wait_for(identity(connection_args), timeout_s))
 
     try:
         reply = _in_daemon_thread(ask)  # a thread of its own: asyncio.run fails under a running loop
     except (TimeoutError, asyncio.TimeoutError):
         raise OSError(f"no answer within {timeout_s:g} s") from None
-    except (OSError, ValueError, TypeError):
-        raise
     except Exception as exc:  # noqa: BLE001 - whatever a server that is not dask's makes the reader raise
+        if (problem := _handshake_problem(exc, tls)) is not None:
+            raise OSError(problem) from None
+        if isinstance(exc, (OSError, ValueError, TypeError)):
+            raise
         raise OSError(f"what answers is not a dask scheduler ({type(exc).__name__})") from None
     kind = reply.get("type") if isinstance(reply, dict) else None
     if kind != "Scheduler":
         raise OSError(f"what answers is not a dask scheduler but {kind or 'something else'}")
+
+
+#: Where the probe's failures are logged, as well as raised: tornado logs a failed TLS handshake on
+#: tornado.general ("SSL Error on 7 ('127.0.0.1', 8786): [SSL: CERTIFICATE_VERIFY_FAILED] ..."), shown
+#: where dask's logging configuration leaves tornado's level alone (its "version: 1" form does); an error
+#: in a callback on tornado.application, asyncio one of its loop on asyncio, both with a traceback.
+_PROBE_LOGGERS = ("tornado.general", "tornado.application", "asyncio")
+_NO_TLS_SETTINGS = ("dask's configuration has no TLS settings for a tls:// scheduler: "
+                    "distributed.comm.tls.ca-file, distributed.comm.tls.client.cert and .key")
+_NOT_TLS = "what answers does not speak TLS: a tcp:// scheduler?"
+
+
+@contextlib.contextmanager
+def _unlogged_in_this_thread(names: tuple[str, ...]) -> Iterator[None]:
+    """Drop what the loggers ``names`` log from this thread meanwhile; other threads' records, and any
+    logged afterwards, go through."""
+    probe_thread = threading.get_ident()
+
+    def from_another_thread(record: logging.LogRecord) -> bool:
+        return record.thread != probe_thread
+
+    loggers = [logging.getLogger(name) for name in names]
+    for logger in loggers:
+        logger.addFilter(from_another_thread)
+    try:
+        yield
+    finally:
+        for logger in loggers:
+            logger.removeFilter(from_another_thread)
+
+
+def _handshake_problem(exc: BaseException, tls: bool) -> str | None:
+    """What ``exc`` says went wrong if a TLS handshake failed (``tls``: a tls:// address), or a server
+    closed a tcp:// connection unanswered, as a TLS one does; None for any other error. dask says these
+    poorly: "" (a plain server), "IOStream is not idle; cannot convert to SSL" (a plain server that
+    spoke first, as a tcp:// dask scheduler does), "in <TCP (closed) local=... remote=...>:
+    ConnectionResetError ..." (a TLS server)."""
+    import ssl
+
+    from distributed.comm.core import CommClosedError
+
+    cause: BaseException | None = exc
+    while cause is not None:
+        if isinstance(cause, ssl.SSLCertVerificationError):
+            return (f"its TLS certificate fails verification: {cause.verify_message}; "
+                    "distributed.comm.tls.ca-file of dask's configuration names the CAs trusted")
+        if isinstance(cause, ssl.SSLError):
+            if cause.reason == "WRONG_VERSION_NUMBER":
+                return _NOT_TLS
+            return f"the TLS handshake failed: {cause.reason or cause}"
+        cause = cause.__cause__
+    if tls and isinstance(exc, ValueError) and "not idle" in str(exc):
+        return _NOT_TLS
+    if not tls and isinstance(exc, CommClosedError):
+        return "it closed the connection unanswered, as a TLS scheduler does: a tls:// one?"
+    return None
 
 
 def _in_daemon_thread(work: Callable[[], Any]) -> Any:
