@@ -9,9 +9,11 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import itertools
 import logging
 import math
 import os
+import re
 import select
 import sys
 from collections.abc import Callable, Sequence
@@ -28,12 +30,51 @@ from curbside.localize.runconstants import (
 OVERWRITE_FILE_HELP = "replace the output file even when curbside did not write it (never one of the inputs)"
 
 
+#: A number written with a decimal comma (``-122,401``), as in locales whose decimal mark is the comma.
+_DECIMAL_COMMA = re.compile(r"[-+]?\d+,\d+")
+
+#: A number as a command line gives it.
+_NUMBER = re.compile(r"[-+]?(\d+\.?\d*|\.\d+)")
+
+#: The option an argparse error message is about (``argument --bbox: ...``).
+_ERROR_OPTION = re.compile(r"argument (-[^ :/]+)")
+
+
 class _ArgumentParser(argparse.ArgumentParser):
     """argparse that reports usage errors as one line and exit status 2."""
 
+    _arg_strings: Sequence[str] = ()
+
+    def parse_known_args(  # type: ignore[override]
+        self, args: Sequence[str] | None = None, namespace: argparse.Namespace | None = None
+    ) -> tuple[argparse.Namespace, list[str]]:
+        """argparse's, remembering ``args`` for :meth:`error`."""
+        self._arg_strings = list(sys.argv[1:] if args is None else args)
+        return super().parse_known_args(args, namespace)
+
     def error(self, message: str) -> None:  # type: ignore[override]
+        message = _decimal_comma_hint(message, self._arg_strings)
         sys.stderr.write(f"{self.prog}: error: {message}\n")
         raise SystemExit(2)
+
+
+def _decimal_comma_hint(message: str, arg_strings: Sequence[str]) -> str:
+    """``message`` about an option, or what it would hide: a value of that option written with a decimal
+    comma. argparse takes ``-122,401`` for an option (``expected 4 arguments``: it is no negative number
+    to argparse) and ``122,401`` for no number; both mean ``-122.401``/``122.401`` in comma locales."""
+    option = _ERROR_OPTION.match(message)
+    if option is None or option.group(1) not in arg_strings:
+        return message
+    start = list(arg_strings).index(option.group(1)) + 1
+    following = list(itertools.takewhile(lambda a: not a.startswith("--"), arg_strings[start:]))
+    for value in following:
+        if not ("," in value and all(_NUMBER.fullmatch(part) for part in value.split(","))):
+            continue
+        if _DECIMAL_COMMA.fullmatch(value):
+            return (f"argument {option.group(1)}: {value!r} has a decimal comma: use a decimal point "
+                    f"({value.replace(',', '.')})")
+        return f"argument {option.group(1)}: {value!r}: separate the numbers with spaces, not commas"
+    return message
 
 
 def _int(text: str) -> int:

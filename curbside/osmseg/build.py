@@ -11,6 +11,7 @@ sidewalks take only what none of the three cover.
 from __future__ import annotations
 
 import logging
+import math
 import sys
 from pathlib import Path
 
@@ -38,6 +39,13 @@ from curbside.projection import LocalFrame
 
 log = logging.getLogger(__name__)
 
+#: The WARNING of a map without buildings (the source, where).
+NO_BUILDINGS = (
+    "%s: the map has no buildings %s: the filter's building likelihood (weight 0 inside a building) "
+    "does nothing on it, so no wall ever stops a particle"
+)
+
+
 def _inside(inner: BBox, outer: BBox) -> bool:
     return outer[0] <= inner[0] and outer[1] <= inner[1] and inner[2] <= outer[2] and inner[3] <= outer[3]
 
@@ -56,7 +64,8 @@ def load_osm(bbox: BBox | None, osm_file: str | Path | None) -> tuple[OsmData, B
     ------
     CurbsideInputError
         Bad bbox, or one that lies wholly outside the bounds the file declares (found from the
-        file's header before any element is read).
+        file's header before any element is read); Overpass failing (unreachable with a bbox partly
+        outside the bundled extract: how far, and the extract's bounds, which build offline).
     """
     if bbox is not None:
         bbox = check_bbox(bbox)
@@ -74,9 +83,43 @@ def load_osm(bbox: BBox | None, osm_file: str | Path | None) -> tuple[OsmData, B
         bbox = settings.default_bbox
     if _inside(bbox, settings.default_extract_bbox):
         return read_osm_file(settings.default_osm_file, bbox), bbox
-    from curbside.osmseg.overpass import fetch_overpass
+    from curbside.osmseg.overpass import OverpassUnreachableError, fetch_overpass
 
-    return fetch_overpass(bbox), bbox
+    try:
+        return fetch_overpass(bbox), bbox
+    except OverpassUnreachableError as exc:
+        problem = _past_extract(bbox, settings.default_extract_bbox, exc.source)
+        if problem is None:
+            raise
+        raise CurbsideInputError(f"--bbox {_words(bbox)}", problem) from None
+
+
+def _words(values: BBox) -> str:
+    return " ".join(f"{v:.10g}" for v in values)
+
+
+def _past_extract(bbox: BBox, extract: BBox, url: str) -> str | None:
+    """The error for a ``bbox`` partly outside the bundled extract when Overpass (``url``) cannot be
+    reached: how far it leaves the extract, and the bounds within which a bbox builds offline. ``None``
+    when the two do not overlap (the extract is then no help)."""
+    west, south, east, north = bbox
+    if west >= extract[2] or east <= extract[0] or south >= extract[3] or north <= extract[1]:
+        return None
+    m_per_deg_lat = 111_320.0
+    m_per_deg_lon = m_per_deg_lat * math.cos(math.radians((south + north) / 2))
+    past_m = {
+        "west": (extract[0] - west) * m_per_deg_lon, "south": (extract[1] - south) * m_per_deg_lat,
+        "east": (east - extract[2]) * m_per_deg_lon, "north": (north - extract[3]) * m_per_deg_lat,
+    }  # fmt: skip
+    sides = [f"{f'{m:,.0f}' if m >= 1 else 'under 1'} m past its {side} bound"
+             for side, m in past_m.items() if m > 0]  # fmt: skip
+    reach = " and ".join([", ".join(sides[:-1]), sides[-1]] if len(sides) > 1 else sides)
+    within = (max(west, extract[0]), max(south, extract[1]), min(east, extract[2]), min(north, extract[3]))
+    return (
+        f"reaches past the bundled extract ({reach}), so it needs Overpass ({url}), which cannot be reached "
+        f"(no network?); a bbox within the extract's bounds (W S E N: {_words(extract)}) builds offline, "
+        f"e.g. --bbox {_words(within)}; or build offline with --osm FILE"
+    )
 
 
 def _layer(cls: str, geoms, crs, min_area_m2: float) -> gpd.GeoDataFrame:
@@ -180,7 +223,8 @@ def build_map(
         file, the bbox asked for clipped to the bounds the file declares, and then ``bbox_asked``
         too), ``osm_timestamp``, ``generator``, ``attribution``, ``buildings_source`` (``"osm"``),
         ``params`` (``config`` as a dict) and ``sidewalk_ways_in_buildings``
-        (:func:`~curbside.osmseg.streets.sidewalk_length_in_buildings`).
+        (:func:`~curbside.osmseg.streets.sidewalk_length_in_buildings`). A map without buildings
+        is built with a WARNING: the filter's building likelihood does nothing on it.
 
     Raises
     ------
@@ -206,6 +250,8 @@ def build_map(
     gdf = gdf.reset_index(drop=True)
     if len(gdf) == 0:
         raise CurbsideInputError(source, f"no buildings or streets {where}")
+    if not (gdf["class"] == "building").any():
+        log.warning(NO_BUILDINGS, source, where)
     if clip_bbox is None:
         clip_bbox = _extent(gdf)
     asked = None if bbox is None else check_bbox(bbox)

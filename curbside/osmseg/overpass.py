@@ -67,6 +67,10 @@ OSM_TYPES: dict[str, str] = {"node": "n", "way": "w", "relation": "r"}
 MAX_TEXT_BYTES = 1024
 
 
+class OverpassUnreachableError(CurbsideInputError):
+    """The Overpass server does not answer (no network?) and no cached answer stands in."""
+
+
 def write_osm_file(elements: list[dict[str, Any]], path: str | Path) -> None:
     """Write the nodes, ways and relations of an Overpass JSON answer to an OSM file with pyosmium.
 
@@ -198,8 +202,10 @@ def fetch_overpass(bbox: BBox, *, margin_m: float = 60.0) -> OsmData:
 
     Raises
     ------
+    OverpassUnreachableError
+        The server does not answer its status query (no network?) and no answer is cached.
     CurbsideInputError
-        No OSM data in the area; Overpass unreachable, busy, failing, or sending an answer that is
+        No OSM data in the area; Overpass busy, failing, or sending an answer that is
         empty, cut short, not JSON, with an element that is not OSM data, or stopped by a runtime error
         (an incomplete map is never built).
     """
@@ -243,7 +249,8 @@ def _overpass_answer(url: str, query: str) -> dict[str, Any]:
     if answer is not None:
         return answer
     if not overpass_reachable(url, settings.overpass_connect_timeout_s):
-        raise CurbsideInputError(url, f"cannot reach the Overpass server (no network?); {OFFLINE_ADVICE}")
+        problem = f"cannot reach the Overpass server (no network?); {OFFLINE_ADVICE}"
+        raise OverpassUnreachableError(url, problem)
     body = _post(url, query)
     answer = _overpass_json(url, body)
     if "remark" not in answer:

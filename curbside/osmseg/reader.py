@@ -25,6 +25,7 @@ import shapely
 from pyproj import CRS
 
 from curbside.errors import CurbsideInputError
+from curbside.osmseg.areas import DroppedBuildings, Reason, multipolygon_areas
 from curbside.osmseg.clipped import ADVICE, MissingNodes, agreed_area, closed_rings
 from curbside.osmseg.inputs import check_osm_file
 from curbside.projection import LocalFrame
@@ -216,7 +217,9 @@ def read_osm_file(
     comes back is not joined across the gap. A building ring with missing nodes is closed along the
     bounds the file declares, keeping what two guesses at its missing walls agree on
     (:func:`~curbside.osmseg.clipped.closed_rings`), or dropped; a WARNING says how many ways lack
-    nodes.
+    nodes. Buildings that give no area for another reason (a way that is not closed, a multipolygon
+    whose outer ways close no ring...) are dropped with one WARNING per reason
+    (:class:`~curbside.osmseg.areas.DroppedBuildings`).
 
     Parameters
     ----------
@@ -275,6 +278,7 @@ def read_osm_file(
         bounds=bounds,
     )
     elements.missing.warn(path.name)
+    elements.dropped.warn(path.name)
     return data if bbox is None else clip_to_bbox(data, bbox, margin_m)
 
 
@@ -286,7 +290,7 @@ def _area_table(
 ) -> gpd.GeoDataFrame:
     """Building areas: whole rings, then rings cut by the bounds, then multipolygon relations."""
     rel_ids, rel_tags, rel_polys = _assemble_relations(
-        members, rel_tags, elements.member_runs, frame, frozenset(TAG_KEYS)
+        members, rel_tags, elements.member_runs, frame, elements.dropped
     )
     area_xy = np.array(elements.area_coords, dtype=float).reshape(-1, 2)
     whole = _rings_or_lines(area_xy, elements.area_lens, frame, closed=True)
@@ -348,6 +352,8 @@ class _Elements:
     newest: float = 0.0
     #: Ways with missing nodes, counted.
     missing: MissingNodes = field(default_factory=MissingNodes)
+    #: Buildings that give no area for another reason.
+    dropped: DroppedBuildings = field(default_factory=DroppedBuildings)
     #: Building rings with missing nodes: id, tags, two closures along the bounds.
     cut_ids: list[str] = field(default_factory=list)
     cut_tags: list[dict[str, str]] = field(default_factory=list)
@@ -391,7 +397,12 @@ def _add_way(
 ) -> None:
     """Collect a way the derivation uses (highway, building ring, relation member), walking its nodes once."""
     highway = "highway" in way.tags
-    building = not highway and "building" in way.tags and way.is_closed()
+    building = not highway and "building" in way.tags
+    if building and not way.is_closed():
+        if not is_member:  # a member is a part of its relation's ring
+            few = len({n.ref for n in way.nodes}) < 3
+            out.dropped.add(Reason.FEW_NODES if few else Reason.NOT_CLOSED, [f"w{way.id}"])
+        building = False
     if not (is_member or highway or building):
         return
     locations = _locations(way, negative_nodes)
@@ -426,8 +437,11 @@ def _building_ring(
     (:func:`~curbside.osmseg.clipped.closed_rings`) go to ``out.cut_rings``, or it is dropped.
     """
     if None not in locations:
+        if len(set(locations)) < 3:
+            out.dropped.add(Reason.FEW_NODES, [f"w{way.id}"])
+            return None
         # The first node is repeated once more (as it always was): maps stay byte for byte the same.
-        return locations + [locations[0]] if len(set(locations)) >= 3 else None
+        return locations + [locations[0]]
     out.missing.buildings.append(f"w{way.id}")
     closures = closed_rings(locations, bounds, out.missing)
     if closures is not None:
@@ -518,43 +532,31 @@ def _assemble_relations(
     rel_tags: dict[int, dict[str, str]],
     member_runs: dict[int, list[list[tuple[float, float]]]],
     frame: LocalFrame,
-    keys: frozenset[str],
+    dropped: DroppedBuildings,
 ) -> tuple[list[str], list[dict[str, str]], np.ndarray]:
     """Polygons of building multipolygon relations: polygonized outer ways minus inner ways.
 
-    Members the file lacks are skipped; a relation whose outer ways close no ring gives no polygon.
+    Members the file lacks are skipped; a relation that gives no polygon (no member in the file,
+    outer ways that close no ring, inner rings that cover it all) is counted in ``dropped``.
     """
     runs = [(w, run) for w in members for run in member_runs.get(w, ())]
+    uses = [(i, rel_id, role == "inner") for i, (w, _) in enumerate(runs) for rel_id, role in members[w]]
+    used = {rel_id for _, rel_id, _ in uses}
+    dropped.add(Reason.NO_MEMBERS, [f"r{r}" for r in rel_tags if r not in used])
     if not runs:
         return [], [], np.array([], dtype=object)
     lonlat = np.array([c for _, run in runs for c in run], dtype=float)
     lines = _rings_or_lines(lonlat, [len(run) for _, run in runs], frame, closed=False)
-    uses = [(i, rel_id, role == "inner") for i, (w, _) in enumerate(runs) for rel_id, role in members[w]]
     line_i, rel_of, inner = (np.array(v) for v in zip(*uses, strict=True))
     rel_ids, rel_row = np.unique(rel_of, return_inverse=True)
-
-    def rings(mask: np.ndarray) -> np.ndarray:
-        """Per relation, the union of the polygons its member lines of one role close."""
-        table = _padded_rows(rel_row[mask], lines[line_i[mask]], len(rel_ids))
-        faces = shapely.polygonize(table, axis=1)
-        parts, owner = shapely.get_parts(faces, return_index=True)
-        return shapely.union_all(_padded_rows(owner, parts, len(rel_ids)), axis=1)
-
-    polys = shapely.make_valid(shapely.difference(rings(~inner), rings(inner)))
+    outer, polys = multipolygon_areas(lines[line_i], rel_row, inner, len(rel_ids))
     keep = ~shapely.is_empty(polys)
+    open_outer = shapely.is_empty(outer)
+    for reason, lost in ((Reason.OPEN_OUTER, ~keep & open_outer), (Reason.INNER_COVERS, ~keep & ~open_outer)):
+        dropped.add(reason, [f"r{r}" for r in rel_ids[lost]])
     ids = [f"r{r}" for r in rel_ids[keep]]
-    tags = [{k: v for k, v in rel_tags[int(r)].items() if k in keys} for r in rel_ids[keep]]
+    tags = [{k: v for k, v in rel_tags[int(r)].items() if k in TAG_KEYS} for r in rel_ids[keep]]
     return ids, tags, polys[keep]
-
-
-def _padded_rows(row: np.ndarray, values: np.ndarray, n_rows: int) -> np.ndarray:
-    """A (n_rows, widest) object array holding each row's values, padded with None."""
-    order = np.argsort(row, kind="stable")
-    row, values = row[order], values[order]
-    rank = np.arange(len(row)) - np.searchsorted(row, row)
-    table = np.full((n_rows, int(rank.max()) + 1 if len(rank) else 1), None, dtype=object)
-    table[row, rank] = values
-    return table
 
 
 def _first_line(exc: BaseException) -> str:
