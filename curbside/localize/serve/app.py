@@ -2,17 +2,19 @@
 
 Every error is a JSON ``{"detail": "one line"}`` with a 4xx status: 400 malformed JSON, 401 missing or
 wrong token, 404 unknown session or track, 409 session ending or still open (or a track folder the
-service did not write), 410 session ended, 413 body too large, 422 rows or configuration refused
-(nothing changed), 503 too many sessions or the service stopping; a bug is a 500 naming only the
-exception's type. The API reference is at ``/docs`` (a page that needs nothing from outside;
-Swagger UI, from a CDN, at ``/docs/swagger``; the schema at ``/openapi.json``; all public: they hold no
-data).
+service did not write), 410 session ended, 413 body too large, 415 a body that is not sent as JSON,
+422 rows or configuration refused (nothing changed, unless the IMU stream proved unusable:
+:mod:`~curbside.localize.serve.intake`), 503 too many sessions or the service stopping; a bug is a
+500 naming only the exception's type. The API reference is at ``/docs`` (a page that needs nothing
+from outside; Swagger UI, from a CDN, at ``/docs/swagger``; the schema at ``/openapi.json``; all
+public: they hold no data).
 """
 
 from __future__ import annotations
 
 import json
 import logging
+import re
 import secrets
 from contextlib import asynccontextmanager
 from contextvars import ContextVar
@@ -31,6 +33,7 @@ from curbside import __version__
 from curbside.io import json_ready
 from curbside.localize.live import IMU_COLUMNS
 from curbside.localize.serve.apidocs import api_reference_html
+from curbside.localize.serve.common import session_label
 from curbside.localize.serve.download import OpenFileResponse
 from curbside.localize.serve.models import (
     ErrorMessage,
@@ -59,6 +62,9 @@ _MEDIA_TYPES = {
 _FILE_BODIES = {media: {"schema": {"type": "string", "format": "binary"}} for media in _MEDIA_TYPES.values()}
 
 _ERRORS = {status: {"model": ErrorMessage} for status in (400, 401, 404, 409, 410, 413, 422, 500, 503)}
+
+#: The answer of a route with a JSON body to a body sent as something else.
+_NOT_JSON = {415: {"model": ErrorMessage, "description": "the body is not sent as application/json"}}
 
 
 class BodyLimit:
@@ -124,10 +130,30 @@ class _DeniedHandshakeFilter(logging.Filter):
 _denied: ContextVar[bool] = ContextVar("curbside_ws_denied", default=False)
 
 
-def _quiet_denials() -> None:
+class _SessionIdFilter(logging.Filter):
+    """Keeps session ids and tokens out of uvicorn's WebSocket lines (``localize serve -v``:
+    ``127.0.0.1:50132 - "WebSocket /sessions/ID/stream?access_token=TOKEN" [accepted]``): the id is
+    the key to a session, so the path names the session by its label (:func:`session_label`), and the
+    query string, which may hold the token, is left out."""
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        args = record.args
+        if isinstance(args, tuple) and len(args) >= 2 and str(record.msg).startswith('%s - "WebSocket %s"'):
+            record.args = (args[0], _without_secrets(str(args[1])), *args[2:])
+        return True
+
+
+def _without_secrets(path: str) -> str:
+    """A request path with its session id replaced by the session's label and no query string."""
+    path = path.partition("?")[0]
+    return re.sub(r"(?<=/sessions/)[^/]+", lambda m: f"<{session_label(m.group())}>", path)
+
+
+def _guard_uvicorn_log() -> None:
     uvicorn_log = logging.getLogger("uvicorn.error")
-    if not any(isinstance(f, _DeniedHandshakeFilter) for f in uvicorn_log.filters):
-        uvicorn_log.addFilter(_DeniedHandshakeFilter())
+    for kind in (_DeniedHandshakeFilter, _SessionIdFilter):
+        if not any(isinstance(f, kind) for f in uvicorn_log.filters):
+            uvicorn_log.addFilter(kind())
 
 
 def _one_line(errors: list[dict[str, Any]]) -> tuple[int, str]:
@@ -160,6 +186,16 @@ async def require_token(
         raise ServiceError(401, "missing or wrong bearer token")
 
 
+async def require_json(request: Request) -> None:
+    """Dependency of the routes with a JSON body: 415 for a body sent as another media type (or none),
+    which FastAPI would otherwise validate as bytes ("Input should be a valid dictionary")."""
+    media = request.headers.get("content-type", "").partition(";")[0].strip().lower()
+    json_media = media == "application/json" or (media.startswith("application/") and media.endswith("+json"))
+    if not json_media and await request.body():
+        sent = media or "no Content-Type"
+        raise ServiceError(415, f"the body must be JSON, sent as Content-Type: application/json (not {sent})")
+
+
 def create_app(config: ServiceConfig, service: TrackingService | None = None) -> FastAPI:
     """The FastAPI application of a :class:`TrackingService` (made from ``config`` unless given)."""
     service = service or TrackingService(config)
@@ -184,7 +220,7 @@ def create_app(config: ServiceConfig, service: TrackingService | None = None) ->
     )
     app.state.service = service
     app.state.token = config.token
-    _quiet_denials()
+    _guard_uvicorn_log()
     app.add_middleware(BodyLimit, max_bytes=MAX_BODY_BYTES)
     auth = [Depends(require_token)]
 
@@ -240,15 +276,22 @@ def _add_docs_routes(app: FastAPI) -> None:
 def _add_session_routes(app: FastAPI, service: TrackingService, config: ServiceConfig, auth: list) -> None:
     """``/sessions``: open, feed (HTTP or WebSocket), read and end a walker's session."""
 
+    json_body = [*auth, Depends(require_json)]
+
     @app.post(
-        "/sessions", status_code=201, response_model=SessionCreated, dependencies=auth, tags=["sessions"]
+        "/sessions",
+        status_code=201,
+        response_model=SessionCreated,
+        dependencies=json_body,
+        tags=["sessions"],
+        responses=_NOT_JSON,
     )
     async def create_session(body: NewSession | None = None) -> dict[str, Any]:
         """Open a session (no body: no start pose, the service's configuration). Keep the returned ``id``
         secret: it is the only key to the session."""
         body = body or NewSession()
         start = None if body.start is None else body.start.model_dump()
-        entry = await service.create(start, body.config)
+        entry = await service.create(start, body.config or {})
         return {
             "id": entry.id,
             "config": entry.live.config.to_dict(),
@@ -256,10 +299,11 @@ def _add_session_routes(app: FastAPI, service: TrackingService, config: ServiceC
             "idle_timeout_s": config.idle_timeout_s,
         }
 
-    @app.post("/sessions/{session_id}/samples", response_model=Estimate, dependencies=auth, tags=["sessions"])
+    @app.post("/sessions/{session_id}/samples", response_model=Estimate, dependencies=json_body,
+              tags=["sessions"], responses=_NOT_JSON)
     async def push_samples(session_id: str, body: Samples) -> dict[str, Any]:
         """Feed rows (each stream in time order); returns the latest estimate. A refused batch changes
-        nothing."""
+        nothing, but for the one that shows the IMU stream unusable: then the session fails."""
         if body.end:
             raise ServiceError(
                 422, "end is for the WebSocket; end an HTTP session with DELETE /sessions/{id}"

@@ -1,5 +1,6 @@
-"""What the tracking service's modules share: its settings (:class:`ServiceConfig`) and its refusals
-(:class:`ServiceError`: an HTTP status and a one-line reason)."""
+"""What the tracking service's modules share: its settings (:class:`ServiceConfig`), its refusals
+(:class:`ServiceError`: an HTTP status and a one-line reason) and how the log names a session
+(:func:`session_label`)."""
 
 from __future__ import annotations
 
@@ -10,6 +11,10 @@ from typing import Any
 from curbside import settings
 from curbside.errors import CurbsideInputError
 from curbside.localize.live import LiveLimits
+from curbside.localize.serve.store import TrackStore
+
+#: Hex digits of a session's track key that name the session in the log.
+LABEL_DIGITS = 8
 
 
 @dataclass(frozen=True)
@@ -75,3 +80,10 @@ def as_service_error(exc: Exception) -> ServiceError:
     if isinstance(exc, CurbsideInputError):
         return ServiceError(422, str(exc))
     return ServiceError(500, f"internal error ({type(exc).__name__}); see the service log")
+
+
+def session_label(session_id: str) -> str:
+    """A session's name in the log: ``session`` and the first :data:`LABEL_DIGITS` hex digits of its
+    track key (``DATA_DIR/tracks/KEY``, a hash of the id). The id is the key to the session and its
+    track: it is never logged, nor is any part of it."""
+    return f"session {TrackStore.key(session_id)[:LABEL_DIGITS]}"

@@ -7,6 +7,7 @@ degrees, ``accuracy_m`` metres, null or <= 0 for an invalid fix). Both streams s
 
 Values are taken as their JSON types (strict): a number for a number (an integer is one), ``true`` or
 ``false`` for ``end``; ``"9.81"`` or ``true`` where a number belongs is refused, not read as 9.81 or 1.
+An optional field may be ``null``, which is the same as leaving it out.
 """
 
 from __future__ import annotations
@@ -67,26 +68,28 @@ class Samples(BaseModel):
     """A batch of rows of one session, each stream in time order, after every row sent before."""
 
     model_config = ConfigDict(extra="forbid", strict=True)
-    imu: list[ImuRow] = Field(default_factory=list, max_length=MAX_IMU_ROWS)
-    gnss: list[GnssRow] = Field(default_factory=list, max_length=MAX_GNSS_ROWS)
-    end: bool = Field(False, description="WebSocket only: end the session after this batch")
+    imu: list[ImuRow] | None = Field(None, max_length=MAX_IMU_ROWS, description="null: none")
+    gnss: list[GnssRow] | None = Field(None, max_length=MAX_GNSS_ROWS, description="null: none")
+    end: bool | None = Field(False, description="WebSocket only: end the session after this batch")
 
     @model_validator(mode="after")
     def _one_layout(self) -> Samples:
-        with_q = {row.qw is not None for row in self.imu}
+        with_q = {row.qw is not None for row in self.imu or ()}
         if len(with_q) > 1:
             raise ValueError("imu: the quaternion is in some rows and not in others")
         return self
 
     def imu_array(self) -> tuple[np.ndarray, tuple[str, ...]]:
         """The IMU rows as an ``(N, 7)`` or ``(N, 11)`` array and their columns."""
-        columns = IMU_QUAT_COLUMNS if self.imu and self.imu[0].qw is not None else IMU_COLUMNS
-        values = np.array([[getattr(r, c) for c in columns] for r in self.imu], float)
-        return values.reshape(len(self.imu), len(columns)), columns
+        imu = self.imu or []
+        columns = IMU_QUAT_COLUMNS if imu and imu[0].qw is not None else IMU_COLUMNS
+        values = np.array([[getattr(r, c) for c in columns] for r in imu], float)
+        return values.reshape(len(imu), len(columns)), columns
 
     def gnss_array(self) -> np.ndarray:
         """The fixes as an ``(M, 4)`` array (accuracy null -> NaN)."""
-        rows = [[r.t, r.lat, r.lon, np.nan if r.accuracy_m is None else r.accuracy_m] for r in self.gnss]
+        fixes = self.gnss or []
+        rows = [[r.t, r.lat, r.lon, np.nan if r.accuracy_m is None else r.accuracy_m] for r in fixes]
         return np.array(rows, float).reshape(len(rows), len(GNSS_COLUMNS))
 
 
@@ -108,11 +111,13 @@ class NewSession(BaseModel):
     """``POST /sessions``: an optional start pose and run-configuration overrides."""
 
     model_config = ConfigDict(extra="forbid", strict=True)
-    start: StartPose | None = None
-    config: dict[str, Any] = Field(
-        default_factory=dict,
+    start: StartPose | None = Field(
+        None, description="null: none (the filter starts at the first usable fix)"
+    )
+    config: dict[str, Any] | None = Field(
+        None,
         description='overrides of run.json\'s config, e.g. {"seed": 3, "mode": "inertial", '
-        '"filter.gnss.sigma_factor": 1.0}',
+        '"filter.gnss.sigma_factor": 1.0}; null: none',
     )
 
 

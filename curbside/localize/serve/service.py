@@ -62,8 +62,9 @@ from curbside.localize.live import IMU_COLUMNS, IMU_QUAT_COLUMNS, InferenceQueue
 from curbside.localize.pipeline import resolve_config
 from curbside.localize.runconfig import RunConfig
 from curbside.localize.serve.answers import estimate_of
-from curbside.localize.serve.common import ServiceConfig, ServiceError, as_service_error
+from curbside.localize.serve.common import ServiceConfig, ServiceError, as_service_error, session_label
 from curbside.localize.serve.configs import config_key, session_config
+from curbside.localize.serve.intake import ImuRateCheck, push_batch
 from curbside.localize.serve.store import ForeignFolderError, TrackStore, run_for
 from curbside.osmseg.places import SidewalkPlace, sidewalk_places
 
@@ -76,6 +77,7 @@ class _Entry:
     live: LiveSession
     created: str
     last_seen: float
+    rate: ImuRateCheck | None = None  # the IMU rate check of a session with RoNIN
     ending: bool = False
 
 
@@ -250,11 +252,13 @@ class TrackingService:
         )
         session_id = secrets.token_urlsafe(24)
         try:
-            live = self._new_live(config, pose, session_id)
+            live = self._new_live(config, pose, session_label(session_id))
         except CurbsideInputError as exc:
             source = config_key(exc.source) if exc.source.startswith("engine.") else exc.source
             raise ServiceError(422, f"{source}: {exc.problem}") from None
-        entry = _Entry(session_id, live, _now_iso(), time.monotonic())
+        imu = None if live.ronin is None else live.ronin.config.imu
+        rate = None if imu is None else ImuRateCheck(imu.min_rate_hz, imu.decision_s)
+        entry = _Entry(session_id, live, _now_iso(), time.monotonic(), rate)
         self.sessions[session_id] = entry
         return entry
 
@@ -265,11 +269,9 @@ class TrackingService:
         except CurbsideInputError as exc:
             raise ServiceError(422, str(exc)) from None
 
-    def _new_live(self, config: RunConfig, pose: StartPose | None, session_id: str) -> LiveSession:
+    def _new_live(self, config: RunConfig, pose: StartPose | None, name: str) -> LiveSession:
         raster = self.raster if config.mode != "gnss" else None
-        return LiveSession(
-            config, self.map_layers, raster, start=pose, limits=self.config.limits, name=session_id[:6]
-        )
+        return LiveSession(config, self.map_layers, raster, start=pose, limits=self.config.limits, name=name)
 
     def entry(self, session_id: str) -> _Entry:
         """The open session ``session_id``.
@@ -409,14 +411,14 @@ class TrackingService:
             live = op.entry.live
             try:
                 if op.kind == "push":
-                    op.result = live.push(op.imu, op.gnss, op.columns)
+                    op.result = push_batch(live, op.entry.rate, op.imu, op.gnss, op.columns)
                 else:
                     live.finish_streams()
                     self._ending.append(op)
             except CurbsideInputError as exc:
                 op.error = exc
             except Exception as exc:  # a bug: this request fails, the others go on
-                logger.exception("session %s: %s failed", live.name, op.kind)
+                logger.exception("%s: %s failed", live.name, op.kind)
                 op.error = exc
             self.queue.collect(live)
             touched.add(live)
@@ -424,7 +426,7 @@ class TrackingService:
             try:
                 live.advance()
             except Exception as exc:  # a bug: the session stops, the others go on
-                logger.exception("session %s: filter update failed", live.name)
+                logger.exception("%s: filter update failed", live.name)
                 live.failed = live.failed or f"internal error ({type(exc).__name__})"
         answered = [op for op in ops if op.kind == "push" or op.error is not None]
         for op in answered:
@@ -440,7 +442,7 @@ class TrackingService:
             try:
                 self._write(op)
             except Exception as exc:
-                logger.exception("session %s: saving its track failed", live.name)
+                logger.exception("%s: saving its track failed", live.name)
                 op.error = exc
                 answered.append(op)
         return answered
@@ -460,7 +462,7 @@ class TrackingService:
             self._writing.remove(op)
             op.error = f.exception()
             if op.error is not None:
-                logger.error("session %s: saving its track failed", op.entry.live.name, exc_info=op.error)
+                logger.error("%s: saving its track failed", op.entry.live.name, exc_info=op.error)
             self._written.append(op)
             self._wake.set()
 
@@ -475,7 +477,7 @@ class TrackingService:
         try:
             saved = self._save(entry, reason)["saved"]
         except Exception:
-            logger.exception("session %s: saving its track failed", live.name)
+            logger.exception("%s: saving its track failed", live.name)
             saved = False
         kept = "its track so far is at /tracks/{id}" if saved else "no track was saved"
         detail = f"the session has ended, but finishing it failed ({what}); {kept}"
@@ -502,7 +504,7 @@ class TrackingService:
             "start": None if live.start is None else vars(live.start),
             "failed": live.failed,
         }
-        logger.info("session %s ended (%s): %d updates", live.name, reason, len(rows))
+        logger.info("%s ended (%s): %d updates", live.name, reason, len(rows))
         summary = {
             "key": self.store.key(entry.id),
             "reason": reason,
@@ -521,7 +523,7 @@ class TrackingService:
             now = time.monotonic()
             for entry in list(self.sessions.values()):
                 if not entry.ending and now - entry.last_seen > self.config.idle_timeout_s:
-                    logger.info("session %s expired", entry.live.name)
+                    logger.info("%s expired", entry.live.name)
                     self._submit_end(entry, "expired")
 
     async def _retain(self) -> None:
