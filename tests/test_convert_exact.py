@@ -29,9 +29,10 @@ def assert_same_tables(written: Session, source: Session) -> None:
 def test_write_session_reads_back_every_float_exactly(tmp_path):
     rng = np.random.default_rng(0)
     t = np.cumsum(rng.uniform(1e-3, 2e-2, 200)) + 1.7e9 / 3  # epoch-sized times: 10 digits lose the ms
-    values = rng.standard_normal((200, 6)) * 10.0 ** rng.integers(-12, 6, (200, 6))
+    values = rng.standard_normal((200, 6)) * 10.0 ** rng.integers(-12, 1, (200, 6))
     axes = ("ax", "ay", "az", "gx", "gy", "gz")
     imu = pd.DataFrame({"t": t, **{c: values[:, i] for i, c in enumerate(axes)}})
+    imu["az"] += 9.80665  # SPEC units (read_session checks them): m/s^2 with gravity, rad/s under 35
     imu.loc[0, "ax"], imu.loc[1, "ay"], imu.loc[2, "az"] = 0.1 + 0.2, -0.0, 1 / 3
     gnss = pd.DataFrame({"t": t[::50], "lat": 37.7749295 + rng.standard_normal(4) * 1e-7,
                          "lon": -122.4194155 + rng.standard_normal(4) * 1e-7,

@@ -20,6 +20,7 @@ import pandas as pd
 
 from curbside.errors import CurbsideInputError
 from curbside.io import output_folder
+from curbside.localize.live_input import MAX_ABS_T_S, LiveLimits
 
 logger = logging.getLogger(__name__)
 
@@ -34,6 +35,17 @@ COLUMNS: dict[str, tuple[tuple[str, ...], tuple[str, ...]]] = {
 
 #: Columns that may hold NaN without the file being rejected (a missing accuracy = invalid fix).
 NULLABLE: dict[str, tuple[str, ...]] = {"gnss": ("accuracy_m",)}
+
+#: Standard gravity (m/s^2), the factor between accelerometers logging in g and in m/s^2.
+STANDARD_GRAVITY = 9.80665
+
+#: Median interval between IMU rows (s) that reads as seconds: 0.5 ms (2 kHz) to 1 s (1 Hz). Phones log
+#: at 50-500 Hz; in milliseconds the interval reads 2 to 20, in nanoseconds 2e6 to 2e7.
+IMU_INTERVAL_RANGE_S = (5e-4, 1.0)
+
+#: Largest rotation-rate component (rad/s): the live service's bound, the 2000 deg/s full scale of phone
+#: gyroscopes. A walk logged in deg/s exceeds it at the first turn.
+MAX_GYRO_RADS = LiveLimits().max_gyro_rads
 
 
 @dataclass
@@ -120,6 +132,93 @@ def warn_if_simulated_imu(session: Session, source: str) -> None:
                        "(--velocity-source file) or PDR", source)
 
 
+def acceleration_unit(xyz: np.ndarray, block: int = 25) -> tuple[str | None, float]:
+    """The unit an accelerometer that includes gravity logs in, judged by its gravity level.
+
+    Averaged over a fraction of a second, an accelerometer that includes gravity reads about 1 g
+    whatever the phone does, while a gravity-free "user acceleration" stream averages to about 0
+    (its instantaneous magnitude, about 1 m/s^2 when walking, would pass for 1 g). So the level is
+    the median magnitude of the means of blocks of ``block`` samples (all samples when fewer).
+
+    Parameters
+    ----------
+    xyz
+        ``(N, 3)`` accelerations.
+    block
+        Samples per block mean (25 = 0.5 s at 50 Hz).
+
+    Returns
+    -------
+    tuple
+        ``("m/s^2" | "g" | None, level)``: ``"m/s^2"`` for a level within 20 % of 9.81, ``"g"`` within
+        20 % of 1, else ``None`` (gravity removed, or another unit).
+    """
+    n_blocks = len(xyz) // block
+    if n_blocks:
+        means = xyz[: n_blocks * block].reshape(n_blocks, block, 3).mean(axis=1)
+    else:
+        means = xyz.mean(axis=0, keepdims=True)
+    level = float(np.median(np.linalg.norm(means, axis=1)))
+    if 0.8 * STANDARD_GRAVITY <= level <= 1.2 * STANDARD_GRAVITY:
+        return "m/s^2", level
+    return ("g" if 0.8 <= level <= 1.2 else None), level
+
+
+def _unit_hint(interval_s: float) -> str:
+    """What a median row interval outside :data:`IMU_INTERVAL_RANGE_S` suggests ``t`` is in."""
+    low, high = IMU_INTERVAL_RANGE_S
+    for factor, unit in ((1e-3, "milliseconds"), (1e-6, "microseconds"), (1e-9, "nanoseconds")):
+        if low <= interval_s * factor <= high:
+            return f"{unit}?"
+    return "another unit?"
+
+
+def _check_imu_interval(t: np.ndarray, source: str | Path) -> None:
+    """Raise unless the median interval between IMU rows reads as seconds (:data:`IMU_INTERVAL_RANGE_S`)."""
+    steps = np.diff(t)
+    if not len(steps):
+        return
+    interval_s = float(np.median(steps))
+    low, high = IMU_INTERVAL_RANGE_S
+    if not low <= interval_s <= high:
+        # 1-10 s between rows could be a 100-1000 Hz IMU in ms, or a genuinely slow log in seconds
+        slow = ", or the IMU was logged too slowly to track (20 Hz or more)" if interval_s < 10 * high else ""
+        raise CurbsideInputError(
+            source, f"t is not in seconds: its rows come every {interval_s:.3g} s (median), an IMU logs "
+            f"every {low * 1e3:g} ms to {high:g} s ({_unit_hint(interval_s)}){slow}"
+        )
+
+
+def _check_time_unit(kind: str, t: np.ndarray, source: str | Path) -> None:
+    huge = np.abs(t) >= MAX_ABS_T_S
+    if huge.any():
+        i = int(np.argmax(huge))
+        bound = f"{MAX_ABS_T_S:.0e}".replace("e+", "e")
+        raise CurbsideInputError(
+            source, f"t is not in seconds (nanoseconds or milliseconds since an epoch?): "
+            f"t={float(t[i])!r} at data row {i + 1}, and |t| must be under {bound} s"
+        )
+    if kind == "imu":
+        _check_imu_interval(t, source)
+
+
+def _check_imu_units(imu: pd.DataFrame, source: str | Path) -> None:
+    """SPEC units: m/s^2 with gravity (:func:`acceleration_unit`), rad/s (:data:`MAX_GYRO_RADS`)."""
+    unit, level = acceleration_unit(imu[["ax", "ay", "az"]].to_numpy())
+    if unit == "g":
+        raise CurbsideInputError(source, f"ax,ay,az are in g (gravity level {level:.2f}), not m/s^2; "
+                                 f"multiply them by {STANDARD_GRAVITY}")
+    if unit is None:
+        raise CurbsideInputError(source, f"ax,ay,az gravity level {level:.2f} is neither ~9.8 m/s^2 nor ~1 g "
+                                 "(m/s^2 with gravity included, as SPEC imu.csv says)")
+    gyro = imu[["gx", "gy", "gz"]].abs().to_numpy()
+    if (gyro > MAX_GYRO_RADS).any():
+        row, col = np.argwhere(gyro > MAX_GYRO_RADS)[0]
+        name = ("gx", "gy", "gz")[col]
+        raise CurbsideInputError(source, f"|{name}| = {gyro[row, col]:.3g} at data row {row + 1} exceeds "
+                                 f"{MAX_GYRO_RADS:g} rad/s: rotation rates must be in rad/s (deg/s?)")
+
+
 def validate_table(kind: str, table: pd.DataFrame, source: str | Path) -> pd.DataFrame:
     """Check one table against the schema and return it with float columns in SPEC order.
 
@@ -135,8 +234,11 @@ def validate_table(kind: str, table: pd.DataFrame, source: str | Path) -> pd.Dat
     Raises
     ------
     CurbsideInputError
-        Missing columns, non-numeric values, NaN/inf where not allowed, empty table, or ``t`` not
-        strictly increasing (duplicated or out-of-order timestamps), lat/lon out of range.
+        Missing columns, non-numeric values, NaN/inf where not allowed, empty table, ``t`` not
+        strictly increasing (duplicated or out-of-order timestamps) or not in seconds (``|t|`` from
+        1e10, or IMU rows closer than 0.5 ms or further apart than 1 s at the median), lat/lon out of
+        range; for ``imu``, accelerations not in m/s^2 with gravity (in g, say) or rotation rates
+        above 35 rad/s (in deg/s).
     """
     required, optional = COLUMNS[kind]
     table = table.rename(columns=lambda c: str(c).strip())
@@ -167,6 +269,9 @@ def validate_table(kind: str, table: pd.DataFrame, source: str | Path) -> pd.Dat
         raise CurbsideInputError(
             source, f"{what} timestamp t={float(out['t'].iat[i + 1])!r} at data row {i + 2}"
         )
+    _check_time_unit(kind, out["t"].to_numpy(), source)
+    if kind == "imu":
+        _check_imu_units(out, source)
     if "lat" in out and not ((out["lat"].abs() <= 90).all() and (out["lon"].abs() <= 180).all()):
         raise CurbsideInputError(source, "lat/lon outside WGS84 degree ranges")
     return out.reset_index(drop=True)
@@ -212,7 +317,7 @@ def read_session(folder: str | Path, kinds: Collection[str] | None = None) -> Se
     meta_path = folder / "meta.json"
     if meta_path.is_file():
         try:
-            meta = json.loads(meta_path.read_text(encoding="utf-8"))
+            meta = json.loads(meta_path.read_text(encoding="utf-8-sig"))  # a BOM, as in the CSVs, is fine
         except (json.JSONDecodeError, UnicodeDecodeError) as exc:
             raise CurbsideInputError(meta_path, f"malformed JSON ({exc})") from None
         if not isinstance(meta, dict):

@@ -3,9 +3,11 @@
 A recording is the set of CSV files in one folder of the zip or tree that holds at least one of the
 export's motion or location files (:data:`MARKERS`). Two recordings in one source (a zip of two
 exports, a folder of several days) are never mixed: the source is refused with their names unless
-one is chosen as ``SRC::NAME``. macOS archive debris (``__MACOSX/``, ``._*`` resource forks) and
-hidden files are skipped. A CSV re-saved by a spreadsheet with ``;`` separators (and decimal commas)
-is read as such, with a warning.
+one is chosen as ``SRC::NAME``. Recording names are compared and listed in Unicode NFC, the form a
+keyboard types: macOS stores ``ü`` in zips and folders decomposed (``u`` + combining diaeresis, NFD),
+which looks the same but would not match the name typed. macOS archive debris (``__MACOSX/``, ``._*``
+resource forks) and hidden files are skipped. A CSV re-saved by a spreadsheet with ``;`` separators
+(and decimal commas) is read as such, with a warning.
 
 Clocks. Every CSV has ``time`` (ns since the UNIX epoch) and, since export format 3,
 ``seconds_elapsed`` (s since the start tap). Format-2 exports (2021) have ``time`` only; there the
@@ -18,6 +20,8 @@ from __future__ import annotations
 
 import io
 import logging
+import shlex
+import unicodedata
 import zipfile
 from dataclasses import dataclass, field
 from pathlib import Path, PurePosixPath
@@ -52,14 +56,32 @@ def _skipped(parts: tuple[str, ...]) -> bool:
     return any(p == "__MACOSX" or p.startswith(".") for p in parts)
 
 
-def _group(names: list[tuple[PurePosixPath, object]]) -> dict[str, dict[str, object]]:
-    """Group ``(relative path, handle)`` CSV entries by folder; keep folders holding a marker file."""
+def _nfc(name: str) -> str:
+    """``name`` in Unicode NFC (composed ``ü``), as typed; macOS names files in NFD (``u`` + ``\u0308``)."""
+    return unicodedata.normalize("NFC", name)
+
+
+def _group(src: Path, names: list[tuple[PurePosixPath, object]]) -> dict[str, dict[str, object]]:
+    """Group ``(relative path, handle)`` CSV entries of ``src`` by folder (its name in NFC); keep folders
+    holding a marker file.
+
+    Raises
+    ------
+    CurbsideInputError
+        Two folders whose names differ only in their Unicode form (their files would mix).
+    """
     folders: dict[str, dict[str, object]] = {}
+    spelt: dict[str, set[str]] = {}
     for rel, handle in names:
         if rel.suffix.lower() != ".csv" or _skipped(rel.parts):
             continue
-        key = rel.parent.as_posix()
-        folders.setdefault(key, {}).setdefault(rel.name.lower(), handle)
+        key = _nfc(rel.parent.as_posix())
+        spelt.setdefault(key, set()).add(rel.parent.as_posix())
+        folders.setdefault(key, {}).setdefault(_nfc(rel.name.lower()), handle)
+    twice = sorted(k for k, forms in spelt.items() if len(forms) > 1 and k in folders)
+    if twice:
+        raise CurbsideInputError(src, f"holds two folders named {twice[0]!r} that differ only in how their "
+                                 "letters are encoded (NFC and NFD Unicode); rename one")
     return {k: files for k, files in folders.items() if any(m in files for m in MARKERS)}
 
 
@@ -83,7 +105,7 @@ def find_recordings(src: Path) -> dict[str, dict[str, object]]:
     """
     if src.is_dir():
         entries = [(PurePosixPath(p.relative_to(src).as_posix()), p) for p in src.rglob("*") if p.is_file()]
-        return _group(entries)
+        return _group(src, entries)
     if src.is_file():
         try:
             with zipfile.ZipFile(src) as zf:
@@ -94,7 +116,7 @@ def find_recordings(src: Path) -> dict[str, dict[str, object]]:
                 ]
         except (zipfile.BadZipFile, OSError) as exc:
             raise CurbsideInputError(src, f"unreadable zip ({exc})") from None
-        return _group(entries)
+        return _group(src, entries)
     raise CurbsideInputError(src, "no such file or folder")
 
 
@@ -132,7 +154,7 @@ def split_recording(src: str | Path) -> tuple[Path, str | None]:
     text = str(src)
     if RECORDING_SEPARATOR in text:
         path, name = text.rsplit(RECORDING_SEPARATOR, 1)
-        return Path(path), name.strip("/") or "."
+        return Path(path), _nfc(name.strip("/")) or "."
     return Path(text), None
 
 
@@ -145,7 +167,7 @@ def _choose(src: Path, name: str | None, recordings: dict[str, dict[str, object]
         raise CurbsideInputError(
             src,
             f"holds {len(recordings)} recordings ({listed}); pick one as "
-            f"{src}{RECORDING_SEPARATOR}{example}",
+            f"{shlex.quote(f'{src}{RECORDING_SEPARATOR}{example}')}",
         )
     if name in recordings:
         return name

@@ -17,6 +17,7 @@ from scipy.spatial.transform import Rotation
 
 from curbside.errors import CurbsideInputError
 from curbside.localize.platforms import PLATFORM_OPTIONS
+from curbside.localize.session import acceleration_unit
 
 #: The reader's logger: these are its messages, filtered with it.
 logger = logging.getLogger("curbside.localize.readers.sensorlogger")
@@ -159,11 +160,7 @@ def _uncalibrated_in_g(streams, export) -> bool:
     if table is None or not {"x", "y", "z"} <= set(table.columns):
         return False
     xyz = table[["x", "y", "z"]].apply(pd.to_numeric, errors="coerce").dropna().to_numpy()
-    block = min(25, len(xyz))  # block means, as accelerometer_ms2: gravity dominates them
-    if block == 0:
-        return False
-    means = xyz[: len(xyz) // block * block].reshape(-1, block, 3).mean(axis=1)
-    return 0.8 <= float(np.median(np.linalg.norm(means, axis=1))) <= 1.2
+    return len(xyz) > 0 and acceleration_unit(xyz)[0] == "g"
 
 
 def _platform_cues(streams, export, frame: pd.DataFrame | None, sign: float | None,

@@ -15,6 +15,7 @@ import numpy as np
 import pandas as pd
 
 from curbside.errors import CurbsideInputError
+from curbside.localize.session import STANDARD_GRAVITY, acceleration_unit
 
 logger = logging.getLogger(__name__)
 
@@ -79,17 +80,11 @@ def tidy_table(
     return out.reset_index(drop=True)
 
 
-#: Standard gravity (m/s^2), the factor between accelerometers logging in g and in m/s^2.
-STANDARD_GRAVITY = 9.80665
-
-
 def accelerometer_ms2(acce: pd.DataFrame, source: str | PathLike[str], block: int = 25) -> pd.DataFrame:
     """Check that ``ax,ay,az`` include gravity and are in m/s^2; convert from g if they are in g.
 
-    Averaged over a fraction of a second, an accelerometer that includes gravity reads about 1 g
-    whatever the phone does, while a gravity-free "user acceleration" stream averages to about 0
-    (its instantaneous magnitude, about 1 m/s^2 when walking, would pass for 1 g). So the median
-    magnitude of block means of ``block`` samples tells the cases apart: about 9.8 means m/s^2,
+    The unit is judged by the gravity level (:func:`~curbside.localize.session.acceleration_unit`,
+    the check a session folder's ``imu.csv`` gets too, where g is refused): about 9.8 means m/s^2,
     about 1 means g (converted, with a log line), anything else is an error.
 
     Parameters
@@ -111,17 +106,11 @@ def accelerometer_ms2(acce: pd.DataFrame, source: str | PathLike[str], block: in
     CurbsideInputError
         The gravity level is neither about 1 g nor about 9.8 m/s^2.
     """
-    xyz = acce[["ax", "ay", "az"]].to_numpy(float)
-    n_blocks = len(xyz) // block
-    if n_blocks:
-        means = xyz[: n_blocks * block].reshape(n_blocks, block, 3).mean(axis=1)
-    else:
-        means = xyz.mean(axis=0, keepdims=True)
-    level = float(np.median(np.linalg.norm(means, axis=1)))
+    unit, level = acceleration_unit(acce[["ax", "ay", "az"]].to_numpy(float), block)
     out = acce.copy()
-    if 0.8 * STANDARD_GRAVITY <= level <= 1.2 * STANDARD_GRAVITY:
+    if unit == "m/s^2":
         return out
-    if 0.8 <= level <= 1.2:
+    if unit == "g":
         logger.info("%s: accelerometer in g (gravity level %.2f); converted to m/s^2", source, level)
         out[["ax", "ay", "az"]] *= STANDARD_GRAVITY
         return out
@@ -130,6 +119,56 @@ def accelerometer_ms2(acce: pd.DataFrame, source: str | PathLike[str], block: in
         f"accelerometer gravity level {level:.2f} is neither ~9.8 m/s^2 nor ~1 g "
         "(gravity must be included)",
     )
+
+
+#: A row may lie this many median sample intervals before the row above it and still be a reordering
+#: (sorted silently): a logger hands a few samples over late.
+FEW_INTERVALS = 3
+
+
+def clock_step_back(t: np.ndarray) -> tuple[int, float] | None:
+    """The first place where the rows of a table go back in time as a clock set back makes them.
+
+    In file order, a row more than :data:`FEW_INTERVALS` median intervals before the row above it is
+    a step back. It is harmless, and sorting puts it right, when fewer than :data:`FEW_INTERVALS`
+    rows follow it before the stream resumes where it was (a few rows out of order), or when the rows
+    until it resumes lie in a stretch no earlier row falls in (older rows inserted whole: a delayed
+    batch, samples from before the start reported late). After the clock is set back the stream never
+    resumes, or resumes through rows interleaved with the earlier ones. A table written newest first
+    is read from its end.
+
+    Parameters
+    ----------
+    t
+        Times (s) in file order; NaN rows are ignored.
+
+    Returns
+    -------
+    tuple or None
+        ``(row, seconds)``: the index of the first row after the step and how far it lies behind the
+        latest earlier row; ``None`` when there is no such step.
+    """
+    rows = np.flatnonzero(np.isfinite(t))
+    if len(rows) > 1 and np.median(np.diff(t[rows])) < 0:
+        rows = rows[::-1]
+    times = t[rows]
+    steps = np.diff(np.sort(times))
+    steps = steps[steps > 0]
+    if not len(steps):
+        return None
+    few_s = FEW_INTERVALS * float(np.median(steps))
+    latest = np.maximum.accumulate(times)
+    for i in np.flatnonzero(times[1:] < times[:-1] - few_s) + 1:
+        resumed = np.flatnonzero(times[i:] >= latest[i - 1] - few_s)
+        block = times[i : i + resumed[0]] if len(resumed) else times[i:]
+        if len(block) < FEW_INTERVALS:
+            continue  # a few rows out of order
+        earlier = np.sort(times[:i])
+        inside = np.searchsorted(earlier, block.max(), "right") - np.searchsorted(earlier, block.min())
+        if len(resumed) and inside == 0:
+            continue  # older rows inserted whole: sorted into a stretch of their own
+        return int(rows[i]), float(latest[i - 1] - times[i])
+    return None
 
 
 #: A waypoint farther than this (m) from every GNSS fix of its session is taken for a mistake (a tap

@@ -19,11 +19,16 @@ are required.
 
 A trial is addressed as ``FILE.h5::TRIAL`` (see :func:`curbside.localize.readers.read_any`);
 ``TRIAL`` is the group name or the part after ``IPIN2023_T3_``, e.g. ``TrainingTrial01_repetition01``.
+
+The other HDF5 file of the shared data, ``ms-indoor-2020.h5`` (``/<site>/<floor>/<path>/``, no GNSS,
+waypoints in metres on a floor plan), makes no session: listing and reading it both refuse it with a
+message that says what it is for (RoNIN training and evaluation).
 """
 
 from __future__ import annotations
 
 import logging
+import shlex
 from pathlib import Path
 
 import h5py
@@ -42,6 +47,26 @@ logger = logging.getLogger(__name__)
 _GEOD = pyproj.Geod(ellps="WGS84")
 _REQUIRED = ("acce", "gyro", "rotvec")
 _OPTIONAL = ("gnss", "posi")
+#: The datasets of a path of the MS-indoor file (``/<site>/<floor>/<path>/``).
+_MS_INDOOR = frozenset({"acce", "gyro", "rotvec", "waypoints"})
+
+
+def _refuse_ms_indoor(f: h5py.File, path: str | Path) -> None:
+    """Raise when ``f`` is the MS-indoor file: its first ``/<site>/<floor>/<path>`` holds its datasets."""
+    levels: h5py.Group = f
+    for _ in range(3):
+        groups = [g for g in levels.values() if isinstance(g, h5py.Group)]
+        if not groups:
+            return
+        levels = groups[0]
+    if set(levels) >= _MS_INDOOR:
+        file = shlex.quote(str(path))
+        raise CurbsideInputError(
+            path, "is an MS-indoor file (Indoor Location Competition 2.0), not IPIN 2023 trials: its "
+            "paths have no GNSS and their waypoints are metres on a floor plan, not latitude and longitude, "
+            "so they make no session; it is RoNIN data: give it to localize train-ronin or ronin-eval as "
+            f"--ms-indoor {file}",
+        )  # fmt: skip
 
 
 def list_trials(path: str | Path) -> list[str]:
@@ -60,10 +85,12 @@ def list_trials(path: str | Path) -> list[str]:
     Raises
     ------
     CurbsideInputError
-        Missing or unreadable file, or no group holding the IPIN datasets.
+        Missing or unreadable file, or no group holding the IPIN datasets (the MS-indoor file says so).
     """
     with open_h5(path) as f:
         names = [n for n, g in f.items() if isinstance(g, h5py.Group) and all(k in g for k in _REQUIRED)]
+        if not names:
+            _refuse_ms_indoor(f, path)
     if not names:
         raise CurbsideInputError(path, f"no trial groups with datasets {list(_REQUIRED)} (and optionally "
                                  f"{list(_OPTIONAL)})")
@@ -112,9 +139,11 @@ def read_trial(path: str | Path, trial: str) -> Session:
     Raises
     ------
     CurbsideInputError
-        Missing/unreadable file, unknown trial, missing or malformed datasets, no usable rows.
+        Missing/unreadable file, the MS-indoor file, unknown trial, missing or malformed datasets, no
+        usable rows.
     """
     with open_h5(path) as f:
+        _refuse_ms_indoor(f, path)
         name = _resolve(f, path, trial)
         source = f"{Path(path).name}::{name}"
         g = f[name]

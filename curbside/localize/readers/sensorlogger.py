@@ -6,7 +6,9 @@ them and lists the real exports this reader was run on):
 
 - clocks: ``time`` (ns since the UNIX epoch) in every CSV; ``seconds_elapsed`` (s since the start
   tap) from export format 3 on. ``t`` is ``seconds_elapsed``, or for format-2 exports ``time``
-  minus a common start; streams must overlap on ``time`` (see :mod:`._export`);
+  minus a common start; streams must overlap on ``time`` (see :mod:`._export`), ``time`` must be in
+  ns and ``seconds_elapsed`` in s, and a block of rows set back in time (the phone's clock stepped
+  back) is refused, in ``Location.csv`` warned about (see :mod:`._clock`);
 - ``Accelerometer.csv`` (``x,y,z``, m/s^2) is acceleration **without** gravity on both platforms;
   ``TotalAcceleration.csv`` (Android) includes it; ``Gravity.csv`` is the gravity vector. ``imu.csv``
   needs gravity included: TotalAcceleration, else Accelerometer + Gravity, else Accelerometer +
@@ -58,6 +60,7 @@ import pandas as pd
 from scipy.spatial.transform import Rotation
 
 from curbside.errors import CurbsideInputError
+from curbside.localize.readers._clock import check_clock_steps, check_elapsed, check_time_unit
 from curbside.localize.readers._export import check_same_clock, find_recordings, open_export
 from curbside.localize.readers._platform import (
     NORTH_TOLERANCE_DEG,
@@ -117,8 +120,12 @@ def _one_clock(streams: dict[str, pd.DataFrame], export, metadata: pd.DataFrame 
     """Add ``t`` (s) to every table in place; record the epoch of ``t = 0`` in ``meta``."""
     preferred = (*_ACCELEROMETERS, *_GYROSCOPES, "Location.csv")
     reference = next((n for n in preferred if n in streams), next(iter(streams)))
+    for name, table in streams.items():
+        check_time_unit(table, f"{export.label}/{name}")
     check_same_clock(streams, reference, export.label)
     ref = streams[reference]
+    for name, table in streams.items():
+        check_elapsed(table, f"{export.label}/{name}")
     t0_ns = None
     if "time" in ref.columns and "seconds_elapsed" in ref.columns:
         offsets = _numbers(pd.to_numeric(ref["time"], errors="coerce") - 1e9 * pd.to_numeric(
@@ -130,6 +137,8 @@ def _one_clock(streams: dict[str, pd.DataFrame], export, metadata: pd.DataFrame 
         t0_ns = float(_numbers(ref["time"]).min())
     for name, table in streams.items():
         table["t"] = _time_s(table, t0_ns, f"{export.label}/{name}")
+        if name != "Annotation.csv":  # taps: no sampling interval to judge a step by
+            check_clock_steps(table, f"{export.label}/{name}", warn_only=name == "Location.csv")
     if t0_ns is not None:
         meta["t0_unix_s"] = t0_ns / 1e9
 
@@ -374,6 +383,8 @@ def _gnss(streams, label: str) -> pd.DataFrame | None:
     if "accuracy_m" not in table.columns:
         logger.warning("%s: no horizontalAccuracy column; every fix has unknown accuracy (invalid)", source)
         table["accuracy_m"] = np.nan
+    elif not (pd.to_numeric(table["accuracy_m"], errors="coerce") > 0).any():  # iOS: -1 for invalid
+        logger.warning("%s: no horizontalAccuracy above 0; every fix has unknown accuracy (invalid)", source)
     missing = [c for c in ("lat", "lon") if c not in table.columns]
     if missing:
         raise CurbsideInputError(source, f"missing column(s) {missing}")
