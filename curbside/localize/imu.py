@@ -233,6 +233,40 @@ def _check_columns(columns: set, source: str) -> bool:
     return all(has_q)
 
 
+class RepeatedWarning:
+    """A warning that may recur once per gap of a stream: the first :attr:`SHOWN` are logged, the rest at
+    DEBUG (``-vv``), and :meth:`finish` says in one line how many more there were. A phone logging at
+    1 Hz has a gap between every two rows: one line each was hundreds of lines.
+
+    Parameters
+    ----------
+    log
+        The logger of the module that warns.
+    source
+        The stream's name, the first word of the summary line.
+    what
+        What one occurrence is, plural (``"gaps that split the recording"``).
+    """
+
+    SHOWN = 3
+
+    def __init__(self, log: logging.Logger, source: str, what: str) -> None:
+        self.log, self.source, self.what = log, source, what
+        self.count = 0
+
+    def warn(self, message: str, *args: object) -> None:
+        """One occurrence: ``log.warning(message, *args)`` for the first :attr:`SHOWN`."""
+        self.count += 1
+        level = logging.WARNING if self.count <= self.SHOWN else logging.DEBUG
+        self.log.log(level, message, *args)
+
+    def finish(self) -> None:
+        """The stream has ended: say how many occurrences were not shown."""
+        if self.count > self.SHOWN:
+            extra = self.count - self.SHOWN
+            self.log.warning("%s: %d more %s (-vv lists each)", self.source, extra, self.what)
+
+
 class WorldFrameStream:
     """Phone IMU rows in, world-frame samples out, chunk by chunk (see the module docstring).
 
@@ -267,6 +301,7 @@ class WorldFrameStream:
         self._last_t = -np.inf  # last row accepted
         self._emitted_t = -np.inf  # last row emitted
         self._segment = -1
+        self._gaps = RepeatedWarning(logger, source, "gaps that split the recording")
         self._integrator: GyroscopeIntegrator | None = None
         self._sat_buffer = np.zeros((0, 6))
         self._sat_final = 0
@@ -306,6 +341,7 @@ class WorldFrameStream:
         self.finished = True
         self._count_saturation(np.zeros((0, 6)), final=True)
         self._advance(final=True)
+        self._gaps.finish()
         if self.saturated_samples:
             logger.warning("%s: %d sample(s) at a sensor's saturation value; velocities there are "
                            "unreliable", self.source, self.saturated_samples)
@@ -407,8 +443,8 @@ class WorldFrameStream:
 
     def _start_segment(self, t0: float, previous: float) -> None:
         if self._segment >= 0:
-            logger.warning("%s: %.2f s gap at t=%.2f s splits the recording", self.source, t0 - previous,
-                           previous)
+            self._gaps.warn("%s: %.2f s gap at t=%.2f s splits the recording", self.source, t0 - previous,
+                            previous)
         self._segment += 1
         self._integrator = GyroscopeIntegrator(self.config.tilt_window_s)
 

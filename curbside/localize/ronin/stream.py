@@ -27,7 +27,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 import pandas as pd
 
-from curbside.localize.imu import ImuConfig, WorldFrameStream, WorldSamples
+from curbside.localize.imu import ImuConfig, RepeatedWarning, WorldFrameStream, WorldSamples
 from curbside.localize.runconstants import RONIN_STRIDE
 
 if TYPE_CHECKING:
@@ -106,6 +106,7 @@ class WindowCutter:
         self._next_start = 0  # grid index of the next window's first sample
         self._queue_t: list[np.ndarray] = []
         self._queue_w: list[np.ndarray] = []
+        self._short = RepeatedWarning(logger, source, "stretches between gaps shorter than one window")
 
     @property
     def complete_until(self) -> float:
@@ -143,6 +144,7 @@ class WindowCutter:
         """No more samples: close the last segment."""
         if not self.finished:
             self._end_segment()
+            self._short.finish()
             self.finished = True
 
     def take(self) -> tuple[np.ndarray, np.ndarray]:
@@ -161,8 +163,8 @@ class WindowCutter:
 
     def _end_segment(self) -> None:
         if self._segment is not None and self._next_start == 0 and self._last is not None:
-            logger.warning("%s: a %.2f s stretch at t=%.2f s between gaps is shorter than one window: "
-                           "no velocity there", self.source, self._last[0] - self._t0, self._t0)
+            self._short.warn("%s: a %.2f s stretch at t=%.2f s between gaps is shorter than one window: "
+                             "no velocity there", self.source, self._last[0] - self._t0, self._t0)
 
     def _extend_grid(self, t: np.ndarray, values: np.ndarray) -> None:
         if self._last is not None:
