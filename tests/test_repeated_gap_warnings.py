@@ -4,9 +4,11 @@ from __future__ import annotations
 
 import logging
 
+import pytest
 from serve_fixtures import TRIAL
 
-from curbside.localize.imu import RepeatedWarning
+from curbside.errors import CurbsideInputError
+from curbside.localize.imu import RepeatedWarning, WorldFrameStream
 from curbside.localize.readers import read_any
 from curbside.localize.ronin.infer import ronin_velocity
 
@@ -38,3 +40,13 @@ def test_short_stretches_are_counted_too(caplog):
     assert len(short) == RepeatedWarning.SHOWN
     assert any(line.endswith("more stretches between gaps shorter than one window (-vv lists each)")
                for line in lines)
+
+
+def test_a_stream_whose_rows_are_all_gaps_is_judged_on_its_rate_before_its_end():
+    """A 1 Hz log never covers the start-up decision's 2 s of gap-free rows: it used to be let through
+    (a warning per row at the end, then no velocity); it is judged after ten rows."""
+    imu = read_any(TRIAL).imu.iloc[::50].reset_index(drop=True)
+    stream = WorldFrameStream(source="imu.csv")
+    stream.push(imu.iloc[:5])
+    with pytest.raises(CurbsideInputError, match=r"imu.csv: IMU rate 1\.0 Hz is below the 20 Hz minimum"):
+        stream.push(imu.iloc[5:12])

@@ -233,6 +233,10 @@ def _check_columns(columns: set, source: str) -> bool:
     return all(has_q)
 
 
+#: Intervals after which a stream whose every row is a gap from the one before (a 1 Hz log) is judged.
+MIN_DECISION_INTERVALS = 10
+
+
 class RepeatedWarning:
     """A warning that may recur once per gap of a stream: the first :attr:`SHOWN` are logged, the rest at
     DEBUG (``-vv``), and :meth:`finish` says in one line how many more there were. A phone logging at
@@ -407,11 +411,15 @@ class WorldFrameStream:
         enough = np.flatnonzero(covered >= self.config.decision_s)
         if len(enough):
             return int(enough[0]) + 1
+        if len(dt) >= MIN_DECISION_INTERVALS and not np.any(dt <= self.config.max_gap_s):
+            return len(t)  # rows that all come further apart than a gap never cover decision_s
         return len(t) if final and len(t) else None
 
     def _decide(self, rows: np.ndarray) -> None:
         dt = np.diff(rows[:, 0])
-        dt = dt[dt <= self.config.max_gap_s]
+        if np.any(dt <= self.config.max_gap_s):
+            dt = dt[dt <= self.config.max_gap_s]
+        # else every row is a gap from the one before (a 1 Hz log): the rate is theirs
         if len(dt):
             rate = 1.0 / float(np.median(dt))
             if rate < self.config.min_rate_hz:
