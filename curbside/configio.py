@@ -7,6 +7,9 @@ Every algorithm parameter of curbside lives in a frozen dataclass (:mod:`curbsid
 :func:`with_overrides` applies ``"section.field": value`` overrides (the CLI's ``--set``), and
 :func:`parameters` lists every key it accepts with its default and the description that the
 dataclass's numpydoc ``Attributes`` section gives it (``localize parameters``, ``docs/parameters.md``).
+The config dataclasses check their values in ``__post_init__`` with :func:`check` and :func:`require`,
+whose ``ValueError`` names each offending field and its value (:func:`from_dict` adds the section), and
+what a run would allocate against the machine's memory with :func:`beyond_memory`.
 """
 
 from __future__ import annotations
@@ -15,14 +18,86 @@ import contextlib
 import dataclasses
 import inspect
 import json
+import os
 import re
 import types
 import typing
+from collections.abc import Callable
 from typing import Any, TypeVar
 
 from curbside.errors import CurbsideInputError
 
 T = TypeVar("T")
+
+
+def check(condition: bool, message: str) -> None:
+    """Raise ``ValueError(message)`` unless ``condition`` (a config's ``__post_init__`` check)."""
+    if not condition:
+        raise ValueError(message)
+
+
+def _listed(words: list[str]) -> str:
+    return words[0] if len(words) == 1 else f"{', '.join(words[:-1])} and {words[-1]}"
+
+
+def require(rule: str, ok: Callable[[Any], bool], values: dict[str, Any]) -> None:
+    """Refuse the values of a config section that break one rule, each named with its value.
+
+    ``require("be positive", lambda v: v > 0, {"window_s": 60.0, "trigger": 0.0})`` raises
+    ``ValueError("trigger must be positive, got 0.0")``: only the values that break it are named.
+
+    Raises
+    ------
+    ValueError
+        ``NAME[ and NAME] must RULE, got VALUE[ and VALUE]``.
+    """
+    bad = [(name, value) for name, value in values.items() if not ok(value)]
+    if bad:
+        names, got = _listed([n for n, _ in bad]), _listed([repr(v) for _, v in bad])
+        raise ValueError(f"{names} must {rule}, got {got}")
+
+
+def positive(config: Any, *names: str) -> None:
+    """:func:`require` the fields ``names`` of ``config`` to be positive."""
+    require("be positive", lambda v: v > 0, {name: getattr(config, name) for name in names})
+
+
+def non_negative(config: Any, *names: str) -> None:
+    """:func:`require` the fields ``names`` of ``config`` to be non-negative."""
+    require("be non-negative", lambda v: v >= 0, {name: getattr(config, name) for name in names})
+
+
+def unit_interval(config: Any, *names: str) -> None:
+    """:func:`require` the fields ``names`` of ``config`` to lie in [0, 1]."""
+    require("lie in [0, 1]", lambda v: 0.0 <= v <= 1.0, {name: getattr(config, name) for name in names})
+
+
+def physical_memory_bytes() -> int | None:
+    """The machine's physical memory in bytes, or ``None`` where the system does not say (not POSIX)."""
+    try:
+        return os.sysconf("SC_PHYS_PAGES") * os.sysconf("SC_PAGE_SIZE")
+    except (AttributeError, ValueError, OSError):
+        return None
+
+
+def beyond_memory(need_bytes: float) -> str | None:
+    """What a run that needs ``need_bytes`` lacks, ``"about 149 GiB, more than the 23.5 GiB of memory
+    this machine has"``, or ``None`` when it fits in the physical memory (or that is unknown).
+
+    The rule of every memory check (the particles,
+    :data:`~curbside.localize.filter.config.BYTES_PER_PARTICLE`; the map raster,
+    :data:`~curbside.localize.raster.BYTES_PER_CELL`): refuse up front what could never fit, rather
+    than fail with an internal ``MemoryError`` once the arrays are allocated.
+    """
+    have = physical_memory_bytes()
+    if have is None or need_bytes <= have:
+        return None
+    return f"about {_gib(need_bytes)}, more than the {_gib(have)} of memory this machine has"
+
+
+def _gib(n_bytes: float) -> str:
+    gib = n_bytes / 2**30
+    return f"{gib:,.0f} GiB" if gib >= 100 else f"{gib:.3g} GiB"
 
 
 def to_dict(config: Any) -> dict[str, Any]:

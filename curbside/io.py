@@ -9,12 +9,15 @@ Output rules (every command that writes goes through here):
   command was given ``--overwrite``; never one of the command's own inputs, and never anything but a
   regular file (a device, a link) (:func:`check_output_file`);
 - a **folder** may be written when it does not exist, is empty, or holds the marker
-  ``.curbside-output`` that the same command left there (a previous output of it). Any other folder,
-  another command's output included (a session folder is not a run folder), is refused unless the
-  command was given ``--overwrite``; even then, only the files the command writes are replaced, and
-  nothing else is deleted (:func:`output_folder`, :func:`check_output_folder`). The marker lists the
-  files curbside wrote, so the next run of the same command into the folder removes its own stale files
-  (e.g. ``particles.npz`` from a run with ``--save-particles``) and nothing else;
+  ``.curbside-output`` that records an output of the same command there (a previous output of it). Any
+  other folder, another command's output included (a session folder is not a run folder), is refused
+  unless the command was given ``--overwrite``; even then, only the files the command writes are
+  replaced, and nothing else is deleted (:func:`output_folder`, :func:`check_output_folder`). The marker
+  records the files each command wrote there (``commands``; ``command`` names the one that made the
+  folder, and ``files`` lists them all), so the next run of a command into the folder removes its own
+  stale files (e.g. ``particles.npz`` from a run with ``--save-particles``) and nothing else, and a
+  command writing beside another's output (``localize run S -o S --overwrite``) leaves the other's
+  record, and its right to write there again, as it was;
 - a path that cannot be written (permission denied, a file where a folder should be, a read-only
   disk) is bad input: :class:`~curbside.errors.CurbsideInputError`, not an internal error.
 """
@@ -111,7 +114,10 @@ def read_marker(folder: str | os.PathLike[str]) -> dict | None:
     Returns
     -------
     dict or None
-        ``{"command": str, "files": [relative paths], "written_utc": str}``.
+        ``{"command": str, "written_utc": str, "files": [relative paths], "commands": {command: [relative
+        paths]}}``: the command that made the folder, when the marker was last written, every file
+        curbside wrote there and the files of each command (:func:`command_files`; a marker written
+        before ``commands`` existed lacks it).
     """
     path = Path(folder) / MARKER
     try:
@@ -123,14 +129,35 @@ def read_marker(folder: str | os.PathLike[str]) -> dict | None:
     return doc
 
 
+def command_files(doc: dict) -> dict[str, list[str]]:
+    """The files each command wrote into a folder, from its marker (:func:`read_marker`).
+
+    Parameters
+    ----------
+    doc
+        The marker.
+
+    Returns
+    -------
+    dict
+        Command -> the relative paths it wrote, the command that made the folder first. A marker without
+        ``commands`` (written before it existed) holds one command's files: ``command`` and ``files``.
+    """
+    records = doc.get("commands")
+    if isinstance(records, dict) and records and all(isinstance(v, list) for v in records.values()):
+        return {str(command): [str(f) for f in files] for command, files in records.items()}
+    return {str(doc.get("command", "curbside")): [str(f) for f in doc.get("files", [])]}
+
+
 def note_written(path: str | os.PathLike[str], command: str = "curbside") -> None:
     """Record in its folder's marker a file curbside added to a folder (see :func:`written_by_curbside`).
 
     ``localize ronin`` writes ``velocity.csv`` into a session folder that ``localize convert`` wrote;
-    listing it lets the next conversion into that folder remove it with the other stale outputs (it was
-    computed from the old ``imu.csv``), and lets the next ``localize ronin`` replace it. A folder
-    without a marker gets one naming ``command`` and this file alone, which no other command's output
-    may then be written over (:func:`check_output_folder`).
+    listing it, among the files of the command that made the folder, lets the next conversion into that
+    folder remove it with the other stale outputs (it was computed from the old ``imu.csv``), and lets
+    the next ``localize ronin`` replace it. A folder without a marker gets one naming ``command`` and
+    this file alone, which no other command's output may then be written over
+    (:func:`check_output_folder`).
 
     Parameters
     ----------
@@ -144,7 +171,67 @@ def note_written(path: str | os.PathLike[str], command: str = "curbside") -> Non
     if doc is None:
         _write_marker(path.parent, command, [path.name])
     elif path.name not in doc["files"]:
-        _write_marker(path.parent, str(doc.get("command", command)), sorted([*doc["files"], path.name]))
+        maker, files = next(iter(command_files(doc).items()))
+        _write_marker(path.parent, maker, sorted([*files, path.name]))
+
+
+def note_written_by(path: str | os.PathLike[str], command: str) -> None:
+    """Record in its folder's marker that ``command`` wrote the file ``path`` (:func:`note_written`), and
+    which command it was, for :func:`writer_of`.
+
+    A session folder holds files of several commands under one marker: ``localize simulate`` writes a
+    ``velocity.csv`` (its stand-in for RoNIN), and so does ``localize ronin``. The marker's ``writers``
+    names the command that wrote such a file, with the file's size and modification time then, so that
+    the record no longer holds once anything else has written the file again.
+
+    Parameters
+    ----------
+    path
+        The file just written.
+    command
+        What wrote it, e.g. ``"localize ronin"``.
+    """
+    path = _absolute(path)
+    before = read_marker(path.parent) or {}
+    writers = before.get("writers") if isinstance(before.get("writers"), dict) else {}
+    note_written(path, command)
+    doc = read_marker(path.parent)
+    if doc is None:
+        return
+    stat = path.stat()
+    writers = {**writers, path.name: {"command": command, "size": stat.st_size, "mtime_ns": stat.st_mtime_ns}}
+    doc["writers"] = {name: record for name, record in writers.items() if name in doc["files"]}
+    tmp = path.parent / f"{MARKER}.tmp"
+    tmp.write_text(json.dumps(doc, indent=1), encoding="utf-8")
+    os.replace(tmp, path.parent / MARKER)
+
+
+def writer_of(path: str | os.PathLike[str]) -> str | None:
+    """The command that wrote the file ``path``, as its folder's marker records it.
+
+    Parameters
+    ----------
+    path
+        An existing file.
+
+    Returns
+    -------
+    str or None
+        The command :func:`note_written_by` recorded for this very file (the same size and modification
+        time), else the command whose files the marker lists it among; ``None`` for a file no marker lists.
+    """
+    path = _absolute(path)
+    doc = read_marker(path.parent)
+    if doc is None or path.name not in doc["files"]:
+        return None
+    writers = doc.get("writers")
+    record = writers.get(path.name) if isinstance(writers, dict) else None
+    if isinstance(record, dict) and os.path.isfile(path):
+        stat = path.stat()
+        if (record.get("size"), record.get("mtime_ns")) == (stat.st_size, stat.st_mtime_ns):
+            return str(record.get("command"))
+    owners = [command for command, files in command_files(doc).items() if path.name in files]
+    return owners[0] if owners else None
 
 
 def written_by_curbside(path: str | os.PathLike[str]) -> bool:
@@ -243,8 +330,8 @@ def check_output_folder(
         Allow a non-empty folder that this command did not write (only the command's own files are
         replaced).
     command
-        What will write it (as its marker records it, e.g. ``"localize run"``): a folder holding another
-        command's output is refused without ``overwrite``. ``None`` accepts any curbside output.
+        What will write it (as its marker records it, e.g. ``"localize run"``): a folder holding only other
+        commands' output is refused without ``overwrite``. ``None`` accepts any curbside output.
 
     Returns
     -------
@@ -273,24 +360,24 @@ def check_output_folder(
             f"folder is not empty ({count}) and was not written by curbside; pass --overwrite to write "
             "into it anyway (files curbside does not write are kept)",
         )
-    other = _other_command(dst, command)
-    if entries and other is not None and not overwrite:
+    others = _other_commands(dst, command)
+    if entries and others and not overwrite:
         raise CurbsideInputError(
             folder,
-            f"holds the output of '{other}', not of '{command}'; write into another folder, or pass "
-            "--overwrite to add this output beside it (nothing of the other is deleted)",
+            f"holds the output of {' and '.join(map(repr, others))}, not of '{command}'; write into another "
+            "folder, or pass --overwrite to add this output beside it (nothing of the other is deleted)",
         )
     return dst
 
 
-def _other_command(folder: Path, command: str | None) -> str | None:
-    """The command recorded in ``folder``'s marker when it is not ``command`` (``None``: the same, or
-    no marker, or no command to compare)."""
+def _other_commands(folder: Path, command: str | None) -> list[str]:
+    """The commands whose output ``folder``'s marker records, when ``command`` is not one of them (empty:
+    it is, or no marker, or no command to compare)."""
     doc = read_marker(folder)
     if doc is None or command is None:
-        return None
-    recorded = str(doc.get("command", ""))
-    return None if recorded == command else recorded
+        return []
+    records = command_files(doc)
+    return [] if command in records else list(records)
 
 
 def _staged_files(staged: Path) -> list[str]:
@@ -304,10 +391,21 @@ def _staged_files(staged: Path) -> list[str]:
 
 
 def _write_marker(folder: Path, command: str, files: list[str]) -> None:
+    """Record in ``folder``'s marker that ``command``'s output there is ``files`` now: its earlier record
+    is replaced, the other commands' records are kept, less the files ``command`` wrote over (a command
+    left with none drops out), and so are the marker's other members."""
+    previous = read_marker(folder) or {}
+    records = command_files(previous) if previous else {}
+    records[command] = sorted(files)  # a command already recorded keeps its place: the folder's maker first
+    claimed = set(files)
+    records = {c: own if c == command else [f for f in own if f not in claimed] for c, own in records.items()}
+    records = {c: own for c, own in records.items() if own or c == command}
     doc = {
-        "command": command,
+        **previous,
+        "command": next(iter(records)),
         "written_utc": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
-        "files": files,
+        "files": sorted({f for own in records.values() for f in own}),
+        "commands": records,
     }
     tmp = folder / f"{MARKER}.tmp"
     tmp.write_text(json.dumps(doc, indent=1), encoding="utf-8")
@@ -349,7 +447,8 @@ def _commit_folder(staged: Path, dst: Path, command: str, overwrite: bool) -> No
         os.replace(staged, dst)
         return
     # Only this command's own earlier files are stale; another command's (with --overwrite) stay.
-    old = [] if _other_command(dst, command) is not None else (read_marker(dst) or {}).get("files", [])
+    marker = read_marker(dst)
+    old = command_files(marker).get(command, []) if marker is not None else []
     _check_conflicts(dst, files)
     for rel in files:
         target = dst / rel

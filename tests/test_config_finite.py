@@ -26,7 +26,7 @@ def test_every_float_parameter_refuses_infinity_and_nan_naming_it(mode):
         for value in ("Infinity", "-Infinity", "NaN", math.inf, math.nan):
             with pytest.raises(CurbsideInputError) as refused:
                 base.with_overrides({key: value})
-            # named before a range check of its section (``motion noise parameters must be non-negative``)
+            # named before a range check of its section (``...: heading_noise_deg must be non-negative``)
             assert str(refused.value) == f"config.{key}: must be a finite number", (key, value)
 
 

@@ -112,7 +112,7 @@ def test_standing_rule_stops_phantom_motion_but_not_a_walk_with_missed_steps(tmp
     assert 0.2 < gap_speed(standing, 0.0) < 0.4  # off: the drift moves the walker
     assert gap_speed(standing, 0.6) < 0.05  # on: no footsteps and slow, so standing
     assert 0.8 < gap_speed(walking, 0.6) < 1.8  # missed footsteps at walking pace still move
-    with pytest.raises(ValueError, match="standing speed"):
+    with pytest.raises(ValueError, match="standing_speed_mps must be non-negative"):
         EngineConfig(standing_speed_mps=-1.0)
 
 

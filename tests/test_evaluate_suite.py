@@ -183,7 +183,7 @@ def test_report_has_tables_checks_and_figures(sessions, tmp_path):
     doc["suite"] = {"profile": "phone", "split": "test", "jaywalk_weight": 0.4}
     paths["metrics.json"].write_text(json.dumps(doc))
     summary = suite.suite_summary(tmp_path / "report")
-    assert "paper6 (1 sessions)" in summary and "curbside fused" in summary and "done when:" in summary
+    assert "paper6 (1 session)" in summary and "curbside fused" in summary and "done when:" in summary
 
 
 def test_benchmark_cli_refuses_a_bad_ipin_ronin_before_simulating(tmp_path, capsys):

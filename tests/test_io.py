@@ -221,7 +221,7 @@ def test_another_commands_folder_is_refused_and_kept_whole_with_overwrite(tmp_pa
     assert _files(session) == {"imu.csv": "i", "gnss.csv": "g"}
     _write(output_folder(session, "localize run", overwrite=True), {"track.csv": "t"})
     assert _files(session) == {"imu.csv": "i", "gnss.csv": "g", "track.csv": "t"}
-    assert read_marker(session)["files"] == ["track.csv"]  # the run's own files only
+    assert read_marker(session)["commands"]["localize run"] == ["track.csv"]  # the run's own files only
     _write(output_folder(session, "localize run"), {"run.json": "r"})  # the run's stale track.csv goes
     assert _files(session) == {"imu.csv": "i", "gnss.csv": "g", "run.json": "r"}
 

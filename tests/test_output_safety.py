@@ -89,7 +89,10 @@ def test_a_run_into_a_session_folder_is_refused_and_the_session_kept(tmp_path, c
     assert sorted(p.name for p in session.iterdir()) == before
     assert localize_main(["run", str(session), "--mode", "gnss", "-o", str(session), "--overwrite"]) == 0
     assert set(before) <= {p.name for p in session.iterdir()}  # nothing of the session deleted
-    assert localize_main(["convert", str(GPX), str(session)]) == 2  # the run's folder now
+    # still the conversion's folder too (the marker keeps each command's files): it converts again,
+    # replacing its own files and keeping the run's
+    assert localize_main(["convert", str(GPX), str(session)]) == 0
+    assert {"track.csv", "run.json", *before} <= {p.name for p in session.iterdir()}
 
 
 def test_ronin_writes_its_velocity_but_never_over_a_session_input(tmp_path, capsys):

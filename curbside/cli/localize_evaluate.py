@@ -57,6 +57,7 @@ def _simulate(args: argparse.Namespace) -> int:
     from curbside.io import check_output_folder, output_folder
 
     command = "localize simulate --benchmark" if args.benchmark else "localize simulate"
+    _check_simulate_options(args)
     check_output_folder(args.output, args.overwrite, command)  # before the slow imports and the OSM load
     from curbside.evaluate import routes as routes_mod
     from curbside.evaluate.gnss_model import GnssErrorModel
@@ -66,10 +67,11 @@ def _simulate(args: argparse.Namespace) -> int:
     config = SimulationConfig(profile=args.profile, gnss=GnssErrorModel.named(args.gnss),
                               write_velocity=not args.no_velocity, write_imu=args.imu)
     if args.benchmark:
+        seeds = args.seeds or 3
         with output_folder(args.output, command, overwrite=args.overwrite) as tmp:
-            written = simulate_benchmark(tmp, args.seeds, config, args.osm)
+            written = simulate_benchmark(tmp, seeds, config, args.osm)
         print(
-            f"{args.output}: {len(written)} sessions of the sf6 benchmark ({args.seeds} seed(s) per route, "
+            f"{args.output}: {len(written)} sessions of the sf6 benchmark ({seeds} seed(s) per route, "
             f"profile {args.profile}, GNSS {args.gnss})"
         )
         return 0
@@ -78,20 +80,20 @@ def _simulate(args: argparse.Namespace) -> int:
     from curbside.projection import LocalFrame
 
     names = [s.name for s in routes_mod.SF6]
-    _check_custom_options(args)
     if args.route != "custom" and args.route not in names:
         raise CurbsideInputError("--route", f"unknown route {args.route!r}; one of {names} or custom")
     if args.route == "custom" and (args.start is None or args.length_m is None):
         raise CurbsideInputError("--route custom", "needs --start LON LAT and --length-m")
     layers = read_map(args.map) if args.map else None  # a bad map fails now, not after the walk
     osm = load_osm(args.osm)
+    seed = 1 if args.seed is None else args.seed
     if args.route == "custom":
         frame = LocalFrame(osm.crs)
-        route = _custom_route(args, routes_mod.build_walk_graph(osm), frame)
+        route = _custom_route(args, routes_mod.build_walk_graph(osm), frame, seed)
     else:
-        route_list, frame, osm = sf6_routes(osm)
-        route = route_list[names.index(args.route)]
-    session = simulate_session(route, osm, frame, args.seed, config, name=Path(args.output).name)
+        route_list, frame, osm = sf6_routes(osm, args.osm, only=args.route)
+        route = route_list[0]
+    session = simulate_session(route, osm, frame, seed, config, name=Path(args.output).name)
     if layers is not None:
         _check_on_map(args.map, layers, route, frame)
     write_session(session, args.output, overwrite=args.overwrite, command="localize simulate")
@@ -103,10 +105,8 @@ def _simulate(args: argparse.Namespace) -> int:
     return 0
 
 
-def _custom_route(args: argparse.Namespace, graph, frame):
+def _custom_route(args: argparse.Namespace, graph, frame, seed: int):
     """``--route custom``: the walk from ``--start``, refused when no footway of the extract is near it."""
-    import numpy as np
-
     from curbside.evaluate import routes as routes_mod
 
     lon, lat = args.start
@@ -116,28 +116,33 @@ def _custom_route(args: argparse.Namespace, graph, frame):
     spec = routes_mod.RouteSpec(
         "custom", (lon, lat), args.length_m, args.crossings or 0, args.jaywalks or 0, "custom"
     )
-    node_lon, node_lat = frame.to_lonlat(graph.xy[:, 0], graph.xy[:, 1])
-    x, y = frame.to_xy(np.array([lon]), np.array([lat]))
-    nearest_m = float(np.min(np.hypot(graph.xy[:, 0] - x[0], graph.xy[:, 1] - y[0])))
-    if nearest_m > spec.start_radius_m:
-        raise CurbsideInputError(
-            "--start",
-            f"no footway of the OSM extract within {spec.start_radius_m:g} m of ({lon:g}, {lat:g}), the "
-            f"nearest is {nearest_m / 1000:.1f} km away; the extract's footways span lon "
-            f"{node_lon.min():.4f} to {node_lon.max():.4f}, lat {node_lat.min():.4f} to {node_lat.max():.4f}",
-        )
-    return routes_mod.generate_route(graph, spec, frame, args.seed, progress=True)
+    far = routes_mod.far_from_footways(graph, spec, frame)
+    if far:
+        raise CurbsideInputError("--start", far)
+    return routes_mod.generate_route(graph, spec, frame, seed, progress=True)
 
 
-def _check_custom_options(args: argparse.Namespace) -> None:
-    """Refuse the custom route's options with a named route: they would be silently ignored."""
-    given = [option for option, value in (("--start", args.start), ("--length-m", args.length_m),
-                                          ("--crossings", args.crossings), ("--jaywalks", args.jaywalks))
-             if value is not None]
-    if given and args.route != "custom":
-        raise CurbsideInputError(
-            f"--route {args.route}", f"{', '.join(given)} only shape a custom route (--route custom)"
-        )
+def _check_simulate_options(args: argparse.Namespace) -> None:
+    """Refuse the options that the walks asked for would silently ignore."""
+
+    def given(*options: str) -> list[str]:
+        return [o for o in options if getattr(args, o[2:].replace("-", "_")) is not None]
+
+    def listed(options: list[str], one: str, many: str) -> str:
+        names = options[0] if len(options) == 1 else f"{', '.join(options[:-1])} and {options[-1]}"
+        return f"{names} {one if len(options) == 1 else many}"
+
+    custom = given("--start", "--length-m", "--crossings", "--jaywalks")
+    if args.benchmark and (unused := given("--seed", "--map") + custom):
+        unused_here = listed(unused, "does", "do")
+        raise CurbsideInputError("--benchmark sf6", f"{unused_here} not apply to the benchmark (six fixed "
+                                 "routes, session seeds 1..N from --seeds N, no map check)")
+    if args.route and args.seeds is not None:
+        raise CurbsideInputError(f"--route {args.route}",
+                                 "--seeds only applies to --benchmark (one walk: --seed S)")
+    if args.route and args.route != "custom" and custom:
+        shape = listed(custom, "only shapes", "only shape")
+        raise CurbsideInputError(f"--route {args.route}", f"{shape} a custom route (--route custom)")
 
 
 def _check_on_map(map_path: str, layers, route, frame) -> None:
@@ -210,6 +215,36 @@ def _count(n: int, one: str, many: str | None = None) -> str:
     return f"{n} {one if n == 1 else (many or one + 's')}"
 
 
+def _check_given_once(paths: list, what: str) -> None:
+    """Refuse a file or folder given twice (as the same path, or as two that resolve to it, a folder of
+    sessions and one of its sessions among them): its runs would count twice in every pooled figure."""
+    seen: dict[Path, str] = {}
+    for path in map(str, paths):
+        resolved = Path(path).resolve()
+        if resolved in seen:
+            also = "" if seen[resolved] == path else f" (also as {seen[resolved]})"
+            raise CurbsideInputError(path, f"the same {what} is given twice{also}: give each once")
+        seen[resolved] = path
+
+
+def _map_names(maps: list[str], map_names: list[str] | None) -> list[str]:
+    """The maps' labels: ``--map-names``, one distinct name per map (the same file under two names is a
+    check that both give the same figures), or else the file stems; without ``--map-names``, a map given
+    twice is refused as such, and two files of one name as needing names."""
+    if map_names is not None:
+        if len(map_names) != len(maps) or len(set(map_names)) != len(map_names):
+            raise CurbsideInputError("--map-names", "give one distinct name per map")
+        return map_names
+    _check_given_once(maps, "map")
+    names = [Path(m).stem for m in maps]
+    for i, name in enumerate(names):
+        if name in names[:i]:
+            other = maps[names.index(name)]
+            raise CurbsideInputError(
+                maps[i], f"has the file name of {other} ('{name}'): name the maps with --map-names")
+    return names
+
+
 def _evaluate(args: argparse.Namespace) -> int:
     from curbside.evaluate.dask_cluster import check_scheduler
     from curbside.io import check_output_folder, output_folder
@@ -219,8 +254,10 @@ def _evaluate(args: argparse.Namespace) -> int:
     if args.scheduler:
         check_scheduler(args.scheduler)  # in seconds, before the maps and sessions are read
     sessions = expand_sessions(args.sessions)
+    _check_given_once(sessions, "session folder")
     for m in [*args.maps, *([args.metrics_map] if args.metrics_map else [])]:
         _check_is_file(m, "map")
+    names = _map_names(args.maps, args.map_names)
     if args.ipin:
         _check_ipin(args.ipin, held_out=False)  # before the runs, not after them
     # the heavy imports, once the cheap checks passed
@@ -229,9 +266,6 @@ def _evaluate(args: argparse.Namespace) -> int:
     from curbside.evaluate.runner import check_sessions, run_all
     from curbside.osmseg.mapio import read_map
 
-    names = args.map_names or [Path(m).stem for m in args.maps]
-    if len(names) != len(args.maps) or len(set(names)) != len(names):
-        raise CurbsideInputError("--map-names", "give one distinct name per map")
     maps = dict(zip(names, [str(m) for m in args.maps], strict=True))
     metrics_map = args.metrics_map or args.maps[0]
     reference = read_map(metrics_map)
@@ -269,7 +303,7 @@ def _evaluate(args: argparse.Namespace) -> int:
             extra_json,
             intro=f"{len(sessions)} session(s), {len(maps)} map(s), {len(specs)} runs.",
         )
-    print(f"{args.output}: report over {len(sessions)} sessions, {len(specs)} runs")
+    print(f"{args.output}: report over {_count(len(sessions), 'session')}, {_count(len(specs), 'run')}")
     return 0
 
 
@@ -385,8 +419,9 @@ def _register_simulate(subparsers: argparse._SubParsersAction) -> None:
                       "or 'custom' (with --start and --length-m)")
     what.add_argument("--benchmark", choices=["sf6"],
                       help="sf6: all six routes, --seeds walks each, into one folder of sessions")
-    sim.add_argument("--seed", type=seed, default=1,
-                     help="session seed, an integer >= 0: which walk is simulated (default: %(default)s)")
+    sim.add_argument("--seed", type=seed, default=None,
+                     help="session seed, an integer >= 0: which walk is simulated (default: 1; not with "
+                     "--benchmark, whose walks take seeds 1..N)")
     sim.add_argument("--start", nargs=2, type=finite_float, metavar=("LON", "LAT"),
                      help="custom route: where it starts, longitude then latitude in degrees (WGS84), near a "
                      "footway of the extract (downtown SF, e.g. -122.4025 37.7930)")
@@ -397,8 +432,8 @@ def _register_simulate(subparsers: argparse._SubParsersAction) -> None:
                      help="custom route: how many crosswalks it crosses (default: 0)")
     sim.add_argument("--jaywalks", type=non_negative_int, default=None,
                      help="custom route: how many times it crosses a street off a crosswalk (default: 0)")
-    sim.add_argument("--seeds", type=positive_int, default=3,
-                     help="--benchmark: walks per route, with session seeds 1..N (default: %(default)s)")
+    sim.add_argument("--seeds", type=positive_int, default=None,
+                     help="--benchmark: walks per route, with session seeds 1..N (default: 3)")
     sim.add_argument("--map", help="a map GeoJSON (osmseg build): refuse a route outside its extent and warn "
                      "about waypoints inside its buildings")
     sim.add_argument("--osm", help="OSM extract (.osm or .osm.bz2) for heights and footways (default: the "
@@ -465,7 +500,8 @@ def _register_evaluate(subparsers: argparse._SubParsersAction) -> None:
         "each method's own, 0.66 for curbside fused, 1 for the paper's method)",
     )
     ev.add_argument("--velocity-source", default="auto", choices=["auto", "file", "ronin", "pdr"],
-                    help="auto: velocity.csv, else RoNIN on imu.csv, else PDR (default: %(default)s)")
+                    help="auto: velocity.csv, else RoNIN on imu.csv (PDR on a simulated one), else PDR "
+                         "(default: %(default)s)")
     ev.add_argument("--seed", type=seed, default=0,
                     help="filter seed, an integer >= 0 (default: %(default)s)")
     ev.add_argument("--workers", type=positive_int,

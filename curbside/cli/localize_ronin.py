@@ -15,6 +15,9 @@ from curbside.localize.runconstants import RONIN_STRIDE
 
 logger = logging.getLogger(__name__)
 
+#: What ``localize ronin`` records as the writer of the velocity files it writes.
+RONIN_COMMAND = "localize ronin"
+
 
 def _stream_config(args: argparse.Namespace):
     from curbside.localize.ronin.stream import RoninStreamConfig
@@ -46,9 +49,23 @@ def _ronin_source(args: argparse.Namespace) -> tuple[Path, list[Path]]:
     return out, inputs
 
 
+def _check_replaceable(out: Path, overwrite: bool) -> None:
+    """Refuse to replace, without ``--overwrite``, a velocity file that ``localize ronin`` did not write
+    itself: the simulator's stand-in for RoNIN, a conversion's PDR, another command's file, the user's."""
+    from curbside.io import writer_of
+
+    if overwrite or not out.is_file():
+        return
+    writer = writer_of(out)
+    if writer != RONIN_COMMAND:
+        by = f"by '{writer}'" if writer else "by curbside"
+        raise CurbsideInputError(out, f"exists and was written {by}, not by localize ronin; pass --overwrite "
+                                      "to replace it, or give another file with -o")
+
+
 def _ronin(args: argparse.Namespace) -> int:
     from curbside import settings
-    from curbside.io import atomic_path, check_output_file, note_written
+    from curbside.io import atomic_path, check_output_file, note_written_by
     from curbside.localize.readers import read_any
     from curbside.localize.ronin.familiarity import session_familiarity
     from curbside.localize.ronin.infer import load_model, ronin_velocity
@@ -57,6 +74,7 @@ def _ronin(args: argparse.Namespace) -> int:
 
     out, inputs = _ronin_source(args)
     check_output_file(out, args.overwrite, inputs=(*inputs, *([args.weights] if args.weights else [])))
+    _check_replaceable(out, args.overwrite)
     config = _stream_config(args)
     model = load_model(args.weights)
     session = read_any(args.session)
@@ -69,13 +87,22 @@ def _ronin(args: argparse.Namespace) -> int:
     # does when it runs RoNIN itself; the particle filter turns a 1e-7 m/s difference into another track.
     with atomic_path(out) as tmp:
         velocity.to_csv(tmp, index=False)
-    note_written(out, "localize ronin")
+    note_written_by(out, RONIN_COMMAND)
     span = velocity["t"].iat[-1] - velocity["t"].iat[0]
     weights = weights_record(args.weights or settings.ronin_default_weights)
     sys.stdout.write(f"{out}: {len(velocity)} velocities over {span:.1f} s (weights "
                      f"{Path(weights['path']).name}, sha256 {weights['sha256'][:12]})\n")
     sys.stdout.write(f"{out}: {session_familiarity(model, session.imu, config, imu_source).describe()}\n")
     return 0
+
+
+def _check_data_paths(args: argparse.Namespace) -> None:
+    """Refuse ``FILE.h5::TRIAL`` for the options that take a whole dataset file."""
+    from curbside.localize.paths import check_whole_file
+
+    for option, path in (("--ms-indoor", args.ms_indoor), ("--ipin", args.ipin)):
+        if path:
+            check_whole_file(path, option)
 
 
 def _data(args: argparse.Namespace, keep_imu: tuple[str, ...] = ()):
@@ -159,6 +186,7 @@ def _check_device(name: str) -> None:
 
 
 def _train(args: argparse.Namespace) -> int:
+    _check_data_paths(args)
     _check_train_outputs(args)
     _check_device(args.device)
     try:
@@ -232,6 +260,7 @@ def _calibrate(model, val_recordings: list) -> float:
 
 
 def _evaluate(args: argparse.Namespace) -> int:
+    _check_data_paths(args)
     from curbside import settings
     from curbside.io import atomic_path, check_output_file
     from curbside.localize.paths import config_path_for
@@ -249,7 +278,7 @@ def _evaluate(args: argparse.Namespace) -> int:
     all_recordings, sources = _data(args, keep)
     recordings = [r for r in all_recordings if r.split == args.split]
     if not recordings:
-        raise CurbsideInputError(_source_names(args, sources), f"no {args.split!r} recordings (--split)")
+        raise CurbsideInputError(_source_names(args, sources), _no_split(args.split, all_recordings))
     report = evaluate_recordings(recordings, model, with_pdr=not args.no_pdr, config=config, progress=True)
     trained_on = model.config.extra.get("sources")
     report = {"generator": f"curbside {__version__}",
@@ -261,6 +290,19 @@ def _evaluate(args: argparse.Namespace) -> int:
             tmp.write_text(json.dumps(report, indent=1), encoding="utf-8")
     sys.stdout.write(format_summary(report))
     return 0
+
+
+def _no_split(split: str, recordings: list) -> str:
+    """Why ``ronin-eval --split`` finds nothing to score: what the data hold in each split."""
+    from curbside.localize.ronin.data import IPIN_TEST_MARK, MS_TEST_FRACTION, MS_VAL_FRACTION
+
+    counts = {s: sum(r.split == s for r in recordings) for s in ("train", "val", "test")}
+    held = ", ".join(f"{n} {s}" for s, n in counts.items())
+    others = " or ".join(f"--split {s}" for s, n in counts.items() if n)
+    rule = (f"IPIN's test trials are its {IPIN_TEST_MARK}s, MS-indoor and RoNIN-layout hold out "
+            f"{MS_TEST_FRACTION:.0%} for test and {MS_VAL_FRACTION:.0%} for val")
+    return (f"no {split!r} recordings (--split): the data hold {held} recordings ({rule})"
+            + (f"; give {others}" if others else ""))
 
 
 _RONIN_EXAMPLES = """examples:
@@ -329,7 +371,9 @@ def _register_ronin(subparsers: argparse._SubParsersAction) -> None:
                    help="session folder holding imu.csv, or any recording `localize run` reads "
                         "(FILE.h5::TRIAL, a Sensor Logger export; these need -o)")
     p.add_argument("-o", "--output", metavar="CSV", help="output file (default: SESSION/velocity.csv)")
-    p.add_argument("--overwrite", action="store_true", help=OVERWRITE_FILE_HELP)
+    p.add_argument("--overwrite", action="store_true",
+                   help="replace the output file even when localize ronin did not write it (the simulator's "
+                        "velocity.csv, yours; never one of the inputs)")
     p.add_argument("--weights", metavar="PT",
                    help="weights .pt, its config .json beside it, as train-ronin writes them (default: the "
                         "bundled model)")

@@ -30,6 +30,7 @@ from curbside.cli.common import (
     non_negative_float,
     positive_int,
     seed,
+    set_overrides,
     unit_interval,
 )
 from curbside.cli.localize_convert import add_platform_option
@@ -77,6 +78,7 @@ def _checked_inputs(args: argparse.Namespace) -> tuple[dict, str, str | None]:
 
     check_output_folder(args.output, args.overwrite, "localize run")
     info = _replayed_info(args.config) if args.config else {}
+    _check_options_used(args, info["config"] if info else {})
     session_path = args.session or info.get("session")
     if not session_path:
         raise CurbsideInputError(
@@ -91,6 +93,58 @@ def _checked_inputs(args: argparse.Namespace) -> tuple[dict, str, str | None]:
     if args.ronin_weights:
         check_ronin_weights_path(args.ronin_weights)
     return info, session_path, map_path
+
+
+def _given_mode(args: argparse.Namespace, section: str, replayed: dict) -> tuple[str | None, bool]:
+    """The mode of ``unseen_velocity`` or ``familiar_velocity`` (``section``) that the run is given (its
+    flag, else ``--set SECTION.mode``, else the replayed configuration's; ``None``: the method's
+    default), and whether this command line gives it."""
+    recorded = replayed.get(section)
+    recorded = recorded.get("mode") if isinstance(recorded, dict) else None
+    here = getattr(args, section) or set_overrides(args.set).get(f"{section}.mode")
+    return here or recorded, here is not None
+
+
+def _check_options_used(args: argparse.Namespace, replayed: dict) -> None:
+    """Refuse options that would change nothing, before the heavy imports: the filter's options with
+    ``--mode gnss`` (no particle filter, no inertial velocity), ``--fix-lag`` with ``--mode inertial`` (no
+    fixes), ``--familiar-velocity`` beside ``--unseen-velocity on`` (whose motion model replaces the calm
+    one from the start). ``--save-particles`` with ``--mode gnss`` is warned of only: a script that tracks
+    a walk in every mode gives it to each (``benchmarks/bench_view.py``). ``replayed``: the ``config`` of
+    the run.json ``--config`` replays (``{}``: none).
+
+    Raises
+    ------
+    CurbsideInputError
+        One of these combinations, naming the options and why they do nothing.
+    """
+    mode = args.mode or replayed.get("mode") or "fused"
+    if mode == "gnss" and args.save_particles:  # warned, not refused: scripts give it to every mode
+        logger.warning("--save-particles: no particles.npz: --mode gnss runs no particle filter")
+    fix_lag = (args.fix_lag or {}).get("fix_lag.mode", "off")
+    unused = {
+        "--lag-s": bool(args.lag_s),
+        "--unseen-velocity": args.unseen_velocity not in (None, "off"),
+        "--familiar-velocity": args.familiar_velocity not in (None, "off"),
+        "--fix-lag": fix_lag != "off", "--velocity-source": args.velocity_source is not None,
+    }
+    if mode == "gnss" and any(unused.values()):
+        names = [name for name, given in unused.items() if given]
+        them = "them" if len(names) > 1 else "it"
+        raise CurbsideInputError(
+            ", ".join(names), "not used: --mode gnss reports the fixes as they are, with no particle filter "
+            f"and no inertial velocity; drop {them}, or choose --mode inertial, paper or fused"
+        )
+    if mode == "inertial" and fix_lag != "off":
+        raise CurbsideInputError("--fix-lag", "not used: --mode inertial tracks without GNSS fixes; drop it, "
+                                              "or choose --mode paper or fused")
+    (unseen, unseen_here), (familiar, familiar_here) = (
+        _given_mode(args, section, replayed) for section in ("unseen_velocity", "familiar_velocity"))
+    if (unseen_here or familiar_here) and unseen == "on" and familiar not in (None, "off"):
+        raise CurbsideInputError(
+            f"--familiar-velocity {familiar}", "not used with --unseen-velocity on: the motion model for a "
+            "velocity model new to the phone replaces the calm one from the start; give one of them"
+        )
 
 
 def _run(args: argparse.Namespace) -> int:
@@ -203,11 +257,19 @@ def _load_weights(weights: str | None) -> RoninResNet | None:
 
 
 def _check_weights_used(args: argparse.Namespace, config: RunConfig, session: Session) -> None:
-    """Refuse ``--ronin-weights`` on a session whose ``velocity.csv`` the ``auto`` source would use."""
-    if args.ronin_weights and config.engine.velocity_source == "auto" and session.velocity is not None:
+    """Refuse ``--ronin-weights`` on a session whose ``velocity.csv``, or whose simulated IMU's PDR (see
+    :func:`~curbside.localize.session.warn_if_simulated_imu`), the ``auto`` source would use."""
+    if not args.ronin_weights or config.engine.velocity_source != "auto":
+        return
+    if session.velocity is not None:
         raise CurbsideInputError(
             "--ronin-weights", f"not used: {session.file_source('velocity.csv')} is the velocity under "
             "--velocity-source auto; give --velocity-source ronin to run RoNIN on imu.csv"
+        )
+    if session.simulated:
+        raise CurbsideInputError(
+            "--ronin-weights", f"not used: {session.file_source('imu.csv')} is simulated, so "
+            "--velocity-source auto tracks with PDR; give --velocity-source ronin to run RoNIN on it anyway"
         )
 
 
@@ -223,7 +285,7 @@ def _print_summary(output: str, result: TrackResult, summary: dict | None) -> No
         f"{result.recoveries} recoveries"
         + (f", {result.heading_corrections} heading corrections" if result.heading_corrections else "")
     )
-    if result.unseen_velocity_from_s is not None:
+    if result.unseen_velocity_from_s is not None and result.mode != "gnss":
         print(
             f"{output}: from t = {result.unseen_velocity_from_s:.1f} s, the motion model for a velocity "
             "model new to the phone or the place (--unseen-velocity)"
@@ -335,7 +397,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "--velocity-source",
         choices=VELOCITY_SOURCES,
         default=None,
-        help="auto (default): velocity.csv, else RoNIN on imu.csv, else PDR",
+        help="auto (default): velocity.csv, else RoNIN on imu.csv (PDR on one localize simulate made, "
+        "which RoNIN reads badly), else PDR",
     )
     parser.add_argument(
         "--ronin-weights",

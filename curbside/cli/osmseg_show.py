@@ -3,11 +3,8 @@
 from __future__ import annotations
 
 import argparse
-import logging
 
 from curbside.cli.common import OVERWRITE_FILE_HELP
-
-log = logging.getLogger(__name__)
 
 
 def add_bbox_option(parser: argparse.ArgumentParser, help_text: str) -> None:
@@ -31,7 +28,8 @@ def _show(args: argparse.Namespace) -> int:
 
     layers = read_map(args.map)
     path = render_map(layers, args.output, bbox=bbox)
-    log.info("wrote %s", path)
+    window = "" if bbox is None else f", --bbox {' '.join(f'{v:g}' for v in bbox)}"
+    print(f"wrote {path} ({args.map}{window}; {path.stat().st_size / 1e6:.1f} MB)")
     return 0
 
 

@@ -9,6 +9,7 @@ contributors"); figures of one configuration say which jaywalk weight and which 
 from __future__ import annotations
 
 import math
+import textwrap
 from pathlib import Path
 from typing import Any
 
@@ -20,6 +21,7 @@ import numpy as np  # noqa: E402
 import pandas as pd  # noqa: E402
 from matplotlib import patheffects  # noqa: E402
 from matplotlib.patches import Patch  # noqa: E402
+from matplotlib.text import Text  # noqa: E402
 from mpl_toolkits.axes_grid1.anchored_artists import AnchoredSizeBar  # noqa: E402
 
 from curbside import settings  # noqa: E402
@@ -44,6 +46,52 @@ def attribution(layers: MapLayers | None) -> str:
     """The map's attribution line (OSM's by default)."""
     meta = layers.meta if layers is not None else {}
     return str(meta.get("attribution") or settings.osm_attribution)
+
+
+#: Room (pixels at the figure's dpi) kept between a title wrapped to fit and the figure's side.
+TITLE_MARGIN_PX = 8.0
+
+
+def _wrap_to_width(text: Text, width_px: float) -> bool:
+    """Break ``text`` at spaces into the fewest lines no wider than ``width_px`` (a word wider than that
+    stays whole); whether it was wider."""
+    renderer = text.figure.canvas.get_renderer()
+    if text.get_window_extent(renderer).width <= width_px:
+        return False
+    lines = text.get_text().splitlines()
+    longest_word = max(len(word) for line in lines for word in line.split() or [""])
+    for chars in range(max(map(len, lines)) - 1, max(longest_word, 1) - 1, -1):
+        text.set_text("\n".join(textwrap.fill(line, chars, break_long_words=False) for line in lines))
+        if text.get_window_extent(renderer).width <= width_px:
+            break
+    return True
+
+
+def _suptitle(fig: plt.Figure, title: str, **kwargs: Any) -> None:
+    """``fig.suptitle(title, **kwargs)``, wrapped to the figure's width (a long map name no longer cuts
+    the title off at both sides)."""
+    _wrap_to_width(fig.suptitle(title, **kwargs), fig.bbox.width - 2 * TITLE_MARGIN_PX)
+
+
+def _fit_axes_titles(fig: plt.Figure) -> bool:
+    """Wrap every axes title that runs past a side of the figure, where the axes are now; whether one
+    was wrapped."""
+    width = fig.bbox.width
+    wrapped = False
+    for ax in fig.axes:
+        if not (ax.get_visible() and ax.title.get_text()):
+            continue
+        centre = (ax.get_position().x0 + ax.get_position().x1) / 2 * width
+        wrapped |= _wrap_to_width(ax.title, 2 * min(centre, width - centre) - 2 * TITLE_MARGIN_PX)
+    return wrapped
+
+
+def _tight_layout_fitted(fig: plt.Figure, **kwargs: Any) -> None:
+    """``fig.tight_layout(**kwargs)`` with the axes titles wrapped to fit where it puts the axes (laid out
+    again when one was wrapped, for the height it gained)."""
+    fig.tight_layout(**kwargs)
+    if _fit_axes_titles(fig):
+        fig.tight_layout(**kwargs)
 
 
 def _nice_length(max_m: float) -> float:
@@ -181,10 +229,10 @@ def fig_tracks(
     handles += _method_handles([m for m in METHODS if m in shown]) + class_handles(layers)
     ncol = min(len(handles), 3 if cols == 1 else 5)
     fig.legend(handles=handles, loc="lower center", ncol=ncol, fontsize=8, frameon=False)
-    fig.suptitle(f"{title} ({config_label(base)})")
+    _suptitle(fig, f"{title} ({config_label(base)})")
     legend_in = 0.22 * math.ceil(len(handles) / ncol) + 0.15
     # h_pad: room between a panel and the title of the one below, so that each title reads as its own
-    fig.tight_layout(rect=(0, legend_in / fig.get_figheight(), 1, 1), h_pad=2.0)
+    _tight_layout_fitted(fig, rect=(0, legend_in / fig.get_figheight(), 1, 1), h_pad=2.0)
     return fig
 
 
@@ -247,7 +295,9 @@ def fig_particles(results: list[dict], layers: MapLayers | None, base: dict[str,
     first = by_method[methods[0]]
     n = len(first["snapshots"])
     half = PARTICLE_PANEL_HALF_M
-    fig, axes = plt.subplots(n, len(methods), figsize=(4.0 * len(methods), 4.1 * n + 0.95), squeeze=False)
+    # at least two panels wide: room for the title and the legend's four columns over one method's panel
+    fig, axes = plt.subplots(n, len(methods), figsize=(4.0 * max(len(methods), 2), 4.1 * n + 0.95),
+                             squeeze=False)
     gt_track = first["track"]
     for k in range(n):
         snap0 = first["snapshots"][k]
@@ -274,8 +324,8 @@ def fig_particles(results: list[dict], layers: MapLayers | None, base: dict[str,
     truth = plt.Line2D([], [], ls="", marker="*", ms=12, color="k", label="ground truth")
     handles = [*_method_handles(methods), fix_handle, truth, *class_handles(layers)]
     fig.legend(handles=handles, loc="lower center", ncol=4, fontsize=8, frameon=False)
-    fig.suptitle(f"Fig. 3  Particle clouds, {session} ({config_label(base)})")
-    fig.tight_layout(rect=(0, 0.75 / fig.get_figheight(), 1, 1))
+    _suptitle(fig, f"Fig. 3  Particle clouds, {session} ({config_label(base)})")
+    _tight_layout_fitted(fig, rect=(0, 0.75 / fig.get_figheight(), 1, 1))
     return fig
 
 
@@ -315,8 +365,8 @@ def fig_cdf(
     fig, axes = plt.subplots(1, len(groups), figsize=(6.0 * len(groups), 4.6), squeeze=False)
     for ax, (name, group) in zip(axes.ravel(), groups.items(), strict=True):
         _cdf_axes(ax, group, base, name)
-    fig.suptitle(f"Fig. 4  Euclidean error CDF ({config_label(base)})")
-    fig.tight_layout()
+    _suptitle(fig, f"Fig. 4  Euclidean error CDF ({config_label(base)})")
+    _tight_layout_fitted(fig)
     return fig
 
 
@@ -343,7 +393,7 @@ def fig_per_path(
     ax.set_ylabel("mean Euclidean error (m)")
     ax.legend(fontsize=8)
     ax.set_title(f"{title} ({config_label(base)})")
-    fig.tight_layout()
+    _tight_layout_fitted(fig)
     return fig
 
 
@@ -384,8 +434,8 @@ def fig_session_medians(per_session: pd.DataFrame, base: dict[str, Any], ratio_l
         ax.set_title(METHOD_LABELS[method])
         ax.grid(alpha=0.3)
         ax.legend(fontsize=7, loc="upper right")  # above the 1.5x line: the empty corner
-    fig.suptitle(f"Per-session median error against GNSS ({config_label(base)})")
-    fig.tight_layout()
+    _suptitle(fig, f"Per-session median error against GNSS ({config_label(base)})")
+    _tight_layout_fitted(fig)
     return fig
 
 
@@ -425,8 +475,11 @@ def fig_reliability(rows: list[dict[str, Any]], base: dict[str, Any]) -> plt.Fig
         axes[1][0].set_ylabel("share of footsteps the radius held")
     title = "How far to trust segment_prob" + (" and accuracy_m" if radius else "")
     note = "marker area (top): the bin's share of the footsteps"
-    fig.suptitle(f"{title} ({config_label(base)})\n{note}", fontsize=11)
+    # the configuration on a line of its own: a long map name wraps there, not mid-sentence
+    _suptitle(fig, f"{title}\n({config_label(base)})\n{note}", fontsize=11)
     fig.get_layout_engine().set(hspace=0.05)
+    fig.get_layout_engine().execute(fig)
+    _fit_axes_titles(fig)
     return fig
 
 

@@ -310,6 +310,26 @@ def _simplify(pts: np.ndarray, kinds: np.ndarray, tolerance_m: float = 0.75) -> 
     return np.asarray(out_pts), np.asarray(out_kinds)
 
 
+def far_from_footways(wg: WalkGraph, spec: RouteSpec, frame: LocalFrame) -> str | None:
+    """Why no walk of ``spec`` can start on ``wg``, or ``None`` when a footway lies within
+    ``spec.start_radius_m`` of its start: ``no footway of the OSM extract within 80 m of (LON, LAT), the
+    nearest is 3.1 km away; the extract's footways span lon ... to ..., lat ... to ...``."""
+    lon, lat = spec.start_lonlat
+    sx, sy = frame.to_xy(np.array([lon]), np.array([lat]))
+    xy = wg.xy[np.fromiter(wg.graph.nodes, np.int64)]
+    if len(xy) == 0:
+        return "the OSM extract has no footway (footway=sidewalk or footway=crossing)"
+    nearest_m = float(np.min(np.hypot(xy[:, 0] - sx[0], xy[:, 1] - sy[0])))
+    if nearest_m <= spec.start_radius_m:
+        return None
+    node_lon, node_lat = frame.to_lonlat(xy[:, 0], xy[:, 1])
+    return (
+        f"no footway of the OSM extract within {spec.start_radius_m:g} m of ({lon:.7g}, {lat:.7g}), the "
+        f"nearest is {nearest_m / 1000:.1f} km away; the extract's footways span lon {node_lon.min():.4f} to "
+        f"{node_lon.max():.4f}, lat {node_lat.min():.4f} to {node_lat.max():.4f}"
+    )
+
+
 def generate_route(
     wg: WalkGraph,
     spec: RouteSpec,
@@ -346,7 +366,7 @@ def generate_route(
     Raises
     ------
     CurbsideInputError
-        No walk satisfied the request.
+        No footway near the start (:func:`far_from_footways`), or no walk satisfied the request.
     """
     rng = np.random.default_rng(seed)
     sx, sy = frame.to_xy(np.array([spec.start_lonlat[0]]), np.array([spec.start_lonlat[1]]))
@@ -354,7 +374,7 @@ def generate_route(
     d = np.hypot(wg.xy[nodes, 0] - sx[0], wg.xy[nodes, 1] - sy[0])
     starts = nodes[d <= spec.start_radius_m]
     if len(starts) == 0:
-        raise CurbsideInputError(spec.name, "no walkable footway near the requested start")
+        raise CurbsideInputError(spec.name, far_from_footways(wg, spec, frame) or "no footway near its start")
     attempts = tqdm(range(1, max_attempts + 1), desc=f"{spec.name}: route search", unit="walk",
                     disable=None if progress else True, leave=False)
     for attempt in attempts:

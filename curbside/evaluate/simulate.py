@@ -31,6 +31,7 @@ import pandas as pd
 import shapely
 from tqdm.auto import tqdm
 
+from curbside import settings
 from curbside.errors import CurbsideInputError
 from curbside.evaluate import routes as routes_mod
 from curbside.evaluate.gnss_model import GnssErrorModel, simulate_gnss
@@ -231,12 +232,29 @@ def _session_meta(
     }
 
 
-def sf6_routes(osm: OsmSource | None = None) -> tuple[list[routes_mod.Route], LocalFrame, OsmSource]:
-    """The benchmark's six routes (deterministic: each has a fixed route seed)."""
-    osm = osm or load_osm()
+def sf6_routes(
+    osm: OsmSource | None = None, source: str | Path | None = None, only: str | None = None
+) -> tuple[list[routes_mod.Route], LocalFrame, OsmSource]:
+    """The benchmark's six routes (deterministic: each has a fixed route seed), or the one named ``only``.
+
+    Raises
+    ------
+    CurbsideInputError
+        A route outside the extract ``osm`` (named by ``source``, its file; default: the bundled one).
+    """
+    osm = osm or load_osm(source)
     frame = LocalFrame(osm.crs)
     wg = routes_mod.build_walk_graph(osm)
-    out = [routes_mod.generate_route(wg, spec, frame, seed=1) for spec in routes_mod.SF6]
+    specs = [spec for spec in routes_mod.SF6 if only in (None, spec.name)]
+    for spec in specs:
+        far = routes_mod.far_from_footways(wg, spec, frame)
+        if far:
+            raise CurbsideInputError(
+                source or settings.default_osm_file,
+                f"route {spec.name} lies outside it: {far}; the benchmark's routes need downtown San "
+                "Francisco (leave --osm out for the bundled extract)",
+            )
+    out = [routes_mod.generate_route(wg, spec, frame, seed=1) for spec in specs]
     return out, frame, osm
 
 
@@ -287,7 +305,7 @@ def simulate_benchmark(
     if not seed_list:
         raise CurbsideInputError("--seeds", "need at least one seed")
     out_dir = Path(out_dir)
-    route_list, frame, osm = sf6_routes(load_osm(osm_file))
+    route_list, frame, osm = sf6_routes(load_osm(osm_file), osm_file)
     out_dir.mkdir(parents=True, exist_ok=True)
     written = []
     jobs = [(r, s) for r in route_list for s in seed_list]

@@ -481,7 +481,8 @@ def suite_summary(report_dir: str | Path) -> str:
     ]
     for subset, rows in base.groupby("subset", sort=False):
         n = doc["sessions_per_subset"].get(subset, "?")
-        lines.append(f"  {f'{subset} ({n} sessions)':<24} CSA  median  p90 (m)")
+        sessions = f"{subset} ({n} session{'' if n == 1 else 's'})"
+        lines.append(f"  {sessions:<24} CSA  median  p90 (m)")
         for method in (*SUITE_METHODS, SMOOTHED_METHOD):
             r = rows[rows["method"] == method]
             if len(r):

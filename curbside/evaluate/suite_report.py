@@ -219,7 +219,9 @@ def interval_tables(
     maps = map_intervals(results, base, seed=config.filter_seed)
     trust = reliability_rows(results, figure_base(config), subset_of)
     note = INTERVAL_NOTE.format(unit="subset's sessions", points="footsteps", one="session") + (
-        " The three sessions of a route are resampled as independent, so the intervals are, if "
+        " Each route was walked once (--seeds 1), so each session resampled is a route of its own."
+        if config.seeds == 1 else
+        f" The {config.seeds} sessions of a route are resampled as independent, so the intervals are, if "
         "anything, too narrow for the routes themselves.")
     tables = {
         "subsets": None if intervals.empty else interval_table(

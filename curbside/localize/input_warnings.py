@@ -18,14 +18,19 @@ logger = logging.getLogger(__name__)
 
 
 def report_gnss_holds(session: Session, config: RunConfig) -> None:
-    """Warn of GNSS gaps longer than ``engine.interp_max_gap_s``, which the ``gnss`` track holds through."""
+    """Warn of GNSS gaps longer than ``engine.interp_max_gap_s``, which the ``gnss`` track holds through.
+
+    A simulated session's gaps (``meta.json`` with a ``simulation`` record: the GNSS model's outages, a
+    benchmark's own walks) are logged at INFO: there is nothing in them to fix.
+    """
     gnss = session.gnss
     if gnss is None or len(gnss) < 2:
         return
     gaps = np.diff(gnss["t"].to_numpy(float))
     long = gaps[gaps > config.engine.interp_max_gap_s]
     if len(long):
-        logger.warning(
+        logger.log(
+            logging.INFO if session.simulated else logging.WARNING,
             "%s: %d GNSS gap(s) longer than %g s (longest %.0f s): the gnss track holds the last fix "
             "through them",
             session.source,

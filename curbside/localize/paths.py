@@ -70,6 +70,29 @@ def check_source_path(src: str | Path) -> str | None:
     raise CurbsideInputError(path, "unknown format (expected a folder, .zip, .h5[::TRIAL] or .gpx)")
 
 
+def check_whole_file(path: str | Path, option: str) -> None:
+    """Refuse ``FILE::NAME`` for an option that takes a whole dataset file (``train-ronin --ipin``).
+
+    Parameters
+    ----------
+    path
+        The option's value.
+    option
+        The option, for the message.
+
+    Raises
+    ------
+    CurbsideInputError
+        ``path`` names one recording of a file (``FILE::NAME``) where the whole file is wanted (a file
+        whose own name holds ``::`` passes).
+    """
+    file, name = split_trial(path)
+    if name is not None and not Path(path).exists():
+        picked = f"{TRIAL_SEPARATOR}{name}"
+        raise CurbsideInputError(path, f"{option} takes the whole file, not one recording of it ('{picked}' "
+                                       f"is not supported here): give {option} {file}")
+
+
 def check_run_folder(folder: str | Path) -> tuple[Path, Path]:
     """Check that ``folder`` is a run folder of ``localize run -o`` (it holds ``track.csv``).
 

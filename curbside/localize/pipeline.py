@@ -15,7 +15,8 @@
 
 Inputs, unless the run's :class:`~curbside.localize.runconfig.EngineConfig` forces one: velocity from
 ``velocity.csv``, else the RoNIN model (the bundled one unless the caller gives its own) on ``imu.csv``, else
-PDR; footsteps from ``steps.csv``,
+PDR (and PDR on an ``imu.csv`` that ``localize simulate`` made: RoNIN reads it about 100 deg off, see
+:func:`~curbside.localize.session.warn_if_simulated_imu`); footsteps from ``steps.csv``,
 else detected in ``imu.csv``, else a fixed cadence. Everything goes through
 :class:`~curbside.localize.engine.SessionEngine`, the same engine the live service streams into.
 """
@@ -207,6 +208,11 @@ def _ronin_model(weights: RoninResNet | str | Path | None, config: RunConfig) ->
     return model
 
 
+#: What ``--velocity-source auto`` does with an IMU curbside simulated, which RoNIN reads badly.
+_AUTO_ON_SIMULATED = ("--velocity-source auto tracks with PDR instead (--velocity-source ronin runs RoNIN "
+                      "anyway)")
+
+
 def _velocity(
     session: Session, config: RunConfig, steps: np.ndarray | None, progress: bool = False,
     ronin_weights: RoninResNet | str | Path | None = None,
@@ -214,7 +220,7 @@ def _velocity(
     """The session's world-frame velocity, its source name and, for RoNIN, whether the model knows the
     recording (``run.json``'s ``ronin_familiarity``; see the module docstring); ``progress``: a progress
     bar over RoNIN's inference on a terminal; ``ronin_weights``: the RoNIN model (default: the bundled
-    one)."""
+    one). Under ``auto``, an IMU curbside simulated goes to PDR, not to RoNIN (one warning says so)."""
     source = config.engine.velocity_source
     if source in ("auto", "file") and session.velocity is not None:
         return session.velocity, "file", None
@@ -230,6 +236,9 @@ def _velocity(
             session.source, "no velocity.csv or imu.csv: the inertial, paper and fused modes need inertial "
             "data"
         )
+    imu_source = session.file_source("imu.csv")
+    if source == "auto" and warn_if_simulated_imu(session, imu_source, _AUTO_ON_SIMULATED):
+        source = "pdr"
     if source in ("auto", "ronin"):
         model = _ronin_model(ronin_weights, config)
         try:

@@ -16,9 +16,19 @@ import numbers
 from dataclasses import dataclass, field, replace
 from typing import Any
 
-from curbside.configio import from_dict, to_dict, with_overrides
+from curbside.configio import (
+    beyond_memory,
+    check,
+    from_dict,
+    non_negative,
+    positive,
+    require,
+    to_dict,
+    unit_interval,
+    with_overrides,
+)
 from curbside.errors import CurbsideInputError
-from curbside.localize.filter.config import FilterConfig
+from curbside.localize.filter.config import BYTES_PER_PARTICLE, FilterConfig
 from curbside.localize.pdr import PdrConfig
 from curbside.localize.ronin.stream import RoninStreamConfig
 from curbside.localize.runconstants import (
@@ -26,6 +36,7 @@ from curbside.localize.runconstants import (
     FAMILIAR_VELOCITY_MODES,
     FIX_ASSOCIATIONS,
     FIX_LAG_MODES,
+    MAX_FIX_LAG_S,
     MODES,
     STEP_SOURCES,
     UNSEEN_VELOCITY_DEFAULTS,
@@ -109,11 +120,6 @@ def _override_value(value: Any) -> Any:
     return value
 
 
-def _check(condition: bool, message: str) -> None:
-    if not condition:
-        raise ValueError(message)
-
-
 @dataclass(frozen=True)
 class EngineConfig:
     """How a session's streams become filter updates.
@@ -121,7 +127,8 @@ class EngineConfig:
     Attributes
     ----------
     velocity_source
-        ``auto`` (``velocity.csv``, else RoNIN on ``imu.csv``, else PDR), ``file``, ``ronin`` or ``pdr``.
+        ``auto`` (``velocity.csv``, else RoNIN on ``imu.csv``, PDR on one ``localize simulate`` made or
+        without RoNIN), ``file``, ``ronin`` or ``pdr``.
     step_source
         ``auto`` (``steps.csv``, else detected in ``imu.csv``, else a fixed cadence), ``file``,
         ``detect`` or ``cadence``.
@@ -175,33 +182,21 @@ class EngineConfig:
     ronin: RoninStreamConfig = field(default_factory=RoninStreamConfig)
 
     def __post_init__(self) -> None:
-        _check(
+        check(
             self.velocity_source in VELOCITY_SOURCES,
             f"velocity_source must be one of {VELOCITY_SOURCES}, got {self.velocity_source!r}",
         )
-        _check(
+        check(
             self.step_source in STEP_SOURCES,
             f"step_source must be one of {STEP_SOURCES}, got {self.step_source!r}",
         )
-        _check(
+        check(
             self.fix_association in FIX_ASSOCIATIONS,
             f"fix_association must be one of {FIX_ASSOCIATIONS}, got {self.fix_association!r}",
         )
-        _check(
-            min(self.cadence_s, self.max_update_interval_s, self.velocity_max_gap_s) > 0,
-            "cadence_s, max_update_interval_s and velocity_max_gap_s must be positive",
-        )
-        _check(
-            min(
-                self.interp_max_gap_s,
-                self.max_fix_age_s,
-                self.heading_align_distance_m,
-                self.extent_tolerance_m,
-                self.standing_speed_mps,
-            )
-            >= 0,
-            "fix gaps, align distance, extent tolerance and standing speed must be >= 0",
-        )
+        positive(self, "cadence_s", "max_update_interval_s", "velocity_max_gap_s")
+        non_negative(self, "interp_max_gap_s", "max_fix_age_s", "heading_align_distance_m",
+                     "extent_tolerance_m", "standing_speed_mps")
 
     @property
     def fix_lookahead_s(self) -> float:
@@ -247,21 +242,17 @@ class UnseenVelocityConfig:
     scale_correction_fraction: float = UNSEEN_VELOCITY_DEFAULTS.scale_correction_fraction
 
     def __post_init__(self) -> None:
-        _check(
+        check(
             self.mode in UNSEEN_VELOCITY_MODES,
             f"mode must be one of {UNSEEN_VELOCITY_MODES}, got {self.mode!r}",
         )
-        _check(self.still_updates >= 1, f"still_updates must be at least 1, got {self.still_updates}")
-        _check(
+        check(self.still_updates >= 1, f"still_updates must be at least 1, got {self.still_updates}")
+        check(
             self.step_noise_across_fraction is None or self.step_noise_across_fraction >= 0,
             f"step_noise_across_fraction must be non-negative, got {self.step_noise_across_fraction}",
         )
-        _check(
-            min(self.still_speed_mps, self.settle_s, self.step_noise_fraction, self.standing_speed_mps) >= 0
-            and 0.0 <= self.scale_correction_fraction <= 1.0,
-            "still_speed_mps, settle_s, step_noise_fraction and standing_speed_mps must be >= 0, "
-            "scale_correction_fraction in [0, 1]",
-        )
+        non_negative(self, "still_speed_mps", "settle_s", "step_noise_fraction", "standing_speed_mps")
+        unit_interval(self, "scale_correction_fraction")
 
 
 @dataclass(frozen=True)
@@ -315,26 +306,14 @@ class FamiliarVelocityConfig:
     scale_correction_fraction: float = FAMILIAR_VELOCITY_DEFAULTS.scale_correction_fraction
 
     def __post_init__(self) -> None:
-        _check(
+        check(
             self.mode in FAMILIAR_VELOCITY_MODES,
             f"mode must be one of {FAMILIAR_VELOCITY_MODES}, got {self.mode!r}",
         )
-        _check(
-            self.window_s > 0 and self.min_speed_mps > 0 and self.jitter_max > 0,
-            f"window_s, min_speed_mps and jitter_max must be positive, got {self.window_s}, "
-            f"{self.min_speed_mps}, {self.jitter_max}",
-        )
-        _check(
-            self.min_samples >= 1 and self.final_samples >= 0,
-            f"need min_samples >= 1 and final_samples >= 0, got {self.min_samples}, {self.final_samples}",
-        )
-        _check(
-            min(self.heading_noise_deg, self.step_noise_fraction, self.scale_init_sigma) >= 0
-            and 0.0 <= self.scale_correction_fraction <= 1.0,
-            "heading_noise_deg, step_noise_fraction and scale_init_sigma must be non-negative, "
-            f"scale_correction_fraction in [0, 1]; got {self.heading_noise_deg}, {self.step_noise_fraction}, "
-            f"{self.scale_init_sigma}, {self.scale_correction_fraction}",
-        )
+        positive(self, "window_s", "min_speed_mps", "jitter_max")
+        check(self.min_samples >= 1, f"min_samples must be at least 1, got {self.min_samples}")
+        non_negative(self, "final_samples", "heading_noise_deg", "step_noise_fraction", "scale_init_sigma")
+        unit_interval(self, "scale_correction_fraction")
 
 
 @dataclass(frozen=True)
@@ -356,9 +335,10 @@ class FixLagConfig:
         estimate gains nothing on the held-out trials and reads a lag into 2 of the simulated open-sky
         walks, whose fixes have none (docs/filter.md, "Fixes that trail the walker").
     lag_s
-        The lag compensated by ``fixed`` and by a stream under ``auto`` (s; 0: none).
+        The lag compensated by ``fixed`` and by a stream under ``auto`` (s; 0: none; at most 10 s,
+        :data:`~curbside.localize.runconstants.MAX_FIX_LAG_S`: a receiver lags a few seconds).
     candidates_s
-        The lags the estimate chooses from (besides 0).
+        The lags the estimate chooses from (besides 0): at least one, each in (0, 10] s.
     block_s, hop_s, min_fixes
         The recording is cut into blocks of ``block_s`` seconds every ``hop_s``; a block with at least
         ``min_fixes`` usable fixes is scored.
@@ -381,21 +361,19 @@ class FixLagConfig:
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "candidates_s", tuple(float(c) for c in self.candidates_s))
-        _check(self.mode in FIX_LAG_MODES, f"mode must be one of {FIX_LAG_MODES}, got {self.mode!r}")
-        _check(
-            self.lag_s >= 0 and all(c > 0 for c in self.candidates_s),
-            f"lag_s must be non-negative and candidates_s positive, got {self.lag_s}, {self.candidates_s}",
-        )
-        _check(
-            self.block_s > 0 and 0 < self.hop_s <= self.block_s and self.min_fixes >= 3,
-            f"need block_s > 0, 0 < hop_s <= block_s and min_fixes >= 3, got {self.block_s}, "
-            f"{self.hop_s}, {self.min_fixes}",
-        )
-        _check(
-            0 < self.ratio_max <= 1 and 0 <= self.min_block_share <= 1 and self.accuracy_max_m > 0,
-            f"need 0 < ratio_max <= 1, min_block_share in [0, 1] and accuracy_max_m > 0, got "
-            f"{self.ratio_max}, {self.min_block_share}, {self.accuracy_max_m}",
-        )
+        check(self.mode in FIX_LAG_MODES, f"mode must be one of {FIX_LAG_MODES}, got {self.mode!r}")
+        why = f"{MAX_FIX_LAG_S:g}] s (a receiver's smoothing lags a few seconds)"
+        require(f"lie in [0, {why}", lambda v: 0 <= v <= MAX_FIX_LAG_S, {"lag_s": self.lag_s})
+        check(bool(self.candidates_s), "candidates_s must list at least one lag for the estimate to weigh "
+              "against none, got []")
+        require(f"lie in (0, {why}", lambda v: 0 < v <= MAX_FIX_LAG_S,
+                {f"candidates_s[{i}]": c for i, c in enumerate(self.candidates_s)})
+        positive(self, "block_s", "accuracy_max_m")
+        check(0 < self.hop_s <= self.block_s,
+              f"hop_s must lie in (0, block_s], got hop_s {self.hop_s} and block_s {self.block_s}")
+        check(self.min_fixes >= 3, f"min_fixes must be at least 3, got {self.min_fixes}")
+        require("lie in (0, 1]", lambda v: 0 < v <= 1, {"ratio_max": self.ratio_max})
+        unit_interval(self, "min_block_share")
 
 
 @dataclass(frozen=True)
@@ -433,12 +411,25 @@ class RunConfig:
     fix_lag: FixLagConfig = field(default_factory=FixLagConfig)
 
     def __post_init__(self) -> None:
-        _check(self.mode in MODES, f"mode must be one of {MODES}, got {self.mode!r}")
+        check(self.mode in MODES, f"mode must be one of {MODES}, got {self.mode!r}")
         # numpy would refuse a negative seed only when the filter starts (an internal error by then)
-        _check(isinstance(self.seed, numbers.Integral) and self.seed >= 0,
+        check(isinstance(self.seed, numbers.Integral) and self.seed >= 0,
                f"seed must be a non-negative integer, got {self.seed!r}")
         # the sections check their ranges with comparisons, which inf passes and nan escapes
         check_finite(to_dict(self))
+        self._check_particle_memory()
+
+    def _check_particle_memory(self) -> None:
+        """Refuse particles whose arrays need more memory than the machine has (two filters track
+        under ``familiar_velocity.mode = auto``)."""
+        if self.mode == "gnss":
+            return
+        n = self.filter.n_particles
+        filters = 2 if self.familiar_velocity.mode == "auto" else 1
+        lacking = beyond_memory(filters * n * BYTES_PER_PARTICLE)
+        two = " (two filters under familiar_velocity.mode auto)" if filters == 2 else ""
+        check(lacking is None, f"filter.n_particles (--particles) {n}: the particle arrays{two} would need "
+              f"{lacking}")
 
     @classmethod
     def for_mode(cls, mode: str, **kwargs: Any) -> RunConfig:
@@ -447,7 +438,7 @@ class RunConfig:
         Only curbside fused switches to the unseen-velocity motion model (``auto``); the baselines
         (``inertial``, ``paper``) keep their own motion model and take the fixes as they come.
         """
-        _check(mode in MODES, f"mode must be one of {MODES}, got {mode!r}")
+        check(mode in MODES, f"mode must be one of {MODES}, got {mode!r}")
         preset = FilterConfig.preset("paper" if mode == "paper" else "fused")
         if mode != "fused":
             kwargs.setdefault("unseen_velocity", UnseenVelocityConfig(mode="off"))

@@ -19,6 +19,11 @@ FIX_ASSOCIATIONS = ("interpolate", "once")
 UNSEEN_VELOCITY_MODES = ("off", "on", "auto")
 FAMILIAR_VELOCITY_MODES = ("off", "on", "auto")
 FIX_LAG_MODES = ("off", "fixed", "auto")
+#: The longest GNSS fix lag a run compensates or estimates (s). A phone receiver's smoothing trails the
+#: walker by a few seconds (the estimate, whose candidates run from 1 to 4 s, chose 4 s at most on the
+#: IPIN trials); a lag of ``T`` moves each fix forward by about ``T`` times the walking speed, 14 m for
+#: 10 s at 1.4 m/s, and a lag much longer than the walk moves it by the whole inertial path so far.
+MAX_FIX_LAG_S = 10.0
 
 #: The defaults of :class:`~curbside.localize.runconfig.UnseenVelocityConfig`, field by field (its
 #: docstring says what each is and how it was chosen). Read-only.

@@ -105,6 +105,11 @@ class Session:
         return out
 
     @property
+    def simulated(self) -> bool:
+        """Whether ``localize simulate`` made the session (``meta.json`` holds its ``simulation`` record)."""
+        return "simulation" in self.meta
+
+    @property
     def start_pose(self) -> dict[str, float] | None:
         """The known start pose ``{"lat", "lon", "heading_deg"}`` from ``meta.json``, if any."""
         start = self.meta.get("start")
@@ -118,18 +123,42 @@ class Session:
         return float(min(t[0] for t in ts)), float(max(t[-1] for t in ts))
 
 
-def warn_if_simulated_imu(session: Session, source: str) -> None:
-    """Log a WARNING before RoNIN reads a simulated session's ``imu.csv``.
+def warn_if_simulated_imu(session: Session, source: str, instead: str | None = None) -> bool:
+    """Log a WARNING when RoNIN is to read a simulated session's ``imu.csv``, and say whether it is one.
 
     The simulator's phone IMU (``localize simulate --imu``) models what the footstep detector and PDR
     need (gait accelerations, the hand's orientation), not the signal a network trained on real phones
     reads: RoNIN's velocity on it is off by about 100 degrees at the median (docs/evaluate.md). The
-    session's ``velocity.csv`` is the simulator's stand-in for RoNIN.
+    session's ``velocity.csv``, when the simulator wrote one, is its stand-in for RoNIN. Curbside knows
+    an IMU it simulated by ``meta.json``'s ``simulation`` record, which ``localize simulate`` writes.
+
+    Parameters
+    ----------
+    session
+        The recording.
+    source
+        How the message names its ``imu.csv``.
+    instead
+        What the caller does instead of running RoNIN, said at the end of the warning (``None``: RoNIN
+        runs, and the warning names what the session offers instead: its ``velocity.csv`` if it has one,
+        and PDR).
+
+    Returns
+    -------
+    bool
+        Whether the session's IMU is simulated (and a warning was logged).
     """
-    if "simulation" in session.meta:
-        logger.warning("%s is simulated: its IMU is made for the footstep detector and PDR, and RoNIN's "
-                       "velocity on it is far off (about 100 deg); use the session's velocity.csv "
-                       "(--velocity-source file) or PDR", source)
+    if not session.simulated:
+        return False
+    if instead is None and session.velocity is not None:
+        instead = ("track with the session's velocity.csv, the simulator's stand-in for RoNIN (localize run "
+                   "--velocity-source auto or file), or with PDR (--velocity-source pdr)")
+    elif instead is None:
+        instead = ("track with PDR (localize run --velocity-source auto or pdr), or simulate the stand-in "
+                   "for RoNIN's velocity too (localize simulate without --no-velocity writes velocity.csv)")
+    logger.warning("%s is simulated: its IMU is made for the footstep detector and PDR, and RoNIN's "
+                   "velocity on it is far off (about 100 deg); %s", source, instead)
+    return True
 
 
 def acceleration_unit(xyz: np.ndarray, block: int = 25) -> tuple[str | None, float]:

@@ -50,9 +50,14 @@ from curbside.projection import LocalFrame
 
 log = logging.getLogger(__name__)
 
-#: Colours of further runs, in turn (after :data:`~curbside.osmseg.style.METHOD_COLOURS`, the track
-#: colour of each method, the report's figures' too; none of them the GNSS fixes' blue or the buildings').
-EXTRA_COLOURS: tuple[str, ...] = ("#0072b2", "#cc79a7", "#d55e00", "#17becf", "#bcbd22", "#7f7f7f")
+#: Colours of further runs, in turn: a second run of a method, or a run of no known method (after
+#: :data:`~curbside.osmseg.style.METHOD_COLOURS`, the track colour of each method, the report's figures'
+#: too). Searched so that each stays at least 20 (CIE76 ΔE) from every method colour, the GNSS fixes'
+#: blue, the ground truth's black, the map's fills and each other, for normal vision and under
+#: simulated deuteranopia, protanopia and tritanopia (Machado et al. 2009): 21.7 at the closest pair of
+#: lines, 20.8 from a map fill (the best sixth colour found would bring that down to 20.4). Further runs
+#: repeat them, with a warning.
+EXTRA_COLOURS: tuple[str, ...] = ("#3416da", "#f07844", "#700f52", "#9e62ff", "#5a0fa5")
 #: Metres of map kept around the tracks and the ground truth (the fitted view leaves room for the panel
 #: beside the walk: that room shows map too).
 MAP_MARGIN_M = 150.0
@@ -165,7 +170,8 @@ def load_run(
 
 
 def label_runs(runs: list[ViewRun], names: list[str] | None = None) -> list[ViewRun]:
-    """Give every run a distinct label: the method's, then the map's name, then a number.
+    """Give every run a distinct label: the method's, then the map's name (runs on several maps), the
+    session's (runs of several sessions), then a number.
 
     Parameters
     ----------
@@ -181,9 +187,12 @@ def label_runs(runs: list[ViewRun], names: list[str] | None = None) -> list[View
             run.label = name
         return runs
     maps = {r.map_path for r in runs}
+    several_sessions = len(session_names(runs)) > 1
     for run in runs:
         if len(maps) > 1:
             run.label = f"{run.label} · {Path(run.map_path).stem if run.map_path else 'no map'}"
+        if several_sessions and run.session is not None:
+            run.label = f"{run.label} · {run.session.name}"
     seen: dict[str, int] = {}
     for run in runs:
         seen[run.label] = seen.get(run.label, 0) + 1
@@ -192,13 +201,39 @@ def label_runs(runs: list[ViewRun], names: list[str] | None = None) -> list[View
     return runs
 
 
-def _colour(run: ViewRun, used: set[str]) -> str:
-    colour = METHOD_COLOURS.get(run.mode)
-    if colour is None or colour in used:
-        spare = [c for c in EXTRA_COLOURS if c not in used]
-        colour = spare[0] if spare else EXTRA_COLOURS[len(used) % len(EXTRA_COLOURS)]
-    used.add(colour)
-    return colour
+def session_names(runs: list[ViewRun]) -> dict[str, str]:
+    """The distinct sessions of the runs that have one: key -> session name, in the runs' order."""
+    return {r.session_key: r.session.name for r in runs if r.session is not None}
+
+
+def run_colours(runs: list[ViewRun]) -> list[str]:
+    """Each run's track colour: its method's (:data:`METHOD_COLOURS`) for the first run of a method,
+    else the next of :data:`EXTRA_COLOURS`; past those, the extra colours again, with a warning."""
+    colours: list[str] = []
+    for run in runs:
+        colour = METHOD_COLOURS.get(run.mode)
+        if colour is None or colour in colours:
+            spare = [c for c in EXTRA_COLOURS if c not in colours]
+            colour = spare[0] if spare else EXTRA_COLOURS[len(colours) % len(EXTRA_COLOURS)]
+        colours.append(colour)
+    if len(set(colours)) < len(runs):
+        log.warning("%d runs on one page share %d colours: tell them apart by their labels in the legend",
+                    len(runs), len(set(colours)))
+    return colours
+
+
+def several_sessions_note(runs: list[ViewRun]) -> str | None:
+    """What a page of runs of several sessions says about it (``None`` for runs of one session).
+
+    The page draws every session's GNSS fixes in one colour and every ground truth in black, and plays
+    each run on its own session's clock; the legend, the panel and each run's label name the session.
+    """
+    names = list(session_names(runs).values())
+    if len(names) < 2:
+        return None
+    return (f"the runs come from {len(names)} sessions ({', '.join(names)}): their GNSS fixes share one "
+            "colour and their ground truths another (the legend names each session's layers), and each run "
+            "plays on its own session's clock")
 
 
 def _extent(runs: list[ViewRun], margin_m: float = 0.0) -> tuple[float, float, float, float]:
@@ -269,8 +304,11 @@ def view_page(
     namer = namer or SegmentNamer()
     if maps is None:
         maps = maps_of(runs, namer.read)
-    used: set[str] = set()
-    runs_data = [run_data(run, _colour(run, used), cloud_every, namer) for run in runs]
+    runs_data = [run_data(run, colour, cloud_every, namer)
+                 for run, colour in zip(runs, run_colours(runs), strict=True)]
+    note = several_sessions_note(runs)
+    if note is not None:
+        log.warning("%s", note)
     sessions = {}
     for run in runs:
         if run.session is not None and run.session_key not in sessions:
@@ -280,7 +318,7 @@ def view_page(
     title = title or f"curbside replay: {', '.join(names)}"
     west, south, east, north = _extent(runs)
     data = {"runs": runs_data, "sessions": list(sessions.values()), "title": title,
-            "bounds": [[south, west], [north, east]], "gnss_colour": GNSS_FIX_COLOUR}
+            "bounds": [[south, west], [north, east]], "gnss_colour": GNSS_FIX_COLOUR, "note": note}
     credits = " · ".join(dict.fromkeys(attribution(layers) for layers in maps.values()))
     script = "\n".join(
         [

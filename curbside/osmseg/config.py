@@ -9,16 +9,13 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
+from curbside.configio import check, non_negative, positive, require
+
 #: What an unmarked crossing (``crossing=unmarked``, ``crossing:markings=no``) may become.
 UNMARKED_CHOICES = ("crosswalk", "street")
 #: Elements this far (m) outside the area to build are still read, so that sidewalks, crosswalks and
 #: buildings at its edge come out whole before the map is clipped.
 READ_MARGIN_M = 60.0
-
-
-def _check(condition: bool, message: str) -> None:
-    if not condition:
-        raise ValueError(message)
 
 
 def _positive_number(value: object) -> bool:
@@ -113,31 +110,21 @@ class SegmentationConfig:
     def __post_init__(self) -> None:
         for name in ("default_carriageway_width_m", "parking_width_m"):
             widths = getattr(self, name)
-            _check(
-                isinstance(widths, dict) and all(_positive_number(v) for v in widths.values()),
-                f"{name} must map names to positive widths, got {widths!r}",
-            )
-        _check("lane" in self.parking_width_m, "parking_width_m needs a 'lane' width")
-        positive = (
-            self.lane_width_m, self.cycle_lane_width_m, self.sidewalk_depth_m, self.mapped_sidewalk_width_m,
-            self.mapped_sidewalk_search_m, self.crosswalk_width_m, self.passage_width_m,
-            self.min_carriageway_half_width_m,
-        )  # fmt: skip
-        _check(min(positive) > 0, "widths, depths and search distances must be positive")
-        non_negative = (
-            self.assumed_parking_width_m, self.min_sidewalk_width_m, self.crosswalk_overlap_m,
-            self.passage_island_area_m2, self.passage_island_thickness_m, self.min_polygon_area_m2,
-        )  # fmt: skip
-        _check(
-            min(non_negative) >= 0,
-            "parking, least sidewalk, crosswalk overlap, island and sliver sizes must be non-negative",
-        )
+            check(isinstance(widths, dict), f"{name} must map names to widths, got {widths!r}")
+            named = {f"{name}.{key}": width for key, width in widths.items()}
+            require("be a positive number", _positive_number, named)
+        check("lane" in self.parking_width_m, "parking_width_m needs a 'lane' width")
+        positive(self, "lane_width_m", "cycle_lane_width_m", "sidewalk_depth_m", "mapped_sidewalk_width_m",
+                 "mapped_sidewalk_search_m", "crosswalk_width_m", "passage_width_m",
+                 "min_carriageway_half_width_m")
+        non_negative(self, "assumed_parking_width_m", "min_sidewalk_width_m", "crosswalk_overlap_m",
+                     "passage_island_area_m2", "passage_island_thickness_m", "min_polygon_area_m2")
         highways = self.sidewalk_highways
-        _check(
+        check(
             not isinstance(highways, str) and all(isinstance(h, str) for h in highways),
             f"sidewalk_highways must be highway class names, got {highways!r}",
         )
-        _check(
+        check(
             self.unmarked_crossing_as in UNMARKED_CHOICES,
             f"unmarked_crossing_as must be one of {', '.join(UNMARKED_CHOICES)}, "
             f"got {self.unmarked_crossing_as!r}",

@@ -16,7 +16,8 @@ import geopandas as gpd
 import shapely
 from matplotlib.axes import Axes
 from matplotlib.figure import Figure
-from matplotlib.patches import Patch, Rectangle
+from matplotlib.patches import Patch
+from mpl_toolkits.axes_grid1.anchored_artists import AnchoredSizeBar
 
 from curbside import __version__
 from curbside.errors import CurbsideInputError
@@ -108,22 +109,18 @@ def _nice_length(max_m: float) -> float:
 
 
 def _scale_bar(ax: Axes, extent: tuple[float, float, float, float]) -> None:
-    minx, miny, maxx, maxy = extent
+    """A scale bar a fifth of the map wide at most, in the lower left, on a white box sized to the bar and
+    its label (a box in map units grew with the map: on a tall one it covered a block)."""
+    minx, _, maxx, _ = extent
     length = _nice_length((maxx - minx) / 5)
-    x0 = minx + 0.03 * (maxx - minx)
-    y0 = miny + 0.04 * (maxy - miny)
-    tick = 0.008 * (maxy - miny)
-    ax.plot([x0, x0 + length], [y0, y0], color="black", linewidth=2.5, solid_capstyle="butt", zorder=10)
-    ax.plot([x0, x0], [y0 - tick, y0 + tick], color="black", linewidth=1, zorder=10)
-    ax.plot([x0 + length, x0 + length], [y0 - tick, y0 + tick], color="black", linewidth=1, zorder=10)
     label = f"{length / 1000:g} km" if length >= 1000 else f"{length:g} m"
-    ax.add_patch(
-        Rectangle(
-            (x0 - 0.1 * length, y0 - 3 * tick), 1.2 * length, 8 * tick,
-            facecolor="white", edgecolor="none", alpha=0.8, zorder=9,
-        )
+    bar = AnchoredSizeBar(
+        ax.transData, length, label, "lower left", pad=0.5, borderpad=0.8, sep=3, frameon=True,
+        size_vertical=(maxx - minx) / 300, label_top=True, fontproperties={"size": 8},
     )
-    ax.text(x0 + length / 2, y0 + 1.8 * tick, label, ha="center", va="bottom", fontsize=8, zorder=10)
+    bar.patch.set(facecolor="white", edgecolor="#999999", linewidth=0.5, alpha=0.85)
+    bar.set_zorder(10)
+    ax.add_artist(bar)
 
 
 def sidewalk_under_buildings(layers: MapLayers) -> gpd.GeoSeries:

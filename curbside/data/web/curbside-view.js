@@ -12,6 +12,7 @@ const ui = {
   clock: document.getElementById("clock"),
   rows: document.querySelector("#run-table tbody"),
   gnssNow: document.getElementById("gnss-now"),
+  note: document.getElementById("view-note"),
   summaries: document.getElementById("summaries"),
   play: document.getElementById("play"),
   slider: document.getElementById("slider"),
@@ -241,8 +242,10 @@ function updateSession(view, t) {
     view.circle.setLatLng([s.gnss.lat[j], s.gnss.lon[j]]).setRadius(s.gnss.acc[j]);
     view.fixMarker.setLatLng([s.gnss.lat[j], s.gnss.lon[j]]);
     view.circle.setStyle({ opacity: k < 0 ? 0 : 1, fillOpacity: k < 0 ? 0 : 0.12 });
-    return k < 0 ? "no GNSS fix yet" :
-      `GNSS fix ${(t - s.gnss.t[k]).toFixed(1)} s ago, accuracy ${s.gnss.acc[k].toFixed(0)} m`;
+    // Runs of several sessions: say whose fix each is.
+    const whose = VIEW.sessions.length > 1 ? `${s.name}: ` : "";
+    return whose + (k < 0 ? "no GNSS fix yet" :
+      `GNSS fix ${(t - s.gnss.t[k]).toFixed(1)} s ago, accuracy ${s.gnss.acc[k].toFixed(0)} m`);
   }
   return "";
 }
@@ -319,6 +322,11 @@ function setPlaying(playing) {
 }
 
 ui.title.textContent = VIEW.title;
+// What the page cannot show apart (runs of several sessions), said once above the table.
+if (VIEW.note) {
+  ui.note.textContent = VIEW.note;
+  ui.note.hidden = false;
+}
 document.title = VIEW.title;
 ui.slider.max = String(timeline.length - 1);
 ui.slider.addEventListener("input", () => { setPlaying(false); setIndex(Number(ui.slider.value)); });

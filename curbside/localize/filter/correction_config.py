@@ -12,10 +12,12 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+from curbside.configio import check, non_negative, positive, require, unit_interval
 
-def _check(condition: bool, message: str) -> None:
-    if not condition:
-        raise ValueError(message)
+
+def _check_scale_range(min_scale: float, max_scale: float) -> None:
+    check(0.0 < min_scale < max_scale,
+          f"need 0 < min_scale < max_scale, got min_scale {min_scale} and max_scale {max_scale}")
 
 
 @dataclass(frozen=True)
@@ -70,30 +72,13 @@ class RecoveryConfig:
     stall_fraction: float = 0.1
 
     def __post_init__(self) -> None:
-        _check(self.collapse_sigma_m > 0, f"collapse_sigma_m must be positive, got {self.collapse_sigma_m}")
-        _check(
-            0.0 <= self.stall_ratio < 1.0 and min(self.stall_fraction, self.stall_blocked_share) >= 0.0
-            and max(self.stall_fraction, self.stall_blocked_share) <= 1.0,
-            f"need 0 <= stall_ratio < 1 and stall_fraction, stall_blocked_share in [0, 1], got "
-            f"{self.stall_ratio}, {self.stall_fraction}, {self.stall_blocked_share}",
-        )
-        _check(
-            self.stall_window_s > 0 and self.stall_min_speed_mps > 0,
-            f"stall_window_s and stall_min_speed_mps must be positive, got {self.stall_window_s}, "
-            f"{self.stall_min_speed_mps}",
-        )
-        _check(0.0 <= self.max_fraction <= 1.0, f"max_fraction must lie in [0, 1], got {self.max_fraction}")
-        _check(
-            self.inject_heading_sigma_deg >= 0,
-            f"inject_heading_sigma_deg must be non-negative, got {self.inject_heading_sigma_deg}",
-        )
-        _check(
-            0.0 < self.alpha_slow < self.alpha_fast <= 1.0
-            and 0.0 < self.trigger_ratio <= 1.0
-            and self.kernel_scale > 0,
-            "need 0 < alpha_slow < alpha_fast <= 1, 0 < trigger_ratio <= 1, kernel_scale > 0; got "
-            f"{self.alpha_slow}, {self.alpha_fast}, {self.trigger_ratio}, {self.kernel_scale}",
-        )
+        positive(self, "collapse_sigma_m", "stall_window_s", "stall_min_speed_mps", "kernel_scale")
+        require("lie in [0, 1)", lambda v: 0.0 <= v < 1.0, {"stall_ratio": self.stall_ratio})
+        unit_interval(self, "stall_fraction", "stall_blocked_share", "max_fraction")
+        non_negative(self, "inject_heading_sigma_deg")
+        check(0.0 < self.alpha_slow < self.alpha_fast <= 1.0, "need 0 < alpha_slow < alpha_fast <= 1, got "
+              f"alpha_slow {self.alpha_slow} and alpha_fast {self.alpha_fast}")
+        require("lie in (0, 1]", lambda v: 0.0 < v <= 1.0, {"trigger_ratio": self.trigger_ratio})
 
 
 @dataclass(frozen=True)
@@ -140,18 +125,11 @@ class ScaleCorrectionConfig:
     correlation_s: float = 30.0
 
     def __post_init__(self) -> None:
-        _check(0.0 <= self.fraction <= 1.0, f"fraction must lie in [0, 1], got {self.fraction}")
-        _check(0.0 <= self.trim_share < 1.0, f"trim_share must lie in [0, 1), got {self.trim_share}")
-        _check(
-            0.0 < self.min_scale < self.max_scale,
-            f"need 0 < min_scale < max_scale, got {self.min_scale}, {self.max_scale}",
-        )
-        _check(
-            min(self.window_s, self.trigger, self.significance, self.max_rotation_deg, self.correlation_s) > 0
-            and min(self.sigma, self.min_path_m) >= 0,
-            "window_s, trigger, significance, max_rotation_deg and correlation_s must be positive, sigma "
-            "and min_path_m non-negative",
-        )
+        unit_interval(self, "fraction")
+        require("lie in [0, 1)", lambda v: 0.0 <= v < 1.0, {"trim_share": self.trim_share})
+        _check_scale_range(self.min_scale, self.max_scale)
+        positive(self, "window_s", "trigger", "significance", "max_rotation_deg", "correlation_s")
+        non_negative(self, "sigma", "min_path_m")
 
 
 @dataclass(frozen=True)
@@ -201,16 +179,8 @@ class HeadingCorrectionConfig:
     position_sigma_factor: float = 0.66
 
     def __post_init__(self) -> None:
-        _check(0.0 <= self.fraction <= 1.0, f"fraction must lie in [0, 1], got {self.fraction}")
-        _check(
-            0.0 < self.min_scale < self.max_scale,
-            f"need 0 < min_scale < max_scale, got {self.min_scale}, {self.max_scale}",
-        )
-        _check(
-            min(self.window_s, self.max_accuracy_m, self.max_residual_ratio) > 0
-            and min(self.min_rotation_deg, self.min_estimate_rotation_deg, self.min_path_m,
-                    self.min_fix_span_m, self.heading_sigma_deg, self.scale_sigma,
-                    self.position_sigma_factor) >= 0,
-            "window_s, max_accuracy_m and max_residual_ratio must be positive, the other gates and "
-            "spreads non-negative",
-        )
+        unit_interval(self, "fraction")
+        _check_scale_range(self.min_scale, self.max_scale)
+        positive(self, "window_s", "max_accuracy_m", "max_residual_ratio")
+        non_negative(self, "min_rotation_deg", "min_estimate_rotation_deg", "min_path_m", "min_fix_span_m",
+                     "heading_sigma_deg", "scale_sigma", "position_sigma_factor")
