@@ -108,7 +108,7 @@ def confidence_summary(errors: pd.DataFrame, thresholds: tuple[float, ...] = THR
     dict
         ``footsteps``, ``calibration_error``, ``brier`` (mean squared gap between probability and
         outcome), per threshold ``p`` ``coverage_p`` (share of the footsteps at or above it) and
-        ``csa_p`` (share of those on the right sidewalk; NaN where none reaches it), and ``bins``
+        ``csa_p`` (share of those on the correct sidewalk; NaN where none reaches it), and ``bins``
         (:func:`reliability_curve` as a list of dicts).
     """
     scored = scored_footsteps(errors)

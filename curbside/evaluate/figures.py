@@ -447,7 +447,7 @@ def save_png(fig: plt.Figure, path: Path, dpi: int = 110) -> bytes:
 
 
 def fig_reliability(rows: list[dict[str, Any]], base: dict[str, Any]) -> plt.Figure | None:
-    """``segment_prob`` against the share of footsteps on the right sidewalk, bin by bin: one panel per
+    """``segment_prob`` against the share of footsteps on the correct sidewalk, bin by bin: one panel per
     group (a benchmark subset), one line per filter, marker area by the bin's share of the footsteps.
     Below, where the rows carry ``accuracy_curve``, the same for the position: the share of footsteps
     that ``accuracy_m``, scaled with its heavy tail (``calibration.radius_at_share_m``), held against
@@ -470,7 +470,7 @@ def fig_reliability(rows: list[dict[str, Any]], base: dict[str, Any]) -> plt.Fig
         _segment_reliability_axes(axes[0][k], in_group, group)
         if radius:
             _radius_reliability_axes(axes[1][k], in_group)
-    axes[0][0].set_ylabel("share of those footsteps on the right sidewalk")
+    axes[0][0].set_ylabel("share of those footsteps on the correct sidewalk")
     if radius:
         axes[1][0].set_ylabel("share of footsteps the radius held")
     title = "How far to trust segment_prob" + (" and accuracy_m" if radius else "")
