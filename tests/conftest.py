@@ -49,3 +49,12 @@ def ronin_model():
     from curbside.localize.ronin.infer import load_model
 
     return load_model()
+
+
+@pytest.fixture(scope="module")
+def walk_result(ipin_walk, ronin_model):
+    """:func:`ipin_walk`'s track, as a session of the service would leave it."""
+    from curbside.localize.live import stream_session
+    from curbside.localize.runconfig import RunConfig
+
+    return stream_session(ipin_walk, None, RunConfig.for_mode("fused"), ronin_model)

@@ -20,8 +20,6 @@ from fastapi.testclient import TestClient
 from serve_fixtures import client_for
 
 from curbside.io import MARKER
-from curbside.localize.live import stream_session
-from curbside.localize.runconfig import RunConfig
 from curbside.localize.serve import service as service_module
 from curbside.localize.serve.app import create_app
 from curbside.localize.serve.download import OpenFileResponse
@@ -36,12 +34,6 @@ DAY_S = 86400.0
 @pytest.fixture(autouse=True)
 def _cache_in_tmp(tmp_path, monkeypatch):
     monkeypatch.setattr("curbside.settings.cache_dir", tmp_path / "cache")
-
-
-@pytest.fixture(scope="module")
-def walk_result(ipin_walk, ronin_model):
-    """The real walk's track, as a session of the service would leave it."""
-    return stream_session(ipin_walk, None, RunConfig.for_mode("fused"), ronin_model)
 
 
 def _info() -> dict:

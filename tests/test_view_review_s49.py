@@ -17,6 +17,7 @@ import pandas as pd
 import pytest
 from browser import chromium, console_errors, wait_for_mark
 from matplotlib.colors import to_rgb
+from test_io import _tree, _write
 from viewer_fixtures import CROSSROADS, FRAME, START_XY, write_session
 
 from curbside.cli.localize import main as localize_main
@@ -181,16 +182,8 @@ def test_the_page_shows_the_note_and_whose_fix_each_is(two_sessions):
 # --- 2. output records keep every command's files -----------------------------------------------------------
 
 
-def _write(ctx, files: dict[str, str]) -> None:
-    with ctx as tmp:
-        for rel, text in files.items():
-            (tmp / rel).parent.mkdir(parents=True, exist_ok=True)
-            (tmp / rel).write_text(text)
-
-
 def _files(folder: Path) -> dict[str, str]:
-    return {p.relative_to(folder).as_posix(): p.read_text() for p in sorted(folder.rglob("*"))
-            if p.is_file() and p.name != MARKER}
+    return {rel: text for rel, text in _tree(folder).items() if rel != MARKER}
 
 
 SESSION = {"gnss.csv": "g", "steps.csv": "s", "velocity.csv": "v", "waypoints.csv": "w"}
