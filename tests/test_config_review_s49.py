@@ -14,8 +14,11 @@ from curbside.cli.localize import main
 from curbside.cli.osmseg import main as osmseg_main
 from curbside.configio import parameters, require, with_overrides
 from curbside.errors import CurbsideInputError
+from curbside.localize.filter.calibration import CalibrationConfig
 from curbside.localize.raster import rasterize_map
+from curbside.localize.ronin.stream import RoninStreamConfig
 from curbside.localize.runconfig import FixLagConfig, RunConfig
+from curbside.localize.steps import StepConfig
 from curbside.osmseg.config import SegmentationConfig
 from curbside.osmseg.mapio import read_map
 
@@ -238,3 +241,15 @@ def test_the_particle_count_says_which_value_is_the_papers(capsys):
     said = " ".join(capsys.readouterr().out.split())
     assert said.startswith("filter.n_particles = 500 (int)")
     assert "curbside fused's default: 2000; the paper's, and its preset's (`--mode paper`): 500" in said
+
+
+@pytest.mark.parametrize(("make", "message"), [
+    (lambda: StepConfig(min_interval_s=2.0), "min_interval_s must be under max_interval_s, got 2.0 and 1.1"),
+    (lambda: StepConfig(lowpass_taps=4), "lowpass_taps must be odd and at least 3, got 4"),
+    (lambda: RoninStreamConfig(batch_size=0), "batch_size must be positive, got 0"),
+    (lambda: CalibrationConfig(prior_persistence=2), r"prior_persistence must lie in \[0, 1\], got 2"),
+    (lambda: CalibrationConfig(temperature=0), "temperature must be positive, got 0"),
+])
+def test_the_footstep_ronin_and_calibration_sections_name_the_field_too(make, message):
+    with pytest.raises(ValueError, match=message):
+        make()

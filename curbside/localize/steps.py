@@ -44,6 +44,7 @@ import pandas as pd
 from numpy.lib.stride_tricks import as_strided
 from scipy.signal import firwin
 
+from curbside.configio import check, positive
 from curbside.errors import CurbsideInputError
 
 
@@ -111,12 +112,13 @@ class StepConfig:
     min_run: int = 4
 
     def __post_init__(self) -> None:
-        if self.rate_hz <= 0 or self.lowpass_hz <= 0 or self.lowpass_hz >= self.rate_hz / 2:
-            raise ValueError("StepConfig: need 0 < lowpass_hz < rate_hz / 2")
-        if self.lowpass_taps < 3 or self.lowpass_taps % 2 == 0:
-            raise ValueError("StepConfig: lowpass_taps must be odd and at least 3")
-        if not 0 < self.min_interval_s < self.max_interval_s or self.min_run < 1:
-            raise ValueError("StepConfig: need 0 < min_interval_s < max_interval_s and min_run >= 1")
+        positive(self, "rate_hz", "lowpass_hz", "min_interval_s", "min_run")
+        check(self.lowpass_hz < self.rate_hz / 2,
+              f"lowpass_hz must be under half of rate_hz, got {self.lowpass_hz} and {self.rate_hz}")
+        check(self.lowpass_taps >= 3 and self.lowpass_taps % 2 == 1,
+              f"lowpass_taps must be odd and at least 3, got {self.lowpass_taps}")
+        check(self.min_interval_s < self.max_interval_s, "min_interval_s must be under max_interval_s, got "
+              f"{self.min_interval_s} and {self.max_interval_s}")
 
     @property
     def fir_margin_s(self) -> float:

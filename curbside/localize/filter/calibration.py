@@ -31,6 +31,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from curbside.configio import check, non_negative, positive, unit_interval
+
 #: The 68 % radius of a circular 2-D Gaussian over its root mean square radius: ``sqrt(-ln 0.32)``.
 RADIUS_68_PER_RMS = math.sqrt(-math.log(0.32))
 
@@ -99,18 +101,12 @@ class CalibrationConfig:
     prior_pairs: float = 20.0
 
     def __post_init__(self) -> None:
-        if not (self.temperature > 0 and self.temperature_per_persistence >= 0 and self.prior_pairs >= 0):
-            raise ValueError(
-                "need temperature > 0, temperature_per_persistence >= 0 and prior_pairs >= 0, got "
-                f"{self.temperature}, {self.temperature_per_persistence}, {self.prior_pairs}"
-            )
-        if not (0 < self.pair_tolerance_s <= self.persistence_lag_s < math.inf):
-            raise ValueError(
-                "need 0 < pair_tolerance_s <= persistence_lag_s (finite), got "
-                f"{self.pair_tolerance_s}, {self.persistence_lag_s}"
-            )
-        if not 0 <= self.prior_persistence <= 1:
-            raise ValueError(f"prior_persistence must lie in [0, 1], got {self.prior_persistence}")
+        positive(self, "temperature", "pair_tolerance_s")
+        non_negative(self, "temperature_per_persistence", "prior_pairs")
+        check(self.pair_tolerance_s <= self.persistence_lag_s < math.inf,
+              "persistence_lag_s must be finite and at least pair_tolerance_s, got "
+              f"{self.persistence_lag_s} and {self.pair_tolerance_s}")
+        unit_interval(self, "prior_persistence")
 
     @property
     def identity(self) -> bool:

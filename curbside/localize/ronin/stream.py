@@ -27,6 +27,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 import pandas as pd
 
+from curbside.configio import positive
 from curbside.localize.imu import ImuConfig, RepeatedWarning, WorldFrameStream, WorldSamples
 from curbside.localize.runconstants import RONIN_STRIDE
 
@@ -69,8 +70,7 @@ class RoninStreamConfig:
     def __post_init__(self) -> None:
         if not 1 <= self.stride <= self.window:
             raise ValueError(f"stride must be between 1 and the window ({self.window}), not {self.stride}")
-        if self.batch_size < 1 or self.rate_hz <= 0:
-            raise ValueError("batch_size and rate_hz must be positive")
+        positive(self, "batch_size", "rate_hz")
 
     @property
     def half_window_s(self) -> float:
