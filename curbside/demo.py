@@ -6,7 +6,8 @@ OpenStreetMap extract, write ``map.geojson``, ``map.png``, ``map.html`` and the 
 and print the per-class summary; then the six San Francisco walks are simulated and tracked (GNSS,
 RoNIN+PF, GNSS+RoNIN+PF) into the benchmark report under ``benchmark/report/`` (a short summary is
 printed), and the first walk is tracked once more with its particle clouds kept, for the replay viewer
-``view.html``.
+``view.html``: as the report scores it (its particle count, jaywalk weight and filter seed), so the page
+shows the report's figures for that walk.
 
 Each stage logs when it starts and ends; when stderr is not a terminal (no progress bars), a stage that
 runs long also logs that it is still running every :data:`HEARTBEAT_S` seconds.
@@ -149,22 +150,49 @@ def benchmark_headline(report_dir: Path) -> str:
     return "\n".join(lines)
 
 
+def report_run_options(report_dir: Path) -> list[str]:
+    """The ``localize run`` options that track a walk as the report in ``report_dir`` scored it: its base
+    particle count, jaywalk weight and GNSS sigma factor (``metrics.json``'s ``base``) and filter seed 0
+    (:func:`curbside.evaluate.benchmark.run_benchmark`'s).
+
+    Parameters
+    ----------
+    report_dir
+        The report folder (holds ``metrics.json``).
+
+    Returns
+    -------
+    list[str]
+        Options for ``localize run`` (``localize run``'s own defaults differ: N = 2000 for curbside fused).
+    """
+    base = json.loads((report_dir / "metrics.json").read_text(encoding="utf-8"))["base"]
+    options = ["--particles", str(base["particles"]), "--jaywalk-weight", str(base["jaywalk_weight"]),
+               "--seed", "0"]
+    if base.get("gnss_sigma_factor") is not None:
+        options += ["--set", f"filter.gnss.sigma_factor={base['gnss_sigma_factor']}"]
+    return options
+
+
 def replay_stage(ctx: DemoContext) -> dict[str, Path]:
-    """Track the first benchmark walk in each mode with its particle clouds, and write ``view.html``."""
+    """Track the first benchmark walk in each mode with its particle clouds, as the benchmark report
+    scores it (:func:`report_run_options`), and write ``view.html``."""
     from curbside.cli.localize import main as localize_main
 
     sessions = sorted(p for p in Path(ctx.results["benchmark"]["sessions"]).iterdir() if p.is_dir())
+    report_options = report_run_options(Path(ctx.results["benchmark"]["report"]))
     runs = []
     for mode in ("gnss", "inertial", "fused"):
         out = ctx.out_dir / "runs" / mode
         args = ["-v", "run", str(sessions[0]), "--map", str(ctx.out_dir / "map.geojson"), "--mode", mode,
-                "--save-particles", "-o", str(out)]
+                *report_options, "--save-particles", "-o", str(out)]
         if localize_main(args) != 0:
             raise RuntimeError(f"localize run failed on {sessions[0]} ({mode})")
         runs.append(str(out))
     # The demo's folder is its own: its page is replaced even when an older curbside wrote it unsigned.
     if localize_main(["-v", "view", *runs, "-o", str(ctx.out_dir / "view.html"), "--overwrite"]) != 0:
         raise RuntimeError("localize view failed")
+    print(f"replay of {sessions[0].name} ({' '.join(report_options)}, as the report scores it): "
+          f"{ctx.out_dir / 'view.html'}")
     return {"runs": ctx.out_dir / "runs", "replay_viewer": ctx.out_dir / "view.html"}
 
 

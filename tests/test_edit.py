@@ -41,7 +41,7 @@ def test_page_inlines_leaflet_and_geoman_and_the_maps_features(crossroads):
     assert "MIT" in (WEB_ASSETS / "leaflet-geoman.LICENSE").read_text()
 
 
-def test_cli_with_bbox_edits_the_clipped_map(crossroads, tmp_path, capsys):
+def test_cli_with_bbox_shows_the_polygons_of_its_window(crossroads, tmp_path, capsys):
     out = tmp_path / "edit.html"
     bbox = ["-122.3976", "37.7904", "-122.3974", "37.7906"]
     assert osmseg_main(["edit", str(crossroads), "--bbox", *bbox, "-o", str(out)]) == 0

@@ -274,7 +274,8 @@ def test_cli_writes_track_files_and_same_seed_same_track(tmp_path, map_file, cap
     track = pd.read_csv(tmp_path / "a" / "track.csv")
     assert list(track.columns) == ["t", "lat", "lon", "x_m", "y_m", "accuracy_m", "update", "gnss_used",
                                    "theta_drift_deg", "speed_scale", "n_eff", "recovered", "injected",
-                                   "motion", "sidewalk_segment_id", "segment_prob", "mode_lat", "mode_lon"]
+                                   "motion", "sidewalk_segment_id", "segment_prob", "mode_lat", "mode_lon",
+                                   "segment_distance_m"]
     assert (np.diff(track["t"]) > 0).all() and len(track) == len(np.arange(0, 40, 0.55))
     # the MAP segment and its posterior probability; the mode estimate lies on that sidewalk
     assert track["segment_prob"].between(0.0, 1.0 + 1e-9).all()

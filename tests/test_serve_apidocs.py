@@ -69,7 +69,7 @@ def test_types_render_as_links_unions_and_arrays():
     assert "array of number | null" in page
     assert 'one of <code>&quot;imu&quot;</code>, <code>&quot;gnss&quot;</code>' in page
     assert "number (double)" in page
-    assert page.count("<tr>") == 1 + 2 + 1 + 3 + 3  # parameters, body, responses (errors on one row), fields
+    assert page.count("<tr>") == 2 + 2 + 4 + 3  # parameters, body, responses (an error a row), fields
 
 
 def test_docs_reads_on_a_phone_without_console_errors(client, tmp_path):

@@ -20,19 +20,17 @@ def _edit(args: argparse.Namespace) -> int:
     bbox = check_bbox(args.bbox) if args.bbox is not None else None
     check_map_file(args.map)
     # the heavy imports, once the cheap checks passed
-    from curbside.osmseg.edit import file_features, write_editor
+    from curbside.osmseg.edit import file_features, window_features, write_editor
     from curbside.osmseg.mapio import read_map
-    from curbside.osmseg.plot import clip_to_bbox
 
     layers = read_map(args.map)
-    features = None
+    features, kept = file_features(args.map), []
     if bbox is not None:
-        layers = clip_to_bbox(layers, bbox)
-    else:
-        features = file_features(args.map)
-    path = write_editor(layers, Path(args.map).name, args.output, features)
+        features, kept = window_features(features, bbox)
+    path = write_editor(layers, Path(args.map).name, args.output, features, kept, bbox)
+    saved_too = f" (+{len(kept):,} outside the window, saved as they are)" if bbox is not None else ""
     print(
-        f"{path}: editor for {len(features or layers.gdf):,} polygons of {args.map} "
+        f"{path}: editor for {len(features):,} polygons of {args.map}{saved_too} "
         f"({path.stat().st_size / 1e6:.1f} MB); open it in a browser, edit, then 'save edited map'"
     )
     return 0
@@ -54,6 +52,6 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument("map", help="map GeoJSON (osmseg build output or hand-labelled)")
     parser.add_argument("-o", "--output", required=True, help="output page (.html)")
     parser.add_argument("--overwrite", action="store_true", help=OVERWRITE_FILE_HELP)
-    add_bbox_option(parser, "edit only this WGS84 window (polygons clipped at its edges; the saved map "
-                    "covers the window only)")
+    add_bbox_option(parser, "show and edit only the polygons that meet this WGS84 window (whole, not "
+                    "clipped); the saved map still holds every polygon of MAP")
     parser.set_defaults(func=_edit)

@@ -33,6 +33,7 @@ from curbside.evaluate.runner import METHOD_LABELS, METHODS, MODE_SUFFIX, pool
 from curbside.evaluate.uncertainty import MIN_BOOTSTRAP_UNITS, map_intervals, subset_intervals, unit_count
 from curbside.io import atomic_path, json_ready
 from curbside.localize.filter.config import MapConfig
+from curbside.localize.runconfig import RunConfig
 from curbside.osmseg.mapio import MapLayers
 
 #: The paper's Tables 2-4 (Dubiner, Ren, Manduchi), per method.
@@ -353,6 +354,19 @@ def _definitions(scoring: MetricsConfig) -> dict[str, Any]:
     }
 
 
+def base_text(base: dict[str, Any]) -> str:
+    """The report's base parameters in a sentence: the particle count N of every particle filter (beside
+    ``localize run``'s default where that differs: the same walk tracked there gives other figures), the
+    jaywalk weight, the map and the GNSS sigma factor."""
+    defaults = {m: RunConfig.for_mode(m).filter.n_particles for m in ("inertial", "paper", "fused")}
+    differ = [f"{METHOD_LABELS[m]} {n}" for m, n in defaults.items() if n != base["particles"]]
+    sigma = "default" if base["gnss_sigma_factor"] is None else f"{base['gnss_sigma_factor']:g}"
+    return (f"Base parameters: N = {base['particles']} particles in every particle filter"
+            + (f" (localize run's default: {', '.join(differ)})" if differ else "")
+            + f", jaywalk weight w = {base['jaywalk_weight']:g}, map '{base['map']}', GNSS sigma factor "
+            f"{sigma}. The tables, figures and replay pages are at these unless they name another value.")
+
+
 def write_report(
     results: list[dict],
     out_dir: str | Path,
@@ -427,18 +441,22 @@ def write_report(
         from curbside.localize.view import write_session_views
 
         views = {name: f"view/{name}.html" for name in write_session_views(results, base, tmp / "view")}
-        (tmp / "report.md").write_text(_markdown_page(intro, tables, figures, views), encoding="utf-8")
-        (tmp / "report.html").write_text(_html_page(intro, tables, figures, views), encoding="utf-8")
+        lead = base_text(base)
+        (tmp / "report.md").write_text(_markdown_page(intro, tables, figures, views, lead), encoding="utf-8")
+        (tmp / "report.html").write_text(_html_page(intro, tables, figures, views, lead), encoding="utf-8")
     return {name: out_dir / name for name in ("metrics.json", "report.md", "report.html")}
 
 
-def _markdown_page(intro: str, tables: list[Table], figures: list, views: dict[str, str]) -> str:
-    """``report.md``: the intro, the tables, the figures and a link to each session's replay page."""
-    md = ["# curbside evaluation report", "", intro, ""]
+def _markdown_page(
+    intro: str, tables: list[Table], figures: list, views: dict[str, str], base_note: str = ""
+) -> str:
+    """``report.md``: the intro, the base parameters (:func:`base_text`), the tables, the figures, a link
+    to each session's replay page and the map data's attribution."""
+    md = ["# curbside evaluation report", "", *(f"{p}\n" for p in (intro, base_note) if p)]
     md += [t.markdown() for t in tables]
     md += [f"![{alt}](figures/{name})\n" for name, alt, _ in figures]
     md += ["## Replay each session\n\n" + "".join(f"- [{n}]({h})\n" for n, h in sorted(views.items()))]
-    return "\n".join(md)
+    return "\n".join([*md, settings.osm_attribution, ""])
 
 
 #: The note under the segment_prob tables (:mod:`curbside.evaluate.confidence`).
@@ -561,24 +579,20 @@ def html_document(title: str, style: str, body: str) -> str:
 
 
 def _html_page(
-    intro: str, tables: list[Table], figures: list[tuple[str, str, bytes]], views: dict[str, str]
+    intro: str, tables: list[Table], figures: list[tuple[str, str, bytes]], views: dict[str, str],
+    base_note: str = "",
 ) -> str:
     """``report.html``: self-contained, figures inlined, links to the replay pages."""
     imgs = "".join(
         f"<figure><img alt='{alt}' src='data:image/png;base64,{base64.b64encode(data).decode()}'/></figure>"
         for _, alt, data in figures
     )
-    views_html = (
-        "<h2>Replay each session</h2><ul>"
-        + "".join(
-            f"<li><a href='{html.escape(href)}'>{html.escape(name)}</a></li>"
-            for name, href in sorted(views.items())
-        )
-        + "</ul>"
-    )
+    links = "".join(f"<li><a href='{html.escape(href)}'>{html.escape(name)}</a></li>"
+                    for name, href in sorted(views.items()))
+    lead = "".join(f"<p>{html.escape(p)}</p>" for p in (intro, base_note) if p)
+    credit = f"<p class='note'>{html.escape(settings.osm_attribution)}</p>"
     return html_document(
         "curbside report", "body{max-width:1200px}",
-        f"<h1>curbside evaluation report</h1>"
-        f"<p>{html.escape(intro)}</p>{''.join(t.html() for t in tables)}{imgs}{views_html}"
-        f"<p class='note'>{html.escape(settings.osm_attribution)}</p>",
+        f"<h1>curbside evaluation report</h1>{lead}{''.join(t.html() for t in tables)}{imgs}"
+        f"<h2>Replay each session</h2><ul>{links}</ul>{credit}",
     )

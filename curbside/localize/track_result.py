@@ -1,11 +1,20 @@
 """What a tracking run gives, in one batch (:func:`~curbside.localize.pipeline.track_session`) or live
 (:class:`~curbside.localize.live.LiveSession`): :class:`TrackResult`, its ``track.csv`` table of the
 engine's rows (:func:`track_table`), and the finished tracker's counts (:func:`tracker_record`).
+
+It also says where the estimate is in words, the one wording of the service and the replay page: the
+named sidewalk segment's label ("Market Street, north side"), or, when the estimate lies more than
+:data:`OFF_SIDEWALK_M` from that segment's polygon, :data:`OFF_SIDEWALK_TEXT` (:func:`place_text`).
+The filter names the segment its particles' weight favours, and particles up to
+``filter.map.segment_reach_m`` (25 m) from a sidewalk count for it, so a named segment alone does not
+say that the walker is on it.
 """
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+import math
+import weakref
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -37,8 +46,19 @@ TRACK_COLUMNS = (
 )
 
 #: Columns added with a map that has sidewalk segments: the filter's MAP segment (the polygon under the
-#: estimate in ``gnss`` mode), its posterior probability (empty in ``gnss`` mode) and the mode estimate.
-SEGMENT_COLUMNS = ("sidewalk_segment_id", "segment_prob", "mode_lat", "mode_lon")
+#: estimate in ``gnss`` mode), its posterior probability (empty in ``gnss`` mode), the mode estimate and
+#: the distance (m) from ``x_m, y_m`` to that segment's polygon (0 on it; empty without a segment).
+SEGMENT_COLUMNS = ("sidewalk_segment_id", "segment_prob", "mode_lat", "mode_lon", "segment_distance_m")
+
+#: An estimate farther than this (m) from the sidewalk segment it names is said to be off the sidewalk.
+#: The map's sidewalks are 2.5-5 m deep (``osmseg``: ``min_sidewalk_width_m`` 2.5, ``sidewalk_depth_m``
+#: 5; the San Francisco map's median 5.0 m, 5th percentile 2.6 m), and its curbs are placed within
+#: about 1 m: an estimate more than 3 m out is farther from the sidewalk than its narrowest sidewalks
+#: are deep, and three curb errors beyond it (docs/filter.md, "How far the estimate is from its segment").
+OFF_SIDEWALK_M = 3.0
+#: The place in words when the estimate is off its sidewalk (``str.format`` fields: the whole metres
+#: and the segment's label). The replay page fills the same template.
+OFF_SIDEWALK_TEXT = "off the sidewalk, {distance_m} m from {place}"
 
 
 @dataclass
@@ -162,6 +182,7 @@ def track_table(
         track["sidewalk_segment_id"] = sidewalk_segments_at(map_layers, x, y)
         track["segment_prob"] = np.nan
         track["mode_lat"], track["mode_lon"] = track["lat"], track["lon"]
+    track["segment_distance_m"] = sidewalk_shapes(map_layers).distances_m(track["sidewalk_segment_id"], x, y)
     return track
 
 
@@ -174,3 +195,90 @@ def sidewalk_segments_at(map_layers: MapLayers, x: np.ndarray, y: np.ndarray) ->
     point_idx, poly_idx = sidewalks.sindex.query(shapely.points(x, y), predicate="within")
     out[point_idx[::-1]] = sidewalks["segment_id"].to_numpy()[poly_idx[::-1]]  # first match wins
     return out
+
+
+def off_sidewalk_m(distance_m: float | np.ndarray | None) -> np.ndarray:
+    """Whole metres from the named segment where the estimate is off it (farther than
+    :data:`OFF_SIDEWALK_M`), NaN where it is on it or the distance is unknown (``None`` or NaN).
+
+    Rounded half up, as the replay page's script would (``Math.round``).
+    """
+    distance = np.asarray(np.nan if distance_m is None else distance_m, float)
+    with np.errstate(invalid="ignore"):
+        return np.where(distance > OFF_SIDEWALK_M, np.floor(distance + 0.5), np.nan)
+
+
+def place_text(label: str, distance_m: float | None) -> str:
+    """Where the estimate is, in words: the segment's ``label`` ("Market Street, north side"), or
+    :data:`OFF_SIDEWALK_TEXT` when the estimate is ``distance_m`` (m) from it, more than
+    :data:`OFF_SIDEWALK_M` ("off the sidewalk, 19 m from Market Street, north side")."""
+    off = float(off_sidewalk_m(distance_m))
+    return label if math.isnan(off) else OFF_SIDEWALK_TEXT.format(distance_m=int(off), place=label)
+
+
+class SidewalkShapes:
+    """A map's sidewalk polygons by ``segment_id``, for the distance from a point to the segment it names.
+
+    Parameters
+    ----------
+    map_layers
+        The map (its metric CRS is the points' CRS). Polygons sharing a ``segment_id`` count as one.
+    """
+
+    def __init__(self, map_layers: MapLayers) -> None:
+        sidewalks = map_layers.layer("sidewalk")
+        if "segment_id" in sidewalks:
+            sidewalks = sidewalks[sidewalks["segment_id"].notna()]
+        else:
+            sidewalks = sidewalks.iloc[:0]
+        geoms = sidewalks.geometry.to_numpy()
+        #: Sorted distinct ``segment_id`` strings and the polygon (or union) of each.
+        self.ids, inverse = np.unique(sidewalks["segment_id"].astype(str).to_numpy(str), return_inverse=True)
+        self.shapes = np.empty(len(self.ids), dtype=object)
+        self.shapes[inverse] = geoms
+        for k in np.flatnonzero(np.bincount(inverse, minlength=len(self.ids)) > 1):
+            self.shapes[k] = shapely.union_all(geoms[inverse == k])
+
+    def distances_m(self, segment_ids: Sequence | np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+        """Distance (m) from each point to the polygon of its segment, 0 inside it.
+
+        Parameters
+        ----------
+        segment_ids
+            One ``segment_id`` per point (``None`` or NaN: none).
+        x, y
+            The points, metres in the map's CRS.
+
+        Returns
+        -------
+        numpy.ndarray
+            ``float`` per point; NaN without a segment or for an id the map does not hold.
+        """
+        ids = np.asarray(segment_ids, dtype=object)
+        out = np.full(len(ids), np.nan)
+        named = np.flatnonzero(~pd.isna(ids))
+        if len(named) == 0 or len(self.ids) == 0:
+            return out
+        keys = ids[named].astype(str)
+        pos = np.minimum(np.searchsorted(self.ids, keys), len(self.ids) - 1)
+        known = self.ids[pos] == keys
+        rows = named[known]
+        points = shapely.points(np.asarray(x, float)[rows], np.asarray(y, float)[rows])
+        out[rows] = shapely.distance(self.shapes[pos[known]], points)
+        return out
+
+
+_SHAPES: dict[int, tuple[weakref.ref, SidewalkShapes]] = {}
+
+
+def sidewalk_shapes(map_layers: MapLayers) -> SidewalkShapes:
+    """The :class:`SidewalkShapes` of a map, made once per map object while it lives (the service asks
+    at every estimate, for every session on its one map)."""
+    held = _SHAPES.get(id(map_layers))
+    if held is not None and held[0]() is map_layers:
+        return held[1]
+    for key in [key for key, (ref, _) in _SHAPES.items() if ref() is None]:
+        del _SHAPES[key]
+    shapes = SidewalkShapes(map_layers)
+    _SHAPES[id(map_layers)] = (weakref.ref(map_layers), shapes)
+    return shapes

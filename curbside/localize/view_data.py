@@ -2,9 +2,11 @@
 
 A run becomes its footsteps' times and positions, the panel's columns (sidewalk segment, ``segment_prob``,
 error against the ground truth, ``accuracy_m``, ``n_eff``, recoveries so far), the names of its sidewalk
-segments and its particle clouds. A column the run's track lacks is ``None``; the page then shows "—"
-in its cells, leaves the column out when no run has it, and does not promise the 68 % radius in the
-legend of a run without ``accuracy_m``.
+segments, where the estimate is off its segment (whole metres from it beyond
+:data:`~curbside.localize.track_result.OFF_SIDEWALK_M`, and the wording the page fills:
+:data:`~curbside.localize.track_result.OFF_SIDEWALK_TEXT`) and its particle clouds. A column the run's
+track lacks is ``None``; the page then shows "—" in its cells, leaves the column out when no run has it,
+and does not promise the 68 % radius in the legend of a run without ``accuracy_m``.
 
 Particle clouds travel as base64 int16 offsets from each footstep's estimate in micro-degrees (exact
 lon/lat to 0.1 m, ±3.6 km).
@@ -27,6 +29,7 @@ from curbside.evaluate.groundtruth import groundtruth_at
 from curbside.evaluate.metrics import format_waypoint_summary, waypoint_errors, waypoint_summary
 from curbside.localize.particle_store import ParticleClouds
 from curbside.localize.session import Session
+from curbside.localize.track_result import OFF_SIDEWALK_TEXT, off_sidewalk_m, sidewalk_shapes
 from curbside.osmseg.mapio import MapLayers, read_map
 from curbside.osmseg.webmap import sidewalk_labels
 from curbside.projection import WGS84, LocalFrame
@@ -158,6 +161,23 @@ def _column(track: pd.DataFrame, name: str, decimals: int) -> list | None:
     return _round(track[name], decimals) if name in track else None
 
 
+def _off_sidewalk(
+    track: pd.DataFrame, segments: list | None, namer: SegmentNamer | None, segment_map: str | None
+) -> list | None:
+    """Whole metres from its segment where the estimate is off it (``None`` elsewhere): from the track's
+    ``segment_distance_m``, or worked out on the segment map for a track without it (an older run, a
+    report's scored track); ``None`` when neither can say."""
+    if "segment_distance_m" in track:
+        distance = track["segment_distance_m"].to_numpy(float)
+    elif segments and namer is not None and namer.labels(segment_map):  # labels: the map reads
+        layers = namer.read(segment_map)
+        x, y = LocalFrame(pyproj.CRS(layers.crs)).to_xy(track["lon"], track["lat"])
+        distance = sidewalk_shapes(layers).distances_m(segments, x, y)
+    else:
+        return None
+    return _round(off_sidewalk_m(distance), 0)
+
+
 def run_data(run: ViewRun, colour: str, cloud_every: int = 1, namer: SegmentNamer | None = None) -> dict:
     """One run as the page reads it (see the module docstring).
 
@@ -199,6 +219,8 @@ def run_data(run: ViewRun, colour: str, cloud_every: int = 1, namer: SegmentName
         "recoveries": int(max(run.recoveries, int((recovered > 0).sum()))),
         "segment": segments,
         "segment_names": namer.of(segments, segment_map) if namer is not None else None,
+        "off_sidewalk_m": _off_sidewalk(track, segments, namer, segment_map),
+        "off_sidewalk_text": OFF_SIDEWALK_TEXT,
         "segment_prob": _column(track, "segment_prob", 3),
         "accuracy_m": _column(track, "accuracy_m", 1),
         "error_m": errors,

@@ -1,22 +1,26 @@
 """The map editor: one offline HTML page to correct a map by hand and save it in curbside's schema.
 
 ``osmseg edit MAP -o edit.html`` writes a page that shows the map's polygons by class, editable with the
-vendored Leaflet-Geoman plug-in (``curbside/data/web``): click a polygon to select it, then drag its
-vertices (a vertex is added by dragging a mid-point marker, removed by a right click), change its class
-or its sidewalk fields, or delete it; the toolbar draws new polygons and rectangles of a chosen class.
-*Save* downloads a GeoJSON of the map schema (:mod:`curbside.osmseg.mapio`) in which
+vendored Leaflet-Geoman plug-in (``curbside/data/web``): click a polygon (or pick it in the panel's list
+of polygons, by keyboard too) to select it, then drag its vertices (a vertex is added by dragging a
+mid-point marker, removed by a right click), change its class or its sidewalk fields, or delete it; the
+toolbar draws new polygons and rectangles of a chosen class; *undo* (Ctrl+Z) takes back the last edit.
+With a window (``--bbox``) the page shows and edits only the polygons that meet it, whole; the others
+ride along unseen and are saved as they are. *Save* downloads a GeoJSON of the map schema
+(:mod:`curbside.osmseg.mapio`) holding every polygon of the map file, in which
 
-- every feature keeps its GeoJSON ``id``: its index in the map file the page was made from (with
-  ``--bbox``, in the clipped map); drawn ones are ``new-1``, ``new-2``... Edited ones carry
-  ``properties.edited`` (``geometry``, ``class``, ``fields``, ``drawn``, comma separated);
+- every feature keeps its GeoJSON ``id``: its index in the map file the page was made from; drawn ones
+  are ``new-1``, ``new-2``... Edited ones carry ``properties.edited`` (``geometry``, ``class``,
+  ``fields``, ``drawn``, comma separated);
 - the ``curbside`` metadata member keeps the original's (its ``bbox`` set to the original's extent
   when it had none, so that deleting a polygon at the edge does not shrink the map, its
   ``buildings_source`` set to ``edited``) and adds
-  ``edits``: the file it was made from, when it was saved, and the ids of the features changed in
-  each way (``geometry``, ``class``, ``fields``, ``drawn``, ``deleted``).
+  ``edits``: the file it was made from, when it was saved, the window (``null`` without one), and the
+  ids of the features changed in each way (``geometry``, ``class``, ``fields``, ``drawn``,
+  ``deleted``).
 
-Unedited features are saved exactly as they are in the map file (with ``--bbox``: as clipped). The
-saved file is read like any map (:func:`curbside.osmseg.mapio.read_map` validates it), e.g. by
+Unedited features, in the window or not, are saved exactly as they are in the map file. The saved file
+is read like any map (:func:`curbside.osmseg.mapio.read_map` validates it), e.g. by
 ``osmseg compare auto.geojson hand.geojson`` or ``localize evaluate --maps auto.geojson hand.geojson``.
 """
 
@@ -27,7 +31,10 @@ import json
 import logging
 from pathlib import Path
 
+import shapely
+
 import curbside
+from curbside.errors import CurbsideInputError
 from curbside.io import atomic_path
 from curbside.osmseg.compare import map_extent
 from curbside.osmseg.mapio import MapLayers, to_geojson
@@ -39,6 +46,12 @@ log = logging.getLogger(__name__)
 
 #: Decimal places of the coordinates in the page and the saved file (1e-7 degree: about 1 cm).
 EDIT_COORDINATE_DECIMALS = 7
+
+#: The page's element that holds the features outside the window (JSON), saved unchanged.
+KEPT_ELEMENT_ID = "edit-kept"
+
+#: A WGS84 window: (west, south, east, north) in degrees.
+BBox = tuple[float, float, float, float]
 
 
 def file_features(path: str | Path) -> list[dict]:
@@ -56,24 +69,67 @@ def file_features(path: str | Path) -> list[dict]:
     ]
 
 
-def editor_data(layers: MapLayers, source: str, features: list[dict] | None = None) -> dict:
+def window_features(features: list[dict], bbox: BBox) -> tuple[list[dict], list[dict]]:
+    """Split a map's features into those that meet a WGS84 window and the others.
+
+    Parameters
+    ----------
+    features
+        GeoJSON features in WGS84 (:func:`file_features`).
+    bbox
+        ``(west, south, east, north)`` in degrees.
+
+    Returns
+    -------
+    tuple of list of dict
+        The features that meet the window (shown and editable in the page, whole: not clipped) and
+        the others (saved unchanged), each in the input order.
+
+    Raises
+    ------
+    CurbsideInputError
+        When no polygon meets the window.
+    """
+    geometries = shapely.from_geojson([json.dumps(feature["geometry"]) for feature in features])
+    # A polygon that crosses itself in the file still gets an answer: test its repaired outline.
+    inside = shapely.intersects(shapely.make_valid(geometries), shapely.box(*bbox))
+    if not inside.any():
+        raise CurbsideInputError("--bbox", f"{list(bbox)} contains no polygon of the map")
+    shown = [feature for feature, meets in zip(features, inside, strict=True) if meets]
+    kept = [feature for feature, meets in zip(features, inside, strict=True) if not meets]
+    return shown, kept
+
+
+def editor_data(
+    layers: MapLayers,
+    source: str,
+    features: list[dict] | None = None,
+    kept: list[dict] | None = None,
+    window: BBox | None = None,
+) -> dict:
     """What the editor page needs: the features with ids, the metadata and the class styles.
 
     Parameters
     ----------
     layers
-        The map to edit.
+        The whole map (its metadata and extent go to the saved file).
     source
         Name of the map file (recorded in the saved file's provenance).
     features
-        The features as written in the map file (:func:`file_features`); default: ``layers`` written
-        out, numbered in order.
+        The features to show and edit, as written in the map file (:func:`file_features`); default:
+        ``layers`` written out, numbered in order.
+    kept
+        Features of the map file not shown (outside ``window``: :func:`window_features`); the page
+        saves them unchanged.
+    window
+        The WGS84 window the page opens on (recorded in ``edits.window``); default: the whole map.
 
     Returns
     -------
     dict
         ``source``, ``filename`` (the suggested name of the saved file), ``generator``, ``meta``,
-        ``classes`` (``{class: {fill, stroke, label}}``) and ``features``.
+        ``classes`` (``{class: {fill, stroke, label}}``), ``decimals``, ``window``, ``features`` and
+        ``kept``.
     """
     doc = to_geojson(layers, precision=EDIT_COORDINATE_DECIMALS)
     # The saved map keeps the original's extent: without it, deleting a polygon at the edge of a map
@@ -93,31 +149,40 @@ def editor_data(layers: MapLayers, source: str, features: list[dict] | None = No
         "meta": meta,
         "classes": classes,
         "decimals": EDIT_COORDINATE_DECIMALS,
+        "window": None if window is None else [float(v) for v in window],
         "features": features,
+        "kept": kept or [],
     }
 
 
-def editor_page(layers: MapLayers, source: str, features: list[dict] | None = None) -> str:
+def editor_page(
+    layers: MapLayers,
+    source: str,
+    features: list[dict] | None = None,
+    kept: list[dict] | None = None,
+    window: BBox | None = None,
+) -> str:
     """The self-contained editor page (Leaflet and Leaflet-Geoman inlined; no network).
 
     Parameters
     ----------
-    layers
-        The map to edit.
-    source
-        Name of the map file.
-    features
+    layers, source, features, kept, window
         See :func:`editor_data`.
 
     Returns
     -------
     str
-        The HTML document.
+        The HTML document: ``EDIT`` (:func:`editor_data` but ``kept``, replaced by ``kept_count``) in
+        the script, ``kept`` in the JSON element :data:`KEPT_ELEMENT_ID`.
     """
-    west, south, east, north = layers.gdf.to_crs(WGS84).total_bounds
+    west, south, east, north = window if window is not None else layers.gdf.to_crs(WGS84).total_bounds
+    data = editor_data(layers, source, features, kept, window)
+    # The features outside the window wait as JSON text, parsed only on saving: as part of `EDIT` they
+    # would be compiled as a script on load (the whole map's worth, for a window of a few hundred).
+    kept_json = script_json(data.pop("kept"))
     script = "\n".join(
         [
-            f"const EDIT = {script_json(editor_data(layers, source, features))};",
+            f"const EDIT = {script_json({**data, 'kept_count': len(kept or [])})};",
             f"map.fitBounds({bounds_js(west, south, east, north)});",
             asset_text("curbside-edit.js"),
         ]
@@ -126,7 +191,10 @@ def editor_page(layers: MapLayers, source: str, features: list[dict] | None = No
         f"curbside map editor: {Path(source).name}",
         script,
         attribution_html=html.escape(attribution(layers)),
-        body=asset_text("curbside-edit.html"),
+        body=(
+            f"{asset_text('curbside-edit.html')}\n"
+            f'<script type="application/json" id="{KEPT_ELEMENT_ID}">{kept_json}</script>'
+        ),
         page_css=asset_text("curbside-edit.css"),
         scripts=("leaflet.js", "leaflet-geoman.min.js"),
         styles=("leaflet.css", "leaflet-geoman.css"),
@@ -134,7 +202,12 @@ def editor_page(layers: MapLayers, source: str, features: list[dict] | None = No
 
 
 def write_editor(
-    layers: MapLayers, source: str, path: str | Path, features: list[dict] | None = None
+    layers: MapLayers,
+    source: str,
+    path: str | Path,
+    features: list[dict] | None = None,
+    kept: list[dict] | None = None,
+    window: BBox | None = None,
 ) -> Path:
     """Write :func:`editor_page` to an HTML file (atomically).
 
@@ -143,7 +216,7 @@ def write_editor(
     pathlib.Path
         ``path``.
     """
-    page = editor_page(layers, source, features)
+    page = editor_page(layers, source, features, kept, window)
     path = Path(path)
     with atomic_path(path) as tmp:
         tmp.write_text(page, encoding="utf-8")

@@ -18,6 +18,7 @@ const ui = {
   slider: document.getElementById("slider"),
   speed: document.getElementById("speed"),
   timeLabel: document.getElementById("time-label"),
+  nowPlace: document.getElementById("now-place"),
 };
 
 function bytesOf(b64) {
@@ -266,8 +267,12 @@ function updateRun(view, t) {
   view.marker.setLatLng([r.lat[k], r.lon[k]]).setStyle({ opacity: 1, fillOpacity: 1 });
   if (accuracy !== null) view.radius.setLatLng([r.lat[k], r.lon[k]]).setRadius(accuracy);
   // The segment in words ("Market Street, north side"); its id (the map's segment_id) in the tooltip.
+  // An estimate off its segment says so, in the wording of curbside.localize.track_result.place_text.
   const id = r.segment ? r.segment[k] ?? null : null;
-  segment.textContent = id === null ? "\u2014" : (r.segment_names?.[id] ?? id);
+  const name = id === null ? null : (r.segment_names?.[id] ?? id);
+  const off = r.off_sidewalk_m ? r.off_sidewalk_m[k] ?? null : null;
+  segment.textContent = id === null ? "\u2014" : off === null ? name
+    : r.off_sidewalk_text.replace("{distance_m}", () => String(off)).replace("{place}", () => name);
   segment.title = id === null ? "" : id;
   prob.textContent = r.segment_prob ? fmt(r.segment_prob[k], 2) : "\u2014";
   error.textContent = errorText(r, k, accuracy);
@@ -290,6 +295,35 @@ function showTime(t) {
   for (const cloud of state.clouds) cloud.redraw();
   ui.clock.textContent = clockText(t);
   ui.timeLabel.textContent = `${state.index + 1} / ${timeline.length}`;
+  speak(t);
+}
+
+// -- what a screen reader says -------------------------------------------------------------------
+// The slider's value in words (the time, the step, the place) and, in the polite live region, the place
+// whenever it changes. Stepping says them at once; while the walk plays both change at most every
+// ANNOUNCE_EVERY_MS (one announcement per footstep would chatter). The slider in focus says the place
+// itself when stepped (its value text), so the live region then stays quiet. The place is the panel's
+// own words for the last run with sidewalk segments (curbside fused, after the baselines, as reported).
+const ANNOUNCE_EVERY_MS = 4000;
+const placeRun = runViews.findLast((view) => view.data.segment) ?? null;
+const spoken = { text: "", at: -Infinity };
+
+function placeNow() {
+  if (placeRun === null) return "";
+  const words = placeRun.cells[0].textContent;
+  return words === "\u2014" ? "no estimate" : words;
+}
+
+function speak(t) {
+  const wall = performance.now();
+  if (state.playing && wall - spoken.at < ANNOUNCE_EVERY_MS) return;
+  spoken.at = wall;
+  const place = placeNow();
+  ui.slider.setAttribute("aria-valuetext",
+    `t = ${t.toFixed(1)} s, step ${state.index + 1} of ${timeline.length}${place ? `, ${place}` : ""}`);
+  if (place === spoken.text) return;
+  spoken.text = place;
+  ui.nowPlace.textContent = state.playing || document.activeElement !== ui.slider ? place : "";
 }
 
 // -- playback ------------------------------------------------------------------------------------
@@ -319,6 +353,7 @@ function setPlaying(playing) {
   ui.play.setAttribute("aria-label", playing ? "pause" : "play");
   lastFrame = null;
   if (playing) requestAnimationFrame(frame);
+  else speak(state.time);  // the place where the walk stopped, however soon after the last one
 }
 
 ui.title.textContent = VIEW.title;
@@ -386,8 +421,9 @@ function fitView() {
   return best;
 }
 
-// On a small screen the panel starts folded when it would cover the layer control.
-if (overlaps(boxOf(ui.panel), boxOf(layers.getContainer()))) setPanelOpen(false);
+// On a small screen the panel starts folded: on a phone-wide map (the layer control folded into its
+// button), or where it would cover the layer control.
+if (layers.options.collapsed || overlaps(boxOf(ui.panel), boxOf(layers.getContainer()))) setPanelOpen(false);
 const fitted = fitView();
 
 // First render: the map, tracks and fixes; then the clouds are decoded and the slider enabled.

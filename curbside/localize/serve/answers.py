@@ -7,6 +7,7 @@ from typing import Any
 
 from curbside.localize.live import LiveSession
 from curbside.localize.serve.models import Estimate
+from curbside.localize.track_result import place_text, sidewalk_shapes
 from curbside.osmseg.places import SidewalkPlace
 
 #: Every field of an estimate; those without a value are null.
@@ -27,7 +28,10 @@ def estimate_of(
     live
         The session.
     places
-        Street and compass side of each sidewalk segment of the service's map.
+        Street and compass side of each sidewalk segment of the service's map; ``place`` says the
+        estimate is off the sidewalk when it lies farther than
+        :data:`~curbside.localize.track_result.OFF_SIDEWALK_M` from the segment
+        (:func:`~curbside.localize.track_result.place_text`).
     warnings
         This request's own warnings (fixes dropped for arriving late); what keeps the estimate from
         answering (:meth:`~curbside.localize.live.LiveSession.notices`) and why a session cannot go on
@@ -58,6 +62,10 @@ def estimate_of(
     row = rows[-1]
     lon, lat = live.frame.to_lonlat(row.x, row.y)
     place = places.get(row.segment_id) if row.segment_id else None
+    distance_m = None
+    if row.segment_id and live.map_layers is not None:
+        shapes = sidewalk_shapes(live.map_layers)
+        distance_m = _finite(float(shapes.distances_m([row.segment_id], [row.x], [row.y])[0]))
     out.update(
         t=row.t,
         lat=float(lat),
@@ -65,9 +73,10 @@ def estimate_of(
         accuracy_m=_finite(row.accuracy_m),
         segment_id=row.segment_id,
         segment_prob=_finite(row.segment_prob),
+        segment_distance_m=distance_m,
         street=place.street if place else None,
         side=place.side if place else None,
-        place=place.label if place else None,
+        place=place_text(place.label, distance_m) if place else None,
         n_eff=_finite(row.n_eff),
         motion=row.motion or None,
         update=row.kind,

@@ -22,17 +22,17 @@ from typing import Annotated, Any
 
 from fastapi import Depends, FastAPI, Request, WebSocket, WebSocketDisconnect
 from fastapi.exceptions import RequestValidationError
-from fastapi.openapi.docs import get_swagger_ui_html
 from fastapi.responses import HTMLResponse, JSONResponse
+from fastapi.routing import APIWebSocketRoute
 from fastapi.security import HTTPAuthorizationCredentials, HTTPBearer
-from pydantic import ValidationError
+from pydantic import BaseModel, Field, ValidationError
 from starlette.responses import Response
 from starlette.types import ASGIApp, Receive, Scope, Send
 
 from curbside import __version__
 from curbside.io import json_ready
 from curbside.localize.live import IMU_COLUMNS
-from curbside.localize.serve.apidocs import api_reference_html
+from curbside.localize.serve.apidocs import STREAM, WebSocketDoc, api_reference_html, swagger_ui_html
 from curbside.localize.serve.common import session_label
 from curbside.localize.serve.download import OpenFileResponse
 from curbside.localize.serve.models import (
@@ -61,10 +61,48 @@ _MEDIA_TYPES = {
 #: The bodies ``GET /tracks/{id}/{name}`` may send, for the OpenAPI schema.
 _FILE_BODIES = {media: {"schema": {"type": "string", "format": "binary"}} for media in _MEDIA_TYPES.values()}
 
-_ERRORS = {status: {"model": ErrorMessage} for status in (400, 401, 404, 409, 410, 413, 422, 500, 503)}
+#: Error answers routes share (each route declares its own set: :func:`_errors`): the token's, a bug's,
+#: a JSON body's, an unknown or ended session's, a missing track's.
+_TOKEN = {401: "missing or wrong bearer token (when the service has one)"}
+_BUG = {500: "a bug of the service (the detail names only the exception's type; see the service log)"}
+_BODY = {
+    400: "malformed JSON",
+    413: "a body over 4 MiB: send fewer rows per request",
+    415: "the body is not sent as application/json",
+}
+_NO_SESSION = {
+    404: "no such session (or one whose filter never started: it left no track)",
+    410: "the session has ended; its track is at /tracks/{id}",
+}
+_NO_TRACK = {
+    404: "no such track: never saved, removed, or not this session's id (a track is read by its "
+    "session's id, not by its key)",
+    409: "the session is still open: DELETE /sessions/{id} finishes its track",
+}
 
-#: The answer of a route with a JSON body to a body sent as something else.
-_NOT_JSON = {415: {"model": ErrorMessage, "description": "the body is not sent as application/json"}}
+#: The WebSocket routes' entries on the API reference page, which OpenAPI has no place for.
+_WEBSOCKET_DOCS: dict[str, WebSocketDoc] = {STREAM.path: STREAM}
+
+
+def _errors(own: dict[int, str], token: bool = True, body: bool = True) -> dict[int | str, dict[str, Any]]:
+    """A route's error answers for the OpenAPI schema: its ``own`` (status: when), the token's 401 when
+    it needs the ``token``, and a bug's 500; ``body``: each with its ``ErrorMessage`` (not for HEAD)."""
+    statuses = {**(_TOKEN if token else {}), **own, **_BUG}
+    return {status: {"description": when, **({"model": ErrorMessage} if body else {})}
+            for status, when in sorted(statuses.items())}
+
+
+class TrackRecord(BaseModel):
+    """``GET /tracks/{id}``: an ended session's ``run.json`` and its track."""
+
+    run: dict[str, Any] = Field(
+        description="the track's run.json: the whole run configuration, the session's record (service: "
+        "map, created, ended, reason, start, failed) and what the filter did"
+    )
+    track: dict[str, Any] = Field(
+        description="track.geojson: a GeoJSON FeatureCollection, a Point per filter update with the "
+        "columns of track.csv as properties"
+    )
 
 
 class BodyLimit:
@@ -131,7 +169,7 @@ _denied: ContextVar[bool] = ContextVar("curbside_ws_denied", default=False)
 
 
 class _SessionIdFilter(logging.Filter):
-    """Keeps session ids and tokens out of uvicorn's WebSocket lines (``localize serve -v``:
+    """Keeps session ids and tokens out of uvicorn's WebSocket lines (``localize -v serve``:
     ``127.0.0.1:50132 - "WebSocket /sessions/ID/stream?access_token=TOKEN" [accepted]``): the id is
     the key to a session, so the path names the session by its label (:func:`session_label`), and the
     query string, which may hold the token, is left out."""
@@ -214,7 +252,6 @@ def create_app(config: ServiceConfig, service: TrackingService | None = None) ->
         summary="Stream a walker's phone IMU and GNSS in; get which side of which street back.",
         description="See docs/service.md. Rows use the SPEC's imu.csv and gnss.csv column names and units.",
         lifespan=lifespan,
-        responses=_ERRORS,
         docs_url=None,  # Swagger UI loads from a CDN: /docs is the offline page of _add_docs_routes
         redoc_url=None,
     )
@@ -240,7 +277,7 @@ def create_app(config: ServiceConfig, service: TrackingService | None = None) ->
         status, detail = _one_line(list(exc.errors()))
         return JSONResponse({"detail": detail}, status_code=status)
 
-    @app.get("/health", response_model=Health, tags=["service"])
+    @app.get("/health", response_model=Health, tags=["service"], responses=_errors({}, token=False))
     async def health() -> dict[str, Any]:
         """Liveness and what the service tracks on (no token needed)."""
         return {
@@ -259,18 +296,35 @@ def create_app(config: ServiceConfig, service: TrackingService | None = None) ->
 
 def _add_docs_routes(app: FastAPI) -> None:
     """``/docs``: the API reference as one page that needs nothing from outside; ``/docs/swagger``:
-    FastAPI's Swagger UI, which the browser loads from the jsDelivr CDN."""
+    Swagger UI, which the browser loads from the jsDelivr CDN (offline, a line that links to ``/docs``).
+    The schema leaves out the answers FastAPI adds by itself (422 for a path parameter): every route
+    declares its own."""
     page: list[str] = []  # drawn at the first request, once every route is in the schema
+    openapi = app.openapi
+
+    def schema() -> dict[str, Any]:
+        if app.openapi_schema is None:
+            for item in openapi()["paths"].values():
+                for op in item.values():
+                    answer = op["responses"].get("422", {}).get("content", {}).get("application/json", {})
+                    if answer.get("schema", {}).get("$ref", "").endswith("/HTTPValidationError"):
+                        del op["responses"]["422"]
+            for name in ("HTTPValidationError", "ValidationError"):
+                app.openapi_schema.get("components", {}).get("schemas", {}).pop(name, None)
+        return app.openapi_schema
+
+    app.openapi = schema
 
     @app.get("/docs", include_in_schema=False)
     async def reference() -> HTMLResponse:
         if not page:
-            page.append(api_reference_html(app.openapi()))
+            websockets = [_WEBSOCKET_DOCS[r.path] for r in app.routes if isinstance(r, APIWebSocketRoute)]
+            page.append(api_reference_html(app.openapi(), websockets=websockets))
         return HTMLResponse(page[0])
 
     @app.get("/docs/swagger", include_in_schema=False)
     async def swagger() -> HTMLResponse:
-        return get_swagger_ui_html(openapi_url=app.openapi_url, title=f"{app.title}: Swagger UI")
+        return HTMLResponse(swagger_ui_html(app.openapi_url, f"{app.title}: Swagger UI"))
 
 
 def _add_session_routes(app: FastAPI, service: TrackingService, config: ServiceConfig, auth: list) -> None:
@@ -284,7 +338,8 @@ def _add_session_routes(app: FastAPI, service: TrackingService, config: ServiceC
         response_model=SessionCreated,
         dependencies=json_body,
         tags=["sessions"],
-        responses=_NOT_JSON,
+        responses=_errors({**_BODY, 422: "a start pose or configuration refused",
+                           503: "the service holds its maximum of sessions (--max-sessions)"}),
     )
     async def create_session(body: NewSession | None = None) -> dict[str, Any]:
         """Open a session (no body: no start pose, the service's configuration). Keep the returned ``id``
@@ -300,7 +355,11 @@ def _add_session_routes(app: FastAPI, service: TrackingService, config: ServiceC
         }
 
     @app.post("/sessions/{session_id}/samples", response_model=Estimate, dependencies=json_body,
-              tags=["sessions"], responses=_NOT_JSON)
+              tags=["sessions"], responses=_errors({
+                  **_BODY, **_NO_SESSION, 409: "the session is ending",
+                  422: "rows or values refused (nothing changed), ``end`` over HTTP, or the IMU stream "
+                  "proved unusable (the session fails)",
+                  503: "the service stopped before it could answer"}))
     async def push_samples(session_id: str, body: Samples) -> dict[str, Any]:
         """Feed rows (each stream in time order); returns the latest estimate. A refused batch changes
         nothing, but for the one that shows the IMU stream unusable: then the session fails."""
@@ -310,14 +369,20 @@ def _add_session_routes(app: FastAPI, service: TrackingService, config: ServiceC
             )
         return await _push(service, session_id, body)
 
-    @app.get("/sessions/{session_id}/estimate", response_model=Estimate, dependencies=auth, tags=["sessions"])
+    @app.get("/sessions/{session_id}/estimate", response_model=Estimate, dependencies=auth, tags=["sessions"],
+             responses=_errors(_NO_SESSION))
     async def get_estimate(session_id: str) -> dict[str, Any]:
         """The latest estimate."""
         return service.estimate(session_id)
 
-    @app.delete("/sessions/{session_id}", response_model=TrackSummary, dependencies=auth, tags=["sessions"])
+    @app.delete("/sessions/{session_id}", response_model=TrackSummary, dependencies=auth, tags=["sessions"],
+                responses=_errors({
+                    **_NO_SESSION, 409: "the session is ending",
+                    422: "finishing failed on the session's input: it has ended with its track so far",
+                    503: "the service stopped before it could answer"}))
     async def end_session(session_id: str) -> dict[str, Any]:
-        """End the session: the filter finishes and the whole track is saved (``GET /tracks/{id}``)."""
+        """End the session: the filter finishes and the whole track is saved, read with the session's
+        id (``GET /tracks/{id}``); a session whose filter never started saves none (``saved``)."""
         return await service.end(session_id, "deleted")
 
     @app.websocket("/sessions/{session_id}/stream")
@@ -330,12 +395,15 @@ def _add_session_routes(app: FastAPI, service: TrackingService, config: ServiceC
 def _add_track_routes(app: FastAPI, service: TrackingService, auth: list) -> None:
     """``/tracks``: the saved tracks of ended sessions; read or remove one."""
 
-    @app.get("/tracks", response_model=list[TrackInfo], dependencies=auth, tags=["tracks"])
+    @app.get("/tracks", response_model=list[TrackInfo], dependencies=auth, tags=["tracks"],
+             responses=_errors({}))
     async def list_tracks() -> list[dict[str, Any]]:
         """Every saved track, by key (a hash of its session id: reading one needs the id)."""
         return service.store.list()
 
-    @app.get("/tracks/{session_id}", dependencies=auth, tags=["tracks"])
+    @app.get("/tracks/{session_id}", dependencies=auth, tags=["tracks"],
+             responses={200: {"model": TrackRecord, "description": "its run.json and GeoJSON"},
+                        **_errors(_NO_TRACK)})
     def get_track(session_id: str) -> Response:
         """An ended session's ``run.json`` and its track as GeoJSON: ``{"run": ..., "track": ...}``."""
         # Off the event loop (a route without async), and the GeoJSON as it is on disk: parsing and
@@ -365,7 +433,9 @@ def _add_track_routes(app: FastAPI, service: TrackingService, auth: list) -> Non
         (``Content-Length``), ``ETag``, ``Last-Modified`` and ``Accept-Ranges``."""
         return _track_file(service, session_id, name)
 
-    @app.delete("/tracks/{session_id}", response_model=TrackInfo, dependencies=auth, tags=["tracks"])
+    @app.delete("/tracks/{session_id}", response_model=TrackInfo, dependencies=auth, tags=["tracks"],
+                responses=_errors({**_NO_TRACK, 409: "the session is still open, or the folder was not "
+                                   "written by the service (it is left alone)"}))
     async def delete_track(session_id: str) -> dict[str, Any]:
         """Remove an ended session's track (its listing entry is the reply). Only a folder the service
         wrote is removed, and in it only the files it wrote; 409 while the session is open."""
@@ -381,8 +451,10 @@ def _file_responses(head: bool) -> dict[int | str, dict[str, Any]]:
               {**_FILE_BODIES, "multipart/byteranges": {"schema": {"type": "string", "format": "binary"}}}),
         416: ("no range asked for starts before the end of the file (Content-Range: bytes */SIZE)", {}),
     }
-    return {status: {"description": what + only, **({} if head or not bodies else {"content": bodies})}
-            for status, (what, bodies) in answers.items()}
+    files = {status: {"description": what + only, **({} if head or not bodies else {"content": bodies})}
+             for status, (what, bodies) in answers.items()}
+    missing = {**_NO_TRACK, 404: f"{_NO_TRACK[404]}; or no such file (one of {', '.join(TRACK_FILES)})"}
+    return {**files, **_errors(missing, body=not head)}
 
 
 def _track_file(service: TrackingService, session_id: str, name: str) -> OpenFileResponse:
@@ -452,7 +524,7 @@ async def _answer(
         body = Samples.model_validate_json(data)
         answer = await _push(service, session_id, body) if body.imu or body.gnss else None
         if body.end:
-            answer = await service.end(session_id, "deleted")
+            answer = await service.end(session_id, "ended")
         elif answer is None:
             answer = service.estimate(session_id)
     except ValidationError as exc:

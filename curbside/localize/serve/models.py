@@ -18,6 +18,7 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from curbside.localize.live import GNSS_COLUMNS, IMU_COLUMNS, IMU_QUAT_COLUMNS
+from curbside.localize.track_result import OFF_SIDEWALK_M, place_text
 
 #: Most rows one request may carry per stream: four minutes of IMU at 50 Hz, of GNSS at 1 Hz.
 MAX_IMU_ROWS = 12_000
@@ -144,9 +145,22 @@ class Estimate(BaseModel):
     )
     segment_id: str | None = Field(None, description="most probable sidewalk segment (map segment_id)")
     segment_prob: float | None = Field(None, description="its probability, calibrated (docs/filter.md)")
-    street: str | None = None
-    side: str | None = Field(None, description="compass side of the street: north, northeast, ...")
-    place: str | None = Field(None, description='e.g. "Market Street, north side"')
+    segment_distance_m: float | None = Field(
+        None,
+        description="distance from lat/lon to that segment's sidewalk polygon, m (0: on it); check it "
+        "before announcing a side: the filter names a segment for estimates up to "
+        "filter.map.segment_reach_m (25 m by default) away",
+    )
+    street: str | None = Field(None, description="street of that segment")
+    side: str | None = Field(
+        None, description="compass side of the street of that segment: north, northeast, ..."
+    )
+    place: str | None = Field(
+        None,
+        description=f'where the estimate is, in words: "Market Street, north side", or, more than '
+        f'{OFF_SIDEWALK_M:g} m from the segment (segment_distance_m), '
+        f'"{place_text("Market Street, north side", 19.0)}"',
+    )
     n_eff: float | None = Field(None, description="effective number of particles")
     recoveries: int = Field(0, description="collapses of the particle cloud so far")
     unseen_velocity_from_s: float | None = Field(
@@ -171,7 +185,7 @@ class TrackSummary(BaseModel):
     """An ended session's track, written to disk (retrieve it with ``GET /tracks/{id}``)."""
 
     key: str = Field(description="the track's name on disk and in GET /tracks (a hash of the id)")
-    reason: str = Field(description="deleted, expired or shutdown")
+    reason: str = Field(description="deleted, ended (the WebSocket's end message), expired or shutdown")
     updates: int
     t_start: float | None = None
     t_end: float | None = None

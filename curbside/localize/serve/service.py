@@ -313,7 +313,8 @@ class TrackingService:
         return estimate_of(entry.live, self.places)
 
     async def end(self, session_id: str, reason: str = "deleted") -> dict[str, Any]:
-        """End a session: finish the filter, save the track; return a summary (``TrackSummary``)."""
+        """End a session: finish the filter, save the track; return a summary (``TrackSummary``).
+        ``reason``: ``deleted`` (``DELETE``) or ``ended`` (the WebSocket's ``end``)."""
         entry = self.entry(session_id)
         if entry.ending:
             raise ServiceError(409, "the session is ending")
@@ -490,12 +491,18 @@ class TrackingService:
         return summary
 
     def _track(self, entry: _Entry, reason: str) -> tuple[dict[str, Any], Any, dict[str, Any]]:
-        """An ended session's summary (``TrackSummary``), track (``None`` without any update) and
-        ``run.json`` service record."""
+        """An ended session's summary (``TrackSummary``), track (``None`` without any update, or when
+        the filter never started on data) and ``run.json`` service record."""
         live = entry.live
         self.queue.drop(live)
-        result = live.result()
         rows = live.rows
+        if rows and rows[0].t > live.received_until:
+            # The data ended before the start pose's t, and finishing started the filter there: one
+            # position at a time with no data. The session never tracked, and saves no track.
+            logger.info("%s: its data ends at %.2f s, before the filter's start at %.2f s: no track",
+                        live.name, live.received_until, rows[0].t)
+            rows = []
+        result = live.result() if rows else None
         info = {
             "map": self.config.map_path,
             "created": entry.created,
