@@ -2,8 +2,14 @@
 
 from __future__ import annotations
 
+import contextlib
+import socket
+import threading
+import time
+from collections.abc import Iterator
 from pathlib import Path
 
+import uvicorn
 from fastapi.testclient import TestClient
 
 from curbside.localize.serve.app import create_app
@@ -17,3 +23,27 @@ def client_for(tmp_path: Path, model, **kwargs) -> TestClient:
     """A test client of a service writing under ``tmp_path / "data"`` (``kwargs``: ``ServiceConfig``)."""
     config = ServiceConfig(data_dir=tmp_path / "data", **kwargs)
     return TestClient(create_app(config, TrackingService(config, model)))
+
+
+@contextlib.contextmanager
+def live_service(tmp_path: Path, model, log_level: str = "warning") -> Iterator[tuple[str, uvicorn.Server]]:
+    """A service writing under ``tmp_path / "data"``, served by uvicorn on a free loopback port in a
+    thread: its base URL and server (stopped on exit). uvicorn leaves logging alone (``log_config=None``)."""
+    with socket.socket() as probe:
+        probe.bind(("127.0.0.1", 0))
+        port = probe.getsockname()[1]
+    config = ServiceConfig(data_dir=tmp_path / "data")
+    app = create_app(config, TrackingService(config, model))
+    server = uvicorn.Server(uvicorn.Config(app, host="127.0.0.1", port=port, log_config=None,
+                                           log_level=log_level))
+    thread = threading.Thread(target=server.run, daemon=True)
+    thread.start()
+    try:
+        deadline = time.monotonic() + 60.0
+        while not server.started:
+            assert time.monotonic() < deadline and thread.is_alive(), "uvicorn did not start"
+            time.sleep(0.05)
+        yield f"http://127.0.0.1:{port}", server
+    finally:
+        server.should_exit = True
+        thread.join(30)

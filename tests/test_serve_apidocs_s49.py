@@ -14,31 +14,26 @@ Loopback only; no network.
 
 from __future__ import annotations
 
-import contextlib
 import json
 import re
 import shutil
-import socket
 import subprocess
-import threading
 import time
-from collections.abc import Iterator
 from pathlib import Path
 
 import httpx
 import pytest
-import uvicorn
 from browser import chromium, console_errors
 from fastapi.routing import APIRoute, APIWebSocketRoute
 from fastapi.testclient import TestClient
-from serve_fixtures import client_for
+from serve_fixtures import client_for, live_service
 from websockets.exceptions import ConnectionClosed
 from websockets.sync.client import connect
 
 from curbside.localize.live import IMU_QUAT_COLUMNS
 from curbside.localize.serve.apidocs import api_reference_html, swagger_ui_html
 from curbside.localize.serve.app import TrackRecord, create_app
-from curbside.localize.serve.service import ServiceConfig, TrackingService
+from curbside.localize.serve.service import ServiceConfig
 
 REPO = Path(__file__).resolve().parents[1]
 TOKEN = "s49-token-0123456789"
@@ -205,29 +200,6 @@ def test_a_session_whose_data_ends_before_its_start_saves_no_track(tmp_path, ron
 # -- 3: the JavaScript client, against a live service -------------------------------------------------
 
 
-@contextlib.contextmanager
-def _live(tmp_path: Path, model) -> Iterator[tuple[str, uvicorn.Server]]:
-    """A service on a free loopback port, in a thread: its base URL and server."""
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        port = s.getsockname()[1]
-    config = ServiceConfig(data_dir=tmp_path / "data")
-    app = create_app(config, TrackingService(config, model))
-    server = uvicorn.Server(uvicorn.Config(app, host="127.0.0.1", port=port, log_config=None,
-                                           log_level="warning"))
-    thread = threading.Thread(target=server.run, daemon=True)
-    thread.start()
-    try:
-        deadline = time.monotonic() + 60.0
-        while not server.started:
-            assert time.monotonic() < deadline and thread.is_alive()
-            time.sleep(0.05)
-        yield f"http://127.0.0.1:{port}", server
-    finally:
-        server.should_exit = True
-        thread.join(30)
-
-
 def _doc_example(name: str) -> str:
     text = (REPO / "docs" / "service.md").read_text(encoding="utf-8")
     match = re.search(rf"<!-- example: {re.escape(name)} -->\n```\w+\n(.*?)```", text, re.S)
@@ -240,7 +212,7 @@ def test_the_javascript_client_prints_a_track_url_that_opens(tmp_path, ronin_mod
     (tmp_path / "client.mjs").write_text(_doc_example("client.mjs"))
     walk = {"start": ipin_walk.meta["start"], **_walk(ipin_walk, 16.0)}
     (tmp_path / "walk.json").write_text(json.dumps(walk))
-    with _live(tmp_path, ronin_model) as (url, _):
+    with live_service(tmp_path, ronin_model) as (url, _):
         done = subprocess.run(
             ["node", "--experimental-websocket", str(tmp_path / "client.mjs"), url,
              str(tmp_path / "walk.json"), "1000"],
@@ -257,7 +229,7 @@ def test_the_javascript_client_prints_a_track_url_that_opens(tmp_path, ronin_mod
 
 
 def test_the_service_stopping_closes_a_websocket_with_1012(tmp_path, ronin_model, ipin_walk):
-    with _live(tmp_path, ronin_model) as (url, server):
+    with live_service(tmp_path, ronin_model) as (url, server):
         session_id = httpx.post(f"{url}/sessions", json={"start": ipin_walk.meta["start"]}).json()["id"]
         with connect(f"{url.replace('http', 'ws')}/sessions/{session_id}/stream", open_timeout=10) as ws:
             ws.send(json.dumps(_walk(ipin_walk, 16.0)))

@@ -12,14 +12,10 @@ from __future__ import annotations
 
 import http.client
 import os
-import socket
-import threading
-import time
 
 import pytest
-import uvicorn
 from fastapi.testclient import TestClient
-from serve_fixtures import client_for
+from serve_fixtures import client_for, live_service
 
 from curbside.localize.serve import service as service_module
 from curbside.localize.serve.app import create_app
@@ -209,27 +205,11 @@ def test_abusive_or_malformed_range_sets_get_the_whole_file(tmp_path, ronin_mode
 # -- over a real socket ---------------------------------------------------------------------------------
 
 
-def _serving(app) -> tuple[uvicorn.Server, threading.Thread, int]:
-    with socket.socket() as probe:
-        probe.bind(("127.0.0.1", 0))
-        port = probe.getsockname()[1]
-    server = uvicorn.Server(uvicorn.Config(app, host="127.0.0.1", port=port, log_level="warning"))
-    thread = threading.Thread(target=server.run, daemon=True)
-    thread.start()
-    deadline = time.monotonic() + 30.0
-    while not server.started:
-        assert thread.is_alive() and time.monotonic() < deadline, "uvicorn did not start"
-        time.sleep(0.05)
-    return server, thread, port
-
-
 def test_over_uvicorn_a_head_leaves_the_connection_ready_for_the_get(tmp_path, ronin_model, walk_result):
     folder = _saved(tmp_path, walk_result)
     data = (folder / "track.geojson").read_bytes()
-    config = service_module.ServiceConfig(data_dir=tmp_path / "data")
-    server, thread, port = _serving(create_app(config, service_module.TrackingService(config, ronin_model)))
-    try:
-        connection = http.client.HTTPConnection("127.0.0.1", port, timeout=10)
+    with live_service(tmp_path, ronin_model) as (url, _):
+        connection = http.client.HTTPConnection(url.removeprefix("http://"), timeout=10)
         answers = []
         for method, asked in (("HEAD", "bytes=0-9,100-199"), ("HEAD", ""), ("GET", "bytes=-10")):
             headers = {"Range": asked} if asked else {}
@@ -237,9 +217,6 @@ def test_over_uvicorn_a_head_leaves_the_connection_ready_for_the_get(tmp_path, r
             reply = connection.getresponse()
             answers.append((reply.status, reply.getheader("content-length"), reply.read()))
         connection.close()
-    finally:
-        server.should_exit = True
-        thread.join(timeout=30)
     assert answers[0][0] == 206 and answers[0][2] == b""
     assert answers[1] == (200, str(len(data)), b"")
     assert answers[2] == (206, "10", data[-10:])  # one connection: the HEADs left no body behind

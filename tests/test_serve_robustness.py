@@ -13,15 +13,12 @@ import asyncio
 import json
 import logging
 import math
-import socket
-import threading
 import time
 
 import numpy as np
 import pytest
-import uvicorn
 from fastapi.testclient import TestClient
-from serve_fixtures import client_for
+from serve_fixtures import client_for, live_service
 from websockets.exceptions import InvalidStatus
 from websockets.sync.client import connect
 
@@ -220,45 +217,21 @@ def test_a_chunked_body_over_the_limit_is_a_413(tmp_path, ronin_model):
         assert reply.status_code == 200 and reply.json()["data_until"] == 1.0
 
 
-def _free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
-
 def test_a_refused_websocket_gets_its_status_and_logs_no_error(tmp_path, ronin_model, caplog):
     """uvicorn's websockets-sansio protocol logs "ASGI callable returned without completing
     handshake." after every denial response unless the service filters it out."""
-    config = ServiceConfig(data_dir=tmp_path / "data")
-    port = _free_port()
-    server = uvicorn.Server(
-        uvicorn.Config(
-            create_app(config, TrackingService(config, ronin_model)),
-            host="127.0.0.1",
-            port=port,
-            log_config=None,  # records reach caplog
-            log_level="info",
-        )
-    )
     # Straight to caplog's handler: an earlier uvicorn in the same process may have configured its
     # loggers not to propagate.
     error_log = logging.getLogger("uvicorn.error")
     error_log.addHandler(caplog.handler)
-    thread = threading.Thread(target=server.run, daemon=True)
-    thread.start()
     try:
-        deadline = time.monotonic() + 60.0
-        while not server.started:
-            assert time.monotonic() < deadline and thread.is_alive()
-            time.sleep(0.05)
-        with caplog.at_level(logging.INFO, logger="uvicorn.error"):
+        with (live_service(tmp_path, ronin_model, log_level="info") as (url, _),
+              caplog.at_level(logging.INFO, logger="uvicorn.error")):
             with pytest.raises(InvalidStatus) as refused:
-                connect(f"ws://127.0.0.1:{port}/sessions/nope/stream", open_timeout=10)
+                connect(f"{url.replace('http', 'ws')}/sessions/nope/stream", open_timeout=10)
             time.sleep(0.5)  # the server logs after the reply
     finally:
         error_log.removeHandler(caplog.handler)
-        server.should_exit = True
-        thread.join(30)
     assert refused.value.response.status_code == 404
     assert json.loads(refused.value.response.body) == {"detail": "no such session"}
     assert not [r.getMessage() for r in caplog.records if r.levelno >= logging.ERROR]
