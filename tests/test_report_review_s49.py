@@ -227,3 +227,10 @@ def test_the_scale_bar_box_fits_its_bar_and_label():
               if b.get_window_extent(renderer).contains(*text.get_points().mean(axis=0))]
     box = min(behind, key=lambda b: b.width * b.height)
     assert box.height <= 3.0 * text.height, (box.height, text.height)
+
+
+def test_ipin_trials_without_ipin_is_refused_not_ignored(tmp_path, capsys, walks):
+    out = tmp_path / "report"
+    _fails(capsys, ["evaluate", str(walks), "--maps", str(MAP), "--ipin-trials", "2", "-o", str(out)],
+           "--ipin-trials: chooses trials of --ipin H5, which is not given")
+    assert not out.exists()

@@ -260,6 +260,8 @@ def _evaluate(args: argparse.Namespace) -> int:
     names = _map_names(args.maps, args.map_names)
     if args.ipin:
         _check_ipin(args.ipin, held_out=False)  # before the runs, not after them
+    elif args.ipin_trials is not None:
+        raise CurbsideInputError("--ipin-trials", "chooses trials of --ipin H5, which is not given")
     # the heavy imports, once the cheap checks passed
     from curbside.evaluate.benchmark import ipin_table, plan, route_table
     from curbside.evaluate.report import write_report
