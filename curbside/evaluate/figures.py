@@ -501,7 +501,7 @@ def _segment_reliability_axes(ax, rows: list[dict[str, Any]], group: str | None)
         ax.scatter(bins["mean_prob"], bins["share_right"], s=area, color=color,
                    edgecolor="k", linewidth=0.4, alpha=0.85, zorder=3, clip_on=False,
                    label=f"{METHOD_LABELS[r['method']]} (calibration error {r['calibration_error']:.3f})")
-    ax.plot([0, 1], [0, 1], ":", color="0.4", lw=1, label="probability = share right")
+    ax.plot([0, 1], [0, 1], ":", color="0.4", lw=1, label="probability = share correct")
     # room for the largest marker at probability and share 1 (they are not clipped either)
     ax.set_xlim(-RELIABILITY_MARGIN, 1 + RELIABILITY_MARGIN)
     ax.set_ylim(-RELIABILITY_MARGIN, 1 + RELIABILITY_MARGIN)
