@@ -141,7 +141,8 @@ def derive_layers(osm: OsmData, config: SegmentationConfig | None = None) -> gpd
     Returns
     -------
     geopandas.GeoDataFrame
-        Columns ``class``, ``segment_id``, ``street``, ``side``, ``geometry`` (CRS of ``osm``).
+        Columns ``class``, ``segment_id``, ``street``, ``side``, ``facing_deg``, ``geometry`` (CRS of
+        ``osm``).
     """
     config = config or SegmentationConfig()
     min_area = config.min_polygon_area_m2
@@ -171,7 +172,8 @@ def derive_layers(osm: OsmData, config: SegmentationConfig | None = None) -> gpd
         if col not in gdf:
             gdf[col] = None
         gdf[col] = gdf[col].astype(object).where(gdf[col].notna(), None)
-    return gdf[["class", "segment_id", "street", "side", "geometry"]]
+    gdf["facing_deg"] = gdf["facing_deg"].astype(float)
+    return gdf[["class", "segment_id", "street", "side", "facing_deg", "geometry"]]
 
 
 def _clip_layers(gdf: gpd.GeoDataFrame, window: shapely.Polygon, min_area_m2: float) -> gpd.GeoDataFrame:

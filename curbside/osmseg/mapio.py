@@ -1,7 +1,8 @@
 """The map-layer schema of SPEC.md: read, validate and write GeoJSON map layers.
 
 A map is one FeatureCollection in WGS84 whose features carry ``properties.class`` in
-:data:`CLASSES`; ``sidewalk`` features also carry ``segment_id``, ``street`` and ``side``. A top-level
+:data:`CLASSES`; ``sidewalk`` features also carry ``segment_id``, ``street`` and ``side``, and maps
+that ``osmseg build`` wrote also ``facing_deg`` (the bearing from the street to the segment). A top-level
 ``"curbside"`` member holds metadata, ``buildings_source`` among it (:func:`buildings_source`). In
 memory a map is a :class:`MapLayers`: a GeoDataFrame in the local UTM CRS plus that metadata.
 """
@@ -17,6 +18,7 @@ from typing import TYPE_CHECKING, Any
 
 import geopandas as gpd
 import numpy as np
+import pandas as pd
 import shapely
 
 from curbside.errors import CurbsideInputError
@@ -104,6 +106,8 @@ def from_wgs84(gdf: gpd.GeoDataFrame, meta: dict[str, Any] | None = None) -> Map
     for col in ("segment_id", "street", "side"):
         if col not in out:
             out[col] = None
+    if "facing_deg" not in out:
+        out["facing_deg"] = np.nan
     return MapLayers(out.reset_index(drop=True), dict(meta or {}))
 
 
@@ -231,8 +235,22 @@ def read_map(path: str | Path) -> MapLayers:
     gdf = gdf[~collapsed]
     if len(gdf) == 0:
         raise CurbsideInputError(path, "the map has no polygons with an area")
+    if "facing_deg" in gdf:
+        gdf = gdf.assign(facing_deg=_facing_bearings(path, gdf["facing_deg"]))
     meta = doc.get("curbside") if isinstance(doc.get("curbside"), dict) else {}
     return from_wgs84(gdf, meta)
+
+
+def _facing_bearings(path: Path, values: pd.Series) -> np.ndarray:
+    """``facing_deg`` as degrees in [0, 360) (absent: NaN); a value that is not a number is refused."""
+    numbers = pd.to_numeric(values, errors="coerce")
+    bad = numbers.isna() & values.notna() | ~np.isfinite(numbers.fillna(0.0))
+    if bad.any():
+        raise CurbsideInputError(
+            path, f"properties.facing_deg must be a bearing in degrees; got {values[bad].iloc[0]!r} "
+            f"({int(bad.sum())} such feature(s))",
+        )
+    return numbers.to_numpy(dtype=float) % 360.0
 
 
 def _clean(value: Any) -> Any:
@@ -252,14 +270,17 @@ def to_geojson(layers: MapLayers, precision: int = 7) -> dict[str, Any]:
     geoms = shapely.set_precision(valid, 10.0 ** -precision)
     geoms = shapely.make_valid(geoms)
     features = []
-    for cls, geom, seg, street, side in zip(
-        gdf["class"], geoms, gdf["segment_id"], gdf["street"], gdf["side"], strict=True
+    facings = gdf["facing_deg"] if "facing_deg" in gdf else [None] * len(gdf)
+    for cls, geom, seg, street, side, facing in zip(
+        gdf["class"], geoms, gdf["segment_id"], gdf["street"], gdf["side"], facings, strict=True
     ):
         if geom is None or geom.is_empty:
             continue
         props: dict[str, Any] = {"class": cls}
         if cls == "sidewalk":
             props.update(segment_id=_clean(seg), street=_clean(street), side=_clean(side))
+            if _clean(facing) is not None:
+                props["facing_deg"] = round(float(facing), 1)
         features.append(
             {"type": "Feature", "properties": props, "geometry": shapely.geometry.mapping(geom)}
         )

@@ -7,6 +7,11 @@ built with a single-sided buffer (positive = left of the OSM way direction). Whe
 streets meet at corners, the space goes to the nearest centreline (Voronoi cells of points sampled
 along the blocks). The carriageway, buildings and crosswalks are then cut out, which leaves the strip
 between the curb and the building line, split wherever a crosswalk crosses it.
+
+Each segment also records ``facing_deg``, the bearing from its street to it: the normal of its block's
+centreline, to the left or right as its side says, at the point of the block nearest the segment's
+centroid. Only the build has the centreline; from the polygon alone a corner sliver's side can come out
+a quarter or half turn off (:mod:`curbside.osmseg.places`).
 """
 
 from __future__ import annotations
@@ -190,7 +195,8 @@ def sidewalk_segments(
     -------
     geopandas.GeoDataFrame
         ``segment_id`` (``w<way id>-<k>-<L|R>``, ``k`` counting the segments of that side along
-        the way), ``street``, ``side`` (``left``/``right``), ``osm_id`` and geometry.
+        the way), ``street``, ``side`` (``left``/``right``), ``facing_deg`` (:func:`facing_bearings_deg`),
+        ``osm_id`` and geometry.
     """
     config = config or SegmentationConfig()
     service = column(roads, "service")
@@ -198,7 +204,8 @@ def sidewalk_segments(
     carrying_mask = is_in(column(roads, "highway"), config.sidewalk_highways)
     carrying = roads[carrying_mask].reset_index(drop=True)
     empty = gpd.GeoDataFrame(
-        {"segment_id": [], "street": [], "side": [], "osm_id": []}, geometry=[], crs=roads.crs
+        {"segment_id": [], "street": [], "side": [], "facing_deg": [], "osm_id": []},
+        geometry=[], crs=roads.crs,
     )
     if len(carrying) == 0:
         return empty
@@ -238,11 +245,45 @@ def sidewalk_segments(
         pd.DataFrame({"osm_id": osm_id, "row": way_row, "side": side[part_of], "k": k, "along": along})
     )
     names = column(carrying, "name").to_numpy()[way_row]
+    facing = facing_bearings_deg(parts, lines[piece], side[part_of])
     return gpd.GeoDataFrame(
-        {"segment_id": segment_id, "street": names, "side": side[part_of], "osm_id": osm_id},
+        {"segment_id": segment_id, "street": names, "side": side[part_of], "facing_deg": facing,
+         "osm_id": osm_id},
         geometry=shapely.make_valid(parts),
         crs=roads.crs,
     )
+
+
+def facing_bearings_deg(parts: np.ndarray, centrelines: np.ndarray, sides: np.ndarray) -> np.ndarray:
+    """Bearing from each part's street to the part (degrees clockwise from the CRS's grid north).
+
+    Parameters
+    ----------
+    parts
+        Sidewalk polygons in a metric CRS.
+    centrelines
+        The block centreline each part was built from (same length).
+    sides
+        ``"left"`` or ``"right"`` of the centreline's drawing direction, per part.
+
+    Returns
+    -------
+    numpy.ndarray
+        The centreline's normal on the part's side where the centreline passes nearest the part's
+        centroid (its direction over 2 m either way, so a kink does not decide it), rounded to 0.1°;
+        NaN for a centreline without length.
+    """
+    if len(parts) == 0:
+        return np.empty(0)
+    at = shapely.line_locate_point(centrelines, shapely.centroid(parts))
+    length = shapely.length(centrelines)
+    ahead = shapely.get_coordinates(shapely.line_interpolate_point(centrelines, np.minimum(at + 2.0, length)))
+    behind = shapely.get_coordinates(shapely.line_interpolate_point(centrelines, np.maximum(at - 2.0, 0.0)))
+    dx, dy = (ahead - behind).T
+    left = np.where(np.asarray(sides) == "left", 1.0, -1.0)
+    # The side's normal, (-dy, dx) to the left, as a bearing (clockwise from north: atan2(east, north)).
+    bearing = np.degrees(np.arctan2(-dy * left, dx * left)) % 360.0
+    return np.where(np.hypot(dx, dy) > 1e-9, np.round(bearing, 1) % 360.0, np.nan)
 
 
 def _segment_ids(parts: pd.DataFrame) -> np.ndarray:
