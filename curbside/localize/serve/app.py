@@ -23,7 +23,7 @@ from typing import Annotated, Any
 from fastapi import Depends, FastAPI, Request, WebSocket, WebSocketDisconnect
 from fastapi.exceptions import RequestValidationError
 from fastapi.responses import HTMLResponse, JSONResponse
-from fastapi.routing import APIWebSocketRoute
+from fastapi.routing import APIRoute, APIWebSocketRoute
 from fastapi.security import HTTPAuthorizationCredentials, HTTPBearer
 from pydantic import BaseModel, Field, ValidationError
 from starlette.responses import Response
@@ -290,39 +290,62 @@ def create_app(config: ServiceConfig, service: TrackingService | None = None) ->
 
     _add_session_routes(app, service, config, auth)
     _add_track_routes(app, service, auth)
+    _add_head_routes(app)
     _add_docs_routes(app)
     return app
+
+
+def _add_head_routes(app: FastAPI) -> None:
+    """``HEAD`` on each ``GET`` route of the schema that has none (FastAPI adds none): the ``GET``'s
+    endpoint, token and errors, so the same status and headers (``Content-Length`` included); the
+    server leaves out the body. Each is a short operation of its own, its answers without a body."""
+    routes = [r for r in app.routes if isinstance(r, APIRoute) and r.include_in_schema]
+    has_head = {r.path for r in routes if "HEAD" in r.methods}
+    for get in [r for r in routes if "GET" in r.methods and r.path not in has_head]:
+        errors = {s: {"description": a["description"]} for s, a in get.responses.items() if str(s)[0] in "45"}
+        app.add_api_route(
+            get.path, get.endpoint, methods=["HEAD"], name="head_" + get.name.removeprefix("get_"),
+            response_model=get.response_model, status_code=get.status_code, dependencies=get.dependencies,
+            tags=get.tags, response_class=get.response_class,
+            description=f"The headers ``GET {get.path}`` would send (its status, ``Content-Type`` and "
+            "``Content-Length``), without the body.",
+            responses={get.status_code or 200: {"description": "the headers of the GET's answer, no body"},
+                       **errors},
+        )
 
 
 def _add_docs_routes(app: FastAPI) -> None:
     """``/docs``: the API reference as one page that needs nothing from outside; ``/docs/swagger``:
     Swagger UI, which the browser loads from the jsDelivr CDN (offline, a line that links to ``/docs``).
     The schema leaves out the answers FastAPI adds by itself (422 for a path parameter): every route
-    declares its own."""
+    declares its own; and a ``HEAD``'s answers have no body."""
     page: list[str] = []  # drawn at the first request, once every route is in the schema
     openapi = app.openapi
 
     def schema() -> dict[str, Any]:
         if app.openapi_schema is None:
             for item in openapi()["paths"].values():
-                for op in item.values():
+                for method, op in item.items():
                     answer = op["responses"].get("422", {}).get("content", {}).get("application/json", {})
                     if answer.get("schema", {}).get("$ref", "").endswith("/HTTPValidationError"):
                         del op["responses"]["422"]
+                    if method == "head":  # no body: not the GET's, nor an error's
+                        for answer in op["responses"].values():
+                            answer.pop("content", None)
             for name in ("HTTPValidationError", "ValidationError"):
                 app.openapi_schema.get("components", {}).get("schemas", {}).pop(name, None)
         return app.openapi_schema
 
     app.openapi = schema
 
-    @app.get("/docs", include_in_schema=False)
+    @app.api_route("/docs", methods=["GET", "HEAD"], include_in_schema=False)
     async def reference() -> HTMLResponse:
         if not page:
             websockets = [_WEBSOCKET_DOCS[r.path] for r in app.routes if isinstance(r, APIWebSocketRoute)]
             page.append(api_reference_html(app.openapi(), websockets=websockets))
         return HTMLResponse(page[0])
 
-    @app.get("/docs/swagger", include_in_schema=False)
+    @app.api_route("/docs/swagger", methods=["GET", "HEAD"], include_in_schema=False)
     async def swagger() -> HTMLResponse:
         return HTMLResponse(swagger_ui_html(app.openapi_url, f"{app.title}: Swagger UI"))
 
