@@ -3,8 +3,9 @@
 ``osmseg edit MAP -o edit.html`` writes a page that shows the map's polygons by class, editable with the
 vendored Leaflet-Geoman plug-in (``curbside/data/web``): click a polygon (or pick it in the panel's list
 of polygons, by keyboard too) to select it, then drag its vertices (a vertex is added by dragging a
-mid-point marker, removed by a right click), change its class or its sidewalk fields, or delete it; the
-toolbar draws new polygons and rectangles of a chosen class; *undo* (Ctrl+Z) takes back the last edit.
+mid-point marker, removed by a right click) or move, add and remove them by keyboard (vertex mode, ``V``),
+change its class or its sidewalk fields, or delete it; the toolbar draws new polygons and rectangles of
+a chosen class; *undo* (Ctrl+Z) takes back the last edit.
 With a window (``--bbox``) the page shows and edits only the polygons that meet it, whole; the others
 ride along unseen and are saved as they are. *Save* downloads a GeoJSON of the map schema
 (:mod:`curbside.osmseg.mapio`) holding every polygon of the map file, in which
@@ -184,6 +185,7 @@ def editor_page(
         [
             f"const EDIT = {script_json({**data, 'kept_count': len(kept or [])})};",
             f"map.fitBounds({bounds_js(west, south, east, north)});",
+            asset_text("curbside-edit-vertex.js"),  # vertex mode: definitions used by the next
             asset_text("curbside-edit.js"),
         ]
     )

@@ -1,7 +1,8 @@
 // curbside map editor. Runs after the page skeleton of curbside/osmseg/webmap.py has created `map` and
 // `layers`, with Leaflet-Geoman loaded and `EDIT` = {source, filename, generator, meta, classes,
 // decimals, window, features, kept_count} inlined by curbside/osmseg/edit.py; the features outside the
-// window, saved unchanged, wait as JSON in the element #edit-kept (KEPT_ELEMENT_ID there).
+// window, saved unchanged, wait as JSON in the element #edit-kept (KEPT_ELEMENT_ID there). Vertex mode
+// (reshaping by keyboard) is defined in curbside-edit-vertex.js, which comes just before this file.
 
 const CLASSES = Object.keys(EDIT.classes);
 const SIDEWALK_FIELDS = ["segment_id", "street", "side"];
@@ -19,6 +20,7 @@ const ui = {
   sidewalkFields: document.getElementById("sidewalk-fields"),
   fields: Object.fromEntries(SIDEWALK_FIELDS.map((f) => [f, document.getElementById(`field-${f}`)])),
   remove: document.getElementById("delete"),
+  vertexButton: document.getElementById("vertex-mode"),
   message: document.getElementById("edit-message"),
   count: document.getElementById("edit-count"),
   undo: document.getElementById("undo"),
@@ -147,6 +149,7 @@ function select(layer) {
 function deselect() {
   const layer = editor.selected;
   if (!layer) return;
+  leaveVertexMode(true);
   layer.pm.disable();
   layer.setStyle(classStyle(layer.curbside.cls));
   editor.selected = null;
@@ -195,6 +198,7 @@ function undo() {
   }
   const { layer, ...state } = step.state;
   const c = layer.curbside;
+  const vertex = vertexMode.layer === layer ? vertexMode.index : null;  // vertex mode goes on after the undo
   deselect();
   editor.groups[c.cls].removeLayer(layer);
   Object.assign(c, { cls: state.cls, props: state.props, edits: state.edits });
@@ -206,8 +210,9 @@ function undo() {
   syncOption(layer, state.present);
   refreshCounts();
   if (state.present) select(layer);
+  const resumed = state.present && vertex !== null && enterVertexMode(vertex, true);
   updateUndoButton();
-  say(`undone: ${step.what}`);
+  say(`undone: ${step.what}${resumed ? `; ${vertexText()}` : ""}`);
 }
 
 function markEdited(layer, kind) {
@@ -217,27 +222,40 @@ function markEdited(layer, kind) {
   refreshCounts();
 }
 
-function commitGeometry(layer) {
+// A new outline for a polygon being edited (Geoman's vertex handles follow only when re-enabled).
+function setOutline(layer, latlngs) {
+  layer.pm.disable();
+  layer.setLatLngs(cloneLatLngs(latlngs));
+  layer.pm.enable();
+}
+
+// Every outline edit ends here, a pointer's (Geoman's pm:edit) or the keyboard's (vertex mode).
+const REMOVAL_CROSSES = "removing that vertex would make its outline cross itself; it is back";
+
+function commitGeometry(layer, what = "vertex edit", refusal = REMOVAL_CROSSES) {
   const c = layer.curbside;
   // Geoman puts back a vertex removal that makes the outline cross itself only after announcing it as an
   // edit, and silently: refuse it here, before it counts as one.
-  if (layer.pm.hasSelfIntersection()) {
-    layer.pm.disable();
-    layer.setLatLngs(cloneLatLngs(c.latlngs));
-    layer.pm.enable();
-    say(`polygon ${c.id}: removing that vertex would make its outline cross itself; it is back`, true);
-    return;
+  const crossing = layer.pm.hasSelfIntersection();
+  if (crossing) {
+    setOutline(layer, c.latlngs);
+    say(`polygon ${c.id}: ${refusal}`, true);
+  } else {
+    remember(`${what} of polygon ${c.id}`, layer);
+    c.latlngs = cloneLatLngs(layer.getLatLngs());
+    markEdited(layer, "geometry");
   }
-  remember(`vertex edit of polygon ${c.id}`, layer);
-  c.latlngs = cloneLatLngs(layer.getLatLngs());
-  markEdited(layer, "geometry");
+  if (vertexMode.layer === layer) showVertex();
+  return !crossing;
 }
+
+const TOO_FEW_VERTICES = "a ring keeps at least 3 vertices (to remove the polygon, delete it)";
 
 function vertexRemovable({ layer, marker }) {
   const { parentPath } = L.PM.Utils.findDeepMarkerIndex(layer.pm._markers, marker);
   const ring = parentPath.reduce((latlngs, i) => latlngs[i], layer.getLatLngs());
   if (ring.length > 3) return true;
-  say(`polygon ${layer.curbside.id}: a ring keeps at least 3 vertices (to remove the polygon, delete it)`, true);
+  say(`polygon ${layer.curbside.id}: ${TOO_FEW_VERTICES}`, true);
   return false;
 }
 
@@ -301,6 +319,9 @@ function featureOf(layer) {
   if (c.cls === "sidewalk") {
     for (const f of SIDEWALK_FIELDS) props[f] = c.props[f] === "" ? null : (c.props[f] ?? null);
     if (!props.segment_id) props.segment_id = `hand-${c.id}`;
+    // The build's bearing from the street holds through a reshape, not once the side is changed.
+    const before = c.original.properties || {};
+    if (typeof before.facing_deg === "number" && before.side === props.side) props.facing_deg = before.facing_deg;
   }
   props.edited = EDIT_KINDS.filter((k) => c.edits.has(k)).join(",");
   const geometry = c.edits.has("geometry") || c.edits.has("drawn")
@@ -361,11 +382,14 @@ function onKey(event) {
     removeSelected();
   } else if (event.key === "Escape" && (onMapOrList || focus === document.body)) {
     deselect();
+  } else if (event.key.toLowerCase() === "v" && onMapOrList && !event.ctrlKey && !event.metaKey && !event.altKey) {
+    event.preventDefault();  // not the list's type-ahead
+    enterVertexMode();
   }
 }
 
 // Leaflet-Geoman titles the draw buttons' container, not the buttons; its vertex handles are markers
-// that Leaflet makes tab stops without a name (they cannot be moved by keyboard: out of the tab order).
+// that Leaflet makes tab stops without a name (out of the tab order: vertex mode is the keyboard's way).
 function nameControls() {
   for (const container of document.querySelectorAll(".leaflet-pm-toolbar .button-container")) {
     const button = container.querySelector(".leaflet-buttons-control-button");
@@ -409,6 +433,8 @@ map.pm.setGlobalOptions({ allowSelfIntersection: false });
 nameControls();
 new MutationObserver(nameHandles).observe(map.getPane("markerPane"), { childList: true });
 map.on("pm:create", addDrawn);
+map.createPane("currentVertex").style.zIndex = 650;  // vertex mode's highlight, over Geoman's handles
+map.on("pm:globaldrawmodetoggled", () => leaveVertexMode(true));
 map.on("click", deselect);
 ui.list.addEventListener("focus", fillList);
 requestAnimationFrame(() => setTimeout(fillList));
@@ -421,8 +447,10 @@ ui.remove.addEventListener("click", () => {
   removeSelected();
   ui.list.focus();  // the button is disabled with nothing selected: keep the focus somewhere useful
 });
+ui.vertexButton.addEventListener("click", () => (vertexMode.layer ? leaveVertexMode() : enterVertexMode()));
 ui.undo.addEventListener("click", undo);
 ui.save.addEventListener("click", save);
+window.addEventListener("keydown", onVertexKey, true);  // capture: before onKey and Leaflet's keyboard
 document.addEventListener("keydown", onKey);
 refreshCounts();
 updateUndoButton();
