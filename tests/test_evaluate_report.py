@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import pandas as pd
 
-from curbside.evaluate.report import paper_tables, paper_value
+from curbside.evaluate.report_tables import paper_tables, paper_value
 
 BASE = {"map": "osm", "jaywalk_weight": 0.4, "particles": 500, "gnss_sigma_factor": None}
 NAMES = ("csa", "euclid_mean_m", "euclid_median_m", "euclid_p90_m", "along_median_m", "across_median_m",

@@ -7,7 +7,7 @@ import json
 import numpy as np
 import pytest
 
-from curbside.cli import localize_evaluate
+from curbside.cli import localize_evaluate_args
 from curbside.errors import CurbsideInputError
 from curbside.evaluate import gnss_model, simulate, subsets
 
@@ -35,8 +35,8 @@ def test_splits_have_disjoint_seeds_and_distinct_simulator_seeds():
 
 
 def test_cli_choices_match_the_library():
-    assert tuple(simulate.PROFILES) == localize_evaluate.PROFILES
-    assert tuple(gnss_model.GNSS_MODELS) == localize_evaluate.GNSS_MODELS
+    assert tuple(simulate.PROFILES) == localize_evaluate_args.PROFILES
+    assert tuple(gnss_model.GNSS_MODELS) == localize_evaluate_args.GNSS_MODELS
 
 
 @pytest.mark.slow

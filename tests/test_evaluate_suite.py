@@ -14,7 +14,7 @@ from curbside.errors import CurbsideInputError
 from curbside.evaluate import criteria, suite
 from curbside.evaluate import simulate as sim
 from curbside.evaluate.figures import is_base
-from curbside.evaluate.report import PAPER_NOTE
+from curbside.evaluate.report_tables import PAPER_NOTE
 from curbside.evaluate.runner import run_all
 from curbside.evaluate.suite_ipin import FAMILIAR_VELOCITY_RUN, UNSEEN_VELOCITY_RUN, ipin_runs, ipin_summary
 from curbside.evaluate.suite_report import figure_base, sweep_table, write_suite_report

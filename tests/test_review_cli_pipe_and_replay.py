@@ -60,7 +60,7 @@ def test_an_ipv6_scheduler_address_is_taken():
 
     import pytest
 
-    from curbside.cli.localize_evaluate import _scheduler_address
+    from curbside.cli.localize_evaluate_args import _scheduler_address
 
     for address in ("tcp://[::1]:8786", "[fe80::1]:8786", "tls://sched.example:8786", "localhost:8786"):
         assert _scheduler_address(address) == address

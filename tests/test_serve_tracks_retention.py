@@ -21,6 +21,7 @@ from serve_fixtures import client_for
 
 from curbside.io import MARKER
 from curbside.localize.serve import service as service_module
+from curbside.localize.serve import track_keeping
 from curbside.localize.serve.app import create_app
 from curbside.localize.serve.download import OpenFileResponse
 from curbside.localize.serve.store import TrackStore, run_for
@@ -145,7 +146,7 @@ def test_retention_removes_old_tracks_soon_after_start_and_periodically(
     for folder in [*foreign.values(), root / TrackStore.key("linked")]:
         _age(folder, 30.0)
     before = {name: _snapshot(folder) for name, folder in foreign.items()}
-    monkeypatch.setattr(service_module, "RETENTION_PERIOD_S", 0.05)
+    monkeypatch.setattr(track_keeping, "RETENTION_PERIOD_S", 0.05)
     with client_for(tmp_path, ronin_model, keep_tracks_days=7.0) as client:
         # at start
         _wait_until(lambda: not folders["old"].exists() and not folders["older"].exists(), "no first pass")

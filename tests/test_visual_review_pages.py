@@ -14,7 +14,8 @@ from browser import chromium, console_errors, wait_for_mark
 from viewer_fixtures import CROSSROADS, FRAME, START_XY
 
 from curbside.cli.osmseg import main as osmseg_main
-from curbside.evaluate.report import Table, _html_page
+from curbside.evaluate.report import _html_page
+from curbside.evaluate.report_tables import Table
 from curbside.localize.view import ViewRun, view_page
 from curbside.osmseg.mapio import read_map
 

@@ -18,7 +18,8 @@ import pandas as pd
 
 from curbside.errors import CurbsideInputError
 from curbside.evaluate.groundtruth import groundtruth_at, waypoints_xy
-from curbside.evaluate.report import INTERVAL_NOTE, Table, interval_table, write_report
+from curbside.evaluate.report import INTERVAL_NOTE, interval_table, write_report
+from curbside.evaluate.report_tables import Table
 from curbside.evaluate.runner import METHOD_LABELS, METHODS, RunSpec, run_all
 from curbside.evaluate.uncertainty import waypoint_intervals
 from curbside.localize.runconfig import RunConfig

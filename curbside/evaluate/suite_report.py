@@ -30,23 +30,24 @@ from curbside.evaluate.figures import (
     save_png,
 )
 from curbside.evaluate.report import (
-    CROSSING_NOTE,
     INTERVAL_NOTE,
     MAP_INTERVAL_NOTE,
-    PAPER_NOTE,
-    Table,
     confidence_table,
-    fmt_value,
     html_document,
     interval_table,
-    json_ready,
+    records,
+)
+from curbside.evaluate.report_tables import (
+    CROSSING_NOTE,
+    PAPER_NOTE,
+    Table,
+    fmt_value,
     paper_header,
     paper_value,
-    records,
 )
 from curbside.evaluate.runner import METHOD_LABELS, METHODS, SMOOTHED_METHOD, subset_of
 from curbside.evaluate.uncertainty import map_intervals, subset_intervals
-from curbside.io import atomic_path
+from curbside.io import atomic_path, json_ready
 from curbside.localize.runconfig import UnseenVelocityConfig
 from curbside.osmseg.mapio import MapLayers
 

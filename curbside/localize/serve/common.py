@@ -46,7 +46,7 @@ class ServiceConfig:
     keep_tracks_days, max_tracks
         Retention (``None``: none): finished tracks older than this many days, and the oldest beyond
         this many, are removed by a pass at start (in the background) and every
-        :data:`~curbside.localize.serve.service.RETENTION_PERIOD_S`; the count also holds as each track
+        :data:`~curbside.localize.serve.track_keeping.RETENTION_PERIOD_S`; the count also holds as each track
         is written.
     """
 

@@ -31,10 +31,9 @@ formatting a long track holds no other session up; the session answers 409 until
 and its ``DELETE`` is answered. If finishing it fails (a bug),
 it ends all the same, with the track it has so far: no request waits for good, nor does the shutdown.
 A track goes with ``DELETE /tracks/{id}`` (:meth:`TrackingService.delete_track`) or by the opt-in
-retention limits: a pass runs on the same thread when the service starts (the service answers
-meanwhile) and every ``RETENTION_PERIOD_S`` after, in slices of ``RETENTION_SLICE_S`` so that a track
-write or ``DELETE`` waits for one slice, not for the pass; the count limit is also kept as each track is
-written (:meth:`~curbside.localize.serve.store.TrackStore.save`).
+retention limits, applied on the same thread while the service answers; the count limit is also kept as
+each track is written (:meth:`~curbside.localize.serve.store.TrackStore.save`). The tracks' part of the
+service is :class:`~curbside.localize.serve.track_keeping.TrackKeeping`.
 """
 
 from __future__ import annotations
@@ -46,10 +45,8 @@ import logging
 import secrets
 import time
 from collections import deque
-from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
-from datetime import datetime, timezone
 from pathlib import Path
 from typing import Any
 
@@ -65,14 +62,17 @@ from curbside.localize.serve.answers import estimate_of
 from curbside.localize.serve.common import ServiceConfig, ServiceError, as_service_error, session_label
 from curbside.localize.serve.configs import config_key, session_config
 from curbside.localize.serve.intake import ImuRateCheck, push_batch
-from curbside.localize.serve.store import ForeignFolderError, TrackStore, run_for
+from curbside.localize.serve.store import TrackStore
+from curbside.localize.serve.track_keeping import TrackKeeping, now_iso
 from curbside.osmseg.places import SidewalkPlace, sidewalk_places
 
 logger = logging.getLogger(__name__)
 
 
 @dataclass(eq=False)
-class _Entry:
+class SessionEntry:
+    """An open session: its filter, when it was opened and last heard from, whether it is ending."""
+
     id: str
     live: LiveSession
     created: str
@@ -82,9 +82,11 @@ class _Entry:
 
 
 @dataclass(eq=False)
-class _Op:
+class SessionOp:
+    """A request queued for the worker (a batch of rows or an end), with its answer or error."""
+
     kind: str  # "push" or "end"
-    entry: _Entry
+    entry: SessionEntry
     future: asyncio.Future
     imu: np.ndarray | None = None
     columns: tuple[str, ...] = IMU_COLUMNS
@@ -98,17 +100,9 @@ class _Op:
 TICK_BUDGET_S = 0.02
 #: Longest the shutdown waits for the open sessions to end and save their tracks (s).
 STOP_WAIT_S = 60.0
-#: How often the retention limits are applied (s); a pass stats each track's run.json.
-RETENTION_PERIOD_S = 60.0
-#: How long the I/O thread works on a retention pass before it turns to the track writes waiting (s).
-RETENTION_SLICE_S = 0.1
 
 
-def _now_iso() -> str:
-    return datetime.now(timezone.utc).isoformat(timespec="seconds")
-
-
-class TrackingService:
+class TrackingService(TrackKeeping):
     """Live sessions of many walkers (see the module docstring).
 
     Parameters
@@ -150,14 +144,14 @@ class TrackingService:
         max_age_s = None if days is None else days * 86400.0
         self.store = TrackStore(Path(config.data_dir) / "tracks", max_age_s, config.max_tracks)
         self._warm_up()
-        self.sessions: dict[str, _Entry] = {}
+        self.sessions: dict[str, SessionEntry] = {}
         #: Ticks run and their total seconds (for the load test).
         self.ticks = 0
         self.tick_seconds = 0.0
-        self._ops: deque[_Op] = deque()
-        self._ending: list[_Op] = []  # waiting for their last RoNIN windows
-        self._writing: list[_Op] = []  # their tracks being written
-        self._written: list[_Op] = []  # to be answered
+        self._ops: deque[SessionOp] = deque()
+        self._ending: list[SessionOp] = []  # waiting for their last RoNIN windows
+        self._writing: list[SessionOp] = []  # their tracks being written
+        self._written: list[SessionOp] = []  # to be answered
         self._inference_executor = ThreadPoolExecutor(1, thread_name_prefix="curbside-ronin")
         self._io_executor = ThreadPoolExecutor(1, thread_name_prefix="curbside-tracks")
         self._inference: asyncio.Future | None = None
@@ -234,7 +228,7 @@ class TrackingService:
 
     # -- requests -----------------------------------------------------------------------------------
 
-    async def create(self, start: dict[str, Any] | None, overrides: dict[str, Any]) -> _Entry:
+    async def create(self, start: dict[str, Any] | None, overrides: dict[str, Any]) -> SessionEntry:
         """Open a session; ``start`` as ``meta.json``'s, ``overrides`` as ``--set`` (``mode`` too).
 
         Raises
@@ -258,7 +252,7 @@ class TrackingService:
             raise ServiceError(422, f"{source}: {exc.problem}") from None
         imu = None if live.ronin is None else live.ronin.config.imu
         rate = None if imu is None else ImuRateCheck(imu.min_rate_hz, imu.decision_s)
-        entry = _Entry(session_id, live, _now_iso(), time.monotonic(), rate)
+        entry = SessionEntry(session_id, live, now_iso(), time.monotonic(), rate)
         self.sessions[session_id] = entry
         return entry
 
@@ -273,7 +267,7 @@ class TrackingService:
         raster = self.raster if config.mode != "gnss" else None
         return LiveSession(config, self.map_layers, raster, start=pose, limits=self.config.limits, name=name)
 
-    def entry(self, session_id: str) -> _Entry:
+    def entry(self, session_id: str) -> SessionEntry:
         """The open session ``session_id``.
 
         Raises
@@ -302,7 +296,7 @@ class TrackingService:
         if entry.ending:
             raise ServiceError(409, "the session is ending")
         entry.last_seen = time.monotonic()
-        op = _Op("push", entry, asyncio.get_running_loop().create_future(), imu, columns, gnss)
+        op = SessionOp("push", entry, asyncio.get_running_loop().create_future(), imu, columns, gnss)
         self._submit(op)
         return await op.future
 
@@ -320,14 +314,14 @@ class TrackingService:
             raise ServiceError(409, "the session is ending")
         return await self._submit_end(entry, reason)
 
-    def _submit_end(self, entry: _Entry, reason: str) -> asyncio.Future:
+    def _submit_end(self, entry: SessionEntry, reason: str) -> asyncio.Future:
         entry.ending = True
-        op = _Op("end", entry, asyncio.get_running_loop().create_future(), reason=reason)
+        op = SessionOp("end", entry, asyncio.get_running_loop().create_future(), reason=reason)
         op.future.add_done_callback(_log_failure)
         self._submit(op)
         return op.future
 
-    def _submit(self, op: _Op) -> None:
+    def _submit(self, op: SessionOp) -> None:
         self._ops.append(op)
         self._wake.set()
 
@@ -344,7 +338,7 @@ class TrackingService:
                     await asyncio.wait_for(self._wake.wait(), timeout)
             self._wake.clear()
             inferred, self._inferred = self._inferred, None
-            ops: list[_Op] = []
+            ops: list[SessionOp] = []
             written, self._written = self._written, []
             t0 = time.perf_counter()
             try:
@@ -393,7 +387,7 @@ class TrackingService:
         self._inference = future
         future.add_done_callback(done)
 
-    def _tick(self, ops: list[_Op], inferred: tuple | None) -> list[_Op]:
+    def _tick(self, ops: list[SessionOp], inferred: tuple | None) -> list[SessionOp]:
         """One round of work (see the module docstring): the requests queued, up to :data:`TICK_BUDGET_S`
         of them (appended to ``ops``; the rest wait for the next tick); returns the answered ops."""
         touched: set[LiveSession] = set()
@@ -448,81 +442,6 @@ class TrackingService:
                 answered.append(op)
         return answered
 
-    def _write(self, op: _Op) -> None:
-        """Write an ended session's track on the I/O thread (an hour's walk takes half a second to
-        format, which would hold every other session up); its request is answered once it is written."""
-        summary, result, info = self._track(op.entry, op.reason)
-        op.result = summary
-        if result is None:
-            self._written.append(op)
-            return
-        future = self._on_io(self.store.save, op.entry.id, result, info)
-        self._writing.append(op)
-
-        def done(f: asyncio.Future) -> None:
-            self._writing.remove(op)
-            op.error = f.exception()
-            if op.error is not None:
-                logger.error("%s: saving its track failed", op.entry.live.name, exc_info=op.error)
-            self._written.append(op)
-            self._wake.set()
-
-        future.add_done_callback(done)
-
-    def _abandon(self, entry: _Entry, reason: str, error: Exception) -> ServiceError:
-        """End a session whose streams could not be finished: save its track so far; the reply's error."""
-        live = entry.live
-        client = isinstance(error, CurbsideInputError)
-        what = str(error) if client else f"internal error ({type(error).__name__})"
-        live.failed = live.failed or f"ending failed: {what}"
-        try:
-            saved = self._save(entry, reason)["saved"]
-        except Exception:
-            logger.exception("%s: saving its track failed", live.name)
-            saved = False
-        kept = "its track so far is at /tracks/{id}" if saved else "no track was saved"
-        detail = f"the session has ended, but finishing it failed ({what}); {kept}"
-        return ServiceError(422 if client else 500, detail)
-
-    def _save(self, entry: _Entry, reason: str) -> dict[str, Any]:
-        summary, result, info = self._track(entry, reason)
-        if result is not None:
-            self.store.save(entry.id, result, info)
-        return summary
-
-    def _track(self, entry: _Entry, reason: str) -> tuple[dict[str, Any], Any, dict[str, Any]]:
-        """An ended session's summary (``TrackSummary``), track (``None`` without any update, or when
-        the filter never started on data) and ``run.json`` service record."""
-        live = entry.live
-        self.queue.drop(live)
-        rows = live.rows
-        if rows and rows[0].t > live.received_until:
-            # The data ended before the start pose's t, and finishing started the filter there: one
-            # position at a time with no data. The session never tracked, and saves no track.
-            logger.info("%s: its data ends at %.2f s, before the filter's start at %.2f s: no track",
-                        live.name, live.received_until, rows[0].t)
-            rows = []
-        result = live.result() if rows else None
-        info = {
-            "map": self.config.map_path,
-            "created": entry.created,
-            "ended": _now_iso(),
-            "reason": reason,
-            "start": None if live.start is None else vars(live.start),
-            "failed": live.failed,
-        }
-        logger.info("%s ended (%s): %d updates", live.name, reason, len(rows))
-        summary = {
-            "key": self.store.key(entry.id),
-            "reason": reason,
-            "updates": len(rows),
-            "t_start": rows[0].t if rows else None,
-            "t_end": rows[-1].t if rows else None,
-            "recoveries": live.recoveries,
-            "saved": result is not None,
-        }
-        return summary, result, info
-
     async def _expire(self) -> None:
         period = max(0.05, min(self.config.idle_timeout_s / 4.0, 10.0))
         while True:
@@ -532,62 +451,6 @@ class TrackingService:
                 if not entry.ending and now - entry.last_seen > self.config.idle_timeout_s:
                     logger.info("%s expired", entry.live.name)
                     self._submit_end(entry, "expired")
-
-    async def _retain(self) -> None:
-        while True:
-            await self._retain_once()
-            await asyncio.sleep(RETENTION_PERIOD_S)
-
-    async def _retain_once(self) -> None:
-        """Apply the retention limits on the I/O thread, one slice at a time between the track writes."""
-        try:
-            steps = self.store.retention_pass()
-            while not await self._on_io(run_for, steps, RETENTION_SLICE_S):
-                pass
-        except Exception:  # a bug: the service goes on, and the next pass tries again
-            logger.exception("removing old tracks failed")
-
-    def _on_io(self, func: Callable[..., Any], *args: Any) -> asyncio.Future:
-        return asyncio.get_running_loop().run_in_executor(self._io_executor, func, *args)
-
-    # -- tracks ---------------------------------------------------------------------------------------
-
-    def track_folder(self, session_id: str) -> Path:
-        """The stored track of an ended session (404 otherwise; 409 while it is still open)."""
-        folder = self.store.folder(session_id)
-        if folder is None:
-            if session_id in self.sessions:
-                raise ServiceError(409, "the session is still open: DELETE it to finish its track")
-            raise ServiceError(404, "no such track")
-        return folder
-
-    async def delete_track(self, session_id: str) -> dict[str, Any]:
-        """Remove an ended session's track (``TrackStore.delete``).
-
-        Parameters
-        ----------
-        session_id
-            The session's id (the track is found by its key).
-
-        Returns
-        -------
-        dict
-            The removed track's listing entry (``TrackInfo``).
-
-        Raises
-        ------
-        ServiceError
-            404 no such track; 409 the session is still open, or the folder is not one the service wrote.
-        """
-        if session_id in self.sessions:
-            raise ServiceError(409, "the session is still open: DELETE /sessions/{id} ends it first")
-        try:
-            listed = await self._on_io(self.store.delete, self.store.key(session_id))
-        except ForeignFolderError as exc:
-            raise ServiceError(409, str(exc)) from None
-        if listed is None:
-            raise ServiceError(404, "no such track")
-        return listed
 
 
 def _log_failure(future: asyncio.Future) -> None:
