@@ -212,8 +212,8 @@ def read_map(path: str | Path) -> MapLayers:
         gdf = gpd.GeoDataFrame.from_features(features, crs=WGS84)
     except Exception as exc:  # noqa: BLE001 - shapely/geopandas raise many types for bad geometry
         raise CurbsideInputError(path, f"bad feature geometry ({exc})") from None
-    if "class" not in gdf:
-        raise CurbsideInputError(path, "features lack properties.class")
+    if "class" not in gdf:  # no feature has one: name the first polygon, as when some lack it
+        gdf["class"] = None
     _check_classes(path, features, gdf)
     gdf = gdf[~gdf.geometry.is_empty & gdf.geometry.notna()]
     gdf = gdf[gdf.geom_type.isin(["Polygon", "MultiPolygon"])]
