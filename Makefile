@@ -37,7 +37,7 @@ test: $(STAMP) browser
 lint: $(STAMP)
 	$(BIN)/ruff check curbside tests benchmarks
 
-# The accuracy benchmark of docs/evaluate.md (phone profile, test split; ~2.5 min on 2 cores), with the
+# The accuracy benchmark of docs/evaluate.md (phone profile, test split; ~9 min on 2 cores), with the
 # DataSF map and the IPIN trials (held-out ones with the bundled RoNIN, all of them with one that never
 # saw IPIN) when ../shared/data has them. `make bench` is the speed one.
 SHARED := ../shared/data
