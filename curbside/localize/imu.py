@@ -233,6 +233,23 @@ def _check_columns(columns: set, source: str) -> bool:
     return all(has_q)
 
 
+def low_rate_problem(median_interval_s: float, min_rate_hz: float) -> str | None:
+    """What is wrong with an IMU whose rows come ``median_interval_s`` apart (``None``: nothing).
+
+    Rows 2 s to 1000 s apart are an IMU of 1-500 Hz whose ``t`` counts milliseconds from the app's
+    start (the epoch-sized times that :func:`curbside.localize.live_input.check_time_value` refuses are
+    the other milliseconds), so the message asks.
+    """
+    rate_hz = 1.0 / median_interval_s
+    if rate_hz >= min_rate_hz:
+        return None
+    hint = ""
+    if 2.0 <= median_interval_s <= 1000.0:
+        hint = f" (rows {median_interval_s:g} s apart: is t in milliseconds? it must be in seconds)"
+    rate = f"{rate_hz:.1f}" if rate_hz >= 0.1 else f"{rate_hz:.2g}"  # 0.05 Hz is not "0.1 Hz"
+    return f"IMU rate {rate} Hz is below the {min_rate_hz:g} Hz minimum for RoNIN{hint}"
+
+
 #: Intervals after which a stream whose every row is a gap from the one before (a 1 Hz log) is judged.
 MIN_DECISION_INTERVALS = 10
 
@@ -421,10 +438,9 @@ class WorldFrameStream:
             dt = dt[dt <= self.config.max_gap_s]
         # else every row is a gap from the one before (a 1 Hz log): the rate is theirs
         if len(dt):
-            rate = 1.0 / float(np.median(dt))
-            if rate < self.config.min_rate_hz:
-                raise CurbsideInputError(self.source, f"IMU rate {rate:.1f} Hz is below the "
-                                                      f"{self.config.min_rate_hz:g} Hz minimum for RoNIN")
+            problem = low_rate_problem(float(np.median(dt)), self.config.min_rate_hz)
+            if problem is not None:
+                raise CurbsideInputError(self.source, problem)
         if not np.any(rows[:, 4:7]):
             raise CurbsideInputError(self.source, "gyroscope columns are all zero: no gyroscope data")
         if self.has_quaternion:

@@ -19,6 +19,7 @@ import logging
 import numpy as np
 
 from curbside.errors import CurbsideInputError
+from curbside.localize.imu import low_rate_problem
 from curbside.localize.live import LiveSession
 from curbside.localize.live_input import check_imu
 
@@ -62,10 +63,7 @@ class ImuRateCheck:
         enough = np.flatnonzero((times - times[0] >= self.decision_s)[MIN_RATE_INTERVALS:])
         if not len(enough):
             return None
-        rate_hz = 1.0 / float(np.median(dt[: enough[0] + MIN_RATE_INTERVALS]))
-        if rate_hz < self.min_rate_hz:
-            return f"IMU rate {rate_hz:.1f} Hz is below the {self.min_rate_hz:g} Hz minimum for RoNIN"
-        return None
+        return low_rate_problem(float(np.median(dt[: enough[0] + MIN_RATE_INTERVALS])), self.min_rate_hz)
 
     def accept(self, t: np.ndarray) -> None:
         """The session took rows at times ``t`` (after :meth:`problem` found nothing wrong with them)."""
