@@ -17,7 +17,9 @@ Output rules (every command that writes goes through here):
   folder, and ``files`` lists them all), so the next run of a command into the folder removes its own
   stale files (e.g. ``particles.npz`` from a run with ``--save-particles``) and nothing else, and a
   command writing beside another's output (``localize run S -o S --overwrite``) leaves the other's
-  record, and its right to write there again, as it was;
+  record, and its right to write there again, as it was. A file another command added to the output
+  (``localize ronin``'s ``velocity.csv``) stays while the files it was computed from come back
+  byte-identical, and is otherwise removed with a warning (:mod:`curbside.marker`);
 - a path that cannot be written (permission denied, a file where a folder should be, a read-only
   disk) is bad input: :class:`~curbside.errors.CurbsideInputError`, not an internal error.
 """
@@ -25,8 +27,6 @@ Output rules (every command that writes goes through here):
 from __future__ import annotations
 
 import contextlib
-import datetime
-import json
 import logging
 import math
 import os
@@ -37,14 +37,23 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from curbside.errors import CurbsideInputError
+from curbside.marker import (
+    MARKER,
+    command_files,
+    derived_files,
+    note_record,
+    read_marker,
+    settle_derived,
+    write_marker,
+)
+from curbside.marker import note_written as note_written  # re-exported: the output rules' API
+from curbside.marker import note_written_by as note_written_by
+from curbside.marker import writer_of as writer_of
 
 if TYPE_CHECKING:
     import h5py
 
 logger = logging.getLogger(__name__)
-
-#: Marker file curbside writes into every output folder: JSON with the command and the files written.
-MARKER = ".curbside-output"
 
 _STAGING_PREFIX = ".curbside-staging-"
 
@@ -101,137 +110,6 @@ def _check_creatable(path: Path) -> None:
         raise CurbsideInputError(path, f"cannot write here: {ancestor} is a file, not a folder")
     if not os.access(ancestor, os.W_OK | os.X_OK):
         raise CurbsideInputError(path, f"cannot write here: no write permission in {ancestor}")
-
-
-def read_marker(folder: str | os.PathLike[str]) -> dict | None:
-    """The marker of a curbside output folder, or ``None`` when ``folder`` has none (or an unreadable one).
-
-    Parameters
-    ----------
-    folder
-        A folder.
-
-    Returns
-    -------
-    dict or None
-        ``{"command": str, "written_utc": str, "files": [relative paths], "commands": {command: [relative
-        paths]}}``: the command that made the folder, when the marker was last written, every file
-        curbside wrote there and the files of each command (:func:`command_files`; a marker written
-        before ``commands`` existed lacks it).
-    """
-    path = Path(folder) / MARKER
-    try:
-        doc = json.loads(path.read_text(encoding="utf-8"))
-    except (OSError, ValueError):
-        return None
-    if not isinstance(doc, dict) or not isinstance(doc.get("files", []), list):
-        return None
-    return doc
-
-
-def command_files(doc: dict) -> dict[str, list[str]]:
-    """The files each command wrote into a folder, from its marker (:func:`read_marker`).
-
-    Parameters
-    ----------
-    doc
-        The marker.
-
-    Returns
-    -------
-    dict
-        Command -> the relative paths it wrote, the command that made the folder first. A marker without
-        ``commands`` (written before it existed) holds one command's files: ``command`` and ``files``.
-    """
-    records = doc.get("commands")
-    if isinstance(records, dict) and records and all(isinstance(v, list) for v in records.values()):
-        return {str(command): [str(f) for f in files] for command, files in records.items()}
-    return {str(doc.get("command", "curbside")): [str(f) for f in doc.get("files", [])]}
-
-
-def note_written(path: str | os.PathLike[str], command: str = "curbside") -> None:
-    """Record in its folder's marker a file curbside added to a folder (see :func:`written_by_curbside`).
-
-    ``localize ronin`` writes ``velocity.csv`` into a session folder that ``localize convert`` wrote;
-    listing it, among the files of the command that made the folder, lets the next conversion into that
-    folder remove it with the other stale outputs (it was computed from the old ``imu.csv``), and lets
-    the next ``localize ronin`` replace it. A folder without a marker gets one naming ``command`` and
-    this file alone, which no other command's output may then be written over
-    (:func:`check_output_folder`).
-
-    Parameters
-    ----------
-    path
-        The file just written.
-    command
-        What wrote it, for a folder that has no marker yet.
-    """
-    path = _absolute(path)
-    doc = read_marker(path.parent)
-    if doc is None:
-        _write_marker(path.parent, command, [path.name])
-    elif path.name not in doc["files"]:
-        maker, files = next(iter(command_files(doc).items()))
-        _write_marker(path.parent, maker, sorted([*files, path.name]))
-
-
-def note_written_by(path: str | os.PathLike[str], command: str) -> None:
-    """Record in its folder's marker that ``command`` wrote the file ``path`` (:func:`note_written`), and
-    which command it was, for :func:`writer_of`.
-
-    A session folder holds files of several commands under one marker: ``localize simulate`` writes a
-    ``velocity.csv`` (its stand-in for RoNIN), and so does ``localize ronin``. The marker's ``writers``
-    names the command that wrote such a file, with the file's size and modification time then, so that
-    the record no longer holds once anything else has written the file again.
-
-    Parameters
-    ----------
-    path
-        The file just written.
-    command
-        What wrote it, e.g. ``"localize ronin"``.
-    """
-    path = _absolute(path)
-    before = read_marker(path.parent) or {}
-    writers = before.get("writers") if isinstance(before.get("writers"), dict) else {}
-    note_written(path, command)
-    doc = read_marker(path.parent)
-    if doc is None:
-        return
-    stat = path.stat()
-    writers = {**writers, path.name: {"command": command, "size": stat.st_size, "mtime_ns": stat.st_mtime_ns}}
-    doc["writers"] = {name: record for name, record in writers.items() if name in doc["files"]}
-    tmp = path.parent / f"{MARKER}.tmp"
-    tmp.write_text(json.dumps(doc, indent=1), encoding="utf-8")
-    os.replace(tmp, path.parent / MARKER)
-
-
-def writer_of(path: str | os.PathLike[str]) -> str | None:
-    """The command that wrote the file ``path``, as its folder's marker records it.
-
-    Parameters
-    ----------
-    path
-        An existing file.
-
-    Returns
-    -------
-    str or None
-        The command :func:`note_written_by` recorded for this very file (the same size and modification
-        time), else the command whose files the marker lists it among; ``None`` for a file no marker lists.
-    """
-    path = _absolute(path)
-    doc = read_marker(path.parent)
-    if doc is None or path.name not in doc["files"]:
-        return None
-    writers = doc.get("writers")
-    record = writers.get(path.name) if isinstance(writers, dict) else None
-    if isinstance(record, dict) and os.path.isfile(path):
-        stat = path.stat()
-        if (record.get("size"), record.get("mtime_ns")) == (stat.st_size, stat.st_mtime_ns):
-            return str(record.get("command"))
-    owners = [command for command, files in command_files(doc).items() if path.name in files]
-    return owners[0] if owners else None
 
 
 def written_by_curbside(path: str | os.PathLike[str]) -> bool:
@@ -390,28 +268,6 @@ def _staged_files(staged: Path) -> list[str]:
     return sorted(files)
 
 
-def _write_marker(folder: Path, command: str, files: list[str]) -> None:
-    """Record in ``folder``'s marker that ``command``'s output there is ``files`` now: its earlier record
-    is replaced, the other commands' records are kept, less the files ``command`` wrote over (a command
-    left with none drops out), and so are the marker's other members."""
-    previous = read_marker(folder) or {}
-    records = command_files(previous) if previous else {}
-    records[command] = sorted(files)  # a command already recorded keeps its place: the folder's maker first
-    claimed = set(files)
-    records = {c: own if c == command else [f for f in own if f not in claimed] for c, own in records.items()}
-    records = {c: own for c, own in records.items() if own or c == command}
-    doc = {
-        **previous,
-        "command": next(iter(records)),
-        "written_utc": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
-        "files": sorted({f for own in records.values() for f in own}),
-        "commands": records,
-    }
-    tmp = folder / f"{MARKER}.tmp"
-    tmp.write_text(json.dumps(doc, indent=1), encoding="utf-8")
-    os.replace(tmp, folder / MARKER)
-
-
 def _check_conflicts(dst: Path, files: list[str]) -> None:
     for rel in files:
         target = dst / rel
@@ -443,19 +299,24 @@ def _commit_folder(staged: Path, dst: Path, command: str, overwrite: bool) -> No
     check_output_folder(dst, overwrite, command)  # again: the folder may have changed during the run
     files = _staged_files(staged)
     if not os.path.lexists(dst):
-        _write_marker(staged, command, files)
+        write_marker(staged, command, files)
         os.replace(staged, dst)
         return
-    # Only this command's own earlier files are stale; another command's (with --overwrite) stay.
+    # Only this command's own earlier files are stale; another command's (with --overwrite) stay, and so
+    # does what one derived from them (localize ronin's velocity.csv) while they come back unchanged.
     marker = read_marker(dst)
-    old = command_files(marker).get(command, []) if marker is not None else []
+    old = [str(f) for f in command_files(marker).get(command, [])] if marker is not None else []
+    derived = derived_files(dst, old, files)
     _check_conflicts(dst, files)
     for rel in files:
         target = dst / rel
         target.parent.mkdir(parents=True, exist_ok=True)
         os.replace(staged / rel, target)
-    _remove_stale(dst, [str(f) for f in old], files)
-    _write_marker(dst, command, files)
+    kept = settle_derived(dst, derived)
+    _remove_stale(dst, old, files + kept)
+    write_marker(dst, command, files)
+    for rel in kept:
+        note_record(dst / rel, derived[rel])
 
 
 def _staging_dir(dst: Path) -> Path:

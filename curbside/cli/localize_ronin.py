@@ -87,7 +87,7 @@ def _ronin(args: argparse.Namespace) -> int:
     # does when it runs RoNIN itself; the particle filter turns a 1e-7 m/s difference into another track.
     with atomic_path(out) as tmp:
         velocity.to_csv(tmp, index=False)
-    note_written_by(out, RONIN_COMMAND)
+    note_written_by(out, RONIN_COMMAND, inputs=(Path(args.session) / "imu.csv",))
     span = velocity["t"].iat[-1] - velocity["t"].iat[0]
     weights = weights_record(args.weights or settings.ronin_default_weights)
     sys.stdout.write(f"{out}: {len(velocity)} velocities over {span:.1f} s (weights "

@@ -71,7 +71,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--osm", type=Path, metavar="FILE",
                    help="read this OSM file instead of downloading: .osm, .osm.bz2, .osm.gz or .osm.pbf")
     p.add_argument("-o", "--output", type=Path, default=Path("map.geojson"),
-                   help="output GeoJSON (default: %(default)s)")
+                   help="output map GeoJSON, named .geojson or .json (default: %(default)s)")
     p.add_argument("--overwrite", action="store_true", help=OVERWRITE_FILE_HELP)
     p.add_argument(
         "--unmarked-as",
@@ -110,6 +110,27 @@ def _conflict_share_min() -> float:
     return MapConfig.conflict_share_min
 
 
+#: The names a map file written by curbside may have (GeoJSON goes by both); maps are read by any name.
+MAP_SUFFIXES = (".geojson", ".json")
+
+
+def check_map_name(path: str | Path) -> None:
+    """Refuse a map output not named as GeoJSON (:data:`MAP_SUFFIXES`).
+
+    Parameters
+    ----------
+    path
+        The ``-o`` of ``osmseg build`` or ``osmseg import-datasf``.
+
+    Raises
+    ------
+    CurbsideInputError
+        Any other suffix.
+    """
+    if Path(path).suffix.lower() not in MAP_SUFFIXES:
+        raise CurbsideInputError(path, "the map is GeoJSON: name it .geojson or .json")
+
+
 def _checked_config(args: argparse.Namespace) -> SegmentationConfig:
     """The build's configuration, after the checks that need no heavy import: the output's name and
     folder, ``--set``, ``--bbox``, the ``--osm`` file's path.
@@ -123,8 +144,7 @@ def _checked_config(args: argparse.Namespace) -> SegmentationConfig:
     from curbside.io import check_output_file
     from curbside.osmseg.inputs import check_bbox, check_osm_file
 
-    if Path(args.output).suffix.lower() not in (".geojson", ".json"):
-        raise CurbsideInputError(args.output, "the map is GeoJSON: name it .geojson")
+    check_map_name(args.output)
     check_output_file(args.output, args.overwrite, inputs=(args.osm,) if args.osm else ())
     config = with_overrides(
         SegmentationConfig(unmarked_crossing_as=args.unmarked_as), set_overrides(args.set)

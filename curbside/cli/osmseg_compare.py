@@ -7,6 +7,7 @@ import logging
 from pathlib import Path
 
 from curbside.cli.common import OVERWRITE_FILE_HELP
+from curbside.cli.osmseg_build import check_map_name
 from curbside.cli.osmseg_show import add_bbox_option
 from curbside.errors import CurbsideInputError
 
@@ -41,8 +42,7 @@ def _import_datasf(args: argparse.Namespace) -> int:
     from curbside.osmseg.inputs import check_bbox, check_map_file
 
     bbox = check_bbox(args.bbox) if args.bbox is not None else None
-    if Path(args.output).suffix.lower() not in (".geojson", ".json"):
-        raise CurbsideInputError(args.output, "the map is GeoJSON: name it .geojson")
+    check_map_name(args.output)
     inputs = (*args.tiles, args.streets_from) if args.streets_from else tuple(args.tiles)
     check_output_file(args.output, args.overwrite, inputs=inputs)
     if args.streets_from:
@@ -95,6 +95,6 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         help="keep this map's streets, crosswalks and sidewalks under the DataSF buildings (the "
         "map-source comparison's third map; default bbox: MAP's extent)",
     )
-    datasf.add_argument("-o", "--output", required=True, help="output map GeoJSON")
+    datasf.add_argument("-o", "--output", required=True, help="output map GeoJSON (.geojson or .json)")
     datasf.add_argument("--overwrite", action="store_true", help=OVERWRITE_FILE_HELP)
     datasf.set_defaults(func=_import_datasf)

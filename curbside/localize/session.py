@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import json
 import logging
-from collections.abc import Collection
+from collections.abc import Collection, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -248,6 +248,47 @@ def _check_imu_units(imu: pd.DataFrame, source: str | Path) -> None:
                                  f"{MAX_GYRO_RADS:g} rad/s: rotation rates must be in rad/s (deg/s?)")
 
 
+def _is_number(value: Any) -> bool:
+    try:
+        pd.to_numeric([value])
+    except (ValueError, TypeError):
+        return False
+    return True
+
+
+def non_numeric_value(table: pd.DataFrame, columns: Sequence[str]) -> str:
+    """Say which value made :func:`pandas.to_numeric` refuse ``columns`` of ``table``, for an error.
+
+    Parameters
+    ----------
+    table
+        The table; an integer index numbers its rows from 0 (a CSV file's rows, less any dropped), any
+        other index is replaced by the row positions.
+    columns
+        The columns that were converted.
+
+    Returns
+    -------
+    str
+        ``non-numeric value 'abc' in column 'lon' at data row 2`` for the first such value, row by row
+        and column by column, rows counted from 1 after the header, as :func:`validate_table` counts
+        those holding NaN.
+    """
+    rows = table.index.to_numpy() if pd.api.types.is_integer_dtype(table.index) else np.arange(len(table))
+    found = []
+    for column in columns:
+        values = table[column]
+        suspects = pd.to_numeric(values, errors="coerce").isna().to_numpy() & values.notna().to_numpy()
+        position = next((i for i in np.flatnonzero(suspects) if not _is_number(values.iat[i])), None)
+        if position is not None:
+            found.append((position, column, str(values.iat[position])))
+    if not found:  # what failed was the conversion to float, not one value
+        return "non-numeric value"
+    position, column, text = min(found, key=lambda f: f[0])  # min keeps the first column of a row
+    text = text if len(text) <= 40 else f"{text[:37]}..."
+    return f"non-numeric value {text!r} in column {column!r} at data row {rows[position] + 1}"
+
+
 def validate_table(kind: str, table: pd.DataFrame, source: str | Path) -> pd.DataFrame:
     """Check one table against the schema and return it with float columns in SPEC order.
 
@@ -282,8 +323,8 @@ def validate_table(kind: str, table: pd.DataFrame, source: str | Path) -> pd.Dat
         raise CurbsideInputError(source, "no rows")
     try:
         out = table[cols].apply(pd.to_numeric, errors="raise").astype(float)
-    except (ValueError, TypeError) as exc:
-        raise CurbsideInputError(source, f"non-numeric value ({exc})") from None
+    except (ValueError, TypeError):
+        raise CurbsideInputError(source, non_numeric_value(table, cols)) from None
     strict = [c for c in cols if c not in NULLABLE.get(kind, ())]
     values = out[strict].to_numpy()
     if not np.isfinite(values).all():

@@ -15,7 +15,7 @@ import numpy as np
 import pandas as pd
 
 from curbside.errors import CurbsideInputError
-from curbside.localize.session import STANDARD_GRAVITY, acceleration_unit
+from curbside.localize.session import STANDARD_GRAVITY, acceleration_unit, non_numeric_value
 
 logger = logging.getLogger(__name__)
 
@@ -56,8 +56,8 @@ def tidy_table(
         raise CurbsideInputError(source, f"missing column(s) {missing}")
     try:
         out = table[list(required)].apply(pd.to_numeric, errors="raise").astype(float)
-    except (ValueError, TypeError) as exc:
-        raise CurbsideInputError(source, f"non-numeric value ({exc})") from None
+    except (ValueError, TypeError):
+        raise CurbsideInputError(source, non_numeric_value(table, required)) from None
     n_in = len(out)
     strict = [c for c in required if c not in nullable]
     finite = np.isfinite(out[strict].to_numpy()).all(axis=1)
