@@ -274,7 +274,7 @@ def _evaluate(args: argparse.Namespace) -> int:
     extra, extra_json = [], {}
     table1 = route_table(sessions)
     if args.ipin:
-        tables, rows = ipin_table(args.ipin, args.ipin_trials, args.seed)
+        tables, rows = ipin_table(args.ipin, args.ipin_trials, args.seed, methods=tuple(args.methods))
         extra += tables
         extra_json["ipin"] = rows
     with output_folder(args.output, "localize evaluate", overwrite=args.overwrite) as tmp:

@@ -172,8 +172,9 @@ def add_evaluate_parser(subparsers: argparse._SubParsersAction) -> argparse.Argu
     ev.add_argument("--map-names", nargs="+", help="labels of the maps, one each (default: file stems)")
     ev.add_argument("--metrics-map", help="map whose sidewalk segments score every run (default: the first)")
     ev.add_argument("--methods", nargs="+", default=list(MODES), choices=MODES,
-                    help="methods to run: gnss (GNSS only), inertial (RoNIN+PF), paper (the paper's plain "
-                    "GNSS+RoNIN+PF), fused (curbside's filter) (default: all)")
+                    help="methods to run, on the sessions and on the --ipin trials: gnss (GNSS only), "
+                    "inertial (RoNIN+PF), paper (the paper's plain GNSS+RoNIN+PF), fused (curbside's filter) "
+                    "(default: all)")
     ev.add_argument("--jaywalk-weights", nargs="+", type=unit_interval, default=[0.0, 0.4, 1.0], metavar="W",
                     help="weight, in [0, 1], of a particle on the street surface off a crosswalk (0: never "
                     "there, 1: as likely as on a sidewalk); the paper's sweep (default: 0 0.4 1)")
@@ -198,8 +199,8 @@ def add_evaluate_parser(subparsers: argparse._SubParsersAction) -> argparse.Argu
                     "at most one per run)")
     ev.add_argument("--scheduler", type=_scheduler_address,
                     help="address of a running dask scheduler, e.g. tcp://host:8786 (instead of --workers)")
-    ev.add_argument("--ipin", metavar="H5", help="IPIN 2023 HDF5 (ipin2023-t3.h5): add a table over its "
-                    "trials (real phones, tracked without a map)")
+    ev.add_argument("--ipin", metavar="H5", help="IPIN 2023 HDF5 (ipin2023-t3.h5): add a table of the "
+                    "--methods over its trials (real phones, tracked without a map)")
     ev.add_argument("--ipin-trials", type=positive_int, metavar="K",
                     help="only the first K IPIN trials (default: all)")
     ev.add_argument("-o", "--output", required=True,

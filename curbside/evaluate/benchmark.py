@@ -267,12 +267,13 @@ def ipin_errors(
     extra_runs: dict[str, RunConfig] | None = None,
     training: bool = False,
     ronin_weights: str | Path | None = None,
+    methods: tuple[str, ...] = METHODS,
 ) -> tuple[dict[str, np.ndarray], list[dict], int]:
-    """Every method's errors at the surveyed IPIN 2023 waypoints (real data, no map).
+    """The ``methods``' errors at the surveyed IPIN 2023 waypoints (real data, no map).
 
     Each trial is tracked from its start pose; the estimate is interpolated at each waypoint time and
-    compared with the surveyed point. All methods are scored at the same waypoints: those inside every
-    method's track (the GNSS track spans only the fixes), the start waypoint excluded.
+    compared with the surveyed point. All runs are scored at the same waypoints: those inside every
+    run's track (the GNSS track spans only the fixes), the start waypoint excluded.
 
     Parameters
     ----------
@@ -292,6 +293,9 @@ def ipin_errors(
     ronin_weights
         RoNIN weights (``.pt`` with its ``.json``) whose velocity every method tracks with (default: the
         bundled model). Each trial's velocity is inferred once and shared by the methods.
+    methods
+        The methods to run (default: all of them; ``localize evaluate --methods``), in this order,
+        before ``extra_runs``.
 
     Returns
     -------
@@ -308,7 +312,7 @@ def ipin_errors(
         n for n in list_trials(h5)
         if (not held_out or IPIN_TEST_MARK in n) and not (training and IPIN_TEST_MARK in n)
     ][: trials or None]
-    runs = {m: RunConfig.for_mode(m) for m in METHODS} | dict(extra_runs or {})
+    runs = {m: RunConfig.for_mode(m) for m in methods} | dict(extra_runs or {})
     model = load_model(ronin_weights)
     errors: dict[str, list[np.ndarray]] = {m: [] for m in runs}
     rows = []
@@ -382,14 +386,17 @@ def _track_every_run(session: Session, runs: dict[str, RunConfig], seed: int, na
 
 
 def ipin_table(
-    h5: str | Path, trials: int | None = None, seed: int = 0, held_out: bool = False
+    h5: str | Path, trials: int | None = None, seed: int = 0, held_out: bool = False,
+    methods: tuple[str, ...] = METHODS,
 ) -> tuple[list[Table], list[dict]]:
-    """Real data without a map: every method at the surveyed IPIN 2023 waypoints (:func:`ipin_errors`),
-    then curbside fused against the others with trial-bootstrap intervals (when a trial was scored)."""
-    errors, rows, n_trials = ipin_errors(h5, trials, seed, held_out)
+    """Real data without a map: the ``methods`` (default: all) at the surveyed IPIN 2023 waypoints
+    (:func:`ipin_errors`), then, when curbside fused is among them and a trial was scored, curbside fused
+    against those of the paper's method and GNSS alone that ran, with trial-bootstrap intervals."""
+    errors, rows, n_trials = ipin_errors(h5, trials, seed, held_out, methods=methods)
     tables = [ipin_errors_table(errors, n_trials, held_out, rows=rows)]
-    if rows:
-        intervals = waypoint_intervals(errors, rows, "fused", ("paper", "gnss"), seed=seed)
+    if rows and "fused" in errors:
+        baselines = tuple(m for m in ("paper", "gnss") if m in errors)
+        intervals = waypoint_intervals(errors, rows, "fused", baselines, seed=seed)
         tables.append(ipin_interval_table(intervals, "IPIN 2023: how sure (m)"))
     return tables, rows
 
@@ -468,11 +475,13 @@ def ipin_errors_table(
     rows: list[dict] | None = None,
 ) -> Table:
     """The table of :func:`ipin_errors`' pooled errors: waypoints, median, p90 and mean per run, and
-    with its ``rows``, the trial runs whose median is above GNSS alone's (:func:`trials_above_gnss`)
-    (``seeds``: how many filter seeds the errors pool, each scoring every waypoint once;
-    ``ronin_weights``: the RoNIN model the methods tracked with, when not the bundled one)."""
+    with its ``rows``, the trial runs whose median is above GNSS alone's (:func:`trials_above_gnss`; a
+    column only when GNSS alone ran) (``seeds``: how many filter seeds the errors pool, each scoring
+    every waypoint once; ``ronin_weights``: the RoNIN model the methods tracked with, when not the
+    bundled one)."""
     above = trials_above_gnss(rows or [])
     held = accuracy_held(rows or [])
+    with_gnss = "gnss" in errors
     table_rows = []
     for m, e in errors.items():
         worse, scored = above.get(m, (0, 0))
@@ -483,7 +492,7 @@ def ipin_errors_table(
                 f"{np.median(e):.1f}" if len(e) else "n/a",
                 f"{np.percentile(e, 90):.1f}" if len(e) else "n/a",
                 f"{e.mean():.1f}" if len(e) else "n/a",
-                f"{worse} of {scored}" if scored else "–",
+                *([f"{worse} of {scored}" if scored else "–"] if with_gnss else []),
                 f"{held[m]:.2f}" if m in held else "n/a",
             ]
         )
@@ -494,8 +503,9 @@ def ipin_errors_table(
         note = ("Trials above GNSS: trial runs (a trial at one filter seed) whose median error exceeds "
                 "GNSS alone's on the same run, of those scored. ")
     if held:
+        gnss_radius = " (for GNSS alone the phone's reported accuracy)" if with_gnss else ""
         note += ("accuracy_m held: the share of waypoints within the track's accuracy_m, the radius that "
-                 "should hold the walker 68 % of the time (for GNSS alone the phone's reported accuracy). ")
+                 f"should hold the walker 68 % of the time{gnss_radius}. ")
     if ronin_weights:
         model = f", RoNIN {Path(ronin_weights).name}"
         note += (f"Every method tracks with the velocity of {Path(ronin_weights).name}, a RoNIN model that "
@@ -504,7 +514,8 @@ def ipin_errors_table(
     return Table(
         f"IPIN 2023 Track 3 ({n_trials} {which}trials{pooled}, no map{model}): "
         "error at surveyed waypoints (m)",
-        ["method", "waypoints", "median", "p90", "mean", "trials above GNSS", "accuracy_m held"],
+        ["method", "waypoints", "median", "p90", "mean", *(["trials above GNSS"] if with_gnss else []),
+         "accuracy_m held"],
         table_rows,
         note,
     )
