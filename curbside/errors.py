@@ -20,3 +20,14 @@ class CurbsideInputError(Exception):
         self.source = str(source)
         self.problem = problem
         super().__init__(f"{self.source}: {problem}")
+
+
+class CurbsideValueError(CurbsideInputError, ValueError):
+    """A :class:`CurbsideInputError` that is also a :class:`ValueError`.
+
+    Raised by APIs that raised a plain ``ValueError`` (or ``TypeError``) for bad input before they named
+    the argument at fault (:class:`~curbside.localize.filter.Tracker`), so that both ``except
+    ValueError`` and ``except CurbsideInputError`` catch it. :class:`CurbsideInputError` itself is not a
+    ``ValueError``: ``except ValueError`` blocks that re-word their own ``CurbsideInputError``
+    (``curbside.localize.particle_store``, ``curbside.configio``) would catch it otherwise.
+    """

@@ -178,11 +178,12 @@ def test_collapse_is_recovered_never_nan():
     )
     tracker.start_at_pose(0.0, X0 + 20.0, Y0 + 8.0)
     fix = GnssFix(X0 + 20.0, Y0 + 2.0, 4.0)
-    est = tracker.step(1.0, displacement_en=(0.0, 20.0), gnss_fix=fix)  # every particle into the building
+    # Every particle into the building (in 2 s: the tracker refuses a walker faster than 10 m/s).
+    est = tracker.step(2.0, displacement_en=(0.0, 20.0), gnss_fix=fix)
     assert est.recovered and tracker.recoveries == 1 and finite_estimate(est)
     codes = tracker.map_raster.codes_at(tracker.particles.x, tracker.particles.y)
     assert not (codes >= BUILDING).any()
-    assert not tracker.step(2.0, displacement_en=(0.5, 0.0), gnss_fix=fix).recovered
+    assert not tracker.step(3.0, displacement_en=(0.5, 0.0), gnss_fix=fix).recovered
 
 
 def test_everything_in_buildings_even_after_reseeding_gives_uniform_weights():

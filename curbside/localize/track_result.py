@@ -7,7 +7,8 @@ named sidewalk segment's label ("Market Street, north side"), or, when the estim
 :data:`OFF_SIDEWALK_M` from that segment's polygon, :data:`OFF_SIDEWALK_TEXT` (:func:`place_text`).
 The filter names the segment its particles' weight favours, and particles up to
 ``filter.map.segment_reach_m`` (25 m) from a sidewalk count for it, so a named segment alone does not
-say that the walker is on it.
+say that the walker is on it. An app that calls :class:`~curbside.localize.filter.Tracker` itself gets
+the same words and distance per estimate from :class:`EstimatePlaces`.
 """
 
 from __future__ import annotations
@@ -16,15 +17,19 @@ import math
 import weakref
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 import pandas as pd
 import shapely
 
+from curbside.errors import CurbsideValueError
 from curbside.localize.engine import Row
+from curbside.localize.filter.particles import Estimate
 from curbside.localize.filter.tracker import Tracker
 from curbside.localize.runconfig import RunConfig
 from curbside.osmseg.mapio import MapLayers
+from curbside.osmseg.places import sidewalk_places
 from curbside.projection import LocalFrame
 
 #: Columns of ``track.csv`` in order (:data:`SEGMENT_COLUMNS` follow when the map has sidewalks).
@@ -282,3 +287,70 @@ def sidewalk_shapes(map_layers: MapLayers) -> SidewalkShapes:
     shapes = SidewalkShapes(map_layers)
     _SHAPES[id(map_layers)] = (weakref.ref(map_layers), shapes)
     return shapes
+
+
+class Place(NamedTuple):
+    """Where one estimate is, in the service's words (all ``None`` without a named segment).
+
+    Attributes
+    ----------
+    segment_id, street, side, label
+        The named sidewalk segment (``Estimate.segment_id``) and its words
+        (:class:`~curbside.osmseg.places.SidewalkPlace`; ``street`` and ``side`` may be ``None``).
+    distance_m
+        From the estimate's ``x, y`` to that segment's polygon, m (0 on it): ``segment_distance_m``.
+    text
+        :func:`place_text`: the label, or "off the sidewalk, 18 m from 2nd Street, northeast side"
+        beyond :data:`OFF_SIDEWALK_M`.
+    """
+
+    segment_id: str | None = None
+    street: str | None = None
+    side: str | None = None
+    label: str | None = None
+    distance_m: float | None = None
+    text: str | None = None
+
+
+class EstimatePlaces:
+    """The place words and segment distance of a tracker's estimates on one map (the service's
+    ``place`` and ``segment_distance_m``, and ``track.csv``'s distance).
+
+    Made once per map (its segments' words and polygons: 0.1-0.2 s for the San Francisco map's 2,735
+    segments), then :meth:`describe` per estimate (26 µs, against 130 µs for a standing
+    ``Tracker.step`` at N = 2000). Trackers of the same map may share one.
+
+    Parameters
+    ----------
+    map_layers
+        The map the tracker was made from (the estimates' ``x, y`` are in its CRS).
+    """
+
+    def __init__(self, map_layers: MapLayers) -> None:
+        self.map_layers = map_layers
+        self.places = sidewalk_places(map_layers)
+        shapes = sidewalk_shapes(map_layers)
+        #: Each segment's polygon (or union) by ``segment_id``, as :class:`SidewalkShapes` measures.
+        self.shapes = dict(zip(shapes.ids.tolist(), shapes.shapes, strict=True))
+        self._frames_checked: set[int] = set()
+
+    def describe(self, estimate: Estimate) -> Place:
+        """The :class:`Place` of ``estimate`` (a :class:`~curbside.localize.filter.Estimate`).
+
+        Raises
+        ------
+        CurbsideValueError
+            The estimate's frame is not the map's CRS (a tracker made with another ``frame``).
+        """
+        frame = estimate.frame
+        if frame is not None and id(frame) not in self._frames_checked:
+            if not frame.crs.equals(self.map_layers.crs):
+                raise CurbsideValueError("estimate", "its frame is not the map's CRS: no distance to measure")
+            self._frames_checked.add(id(frame))
+        place = self.places.get(estimate.segment_id) if estimate.segment_id else None
+        shape = self.shapes.get(estimate.segment_id)
+        if place is None or shape is None:
+            return Place()
+        distance = float(shapely.distance(shape, shapely.Point(estimate.x, estimate.y)))
+        text = place_text(place.label, distance)
+        return Place(place.segment_id, place.street, place.side, place.label, distance, text)

@@ -21,6 +21,7 @@ module                     part
 :mod:`.initiate`           :class:`Initiator`: start at a pose or a fix
 :mod:`.smoother`           :class:`FixedLagSmoother`: opt-in positions from the genealogy, later
 :mod:`.tracker`            :class:`Tracker`: the streaming filter that runs them
+:mod:`.step_input`         the checks of what an app hands :class:`Tracker` (times, steps, fixes)
 :mod:`.random`             :class:`~.random.Stream`: seeded normals and uniforms drawn inside kernels
 :mod:`.kernelmath`         ``sincos``, ``exp``, ``logaddexp`` that vectorise inside kernels
 =========================  ==================================================================

@@ -52,6 +52,13 @@ class MotionConfig:
     scale_init_sigma, scale_noise_per_step
         Speed-scale spread around 1 at the start and its random walk per update (0 and 0: the paper's
         three-state filter).
+    gap_s
+        Updates further apart than this (s) leave the walker's motion in between unknown (an app
+        stopped, a phone asleep): the position noise of such an update is at least ``gap_spread_mps``
+        times its duration (the engine updates at least every ``engine.max_update_interval_s``, 1 s).
+    gap_spread_mps
+        Position noise sigma (m per axis) per second of such a gap (0: none): a walker at 1.4 m/s ends
+        within 2 sigma with 0.7 m/s.
     """
 
     step_noise_fraction: float = 0.25
@@ -62,10 +69,13 @@ class MotionConfig:
     heading_jump_sigma_deg: float = 30.0
     scale_init_sigma: float = 0.09
     scale_noise_per_step: float = 0.001
+    gap_s: float = 10.0
+    gap_spread_mps: float = 0.7
 
     def __post_init__(self) -> None:
         non_negative(self, "step_noise_fraction", "step_noise_floor_m", "heading_noise_deg",
-                     "scale_init_sigma", "scale_noise_per_step")
+                     "scale_init_sigma", "scale_noise_per_step", "gap_spread_mps")
+        positive(self, "gap_s")
         check(
             self.step_noise_across_fraction is None or self.step_noise_across_fraction >= 0,
             f"step_noise_across_fraction must be non-negative, got {self.step_noise_across_fraction}",
@@ -110,12 +120,15 @@ class MapConfig:
     ----------
     jaywalk_weight
         Weight of a particle on street surface outside crosswalks, in [0, 1] (the paper: 0.4).
-    crossing_weight, crossing_angle_deg
-        A particle on the street whose step (its inertial step turned by its heading offset) runs within
-        ``crossing_angle_deg`` of square to the street (the axis of its nearest sidewalk segment) is
-        crossing it, and weighs ``max(jaywalk_weight, crossing_weight)`` instead: a walker crosses a
-        street outside a crosswalk now and then, but does not walk along it (``None``: the paper's
-        single weight; see ``docs/filter.md``, "Crossing the street outside a crosswalk").
+    crossing_weight
+        Weight, in [0, 1], of a particle on the street that is crossing it (``crossing_angle_deg``): it
+        weighs ``max(jaywalk_weight, crossing_weight)`` instead of ``jaywalk_weight``, since a walker
+        crosses a street outside a crosswalk now and then, but does not walk along it (``None``: the
+        paper's single weight; see ``docs/filter.md``, "Crossing the street outside a crosswalk").
+    crossing_angle_deg
+        A particle on the street is crossing it when its step (its inertial step turned by its heading
+        offset) runs within this angle (degrees, in (0, 90]; 90: any step) of square to the street (the
+        axis of its nearest sidewalk segment). Unused when ``crossing_weight`` is ``None``.
     wall_tolerance_m
         Soft building edges: a particle ``d`` metres inside a building weighs ``exp(-d^2 / (2 t^2))``
         instead of 0 (0: the paper's hard walls), and 0 beyond ``3 t``. Tolerates metre-scale map error.
@@ -204,9 +217,13 @@ class GnssConfig:
         Likelihood sigma = factor * reported accuracy radius.
     max_accuracy_m
         Fixes reporting a worse accuracy make no update.
-    outlier_prob, outlier_radius_m
-        Weight of a flat outlier component (uniform over a disc of that radius) mixed with the
-        Gaussian; 0: the plain Gaussian.
+    outlier_prob
+        Weight, in [0, 1), of a flat outlier component mixed with the Gaussian; 0: the plain Gaussian
+        (``outlier_radius_m`` then unused).
+    outlier_radius_m
+        Radius (m, > 0) of the disc the outlier component is uniform over: it adds the constant density
+        ``outlier_prob / (pi * outlier_radius_m**2)`` at every distance from the fix, a floor under the
+        likelihood (a larger radius: a lower floor).
     across_factor
         Anisotropy: the error across the street (the nearest sidewalk segment's normal) has this many
         times the sigma of the error along it (1: isotropic). In urban canyons GNSS is worse across the
@@ -227,13 +244,15 @@ class GnssConfig:
     min_accuracy_m
         A fix reporting a positive accuracy under this counts as reporting this (a phone reports
         metres; a radius near zero would leave the likelihoods nothing to divide by).
-    bias_sigma_factor, bias_time_s
+    bias_sigma_factor
         A GNSS bias state (0: none): the slowly wandering error that successive fixes share, a
         first-order Gauss-Markov process with time constant ``bias_time_s`` and stationary sigma
         ``bias_sigma_factor`` times the reported accuracy (per axis). It is Rao-Blackwellised: each
         particle carries the Kalman mean of its bias, all share one variance, and a fix measures
         position + bias + white noise of sigma ``sigma_factor`` times the accuracy. It replaces
         tempering (set ``correlation_time_s`` to 0 with it).
+    bias_time_s
+        The bias state's time constant (s, > 0; unused while ``bias_sigma_factor`` is 0).
     """
 
     sigma_factor: float = 0.66

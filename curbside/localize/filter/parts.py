@@ -68,8 +68,8 @@ class Update(NamedTuple):
 class Predictor(Protocol):
     """Moves the particles at each update (a proposal; it must keep ``cos_theta``/``sin_theta`` in step)."""
 
-    def predict(self, particles: ParticleSet, dx: float, dy: float) -> None:
-        """Move ``particles`` in place by the inertial displacement ``(dx, dy)``."""
+    def predict(self, particles: ParticleSet, dx: float, dy: float, dt_s: float) -> None:
+        """Move ``particles`` in place by the inertial displacement ``(dx, dy)`` over ``dt_s`` seconds."""
 
 
 class Likelihood(Protocol):

@@ -12,6 +12,10 @@ At an update with inertial displacement ``(dx, dy)`` (metres east/north over the
    an inertial step grows with its length, and the floor keeps a standing cloud alive. With
    ``step_noise_across_fraction`` the noise is that sigma along the particle's own step and
    ``max(floor, across_fraction * |(dx, dy)|)`` across it (the same draws, turned onto the step).
+   An update more than ``gap_s`` after the previous one leaves the walker's motion over that gap
+   unknown (an app stopped, a phone asleep; the engine updates at least every second): its position
+   noise is at least ``gap_spread_mps`` times the gap, isotropic, so the cloud says how little is known
+   and the next fixes can find the walker.
 
 The predictor owns a :class:`~curbside.localize.filter.random.Stream` seeded from the filter's
 generator, and its compiled kernel (:func:`_predict`) draws the normals as it goes, with no buffer:
@@ -106,13 +110,21 @@ class InertialPredictor:
             return self.position_sigma(dx, dy)
         return max(self.config.step_noise_floor_m, across * math.hypot(dx, dy))
 
-    def predict(self, particles: ParticleSet, dx: float, dy: float) -> None:
-        """Move ``particles`` in place by the step displacement ``(dx, dy)`` metres (east, north)."""
+    def gap_sigma(self, dt_s: float) -> float:
+        """Position noise sigma (m) that an update ``dt_s`` after the previous one has at least (0 unless
+        ``dt_s`` exceeds ``gap_s``)."""
+        return self.config.gap_spread_mps * dt_s if dt_s > self.config.gap_s else 0.0
+
+    def predict(self, particles: ParticleSet, dx: float, dy: float, dt_s: float = 0.0) -> None:
+        """Move ``particles`` in place by the step displacement ``(dx, dy)`` metres (east, north) made
+        over ``dt_s`` seconds since the previous update."""
         # position_sigma and across_sigma, inline: this is once per footstep.
         floor, fraction, across, theta_sigma, scale_sigma, jump_prob, jump_sigma = self._constants
         length = math.hypot(dx, dy)
         sigma = max(floor, fraction * length)
         sigma_across = sigma if across is None else max(floor, across * length)
+        if dt_s > self.config.gap_s:  # the motion over the gap is unknown
+            sigma = sigma_across = max(sigma, sigma_across, self.gap_sigma(dt_s))
         _predict(particles.state, self.stream.state, dx, dy, sigma, sigma_across, theta_sigma, scale_sigma,
                  jump_prob, jump_sigma)
 

@@ -34,7 +34,7 @@ import math
 import numpy as np
 import pyproj
 
-from curbside.errors import CurbsideInputError
+from curbside.errors import CurbsideInputError, CurbsideValueError
 from curbside.localize.filter.calibration import SegmentCalibration, accuracy_radius_m
 from curbside.localize.filter.config import FilterConfig, GnssConfig, MotionConfig
 from curbside.localize.filter.correction_config import ScaleCorrectionConfig
@@ -50,6 +50,14 @@ from curbside.localize.filter.resample import SystematicResampler
 from curbside.localize.filter.scale import ScaleCorrection
 from curbside.localize.filter.segments import SegmentEstimator
 from curbside.localize.filter.smoother import FixedLagSmoother
+from curbside.localize.filter.step_input import (
+    check_fix,
+    finite,
+    real,
+    step_displacement,
+    time_s,
+    valid_fix,
+)
 from curbside.localize.filter.street_heading import StreetHeadingLikelihood
 from curbside.localize.raster import MapRaster, load_or_build_raster
 from curbside.osmseg.mapio import MapLayers
@@ -57,19 +65,13 @@ from curbside.projection import LocalFrame
 
 logger = logging.getLogger(__name__)
 
+#: A usable fix agrees with the estimate it made when it lies within this many times
+#: ``hypot(fix.accuracy_m, estimate.accuracy_m)`` of it (two 68 % radii: about 4.5 sigma per axis).
+FIX_AGREEMENT_RADII = 3.0
+
 # A named tuple from a complete tuple of its fields, without the keyword handling of its constructor
 # (half the cost, once per update).
 _new_tuple = tuple.__new__
-
-
-def _valid_fix(fix: GnssFix | None) -> bool:
-    return (
-        fix is not None
-        and math.isfinite(fix.x)
-        and math.isfinite(fix.y)
-        and math.isfinite(fix.accuracy_m)
-        and fix.accuracy_m > 0
-    )
 
 
 class Tracker:
@@ -105,6 +107,12 @@ class Tracker:
         Number of collapses re-seeded so far.
     last_estimate
         The latest :class:`Estimate` (``None`` before the start).
+    last_fix
+        The latest fix that weighed the particles or started them (``None``: none yet).
+    last_fix_t
+        Time of the latest fix that started the particles, or weighed them and agreed with the estimate
+        it made (within :data:`FIX_AGREEMENT_RADII` times the hypotenuse of the two accuracies);
+        ``None``: none yet. See :meth:`seconds_since_fix`.
     """
 
     def __init__(
@@ -138,12 +146,17 @@ class Tracker:
         self.smoother = smoother
         self.turn = turn
         self.calibration = calibration
+        gnss_config = gnss.config if gnss is not None else GnssConfig()
         #: Fixes reporting a positive accuracy under this are taken to report this (``GnssConfig``).
-        self.min_accuracy_m = (gnss.config if gnss is not None else GnssConfig()).min_accuracy_m
+        self.min_accuracy_m = gnss_config.min_accuracy_m
+        #: :meth:`step` starts the tracker only at a fix reporting a better accuracy than this.
+        self.max_accuracy_m = gnss_config.max_accuracy_m
         self._smoothed: list[np.ndarray] = []
         self.recoveries = 0
         self.last_estimate: Estimate | None = None
         self.last_fix: GnssFix | None = None
+        self.last_fix_t: float | None = None
+        self._warned_outside = False
 
     @classmethod
     def from_config(
@@ -160,7 +173,10 @@ class Tracker:
         ----------
         map_layers
             The map (rasterised once, cached on disk), a built :class:`MapRaster`, or ``None`` for no map
-            likelihood.
+            likelihood. Each tracker made from map layers holds its own copy of the raster (about
+            136 MB for the bundled San Francisco map); trackers of one map (one per walker) share one
+            when given another tracker's :attr:`map_raster` (``Tracker.from_config(first.map_raster,
+            ...)``: no copy; the raster is only read).
         config
             Every parameter (default: curbside's fused filter).
         seed
@@ -251,56 +267,114 @@ class Tracker:
 
         Raises
         ------
-        CurbsideInputError
-            ``lat`` / ``lon`` not finite or out of range (lat in [-90, 90], lon in [-180, 180]).
+        CurbsideValueError
+            ``lat`` / ``lon`` not numbers, not finite or out of range (lat in [-90, 90], lon in
+            [-180, 180]).
         """
+        lat, lon = real(lat, "lat"), real(lon, "lon")
         if not (math.isfinite(lat) and math.isfinite(lon) and -90 <= lat <= 90 and -180 <= lon <= 180):
-            raise CurbsideInputError("position", f"lat={lat!r}, lon={lon!r} is not a WGS84 position")
+            raise CurbsideValueError("position", f"lat={lat!r}, lon={lon!r} is not a WGS84 position")
         if self.frame is None:
             self.frame = LocalFrame.around(lon, lat)
         x, y = self.frame.to_xy(lon, lat)
         return float(x), float(y)
 
-    def fix(self, *, lat: float, lon: float, accuracy_m: float) -> GnssFix:
-        """A :class:`GnssFix` from WGS84 degrees, in this tracker's frame (see :meth:`to_xy`)."""
-        return GnssFix(*self.to_xy(lat=lat, lon=lon), float(accuracy_m))
+    def fix(self, *, lat: float, lon: float, accuracy_m: float | None) -> GnssFix:
+        """A :class:`GnssFix` from WGS84 degrees, in this tracker's frame (see :meth:`to_xy`).
 
-    def start_at(self, t: float, *, lat: float, lon: float, heading_offset_rad: float = 0.0) -> Estimate:
-        """Start from a known pose given in WGS84 (see :meth:`start_at_pose`)."""
-        return self.start_at_pose(t, *self.to_xy(lat=lat, lon=lon), heading_offset_rad)
-
-    def start_at_pose(self, t: float, x: float, y: float, heading_offset_rad: float = 0.0) -> Estimate:
-        """Start around a known pose; a pose in a building moves to the nearest free cell, with a warning.
+        ``accuracy_m`` ``None`` (a phone location without an accuracy), NaN, infinite or not positive
+        makes an invalid fix, as the service reads a ``null`` accuracy: it weighs nothing, starts nothing,
+        and :meth:`start_at_fix` refuses it.
 
         Raises
         ------
-        CurbsideInputError
-            A non-finite pose, a pose outside the map's extent, or in a building with no free space near.
+        CurbsideValueError
+            A position :meth:`to_xy` refuses, or an ``accuracy_m`` that is not a number.
         """
-        if not all(math.isfinite(v) for v in (t, x, y, heading_offset_rad)):
-            raise CurbsideInputError(
-                "start pose", f"not finite: t={t}, x={x}, y={y}, heading={heading_offset_rad}"
-            )
+        accuracy = math.nan if accuracy_m is None else real(accuracy_m, "accuracy_m")
+        return GnssFix(*self.to_xy(lat=lat, lon=lon), accuracy)
+
+    def start_at(self, t: float, *, lat: float, lon: float, heading_offset_rad: float = 0.0) -> Estimate:
+        """Start from a known pose given in WGS84 (see :meth:`start_at_pose`).
+
+        Raises
+        ------
+        CurbsideValueError
+            What :meth:`to_xy` and :meth:`start_at_pose` refuse.
+        """
+        return self.start_at_pose(t, *self.to_xy(lat=lat, lon=lon), heading_offset_rad)
+
+    def start_at_pose(self, t: float, x: float, y: float, heading_offset_rad: float = 0.0) -> Estimate:
+        """Start (or start again) around a known pose; a pose in a building moves to the nearest free
+        cell, with a warning.
+
+        Raises
+        ------
+        CurbsideValueError
+            A ``t`` that is not seconds (:meth:`step`) or is before the previous update's, a non-finite
+            pose, a pose outside the map's extent, or in a building with no free space near.
+        """
+        t = self._start_time(t)
+        x, y = finite(x, "x"), finite(y, "y")
+        heading_offset_rad = finite(heading_offset_rad, "heading_offset_rad")
         raster = self.map_raster
         if raster is not None and not bool(raster.contains(x, y)):
-            raise CurbsideInputError("start pose", f"({x:.1f}, {y:.1f}) lies outside the map's extent")
-        self.initiator.at_pose(self.particles, x, y, heading_offset_rad)
+            raise CurbsideValueError("start pose", f"({x:.1f}, {y:.1f}) lies outside the map's extent")
+        try:
+            self.initiator.at_pose(self.particles, x, y, heading_offset_rad)
+        except CurbsideInputError as exc:
+            raise CurbsideValueError(exc.source, exc.problem) from None
         return self._conclude(t, 0.0)
 
     def start_at_fix(self, t: float, fix: GnssFix) -> Estimate:
-        """Start around a GNSS fix (heading offset over the configured spread)."""
-        if not _valid_fix(fix):
-            raise ValueError(f"cannot start from an invalid fix {fix}")
+        """Start (or start again) around a valid GNSS fix, the heading offset over the configured spread.
+
+        It starts where it is told, as the engine does at its first usable fix: a fix outside the map's
+        extent or less accurate than ``filter.gnss.max_accuracy_m`` is taken (:meth:`step` waits for a
+        better one). After the app was stopped, or after a long time without fixes
+        (:meth:`seconds_since_fix`), starting again at the next good fix is the way back.
+
+        Raises
+        ------
+        CurbsideValueError
+            A ``t`` that is not seconds or is before the previous update's; ``fix`` not a
+            :class:`GnssFix`, or invalid (position not finite, accuracy not positive and finite).
+        """
+        t = self._start_time(t)
+        check_fix(fix, "fix")
+        if not valid_fix(fix):
+            raise CurbsideValueError("fix", f"cannot start from an invalid fix {fix}")
         fix = self._floored(fix)
         self.initiator.at_fix(self.particles, fix)
-        self.last_fix = fix
+        self.last_fix, self.last_fix_t = fix, t
         return self._conclude(t, 0.0)
+
+    def _start_time(self, t: object) -> float:
+        """``t`` checked as :meth:`step` does, except that a restart may repeat the last update's time."""
+        t = time_s(t)
+        last = self.last_estimate
+        if last is not None and t < last.t:
+            raise CurbsideValueError("t", f"{t!r} is before the previous update's {last.t!r}")
+        return t
 
     # -- one update ---------------------------------------------------------------------------------
 
     def usable(self, fix: GnssFix | None) -> bool:
         """Whether ``fix`` would weigh the particles (valid, and accurate enough for the GNSS part)."""
         return self.gnss.accepts(fix) if self.gnss is not None else False
+
+    def seconds_since_fix(self, t: float | None = None) -> float:
+        """Seconds from the last fix that started the particles or agreed with the estimate
+        (:attr:`last_fix_t`) to ``t`` (default: the latest update's time); ``inf`` when there was none.
+
+        It grows while no usable fix comes (a GNSS outage) and while the fixes that come disagree with
+        the estimate (a cloud that started at a phone's stale first fix, kilometres off). Either way
+        the estimate is dead reckoning: its ``accuracy_m`` and ``segment_prob`` describe the cloud, not
+        the walker (docs/filter.md, "From Python, one update at a time", has the app's rule).
+        """
+        if t is None:
+            t = math.nan if self.last_estimate is None else self.last_estimate.t
+        return math.inf if self.last_fix_t is None else t - self.last_fix_t
 
     def adopt_motion(self, motion: MotionConfig, scale_correction: ScaleCorrectionConfig) -> None:
         """From the next update on, move with ``motion``'s noise and correct the speed scale by
@@ -322,37 +396,53 @@ class Tracker:
         Parameters
         ----------
         t
-            Time of the update, seconds.
+            Time of the update, seconds (``|t|`` under 1e10: not milliseconds), after the previous
+            update's. Updates more than ``filter.motion.gap_s`` apart say the walker's motion in between
+            is unknown: the cloud widens (call at least once a second, with a zero displacement while
+            standing, as the engine does).
         velocity_en, dt
-            Mean inertial velocity (east, north; m/s) over the step and the step's duration (s) ...
+            Mean inertial velocity (east, north; m/s) over the step and the step's duration (s; within
+            0.1 s + 10 % of ``t`` minus the previous update's ``t``) ...
         displacement_en
-            ... or the step's displacement (east, north; metres) directly.
+            ... or the step's displacement (east, north; metres) directly. Either may move the walker at
+            most :data:`MAX_SPEED_MPS` times the time since the previous update, plus
+            :data:`STEP_SLACK_M`.
         gnss_fix
             A fix valid at ``t`` (invalid or inaccurate fixes are ignored).
 
         Returns
         -------
         Estimate or None
-            ``None`` while the tracker has not started (no start pose and no valid fix yet); a valid fix
-            before the start starts the tracker there.
+            ``None`` while the tracker has not started: no start pose and no fix yet that :meth:`usable`
+            would accept (without a GNSS part: valid and more accurate than :attr:`max_accuracy_m`)
+            inside the map's extent. The first such fix starts the tracker there.
+
+        Raises
+        ------
+        CurbsideValueError
+            Naming the argument and its value: a ``t`` that is not seconds or not after the previous
+            update's; no motion, or a motion that is not an (east, north) pair of finite numbers; a
+            ``dt`` not positive or disagreeing with the update times; a motion faster than the bound
+            above; a ``gnss_fix`` that is not a :class:`GnssFix`.
         """
-        if displacement_en is not None:
-            dx, dy = float(displacement_en[0]), float(displacement_en[1])
-        elif velocity_en is not None and dt is not None:
-            dx, dy = float(velocity_en[0]) * dt, float(velocity_en[1]) * dt
-        else:
-            raise ValueError("step() needs velocity_en and dt, or displacement_en")
-        if not (math.isfinite(dx) and math.isfinite(dy) and math.isfinite(t)):
-            raise ValueError(f"non-finite inertial displacement ({dx}, {dy}) or time at t={t}")
-        if gnss_fix is not None and 0.0 < gnss_fix.accuracy_m < self.min_accuracy_m:
-            gnss_fix = self._floored(gnss_fix)
+        t = time_s(t)
         last = self.last_estimate
+        dt_s = math.nan if last is None else t - last.t
+        if dt_s <= 0:
+            raise CurbsideValueError(
+                "t", f"{t!r} is not after the previous update's {last.t!r} (time must increase)"
+            )
+        dx, dy = step_displacement(velocity_en, dt, displacement_en, dt_s)
+        if gnss_fix is not None:
+            check_fix(gnss_fix, "gnss_fix")
+            if 0.0 < gnss_fix.accuracy_m < self.min_accuracy_m:
+                gnss_fix = self._floored(gnss_fix)
         if last is None:
-            return self.start_at_fix(t, gnss_fix) if _valid_fix(gnss_fix) else None
+            return self.start_at_fix(t, gnss_fix) if self._can_start_at(gnss_fix) else None
         # Once per footstep: attributes are read once into locals (this is most of the update at small N).
         particles, divergence = self.particles, self.divergence
-        update = _new_tuple(Update, (t, t - last.t, dx, dy, gnss_fix))
-        self.predictor.predict(particles, dx, dy)
+        update = _new_tuple(Update, (t, dt_s, dx, dy, gnss_fix))
+        self.predictor.predict(particles, dx, dy, dt_s)
         inject = 0.0 if divergence is None else divergence.observe(particles, update, last)
         if self.scale is not None:
             self.scale.observe(update, last)
@@ -360,11 +450,33 @@ class Tracker:
             self.turn.observe(update, last)
         for likelihood in self.likelihoods:
             likelihood.weigh(particles, update)
-        if gnss_fix is not None and self.usable(gnss_fix):
+        used = gnss_fix is not None and self.usable(gnss_fix)
+        if used:
             self.last_fix = gnss_fix
             if self.calibration is not None:
                 self.calibration.observe(t, gnss_fix.x - last.x, gnss_fix.y - last.y)
-        return self._conclude(t, inject)
+        estimate = self._conclude(t, inject)
+        if used and math.hypot(gnss_fix.x - estimate.x, gnss_fix.y - estimate.y) <= FIX_AGREEMENT_RADII * (
+            math.hypot(gnss_fix.accuracy_m, estimate.accuracy_m)
+        ):
+            self.last_fix_t = t
+        return estimate
+
+    def _can_start_at(self, fix: GnssFix | None) -> bool:
+        """Whether :meth:`step` may start at ``fix``: usable (valid and accurate enough) and inside the
+        map's extent (a phone's first fix may be its last known place, kilometres away)."""
+        if not valid_fix(fix) or not fix.accuracy_m < self.max_accuracy_m:
+            return False
+        raster = self.map_raster
+        if raster is None or bool(raster.contains(fix.x, fix.y)):
+            return True
+        if not self._warned_outside:
+            logger.warning(
+                "a fix at (%.0f, %.0f) lies outside the map's extent: not starting there; waiting for a "
+                "fix inside the map (or start_at / start_at_fix)", fix.x, fix.y
+            )
+            self._warned_outside = True
+        return False
 
     def _floored(self, fix: GnssFix) -> GnssFix:
         """``fix`` with its accuracy raised to :attr:`min_accuracy_m` when it reports less (not 0:
