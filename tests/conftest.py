@@ -27,6 +27,14 @@ def shared_data() -> Path:
 
 
 @pytest.fixture
+def cache_in_tmp(tmp_path, monkeypatch) -> Path:
+    """curbside's cache (rasters, Overpass answers) in ``tmp_path / "cache"`` for the test."""
+    cache = tmp_path / "cache"
+    monkeypatch.setattr("curbside.settings.cache_dir", cache)
+    return cache
+
+
+@pytest.fixture
 def test_data() -> Path:
     """The small in-repo fixtures in ``tests/data``."""
     return TEST_DATA

@@ -25,6 +25,11 @@ def client_for(tmp_path: Path, model, **kwargs) -> TestClient:
     return TestClient(create_app(config, TrackingService(config, model)))
 
 
+def bare_client(tmp_path: Path, token: str) -> TestClient:
+    """The app with ``token``, without its lifespan (the schema and the pages need no session)."""
+    return TestClient(create_app(ServiceConfig(data_dir=tmp_path / "data", token=token)))
+
+
 @contextlib.contextmanager
 def live_service(tmp_path: Path, model, log_level: str = "warning") -> Iterator[tuple[str, uvicorn.Server]]:
     """A service writing under ``tmp_path / "data"``, served by uvicorn on a free loopback port in a

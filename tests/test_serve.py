@@ -44,9 +44,7 @@ CROSSROADS = DATA / "maps" / "crossroads.geojson"
 REPO = Path(__file__).parent.parent
 
 
-@pytest.fixture(autouse=True)
-def _cache_in_tmp(tmp_path, monkeypatch):
-    monkeypatch.setattr("curbside.settings.cache_dir", tmp_path / "cache")
+pytestmark = pytest.mark.usefixtures("cache_in_tmp")
 
 
 @pytest.fixture(scope="module")

@@ -26,28 +26,24 @@ import pytest
 from browser import chromium, console_errors
 from fastapi.routing import APIRoute, APIWebSocketRoute
 from fastapi.testclient import TestClient
-from serve_fixtures import client_for, live_service
+from serve_fixtures import bare_client, client_for, live_service
 from websockets.exceptions import ConnectionClosed
 from websockets.sync.client import connect
 
 from curbside.localize.live import IMU_QUAT_COLUMNS
 from curbside.localize.serve.apidocs import api_reference_html, swagger_ui_html
-from curbside.localize.serve.app import TrackRecord, create_app
-from curbside.localize.serve.service import ServiceConfig
+from curbside.localize.serve.app import TrackRecord
 
 REPO = Path(__file__).resolve().parents[1]
 TOKEN = "s49-token-0123456789"
 
 
-@pytest.fixture(autouse=True)
-def _cache_in_tmp(tmp_path, monkeypatch):
-    monkeypatch.setattr("curbside.settings.cache_dir", tmp_path / "cache")
+pytestmark = pytest.mark.usefixtures("cache_in_tmp")
 
 
 @pytest.fixture
 def bare(tmp_path) -> TestClient:
-    """The app with a token, without its lifespan (the pages and the schema need no session)."""
-    return TestClient(create_app(ServiceConfig(data_dir=tmp_path / "data", token=TOKEN)))
+    return bare_client(tmp_path, TOKEN)
 
 
 def _section(page: str, heading: str) -> str:

@@ -29,9 +29,7 @@ AUTH = {"Authorization": f"Bearer {TOKEN}"}
 SAME = ("content-length", "content-range", "accept-ranges", "etag", "last-modified")
 
 
-@pytest.fixture(autouse=True)
-def _cache_in_tmp(tmp_path, monkeypatch):
-    monkeypatch.setattr("curbside.settings.cache_dir", tmp_path / "cache")
+pytestmark = pytest.mark.usefixtures("cache_in_tmp")
 
 
 def _saved(tmp_path, walk_result, session_id: str = "walked"):

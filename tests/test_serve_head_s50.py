@@ -25,11 +25,9 @@ from pathlib import Path
 import httpx
 import pytest
 from fastapi.testclient import TestClient
-from serve_fixtures import client_for, live_service
+from serve_fixtures import bare_client, client_for, live_service
 
 from curbside.localize.live import IMU_QUAT_COLUMNS
-from curbside.localize.serve.app import create_app
-from curbside.localize.serve.service import ServiceConfig
 from curbside.localize.serve.store import TrackStore
 
 REPO = Path(__file__).resolve().parents[1]
@@ -41,15 +39,12 @@ SAME = ("content-length", "content-type", "www-authenticate")
 PATHS = ("/health", "/tracks", "/tracks/{session_id}", "/sessions/{session_id}/estimate")
 
 
-@pytest.fixture(autouse=True)
-def _cache_in_tmp(tmp_path, monkeypatch):
-    monkeypatch.setattr("curbside.settings.cache_dir", tmp_path / "cache")
+pytestmark = pytest.mark.usefixtures("cache_in_tmp")
 
 
 @pytest.fixture
 def bare(tmp_path) -> TestClient:
-    """The app with a token, without its lifespan (the schema and the pages need no session)."""
-    return TestClient(create_app(ServiceConfig(data_dir=tmp_path / "data", token=TOKEN)))
+    return bare_client(tmp_path, TOKEN)
 
 
 def _saved(tmp_path, walk_result, session_id: str = "walked"):

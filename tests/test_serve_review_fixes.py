@@ -18,9 +18,7 @@ START = {"lat": 37.79, "lon": -122.39, "heading_deg": 0.0}
 FAILED = ": the session cannot go on (open a new session)"
 
 
-@pytest.fixture(autouse=True)
-def _cache_in_tmp(tmp_path, monkeypatch):
-    monkeypatch.setattr("curbside.settings.cache_dir", tmp_path / "cache")
+pytestmark = pytest.mark.usefixtures("cache_in_tmp")
 
 
 @pytest.fixture

@@ -29,10 +29,7 @@ from curbside.localize.serve.app import MAX_BODY_BYTES, create_app
 from curbside.localize.serve.service import ServiceConfig, ServiceError, TrackingService
 from curbside.localize.streams import DisplacementIntegrator
 
-
-@pytest.fixture(autouse=True)
-def _cache_in_tmp(tmp_path, monkeypatch):
-    monkeypatch.setattr("curbside.settings.cache_dir", tmp_path / "cache")
+pytestmark = pytest.mark.usefixtures("cache_in_tmp")
 
 
 def _rows(ipin_walk, until_t: float) -> tuple[np.ndarray, np.ndarray]:

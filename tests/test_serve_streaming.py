@@ -30,9 +30,7 @@ from curbside.localize.serve.service import ServiceConfig, TrackingService
 MAP_OFF_LAT, MAP_OFF_LON = 37.7906, -122.3400  # 5 km east of the crossroads test map, in the bay
 
 
-@pytest.fixture(autouse=True)
-def _cache_in_tmp(tmp_path, monkeypatch):
-    monkeypatch.setattr("curbside.settings.cache_dir", tmp_path / "cache")
+pytestmark = pytest.mark.usefixtures("cache_in_tmp")
 
 
 def _swinging_imu(t0: float, n: int, units: float = 1.0) -> np.ndarray:

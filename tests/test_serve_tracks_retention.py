@@ -32,9 +32,7 @@ AUTH = {"Authorization": f"Bearer {TOKEN}"}
 DAY_S = 86400.0
 
 
-@pytest.fixture(autouse=True)
-def _cache_in_tmp(tmp_path, monkeypatch):
-    monkeypatch.setattr("curbside.settings.cache_dir", tmp_path / "cache")
+pytestmark = pytest.mark.usefixtures("cache_in_tmp")
 
 
 def _info() -> dict:
