@@ -203,12 +203,9 @@ def sidewalk_segments(
     block_end_mask = ~is_in(service, MINOR_SERVICES)
     carrying_mask = is_in(column(roads, "highway"), config.sidewalk_highways)
     carrying = roads[carrying_mask].reset_index(drop=True)
-    empty = gpd.GeoDataFrame(
-        {"segment_id": [], "street": [], "side": [], "facing_deg": [], "osm_id": []},
-        geometry=[], crs=roads.crs,
-    )
     if len(carrying) == 0:
-        return empty
+        columns = ("segment_id", "street", "side", "facing_deg", "osm_id")
+        return gpd.GeoDataFrame({c: [] for c in columns}, geometry=[], crs=roads.crs)
     pieces = split_at_junctions(carrying, roads.geometry.values[block_end_mask])
     lines = pieces.geometry.values
     road = pieces["road"].to_numpy()
