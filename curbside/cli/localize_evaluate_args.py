@@ -68,18 +68,8 @@ OUT keeps its simulated sessions: a run stopped half-way (Ctrl-C) resumes from t
 
 
 def add_simulate_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParser:
-    """Add the ``simulate`` parser to ``subparsers``, with its options, help and examples.
-
-    Parameters
-    ----------
-    subparsers
-        ``localize``'s sub-commands.
-
-    Returns
-    -------
-    argparse.ArgumentParser
-        The parser; the caller sets the command it runs (``func``).
-    """
+    """Add the ``simulate`` parser (options, help, examples) to ``localize``'s ``subparsers`` and return
+    it; the caller sets the command it runs (``func``)."""
     sim = subparsers.add_parser(
         "simulate",
         help="simulate walks on real SF sidewalks (sessions)",
@@ -141,18 +131,8 @@ def add_simulate_parser(subparsers: argparse._SubParsersAction) -> argparse.Argu
 
 
 def add_evaluate_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParser:
-    """Add the ``evaluate`` parser to ``subparsers``, with its options, help and examples.
-
-    Parameters
-    ----------
-    subparsers
-        ``localize``'s sub-commands.
-
-    Returns
-    -------
-    argparse.ArgumentParser
-        The parser; the caller sets the command it runs (``func``).
-    """
+    """Add the ``evaluate`` parser (options, help, examples) to ``localize``'s ``subparsers`` and return
+    it; the caller sets the command it runs (``func``)."""
     ev = subparsers.add_parser(
         "evaluate",
         help="the paper's metrics, tables and figures over sessions",
@@ -210,18 +190,8 @@ def add_evaluate_parser(subparsers: argparse._SubParsersAction) -> argparse.Argu
 
 
 def add_benchmark_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParser:
-    """Add the ``benchmark`` parser to ``subparsers``, with its options, help and examples.
-
-    Parameters
-    ----------
-    subparsers
-        ``localize``'s sub-commands.
-
-    Returns
-    -------
-    argparse.ArgumentParser
-        The parser; the caller sets the command it runs (``func``).
-    """
+    """Add the ``benchmark`` parser (options, help, examples) to ``localize``'s ``subparsers`` and return
+    it; the caller sets the command it runs (``func``)."""
     bench = subparsers.add_parser(
         "benchmark",
         help="the benchmark: simulated subsets x every method, done-when checks, report",
