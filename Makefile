@@ -32,7 +32,7 @@ browser:
 
 test: $(STAMP) browser
 	$(BIN)/ruff check curbside tests benchmarks
-	$(BIN)/python -m pytest -q
+	$(BIN)/python -m pytest -q -n auto --dist loadfile
 
 lint: $(STAMP)
 	$(BIN)/ruff check curbside tests benchmarks
