@@ -73,6 +73,18 @@ def test_long_axes_follow_the_segment():
     np.testing.assert_allclose(np.abs(index.axis), [[1, 0], [0, 1]], atol=1e-9)
 
 
+def test_a_short_corner_piece_takes_its_street_from_facing_deg_not_its_long_axis():
+    # A piece 3 m along its street (x) and 6 m deep: its long axis is the cross street's (y).
+    layers = _layers([("sidewalk", "P", shapely.box(0, 5, 3, 11)),
+                      ("sidewalk", "Q", shapely.box(10, 5, 13, 11))])
+    layers.gdf["facing_deg"] = [0.0, np.nan]  # P north of its street; Q drawn by hand, no bearing
+    index = metrics.SidewalkIndex.from_layers(layers)
+    np.testing.assert_allclose(np.abs(index.axis), [[1, 0], [0, 1]], atol=1e-9)
+    errs = metrics.step_errors(np.array([[1.5, 6.0]]), np.array([[1.5, 9.0]]), index)
+    assert errs["across_m"].tolist() == pytest.approx([3.0])
+    assert errs["along_m"].tolist() == pytest.approx([0.0])
+
+
 def test_straight_street_wrong_sidewalk():
     index = metrics.SidewalkIndex.from_layers(_straight_street())
     gt = np.array([[50.0, 6.5], [20.0, 6.5]])

@@ -12,9 +12,10 @@ Definitions (the paper's, made precise where it is silent):
   (``n_crossing_steps``) so the rule's weight is visible.
 - **Euclidean error**: distance between estimate and ground truth; mean, median, 90th percentile.
 - **Along/across-street error**: the error vector decomposed against the street direction at the
-  ground-truth location. The map holds polygons, not centrelines, so the street direction is the long
-  axis (minimum rotated rectangle) of the sidewalk segment nearest to the ground truth; a sidewalk
-  segment is one side of one street along one block, so its long axis follows that street.
+  ground-truth location: the street of the sidewalk segment nearest to the ground truth, at right
+  angles to its ``facing_deg`` (the bearing from its street's centreline, which ``osmseg build``
+  records). A segment without it (a hand-drawn map) takes its polygon's long axis (minimum rotated
+  rectangle), which follows the street except on short pieces at corners.
 - **ATE / RTE** (RoNIN, Herath et al. 2020): RMSE of positions over the whole walk, and RMSE of the
   displacement error over windows of ``rte_window_s`` (60 s).
 """
@@ -28,7 +29,7 @@ import pandas as pd
 import shapely
 
 from curbside.errors import CurbsideInputError
-from curbside.localize.raster import long_axes
+from curbside.localize.raster import street_axes
 from curbside.osmseg.mapio import MapLayers
 
 #: SPEC metric names, in report order.
@@ -72,7 +73,7 @@ class MetricsConfig:
 
 @dataclass
 class SidewalkIndex:
-    """Sidewalk segments of a map with an STRtree and each segment's long-axis direction.
+    """Sidewalk segments of a map with an STRtree and each segment's street direction.
 
     Attributes
     ----------
@@ -81,7 +82,7 @@ class SidewalkIndex:
     segment_ids
         ``segment_id`` per polygon, as strings.
     axis
-        ``(n, 2)`` unit vectors along each segment's long axis.
+        ``(n, 2)`` unit vectors along each segment's street (:func:`~curbside.localize.raster.street_axes`).
     """
 
     geoms: np.ndarray
@@ -109,7 +110,7 @@ class SidewalkIndex:
             )
         geoms = sw.geometry.values
         ids = sw["segment_id"].astype(str).to_numpy()
-        return cls(np.asarray(geoms), ids, long_axes(np.asarray(geoms)))
+        return cls(np.asarray(geoms), ids, street_axes(sw))
 
     def nearest(self, xy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Index of, and distance to, the nearest segment for each point of an ``(n, 2)`` array."""

@@ -105,7 +105,9 @@ def _definitions(scoring: MetricsConfig) -> dict[str, Any]:
             f"ground truth > {scoring.on_sidewalk_m} m from every sidewalk: correct when the "
             f"estimate's segment is within {scoring.crossing_slack_m} m of the nearest one's distance"
         ),
-        "street_direction": "long axis of the sidewalk segment nearest to the ground truth",
+        "street_direction": (
+            "street of the sidewalk segment nearest to the ground truth (facing_deg, else its long axis)"
+        ),
         "rte_window_s": scoring.rte_window_s,
     }
 

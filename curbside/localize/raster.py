@@ -41,6 +41,7 @@ import hashlib
 import logging
 from dataclasses import dataclass, replace
 from functools import cached_property
+from typing import TYPE_CHECKING
 
 import numpy as np
 import pyproj
@@ -55,6 +56,9 @@ from curbside.configio import beyond_memory
 from curbside.errors import CurbsideInputError
 from curbside.osmseg.mapio import MapLayers
 
+if TYPE_CHECKING:
+    import geopandas as gpd
+
 logger = logging.getLogger(__name__)
 
 #: Class codes in order of precedence (a higher code wins where polygons overlap). Codes from
@@ -67,7 +71,7 @@ CLASS_CODES: dict[str, int] = {
 }
 
 #: Bumped whenever the rasteriser's output changes, so stale cache files are not reused.
-RASTER_FORMAT_VERSION = 7
+RASTER_FORMAT_VERSION = 8
 #: Peak memory of :func:`rasterize_map`, bytes per cell: the codes, the class masks, the distance
 #: transforms of the building depth and the segment grid (measured: 66-69 on the bundled downtown map
 #: at 0.35 and 0.5 m cells).
@@ -99,7 +103,7 @@ class MapRaster:
     segment_ids
         ``segment_id`` string of each indexed segment (``None`` with :attr:`segment_index`).
     segment_axes
-        ``(S, 2)`` unit vector along each segment (its street's direction; :func:`long_axes`).
+        ``(S, 2)`` unit vector along each segment (its street's direction; :func:`street_axes`).
     sidewalk_under_buildings
         Share of the sidewalk cells that a building polygon also covers (0 without sidewalks), or the
         map metadata's ``sidewalk_ways_in_buildings`` if larger.
@@ -313,6 +317,8 @@ def map_hash(layers: MapLayers, resolution_m: float, segment_reach_m: float) -> 
         digest.update(wkb)
     if "segment_id" in layers.gdf:
         digest.update("\0".join(map(str, layers.gdf["segment_id"].tolist())).encode())
+    if "facing_deg" in layers.gdf:
+        digest.update(np.asarray(layers.gdf["facing_deg"], dtype=np.float64).tobytes())
     digest.update(f";ways_in_buildings={_recorded_ways_in_buildings(layers)!r}".encode())
     return digest.hexdigest()
 
@@ -355,10 +361,6 @@ def rasterize_mask(
 def long_axes(polygons: np.ndarray) -> np.ndarray:
     """Unit vector along the long side of each polygon's minimum rotated rectangle.
 
-    A sidewalk segment is one side of one street along one block, so its long axis is the street's
-    direction: the along/across axes of the metrics (:mod:`curbside.evaluate.metrics`) and of the
-    anisotropic GNSS likelihood.
-
     Parameters
     ----------
     polygons
@@ -383,6 +385,22 @@ def long_axes(polygons: np.ndarray) -> np.ndarray:
     axis = np.tile([1.0, 0.0], (len(polygons), 1))
     axis[good] = longer[good] / norm[good, None]
     return axis
+
+
+def street_axes(sidewalks: gpd.GeoDataFrame) -> np.ndarray:
+    """Unit vector ``(n, 2)`` along each sidewalk segment's street (x east, y north; sign meaningless).
+
+    A segment that ``osmseg build`` wrote has ``facing_deg``, the bearing from its street to it, so its
+    street runs at right angles to it; others take their polygon's long axis (:func:`long_axes`), which
+    at a short piece on a corner is the cross street's. Used by the along/across metrics, the street
+    heading, the crossing rule and the anisotropic GNSS likelihood.
+    """
+    axes = long_axes(np.asarray(sidewalks.geometry.values))
+    if "facing_deg" in sidewalks:
+        facing = np.radians(np.asarray(sidewalks["facing_deg"], dtype=float))
+        known = np.isfinite(facing)
+        axes[known] = np.column_stack([np.cos(facing[known]), -np.sin(facing[known])])
+    return axes
 
 
 def rasterize_segments(
@@ -440,7 +458,7 @@ def rasterize_segments(
     segment_index[distance > reach] = -1
     # The grid is as large as the class raster: int16 quarters it for maps with < 32,767 segments.
     dtype = np.int16 if len(ids) < np.iinfo(np.int16).max else np.int32
-    return segment_index.astype(dtype), ids, long_axes(geoms)
+    return segment_index.astype(dtype), ids, street_axes(sidewalks)
 
 
 def rasterize_map(
