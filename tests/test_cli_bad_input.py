@@ -213,7 +213,8 @@ def test_conflicting_rows_name_their_timestamp_as_a_plain_number():
     table = pd.DataFrame({"t": [1.0, 2.5, 2.5], "v": [1.0, 2.0, 3.0]})
     with pytest.raises(CurbsideInputError) as info:
         tidy_table(table, "x.csv", ("t", "v"))
-    assert str(info.value) == "x.csv: conflicting rows share timestamp t=2.5"
+    assert str(info.value) == ("x.csv: conflicting rows share timestamp t=2.5: data row 2 and data row 3 "
+                               "hold different values")
 
 
 # -- the benchmark's output folder -----------------------------------------------------------------------

@@ -150,11 +150,11 @@ def test_a_sensor_logger_non_numeric_value_names_the_file_row(tmp_path):
     shutil.copytree(DATA / "sessions" / "sensorlogger-android", folder)
     _set(folder / "Location.csv", 3, "horizontalAccuracy", "abc")  # row 1, at (0, 0), is dropped first
     with pytest.raises(CurbsideInputError, match=r"Location.csv: non-numeric value 'abc' in column "
-                                                 r"'accuracy_m' at data row 3$"):
+                                                 r"'horizontalAccuracy' at data row 3$"):
         read_sensorlogger(folder)
     shutil.copy(DATA / "sessions" / "sensorlogger-android" / "Location.csv", folder / "Location.csv")
     _set(folder / "Gyroscope.csv", 4, "y", "x1")
-    with pytest.raises(CurbsideInputError, match=r"Gyroscope.csv: non-numeric value 'x1' in column 'gy' at "
+    with pytest.raises(CurbsideInputError, match=r"Gyroscope.csv: non-numeric value 'x1' in column 'y' at "
                                                  r"data row 4$"):
         read_sensorlogger(folder)
 

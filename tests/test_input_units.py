@@ -179,9 +179,10 @@ def _step_back(after_s: float, by_s: float, files: tuple[str, ...]):
 def test_a_clock_set_back_in_every_stream_is_refused(tmp_path, capsys):
     src = _export_copy(tmp_path / "export", _step_back(4.0, 1.00037, MOTION))
     err = _input_error(capsys, ["convert", str(src), str(tmp_path / "out")])
-    assert f"{src / 'TotalAcceleration.csv'}: time goes back 0.97 s at data row 100 (t=3.007 s after " \
-        "t=3.979 s): the phone's clock was set back during the recording, and once sorted the rows after " \
-        "it would interleave with, or precede, those before; cut the recording there" in err
+    assert f"{src / 'TotalAcceleration.csv'}: time goes back 0.97 s at data row 100 ('seconds_elapsed' " \
+        "3.00683 after 3.9794 at data row 99): the phone's clock was set back during the recording, and " \
+        "once sorted the rows after it would interleave with, or precede, those before; cut the recording " \
+        "there" in err
     assert not (tmp_path / "out").exists()
 
 

@@ -184,7 +184,7 @@ def test_gpx_latitude_out_of_range_is_refused(tmp_path):
     bad = tmp_path / "bad.gpx"
     bad.write_text("<gpx><trk><trkseg><trkpt lat='95' lon='2'><time>2026-01-01T00:00:00Z</time>"
                    "</trkpt></trkseg></trk></gpx>")
-    with pytest.raises(CurbsideInputError, match="lat/lon outside"):
+    with pytest.raises(CurbsideInputError, match=r"'lat' = 95.0 at point 1 is outside -90\.\.90"):
         read_any(bad)
 
 

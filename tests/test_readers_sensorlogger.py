@@ -346,7 +346,7 @@ def _break(folder: Path, name: str, content: bytes) -> None:
         ("Gyroscope.csv", b"time,seconds_elapsed,z,y\n1700000002000000000,2.0,1,2\n", r"missing column"),
         ("Gyroscope.csv", b"time,seconds_elapsed,z,y,x\n1700000002000000000,2.0,a,b,c\n", "non-numeric"),
         ("Location.csv", b"time,seconds_elapsed,horizontalAccuracy\n1700000002000000000,2.0,5\n",
-         r"missing column\(s\) \['lat', 'lon'\]"),
+         r"missing column\(s\) \['latitude', 'longitude'\]"),
         ("Orientation.csv", b"time,seconds_elapsed,qz,qy,qx,qw\n1700000002000000000,2.0,0,0,0,2\n",
          "not unit quaternions"),
         ("Accelerometer.csv", b'"Time (s)","Acceleration x (m/s^2)"\n0.1,0.2\n', "phyphox export"),

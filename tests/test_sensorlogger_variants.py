@@ -203,7 +203,7 @@ def test_a_time_clock_without_numbers_is_a_clear_error(tmp_path, capsys, column)
     with zipfile.ZipFile(SESSIONS / "sensorlogger-android-v2.zip") as zf:
         zf.extractall(folder)
     if column == "time":
-        table = pd.read_csv(folder / "Accelerometer.csv").assign(time="n/a")
+        table = pd.read_csv(folder / "Accelerometer.csv").assign(time="")  # blank: text is refused
         table.to_csv(folder / "Accelerometer.csv", index=False)
         expected = f"{folder}/Accelerometer.csv: no 'seconds_elapsed', and the 'time' clock has no start"
     else:  # a Metadata.csv epoch that is not a number: the clock falls back on the accelerometer's start

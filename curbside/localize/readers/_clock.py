@@ -15,7 +15,7 @@ import numpy as np
 import pandas as pd
 
 from curbside.errors import CurbsideInputError
-from curbside.localize.readers._tidy import clock_step_back
+from curbside.localize.readers._tidy import clock_step, refuse_text, written
 
 logger = logging.getLogger(__name__)
 
@@ -116,14 +116,33 @@ def check_clock_steps(table: pd.DataFrame, source: str, warn_only: bool) -> None
         (:func:`~._tidy.clock_step_back`).
     """
     t = pd.to_numeric(table["t"], errors="coerce").to_numpy(float)
-    step = clock_step_back(np.where(table.drop(columns="t").duplicated().to_numpy(), np.nan, t))
+    step = clock_step(np.where(table.drop(columns="t").duplicated().to_numpy(), np.nan, t))
     if step is None:
         return
-    row, back_s = step
-    message = (f"time goes back {back_s:.2f} s at data row {row + 1} (t={t[row]:.3f} s after "
-               f"t={t[row] + back_s:.3f} s): the phone's clock was set back during the recording, and once "
-               "sorted the rows after it would interleave with, or precede, those before")
+    row, back_s, before = step
+    clock = clock_column(table)
+    now, then = written(table[clock].iat[row]), written(table[clock].iat[before])
+    message = (f"time goes back {back_s:.2f} s at data row {row + 1} ({clock!r} {now} after {then} at data "
+               f"row {before + 1}): the phone's clock was set back during the recording, and once sorted the "
+               "rows after it would interleave with, or precede, those before")
     if warn_only:
         logger.warning("%s: %s; sorted in anyway", source, message)
         return
     raise CurbsideInputError(source, f"{message}; cut the recording there")
+
+
+def clock_column(table: pd.DataFrame) -> str:
+    """The column a table's ``t`` comes from: ``seconds_elapsed``, else (export format 2) ``time``."""
+    return "seconds_elapsed" if "seconds_elapsed" in table.columns else "time"
+
+
+def refuse_clock_text(table: pd.DataFrame, source: str) -> None:
+    """Raise when ``time`` or ``seconds_elapsed`` holds text (``abc``, ``N/A``); a blank cell passes (its row
+    is dropped later), so does a table without them.
+
+    Raises
+    ------
+    CurbsideInputError
+        ``non-numeric value 'abc' in column 'time' at data row 3`` for the first such cell.
+    """
+    refuse_text(table, ("time", "seconds_elapsed"), source)

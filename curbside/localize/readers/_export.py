@@ -7,7 +7,9 @@ one is chosen as ``SRC::NAME``. Recording names are compared and listed in Unico
 keyboard types: macOS stores ``ü`` in zips and folders decomposed (``u`` + combining diaeresis, NFD),
 which looks the same but would not match the name typed. macOS archive debris (``__MACOSX/``, ``._*``
 resource forks) and hidden files are skipped. A CSV re-saved by a spreadsheet with ``;`` separators
-(and decimal commas) is read as such, with a warning.
+(and decimal commas) is read as such, with a warning. Only an empty cell (or ``NaN``) is blank: pandas
+would read ``N/A`` or ``null`` as blank too, and a position or time holding them would be dropped
+without a word rather than refused as text (:data:`~._tidy.BLANK_CELLS`).
 
 Clocks. Every CSV has ``time`` (ns since the UNIX epoch) and, since export format 3,
 ``seconds_elapsed`` (s since the start tap). Format-2 exports (2021) have ``time`` only; there the
@@ -30,6 +32,7 @@ import numpy as np
 import pandas as pd
 
 from curbside.errors import CurbsideInputError
+from curbside.localize.readers._tidy import BLANK_CELLS
 
 logger = logging.getLogger(__name__)
 
@@ -191,6 +194,19 @@ def _separators(data: bytes) -> tuple[str, str]:
     return ";", ("," if any("," in line for line in lines[1:6]) else ".")
 
 
+def _decimal_commas(table: pd.DataFrame) -> pd.DataFrame:
+    """The cells of a decimal-comma file that pandas left as text (``0,0103``: a text cell in their
+    column kept it from converting) as numbers, so that the text cell is the one an error names. Tap
+    notes (``text``) are left as written."""
+    for column in table.columns:
+        if column != "text" and not pd.api.types.is_numeric_dtype(table[column]):
+            cells = table[column].astype(object)
+            dotted = pd.to_numeric(cells.map(lambda v: v.replace(",", ".") if isinstance(v, str) else v),
+                                   errors="coerce")
+            table[column] = cells.where(dotted.isna(), dotted)
+    return table
+
+
 @dataclass
 class Export:
     """The CSV files of one recording, readable by name.
@@ -250,13 +266,14 @@ class Export:
             logger.warning("%s uses ';' separators%s (re-saved by a spreadsheet?); read as such, and so is "
                            "any other such file of %s", source, commas, self.label)
         try:
-            table = pd.read_csv(io.BytesIO(data), skipinitialspace=True, sep=sep, decimal=decimal)
+            table = pd.read_csv(io.BytesIO(data), skipinitialspace=True, sep=sep, decimal=decimal,
+                                keep_default_na=False, na_values=list(BLANK_CELLS))
         except pd.errors.EmptyDataError:
             return pd.DataFrame()
         except (pd.errors.ParserError, UnicodeDecodeError) as exc:
             raise CurbsideInputError(source, f"malformed CSV ({str(exc).splitlines()[0]})") from None
         table.columns = [str(c).strip() for c in table.columns]
-        return table
+        return _decimal_commas(table) if decimal == "," else table
 
 
 def open_export(src: str | Path) -> Export:

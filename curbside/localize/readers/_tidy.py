@@ -2,22 +2,112 @@
 
 Foreign logs are messy in known ways: rows out of time order, exact duplicates written twice, NaN
 rows from a sensor that was not ready. These are repaired (sorted, de-duplicated, dropped) and
-counted in the log; anything that cannot be repaired (a missing column, no rows left, repeated
-timestamps carrying different values) raises :class:`~curbside.errors.CurbsideInputError`.
+counted in the log; anything that cannot be repaired (a missing column, text where a number should
+be, no rows left, repeated timestamps carrying different values, a value out of its range) raises
+:class:`~curbside.errors.CurbsideInputError`. Those errors speak of the user's file, not of the
+session: the readers rename its columns to session names (``y`` of ``Gyroscope.csv`` becomes ``gy``)
+and hand :func:`tidy_table` the way back (``names``), so a message quotes the file's own header and
+the row where the cell is, as a user searching the file finds them.
 """
 
 from __future__ import annotations
 
 import logging
+from collections.abc import Mapping, Sequence
 from os import PathLike
 
 import numpy as np
 import pandas as pd
 
 from curbside.errors import CurbsideInputError
-from curbside.localize.session import STANDARD_GRAVITY, acceleration_unit, non_numeric_value
+from curbside.localize.session import MAX_GYRO_RADS, STANDARD_GRAVITY, acceleration_unit, non_numeric_value
 
 logger = logging.getLogger(__name__)
+
+#: Cells of a foreign CSV read as blank (no value): empty, or NaN as programs print it. Any other cell
+#: that is not a number (``N/A``, ``null``, ``abc``) is text, refused where a number should be; give
+#: these to :func:`pandas.read_csv` as ``na_values`` with ``keep_default_na=False`` (pandas would
+#: otherwise read ``N/A`` and ``null`` as blanks too).
+BLANK_CELLS = ("", "NaN", "nan", "NAN", "-NaN", "-nan")
+
+#: Session columns whose magnitude is bounded: ``{column: (bound, what a larger value is)}``.
+_LIMITS = {
+    "lat": (90.0, "outside -90..90 (degrees of latitude)"),
+    "lon": (180.0, "outside -180..180 (degrees of longitude)"),
+    **{axis: (MAX_GYRO_RADS, f"outside -{MAX_GYRO_RADS:g}..{MAX_GYRO_RADS:g} rad/s: rotation rates must be "
+              "in rad/s (deg/s?)") for axis in ("gx", "gy", "gz")},
+}
+
+
+def refuse_text(table: pd.DataFrame, columns: Sequence[str], source: str | PathLike[str],
+                names: Mapping[str, str] | None = None) -> None:
+    """Raise when a cell of ``columns`` holds text that is not a number; blank cells pass.
+
+    Parameters
+    ----------
+    table
+        The table as read, its integer index numbering the file's data rows from 0.
+    columns
+        Columns to check; those the table lacks are skipped.
+    source
+        The file, named in the message.
+    names
+        The file's own name of each column (session name -> header), for the message.
+
+    Raises
+    ------
+    CurbsideInputError
+        ``non-numeric value 'N/A' in column 'latitude' at data row 3``: the first such cell, row by row,
+        in the file's words (data rows counted from 1 after the header).
+    """
+    present = [c for c in columns if c in table.columns]
+    try:
+        table[present].apply(pd.to_numeric, errors="raise")
+    except (ValueError, TypeError):
+        names = names or {}
+        own = table[present].rename(columns=names)
+        raise CurbsideInputError(source, non_numeric_value(own, [names.get(c, c) for c in present])) from None
+
+
+def written(value: object) -> str:
+    """A cell as a file writes it: a float in its shortest form (an ns epoch ``time`` in whole digits)."""
+    if isinstance(value, float):  # numpy's too
+        value = float(value)
+        return f"{value:.0f}" if value.is_integer() and abs(value) >= 1e15 else repr(value)
+    return str(value)
+
+
+def _cell(table: pd.DataFrame, out: pd.DataFrame, column: str, index, own: str) -> str:
+    """A value as the source writes it: its own cell when ``table`` holds that column, else the number."""
+    return written(table.at[index, own] if own in table.columns else out.at[index, column])
+
+
+def _check_limits(table: pd.DataFrame, out: pd.DataFrame, source: str | PathLike[str],
+                  names: Mapping[str, str], rows: str) -> None:
+    """Raise at the first value beyond its :data:`_LIMITS` bound, named as the source names it."""
+    bounded = [c for c in out.columns if c in _LIMITS]
+    if not bounded:
+        return
+    beyond = out[bounded].abs().to_numpy() > np.array([_LIMITS[c][0] for c in bounded])
+    if beyond.any():
+        position, k = np.argwhere(beyond)[0]
+        column, index = bounded[k], out.index[position]
+        value = _cell(table, out, column, index, names.get(column, column))
+        raise CurbsideInputError(source, f"{names.get(column, column)!r} = {value} at {rows} {index + 1} is "
+                                 f"{_LIMITS[column][1]}")
+
+
+def _refuse_conflicts(table: pd.DataFrame, out: pd.DataFrame, source: str | PathLike[str],
+                      names: Mapping[str, str], rows: str) -> None:
+    """Raise when two rows share a timestamp with different values (``out``: sorted, no exact duplicates)."""
+    same_t = out["t"].duplicated(keep=False).to_numpy()
+    if not same_t.any():
+        return
+    first, second = out.index[np.flatnonzero(same_t)[:2]]
+    clock = names.get("t", "t")
+    value = _cell(table, out, "t", first, clock)
+    raise CurbsideInputError(source, f"conflicting rows share timestamp {clock}={value}: {rows} {first + 1} "
+                             f"and {rows} {second + 1} hold different values")
 
 
 def tidy_table(
@@ -25,6 +115,8 @@ def tidy_table(
     source: str | PathLike[str],
     required: list[str] | tuple[str, ...],
     nullable: tuple[str, ...] = (),
+    names: Mapping[str, str] | None = None,
+    rows: str = "data row",
 ) -> pd.DataFrame:
     """Sort by ``t``, drop exact duplicates and NaN rows, and check what is left.
 
@@ -32,13 +124,19 @@ def tidy_table(
     ----------
     table
         A table with a ``t`` column (seconds) and the ``required`` columns, already renamed to
-        session column names.
+        session column names; its integer index numbers the source's rows from 0.
     source
         File (or ``file::trial``) named in log lines and errors.
     required
         Columns that must be present, numeric and finite.
     nullable
         Columns that may hold NaN (e.g. a missing GNSS accuracy, which marks an invalid fix).
+    names
+        How the source names each session column (e.g. ``{"gy": "y", "t": "seconds_elapsed"}``), for
+        errors; a column not in it is named as it is. When ``table`` still holds the source's column,
+        errors quote its cell as written (a ``time`` in ns rather than ``t`` in s).
+    rows
+        What the source's rows are called in errors (``"data row"``: counted from 1 after the header).
 
     Returns
     -------
@@ -48,22 +146,29 @@ def tidy_table(
     Raises
     ------
     CurbsideInputError
-        A required column is missing or non-numeric, no row survives, or two rows share a
-        timestamp with different values.
+        A required column is missing or holds text, no row survives, two rows share a timestamp with
+        different values, or a latitude, longitude or rotation rate lies beyond its range (a rate above
+        35 rad/s: deg/s); each named as the source names it.
     """
-    missing = [c for c in required if c not in table.columns]
+    names = dict(names or {})
+    if not (table.index.is_unique and pd.api.types.is_integer_dtype(table.index)):
+        table = table.reset_index(drop=True)  # rows are then named by their position
+    missing = [names.get(c, c) for c in required if c not in table.columns]
     if missing:
         raise CurbsideInputError(source, f"missing column(s) {missing}")
-    try:
-        out = table[list(required)].apply(pd.to_numeric, errors="raise").astype(float)
-    except (ValueError, TypeError):
-        raise CurbsideInputError(source, non_numeric_value(table, required)) from None
+    refuse_text(table, required, source, names)
+    out = table[list(required)].apply(pd.to_numeric, errors="raise").astype(float)
     n_in = len(out)
     strict = [c for c in required if c not in nullable]
     finite = np.isfinite(out[strict].to_numpy()).all(axis=1)
     if not finite.all():
         logger.info("%s: dropped %d row(s) holding NaN/inf", source, int((~finite).sum()))
         out = out[finite]
+    if len(out) == 0:
+        blanks = ", ".join(repr(names.get(c, c)) for c in strict)
+        raise CurbsideInputError(source, f"no usable rows (read {n_in}; each has a blank, NaN or infinite "
+                                 f"cell in {blanks})" if n_in else f"no usable rows (read {n_in})")
+    _check_limits(table, out, source, names, rows)
     if not out["t"].is_monotonic_increasing:
         logger.info("%s: rows were out of time order; sorted", source)
         out = out.sort_values("t", kind="stable")
@@ -71,12 +176,7 @@ def tidy_table(
     if duplicated.any():
         logger.info("%s: dropped %d exact duplicate row(s)", source, int(duplicated.sum()))
         out = out[~duplicated]
-    if len(out) == 0:
-        raise CurbsideInputError(source, f"no usable rows (read {n_in})")
-    same_t = out["t"].duplicated(keep=False)
-    if same_t.any():
-        t = float(out.loc[same_t, "t"].iat[0])
-        raise CurbsideInputError(source, f"conflicting rows share timestamp t={t!r}")
+    _refuse_conflicts(table, out, source, names, rows)
     return out.reset_index(drop=True)
 
 
@@ -148,6 +248,13 @@ def clock_step_back(t: np.ndarray) -> tuple[int, float] | None:
         ``(row, seconds)``: the index of the first row after the step and how far it lies behind the
         latest earlier row; ``None`` when there is no such step.
     """
+    step = clock_step(t)
+    return None if step is None else step[:2]
+
+
+def clock_step(t: np.ndarray) -> tuple[int, float, int] | None:
+    """:func:`clock_step_back`, with the index of the latest earlier row (the one the step goes back from)
+    as a third member."""
     rows = np.flatnonzero(np.isfinite(t))
     if len(rows) > 1 and np.median(np.diff(t[rows])) < 0:
         rows = rows[::-1]
@@ -167,7 +274,7 @@ def clock_step_back(t: np.ndarray) -> tuple[int, float] | None:
         inside = np.searchsorted(earlier, block.max(), "right") - np.searchsorted(earlier, block.min())
         if len(resumed) and inside == 0:
             continue  # older rows inserted whole: sorted into a stretch of their own
-        return int(rows[i]), float(latest[i - 1] - times[i])
+        return int(rows[i]), float(latest[i - 1] - times[i]), int(rows[np.argmax(times[:i])])
     return None
 
 

@@ -31,6 +31,10 @@ from curbside.localize.session import Session
 
 logger = logging.getLogger(__name__)
 
+#: How errors name the session's columns: a point's ``t`` is quoted as its ``<time>``; points are
+#: counted from 1 in file order (track points, then route points).
+_NAMES = {"t": "time"}
+
 
 def _table(points) -> pd.DataFrame:
     rows = [(p.latitude, p.longitude, p.time, p.horizontal_dilution) for p in points]
@@ -148,13 +152,15 @@ def read_gpx(path: str | Path, *, uere_m: float = 5.0) -> Session:
     track = _one_fix_per_stamp(track, path)
     if track["hdop"].isna().all():
         logger.warning("%s: no <hdop>; every fix has unknown accuracy and counts as invalid", path)
-    gnss = tidy_table(track, path, ["t", "lat", "lon", "accuracy_m"], nullable=("accuracy_m",))
+    gnss = tidy_table(track, path, ["t", "lat", "lon", "accuracy_m"], nullable=("accuracy_m",), names=_NAMES,
+                      rows="point")
 
     waypoints = None
     wpt = _table(doc.waypoints)
     wpt = wpt[wpt["stamp"].notna()].copy()
     if len(wpt):
         wpt["t"] = (wpt["stamp"] - t0).dt.total_seconds()
-        waypoints = _near_fixes(tidy_table(wpt, f"{path} <wpt>", ["t", "lat", "lon"]), gnss, path)
+        wpt = tidy_table(wpt, f"{path} <wpt>", ["t", "lat", "lon"], names=_NAMES, rows="<wpt>")
+        waypoints = _near_fixes(wpt, gnss, path)
     meta = {"source": {"format": "gpx", "file": path.name}, "t0_utc": t0.isoformat()}
     return Session(name=path.stem, gnss=gnss, waypoints=waypoints, meta=meta)

@@ -47,6 +47,12 @@ logger = logging.getLogger(__name__)
 _GEOD = pyproj.Geod(ellps="WGS84")
 _REQUIRED = ("acce", "gyro", "rotvec")
 _OPTIONAL = ("gnss", "posi")
+#: How each dataset's ``columns`` attribute names the session columns (the others it names alike), for errors.
+_OWN_NAMES = {
+    "acce": {"t": "t_s", "ax": "x", "ay": "y", "az": "z"},
+    "gyro": {"t": "t_s", "gx": "x", "gy": "y", "gz": "z"},
+    **{dataset: {"t": "t_s"} for dataset in ("rotvec", "gnss", "posi")},
+}
 #: The datasets of a path of the MS-indoor file (``/<site>/<floor>/<path>/``).
 _MS_INDOOR = frozenset({"acce", "gyro", "rotvec", "waypoints"})
 
@@ -121,6 +127,14 @@ def _table(g: h5py.Group, name: str, columns: list[str], source: str) -> pd.Data
     return pd.DataFrame(data[:, : len(columns)], columns=columns)
 
 
+def _tidy(table: pd.DataFrame, source: str, dataset: str, columns: list[str] | None = None,
+          nullable: tuple[str, ...] = ()) -> pd.DataFrame:
+    """:func:`~._tidy.tidy_table` of one dataset (all its columns by default); errors name its rows and
+    columns as the file does (``gyro``'s ``y`` at row 5)."""
+    return tidy_table(table, f"{source}/{dataset}", list(table.columns) if columns is None else columns,
+                      nullable, names=_OWN_NAMES[dataset], rows="row")
+
+
 def read_trial(path: str | Path, trial: str) -> Session:
     """Read one IPIN trial as a session.
 
@@ -157,9 +171,9 @@ def read_trial(path: str | Path, trial: str) -> Session:
         posi = _table(g, "posi", ["t", "lat", "lon", "floor"], source)
         attrs = dict(g.attrs)
 
-    acce = accelerometer_ms2(tidy_table(acce, f"{source}/acce", acce.columns), f"{source}/acce")
-    gyro = tidy_table(gyro, f"{source}/gyro", gyro.columns)
-    quat = tidy_table(quat, f"{source}/rotvec", quat.columns)
+    acce = accelerometer_ms2(_tidy(acce, source, "acce"), f"{source}/acce")
+    gyro = _tidy(gyro, source, "gyro")
+    quat = _tidy(quat, source, "rotvec")
     names = (f"{source}/acce", f"{source}/gyro", f"{source}/rotvec")
     imu = merge_imu(acce, gyro, quat, source, names)
     gnss = _fixes(gnss, source)
@@ -201,7 +215,7 @@ def _fixes(gnss: pd.DataFrame | None, source: str) -> pd.DataFrame | None:
     if network.any():
         logger.info("%s: dropped %d network (alt == 0) fix(es)", source, int(network.sum()))
     columns = ["t", "lat", "lon", "accuracy_m"]
-    return tidy_table(gnss[~network], f"{source}/gnss", columns, nullable=("accuracy_m",))
+    return _tidy(gnss[~network], source, "gnss", columns, nullable=("accuracy_m",))
 
 
 def _surveyed(posi: pd.DataFrame | None, source: str) -> pd.DataFrame | None:
@@ -210,4 +224,4 @@ def _surveyed(posi: pd.DataFrame | None, source: str) -> pd.DataFrame | None:
         logger.warning("%s: no surveyed waypoints ('posi' dataset %s); the session has no waypoints.csv "
                        "and no start pose", source, "missing" if posi is None else "empty")
         return None
-    return tidy_table(posi, f"{source}/posi", ["t", "lat", "lon", "floor"])
+    return _tidy(posi, source, "posi", ["t", "lat", "lon", "floor"])

@@ -60,7 +60,13 @@ import pandas as pd
 from scipy.spatial.transform import Rotation
 
 from curbside.errors import CurbsideInputError
-from curbside.localize.readers._clock import check_clock_steps, check_elapsed, check_time_unit
+from curbside.localize.readers._clock import (
+    check_clock_steps,
+    check_elapsed,
+    check_time_unit,
+    clock_column,
+    refuse_clock_text,
+)
 from curbside.localize.readers._export import check_same_clock, find_recordings, open_export
 from curbside.localize.readers._platform import (
     NORTH_TOLERANCE_DEG,
@@ -74,11 +80,13 @@ from curbside.localize.readers._platform import (
 )
 from curbside.localize.readers._resample import MAX_SILENT_CUT_S, interp_quaternions, merge_imu, report_gaps
 from curbside.localize.readers._tidy import (
+    BLANK_CELLS,
     MAX_WAYPOINT_DISTANCE_M,
     STANDARD_GRAVITY,
     accelerometer_ms2,
     drop_far_waypoints,
     far_from_fixes,
+    refuse_text,
     tidy_table,
 )
 from curbside.localize.session import Session
@@ -98,6 +106,8 @@ _ACCELEROMETERS = ("TotalAcceleration.csv", "Accelerometer.csv", "AccelerometerU
 _GYROSCOPES = ("Gyroscope.csv", "GyroscopeUncalibrated.csv")
 _QUAT = ["qx", "qy", "qz", "qw"]
 _ACC = ("ax", "ay", "az")
+#: ``Location.csv`` columns read, and their session names.
+_LOCATION = {"latitude": "lat", "longitude": "lon", "horizontalAccuracy": "accuracy_m"}
 
 
 def _read_streams(export) -> dict[str, pd.DataFrame]:
@@ -121,6 +131,7 @@ def _one_clock(streams: dict[str, pd.DataFrame], export, metadata: pd.DataFrame 
     preferred = (*_ACCELEROMETERS, *_GYROSCOPES, "Location.csv")
     reference = next((n for n in preferred if n in streams), next(iter(streams)))
     for name, table in streams.items():
+        refuse_clock_text(table, f"{export.label}/{name}")
         check_time_unit(table, f"{export.label}/{name}")
     check_same_clock(streams, reference, export.label)
     ref = streams[reference]
@@ -163,8 +174,10 @@ def _time_s(table: pd.DataFrame, t0_ns: float | None, source: str) -> pd.Series:
 
 
 def _xyz(table: pd.DataFrame, source: str, cols: tuple[str, str, str]) -> pd.DataFrame:
-    table = table.rename(columns=dict(zip(("x", "y", "z"), cols, strict=True)))
-    return tidy_table(table, source, ["t", *cols])
+    """The ``x,y,z`` of a motion file as the session columns ``cols``; errors name ``x,y,z``."""
+    names = {"t": clock_column(table), **dict(zip(cols, ("x", "y", "z"), strict=True))}
+    table = table.rename(columns={own: col for col, own in names.items() if col != "t"})
+    return tidy_table(table, source, ["t", *cols], names=names)
 
 
 def _orientation(streams, label: str) -> pd.DataFrame | None:
@@ -172,11 +185,14 @@ def _orientation(streams, label: str) -> pd.DataFrame | None:
     table = streams.get("Orientation.csv")
     if table is None:
         return None
-    quat = tidy_table(table, f"{label}/Orientation.csv", ["t", *_QUAT])
+    source = f"{label}/Orientation.csv"
+    quat = tidy_table(table, source, ["t", *_QUAT], names={"t": clock_column(table)})
     norm = np.linalg.norm(quat[_QUAT].to_numpy(), axis=1)
     if np.abs(norm - 1.0).max() > 0.05:
-        raise CurbsideInputError(f"{label}/Orientation.csv", f"qx,qy,qz,qw are not unit quaternions "
-                                 f"(norms {norm.min():.2f}-{norm.max():.2f})")
+        as_read = np.linalg.norm(table[_QUAT].apply(pd.to_numeric).to_numpy(float), axis=1)
+        row = int(np.argmax(np.abs(as_read - 1.0) > 0.05))  # NaN rows compare False
+        raise CurbsideInputError(source, f"qx,qy,qz,qw are not unit quaternions: norm {as_read[row]:.2f} at "
+                                 f"data row {row + 1} (norms {norm.min():.2f}-{norm.max():.2f})")
     quat[_QUAT] = quat[_QUAT].to_numpy() / norm[:, None]
     return quat
 
@@ -379,15 +395,17 @@ def _gnss(streams, label: str) -> pd.DataFrame | None:
     if table is None:
         return None
     source = f"{label}/Location.csv"
-    table = table.rename(columns={"latitude": "lat", "longitude": "lon", "horizontalAccuracy": "accuracy_m"})
+    missing = [c for c in ("latitude", "longitude") if c not in table.columns]
+    if missing:
+        raise CurbsideInputError(source, f"missing column(s) {missing}")
+    refuse_text(table, list(_LOCATION), source)  # blanks are dropped below, text is not a position
+    names = {"t": clock_column(table), **{col: own for own, col in _LOCATION.items()}}
+    table = table.rename(columns=_LOCATION)
     if "accuracy_m" not in table.columns:
         logger.warning("%s: no horizontalAccuracy column; every fix has unknown accuracy (invalid)", source)
         table["accuracy_m"] = np.nan
     elif not (pd.to_numeric(table["accuracy_m"], errors="coerce") > 0).any():  # iOS: -1 for invalid
         logger.warning("%s: no horizontalAccuracy above 0; every fix has unknown accuracy (invalid)", source)
-    missing = [c for c in ("lat", "lon") if c not in table.columns]
-    if missing:
-        raise CurbsideInputError(source, f"missing column(s) {missing}")
     lat = pd.to_numeric(table["lat"], errors="coerce")
     lon = pd.to_numeric(table["lon"], errors="coerce")
     null_island = (lat == 0) & (lon == 0)
@@ -397,19 +415,20 @@ def _gnss(streams, label: str) -> pd.DataFrame | None:
     if table.empty:
         logger.warning("%s: no usable fix; the session has no gnss.csv", source)
         return None
-    return tidy_table(table, source, ["t", "lat", "lon", "accuracy_m"], nullable=("accuracy_m",))
+    return tidy_table(table, source, ["t", "lat", "lon", "accuracy_m"], nullable=("accuracy_m",), names=names)
 
 
 def _route_waypoints(taps: pd.DataFrame, route: Path, gnss: pd.DataFrame | None) -> pd.DataFrame:
     try:
-        points = pd.read_csv(route, skipinitialspace=True)
+        points = pd.read_csv(route, skipinitialspace=True, keep_default_na=False, na_values=list(BLANK_CELLS))
     except (OSError, pd.errors.ParserError, pd.errors.EmptyDataError, UnicodeDecodeError) as exc:
         raise CurbsideInputError(route, f"unreadable route CSV ({str(exc).splitlines()[0]})") from None
     if not {"lat", "lon"} <= set(points.columns):
         raise CurbsideInputError(route, "route needs columns lat,lon (one row per tap)")
     if len(points) != len(taps):
         raise CurbsideInputError(route, f"{len(points)} route points for {len(taps)} taps")
-    table = pd.DataFrame({"t": taps["t"], "lat": points["lat"].to_numpy(), "lon": points["lon"].to_numpy()})
+    table = pd.DataFrame({"t": taps["t"].to_numpy(), "lat": points["lat"].to_numpy(),
+                          "lon": points["lon"].to_numpy()})  # one row per tap, in the route's order
     table = tidy_table(table, route, ["t", "lat", "lon"])
     far = far_from_fixes(table, gnss)
     if far.all():
@@ -426,10 +445,10 @@ def _waypoints(streams, label: str, route: str | Path | None, meta: dict,
         if route is not None:
             raise CurbsideInputError(route, "a route was given but the export has no Annotation.csv taps")
         return None
-    taps = taps.sort_values("t", kind="stable").reset_index(drop=True)
+    taps = taps.sort_values("t", kind="stable")  # the index still numbers the file's rows, for errors
     if route is not None:
         return _route_waypoints(taps, Path(route), gnss)
-    text = taps["text"].fillna("").astype(str) if "text" in taps.columns else pd.Series([""] * len(taps))
+    text = taps["text"].fillna("").astype(str) if "text" in taps.columns else pd.Series("", index=taps.index)
     parts = text.str.split(",", n=1, expand=True).reindex(columns=[0, 1])
     lat = pd.to_numeric(parts[0], errors="coerce")
     lon = pd.to_numeric(parts[1], errors="coerce")
@@ -452,7 +471,8 @@ def _waypoints(streams, label: str, route: str | Path | None, meta: dict,
     if not located.any():
         return None
     table = pd.DataFrame({"t": taps.loc[located, "t"], "lat": lat[located], "lon": lon[located]})
-    return tidy_table(table, f"{label}/Annotation.csv", ["t", "lat", "lon"])
+    names = {"t": clock_column(taps), "lat": "text", "lon": "text"}
+    return tidy_table(table, f"{label}/Annotation.csv", ["t", "lat", "lon"], names=names)
 
 
 def read_sensorlogger(
