@@ -19,8 +19,12 @@ cannot resolve less than half a particle, so ``p`` is first held within ``[0.5 /
 
 The same temperature widens the position's uncertainty: a likelihood raised to ``1 / T`` widens a
 Gaussian posterior by ``sqrt(T)``. :func:`accuracy_radius_m` turns the cloud's spread into the radius
-that holds the walker 68 % of the time, as a phone reports a fix's accuracy.
-docs/filter.md, "How far to trust segment_prob", says how the values were chosen and what they do.
+that holds the walker 68 % of the time, as a phone reports a fix's accuracy. Where no fix has agreed
+with the estimate for a while (a GNSS outage), the map's walls cut the cloud at corners while the
+inertial error grows, so :meth:`SegmentCalibration.radius_m` holds the radius at least
+``radius_floor_m_per_s`` times the seconds since the last agreeing fix (or the start).
+docs/filter.md, "How far to trust segment_prob" and "The position's 68 % radius", says how the values
+were chosen and what they do.
 """
 
 from __future__ import annotations
@@ -91,6 +95,13 @@ class CalibrationConfig:
         The lag of the innovation's variogram, and how much shorter a pair's separation may be.
     prior_persistence, prior_pairs
         The persistence assumed before any pair, and how many pairs it counts as.
+    radius_floor_m_per_s
+        How fast the floor under the 68 % radius (``accuracy_m``) grows with the seconds since the last
+        fix that agreed with the estimate, or since the start (m/s; 0: no floor). It bounds the radius
+        from below through a GNSS outage, where the cloud narrows at the map's walls while its error
+        grows (the default was measured on the tune split with fixes dropped: docs/filter.md, "The
+        position's 68 % radius"). Off, like the rest of the calibration, when temperature is 1 and its
+        slope 0.
     """
 
     temperature: float = 1.5
@@ -99,14 +110,17 @@ class CalibrationConfig:
     pair_tolerance_s: float = 1.0
     prior_persistence: float = 0.3
     prior_pairs: float = 20.0
+    radius_floor_m_per_s: float = 0.215
 
     def __post_init__(self) -> None:
         positive(self, "temperature", "pair_tolerance_s")
-        non_negative(self, "temperature_per_persistence", "prior_pairs")
+        non_negative(self, "temperature_per_persistence", "prior_pairs", "radius_floor_m_per_s")
         check(self.pair_tolerance_s <= self.persistence_lag_s < math.inf,
               "persistence_lag_s must be finite and at least pair_tolerance_s, got "
               f"{self.persistence_lag_s} and {self.pair_tolerance_s}")
         unit_interval(self, "prior_persistence")
+        check(math.isfinite(self.radius_floor_m_per_s),
+              f"radius_floor_m_per_s must be finite, got {self.radius_floor_m_per_s}")
 
     @property
     def identity(self) -> bool:
@@ -169,6 +183,16 @@ class SegmentCalibration:
     def _temperature_at(self, persistence: float) -> float:
         c = self.config
         return c.temperature + c.temperature_per_persistence * min(max(persistence, 0.0), 1.0)
+
+    def radius_m(self, spread_m: float, seconds_since_fix: float) -> tuple[float, float]:
+        """The cloud's 68 % radius (:func:`accuracy_radius_m` at this temperature) and the one to report:
+        that radius, or ``radius_floor_m_per_s * seconds_since_fix`` where that is larger.
+
+        ``seconds_since_fix`` counts from the last fix that agreed with the estimate, or from the start.
+        """
+        cloud_m = accuracy_radius_m(spread_m, self.temperature)
+        floor_m = self.config.radius_floor_m_per_s * seconds_since_fix
+        return cloud_m, floor_m if floor_m > cloud_m else cloud_m
 
     def calibrate(self, prob: float) -> float:
         """The tempered probability of a MAP segment of posterior mass ``prob`` (0 stays 0: no segment)."""

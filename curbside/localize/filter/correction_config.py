@@ -2,8 +2,9 @@
 :class:`~curbside.localize.filter.config.FilterConfig`.
 
 :class:`RecoveryConfig` (:mod:`~curbside.localize.filter.recovery`: a collapsed cloud, a cloud that no
-longer agrees with GNSS, a cloud the walls hold still), :class:`ScaleCorrectionConfig`
-(:mod:`~curbside.localize.filter.scale`: a speed scale the fixes disagree with) and
+longer agrees with GNSS, a cloud the walls hold still, a cloud far from every fix),
+:class:`ScaleCorrectionConfig` (:mod:`~curbside.localize.filter.scale`: a speed scale the fixes disagree
+with) and
 :class:`HeadingCorrectionConfig` (:mod:`~curbside.localize.filter.heading_correction`: a velocity that
 turned). ``docs/filter.md`` gives the reasoning behind each value.
 """
@@ -22,7 +23,8 @@ def _check_scale_range(min_scale: float, max_scale: float) -> None:
 
 @dataclass(frozen=True)
 class RecoveryConfig:
-    """Recovery from a collapsed cloud and from a cloud that no longer agrees with GNSS.
+    """Recovery from a collapsed cloud, from a cloud that no longer agrees with GNSS, and from one far
+    from every fix.
 
     Attributes
     ----------
@@ -56,6 +58,26 @@ class RecoveryConfig:
     stall_fraction
         While stalled, this fraction of the particles (at most ``max_fraction``) is re-drawn around
         each usable fix, as for a divergence.
+    relocate_distance_m
+        The cloud is *lost* (started at a phone's stale last-known place, kidnapped) when, for
+        ``relocate_after_s``, every usable fix reporting at most ``relocate_max_accuracy_m`` lay farther
+        than this from the estimate; the whole cloud is then re-drawn around the latest fix (0: never).
+        250 m: the largest fix error is 170 m in the tune split's simulated fixes (the largest distance
+        of a fix from the estimate 177 m) and 38 m on the IPIN phones (``docs/filter.md``, "Lost: a
+        cloud far from every fix").
+    relocate_after_s, relocate_min_fixes
+        How long the far fixes must have lasted (20 s: no run of fixes over 150 m from the estimate
+        lasted 18 s on the tune split), and how many there must be at least in that time.
+    relocate_max_accuracy_m
+        Only fixes reporting this accuracy or better count; the others neither count nor stop the count.
+    relocate_agreement_m, relocate_agreeing_share
+        ... and only when this share of the far fixes of the last ``relocate_after_s`` lie within this
+        distance of the latest one, the centre of the re-drawn cloud (one place, not scattered fixes; a
+        centre that most of its neighbours agree with is seldom a multipath outlier).
+    relocate_heading_sigma_deg
+        Heading offsets of the re-drawn particles: each particle's own plus a Gaussian jitter of this
+        sigma (degrees), as for an injection (the offset belongs to the phone, not to the place);
+        ``None``: over the full circle, as a start at a fix.
     """
 
     collapse_sigma_m: float = 5.0
@@ -70,9 +92,21 @@ class RecoveryConfig:
     stall_min_speed_mps: float = 0.5
     stall_blocked_share: float = 0.3
     stall_fraction: float = 0.1
+    relocate_distance_m: float = 250.0
+    relocate_after_s: float = 20.0
+    relocate_min_fixes: int = 10
+    relocate_max_accuracy_m: float = 20.0
+    relocate_agreement_m: float = 50.0
+    relocate_agreeing_share: float = 0.8
+    relocate_heading_sigma_deg: float | None = 30.0
 
     def __post_init__(self) -> None:
-        positive(self, "collapse_sigma_m", "stall_window_s", "stall_min_speed_mps", "kernel_scale")
+        positive(self, "collapse_sigma_m", "stall_window_s", "stall_min_speed_mps", "kernel_scale",
+                 "relocate_after_s", "relocate_min_fixes", "relocate_max_accuracy_m")
+        non_negative(self, "relocate_distance_m", "relocate_agreement_m")
+        unit_interval(self, "relocate_agreeing_share")
+        if self.relocate_heading_sigma_deg is not None:
+            non_negative(self, "relocate_heading_sigma_deg")
         require("lie in [0, 1)", lambda v: 0.0 <= v < 1.0, {"stall_ratio": self.stall_ratio})
         unit_interval(self, "stall_fraction", "stall_blocked_share", "max_fraction")
         non_negative(self, "inject_heading_sigma_deg")

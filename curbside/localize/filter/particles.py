@@ -224,7 +224,8 @@ class Estimate(NamedTuple):
     accuracy_m
         Radius around ``x, y`` that holds the walker 68 % of the time, metres (as a phone reports a
         fix's accuracy): from the cloud's spread, widened like ``segment_prob`` is tempered
-        (:func:`~curbside.localize.filter.calibration.accuracy_radius_m`).
+        (:func:`~curbside.localize.filter.calibration.accuracy_radius_m`), and at least
+        ``filter.calibration.radius_floor_m_per_s`` times the seconds since the last agreeing fix.
     """
 
     t: float

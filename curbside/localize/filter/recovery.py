@@ -1,4 +1,5 @@
-"""Recovery policies: re-seed a collapsed cloud; re-draw part of a cloud that no longer agrees with GNSS.
+"""Recovery policies: re-seed a collapsed cloud; re-draw part of a cloud that no longer agrees with GNSS;
+re-draw a cloud far from every fix.
 
 **Collapse** (:class:`CollapseRecovery`): every weight is zero (all particles walked into buildings, or
 ``w = 0`` left none on a crossing). Half the particles go around the cloud's centre (where the last
@@ -27,6 +28,18 @@ per second) *and* the map stopped at least ``stall_blocked_share`` of the partic
 update of that window, ``stall_fraction`` of the particles is re-drawn around each usable fix, as for
 a divergence, until the cloud moves again. The second condition tells walls from fixes: a run of
 fixes that lag the walker also holds a cloud back, and re-drawing around them would follow them.
+
+**Lost** (:class:`Relocation`, a third trigger of the same part; the "kidnapped robot" of Thrun et al.
+2005, section 8.3.5): a cloud hundreds of metres from the fixes (a start at a phone's stale last-known
+place) gets nothing from them, since the robust likelihood bounds what a fix can do, and no kernel
+average has ever agreed with them, so the divergence trigger does not fire. When, for
+``relocate_after_s``, every usable fix reporting at most ``relocate_max_accuracy_m`` lay farther than
+``relocate_distance_m`` from the estimate (farther than any fix error of the simulated canyons or the
+IPIN phones) and the latest such fix agrees with most of them (a share ``relocate_agreeing_share`` of
+those of that time lie within ``relocate_agreement_m`` of it), every particle is re-drawn around that
+fix: spread by the likelihood's sigma, its heading offset jittered (``relocate_heading_sigma_deg``),
+its GNSS bias zeroed and its speed scale kept, weights uniform; the map and the fix weigh them at the
+same update. A fix within the distance stops the count.
 """
 
 from __future__ import annotations
@@ -145,6 +158,7 @@ class DivergenceRecovery:
         self.w_fast = math.nan  # both start at the first fix's agreement
         self.w_slow = math.nan
         self.injections = 0
+        self.relocation = Relocation(config, gnss, rng)
         self.inertial = 0j  # the turned and scaled inertial displacement so far (east + i north)
         # (t, estimate, inertial, blocked share) over the stall window, oldest first; positions complex
         self.recent: collections.deque[tuple[float, complex, complex, float]] = collections.deque()
@@ -161,6 +175,9 @@ class DivergenceRecovery:
         agreement averages decide. While stalled the averages are left as they are.
         """
         stalled = last is not None and self.stalled(update, last)
+        if last is not None and self.relocation.observe(particles, update, last):
+            self.w_fast = self.w_slow = math.nan  # both start again at the next fix's agreement
+            return 0.0
         if self.config.max_fraction <= 0 or not self.gnss.accepts(update.fix):
             return 0.0
         if stalled:
@@ -176,6 +193,11 @@ class DivergenceRecovery:
         if not threshold > 0:  # no fix ever agreed (or it underflowed): nothing to compare with
             return 0.0
         return min(self.config.max_fraction, max(0.0, 1.0 - self.w_fast / threshold))
+
+    @property
+    def relocations(self) -> int:
+        """How often the whole cloud was re-drawn around a far fix (:class:`Relocation`)."""
+        return self.relocation.relocations
 
     def stalled(self, update: Update, last: Estimate) -> bool:
         """Whether the walls hold the cloud still while the phone walks on (see the module docstring);
@@ -225,6 +247,81 @@ class DivergenceRecovery:
         self.injections += k
         logger.debug("%d particles injected (w_fast/w_slow = %.3g)", k, self.w_fast / self.w_slow)
         return k
+
+
+class Relocation:
+    """Re-draws the whole cloud around far fixes that agree with each other (see the module docstring).
+
+    Parameters
+    ----------
+    config
+        The ``relocate_*`` fields.
+    gnss
+        The GNSS likelihood (which fixes count, and the spread of the re-drawn particles).
+    rng
+        The filter's seeded generator (drawn from only when the cloud is re-drawn).
+
+    Attributes
+    ----------
+    relocations
+        How often the cloud was re-drawn.
+    """
+
+    def __init__(self, config: RecoveryConfig, gnss: GnssLikelihood, rng: np.random.Generator) -> None:
+        self.config = config
+        self.gnss = gnss
+        self.rng = rng
+        self.relocations = 0
+        self.since = math.nan  # time of the first far fix since the last near one (NaN: none)
+        self.window: collections.deque[tuple[float, complex]] = collections.deque()  # far (t, fix), old first
+
+    def observe(self, particles: ParticleSet, update: Update, last: Estimate) -> bool:
+        """Before the likelihoods, once per update: count ``update.fix`` (far from ``last`` or not), and
+        re-draw the cloud around it when the far fixes have lasted long enough and agree with it.
+        Returns whether it re-drew."""
+        config, fix, t = self.config, update.fix, update.t
+        if (
+            config.relocate_distance_m <= 0
+            or not self.gnss.accepts(fix)
+            or fix.accuracy_m > config.relocate_max_accuracy_m
+        ):
+            return False
+        here, window = complex(fix.x, fix.y), self.window
+        if abs(here - complex(last.x, last.y)) <= config.relocate_distance_m:
+            self.since = math.nan
+            window.clear()
+            return False
+        if math.isnan(self.since):
+            self.since = t
+        window.append((t, here))
+        while window[0][0] < t - config.relocate_after_s:
+            window.popleft()
+        if t - self.since < config.relocate_after_s or len(window) < config.relocate_min_fixes:
+            return False
+        apart_m = np.abs(np.array([there for _, there in window]) - here)
+        if np.mean(apart_m <= config.relocate_agreement_m) < config.relocate_agreeing_share:
+            return False
+        logger.info("t=%.1f: every good fix of the last %.0f s lies over %.0f m from the estimate: the "
+                    "cloud is re-drawn around them", t, t - self.since, config.relocate_distance_m)
+        self.relocate(particles, fix)
+        return True
+
+    def relocate(self, particles: ParticleSet, fix: GnssFix) -> None:
+        """Re-draw every particle around ``fix`` (see the module docstring)."""
+        n, s, rng = len(particles), particles.state, self.rng
+        sigma = self.gnss.sigma_m(fix)
+        s[X] = fix.x + sigma * rng.standard_normal(n)
+        s[Y] = fix.y + sigma * rng.standard_normal(n)
+        spread = self.config.relocate_heading_sigma_deg
+        if spread is None:
+            particles.set_heading(rng.uniform(-math.pi, math.pi, n))
+        else:
+            particles.set_heading(s[THETA] + math.radians(spread) * rng.standard_normal(n))
+        s[BIAS_X] = s[BIAS_Y] = 0.0
+        particles.reset_weights()
+        self.relocations += 1
+        self.since = math.nan
+        self.window.clear()
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")  # kernelmath.exp vectorises under it

@@ -66,7 +66,8 @@ from curbside.projection import LocalFrame
 logger = logging.getLogger(__name__)
 
 #: A usable fix agrees with the estimate it made when it lies within this many times
-#: ``hypot(fix.accuracy_m, estimate.accuracy_m)`` of it (two 68 % radii: about 4.5 sigma per axis).
+#: ``hypot(fix.accuracy_m, r)`` of it, ``r`` the cloud's 68 % radius (``estimate.accuracy_m`` without
+#: its outage floor, ``CalibrationConfig.radius_floor_m_per_s``): two 68 % radii, about 4.5 sigma per axis.
 FIX_AGREEMENT_RADII = 3.0
 
 # A named tuple from a complete tuple of its fields, without the keyword handling of its constructor
@@ -111,7 +112,8 @@ class Tracker:
         The latest fix that weighed the particles or started them (``None``: none yet).
     last_fix_t
         Time of the latest fix that started the particles, or weighed them and agreed with the estimate
-        it made (within :data:`FIX_AGREEMENT_RADII` times the hypotenuse of the two accuracies);
+        it made (within :data:`FIX_AGREEMENT_RADII` times the hypotenuse of the fix's accuracy and the
+        cloud's 68 % radius);
         ``None``: none yet. See :meth:`seconds_since_fix`.
     """
 
@@ -157,6 +159,11 @@ class Tracker:
         self.last_fix: GnssFix | None = None
         self.last_fix_t: float | None = None
         self._warned_outside = False
+        # The 68 % radius's floor counts from the later of the last agreeing fix and the last start; the
+        # agreement test reads the cloud's radius, without the floor (which would let a drifted cloud
+        # agree with the first fix back and drop the floor while it is still far off).
+        self._started_t = math.nan
+        self._cloud_radius_m = math.nan
 
     @classmethod
     def from_config(
@@ -324,6 +331,7 @@ class Tracker:
             self.initiator.at_pose(self.particles, x, y, heading_offset_rad)
         except CurbsideInputError as exc:
             raise CurbsideValueError(exc.source, exc.problem) from None
+        self._started_t = t
         return self._conclude(t, 0.0)
 
     def start_at_fix(self, t: float, fix: GnssFix) -> Estimate:
@@ -347,6 +355,7 @@ class Tracker:
         fix = self._floored(fix)
         self.initiator.at_fix(self.particles, fix)
         self.last_fix, self.last_fix_t = fix, t
+        self._started_t = t
         return self._conclude(t, 0.0)
 
     def _start_time(self, t: object) -> float:
@@ -457,7 +466,7 @@ class Tracker:
                 self.calibration.observe(t, gnss_fix.x - last.x, gnss_fix.y - last.y)
         estimate = self._conclude(t, inject)
         if used and math.hypot(gnss_fix.x - estimate.x, gnss_fix.y - estimate.y) <= FIX_AGREEMENT_RADII * (
-            math.hypot(gnss_fix.accuracy_m, estimate.accuracy_m)
+            math.hypot(gnss_fix.accuracy_m, self._cloud_radius_m)
         ):
             self.last_fix_t = t
         return estimate
@@ -524,7 +533,7 @@ class Tracker:
                 if self.calibration is not None:
                     prob = self.calibration.calibrate(prob)
                 mode_x, mode_y = mode.x, mode.y
-        temperature = 1.0 if self.calibration is None else self.calibration.temperature
+        accuracy_m = self._accuracy_m(t, m.spread_m)
         resampled = self.resampler.resample(p, m.n_eff)
         injected = 0
         if inject_fraction > 0:
@@ -538,6 +547,16 @@ class Tracker:
         self.last_estimate = estimate = _new_tuple(
             Estimate,
             (t, m.x, m.y, m.theta, m.scale, m.n_eff, collapsed, self.frame, segment_id, prob, mode_x, mode_y,
-             injected, accuracy_radius_m(m.spread_m, temperature)),
+             injected, accuracy_m),
         )
         return estimate
+
+    def _accuracy_m(self, t: float, spread_m: float) -> float:
+        """The 68 % radius to report at ``t`` for a cloud of rms spread ``spread_m`` (keeps the cloud's
+        own radius, without the floor, for the agreement test)."""
+        if self.calibration is None:
+            self._cloud_radius_m = accuracy_radius_m(spread_m)
+            return self._cloud_radius_m
+        since = self._started_t if self.last_fix_t is None else max(self.last_fix_t, self._started_t)
+        self._cloud_radius_m, accuracy_m = self.calibration.radius_m(spread_m, t - since)
+        return accuracy_m
