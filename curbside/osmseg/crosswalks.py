@@ -17,7 +17,7 @@ import shapely
 
 from curbside.osmseg.config import SegmentationConfig
 from curbside.osmseg.overlay import polygons_only
-from curbside.osmseg.streets import Carriageways, ground_level
+from curbside.osmseg.streets import Carriageways, ground_level, side_buffers
 from curbside.osmseg.tags import column, is_in, metres
 
 
@@ -136,8 +136,8 @@ def crosswalks(
     lines = roads.geometry.values
     reach = np.concatenate(
         [
-            shapely.buffer(lines, roads["half_left_m"].to_numpy() + grow, single_sided=True, quad_segs=2),
-            shapely.buffer(lines, -(roads["half_right_m"].to_numpy() + grow), single_sided=True, quad_segs=2),
+            side_buffers(lines, roads["half_left_m"].to_numpy() + grow),
+            side_buffers(lines, -(roads["half_right_m"].to_numpy() + grow)),
         ]
     )
     raw_i, reach_i = shapely.STRtree(reach).query(raw, predicate="intersects")

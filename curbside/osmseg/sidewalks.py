@@ -25,7 +25,7 @@ import shapely
 
 from curbside.osmseg.config import SegmentationConfig
 from curbside.osmseg.overlay import subtract
-from curbside.osmseg.streets import MINOR_SERVICES, node_keys, sidewalk_sides
+from curbside.osmseg.streets import MINOR_SERVICES, node_keys, side_buffers, sidewalk_sides
 from curbside.osmseg.tags import column, is_in
 
 log = logging.getLogger(__name__)
@@ -144,7 +144,9 @@ def extend_shared_ends(
 
     Notes
     -----
-    An end is always a junction when another of ``lines`` ends at the same point.
+    An end is always a junction when another of ``lines`` ends at the same point. A closed line (a
+    loop road, a roundabout without another junction) is left alone: its ends meet each other, and
+    its band (:func:`~curbside.osmseg.streets.side_buffers`) has no end to prolong.
     """
     xy, idx = shapely.get_coordinates(lines, return_index=True)
     n = np.bincount(idx, minlength=len(lines))
@@ -158,7 +160,7 @@ def extend_shared_ends(
         tip_i, other_i = tree.query(shapely.points(tips), predicate="dwithin", distance=snap_m)
         foreign = other_i != np.tile(own, 2)[tip_i]
         shared[tip_i[foreign]] = True
-    shared = shared.reshape(2, -1)
+    shared = shared.reshape(2, -1) & ~shapely.is_closed(lines)
 
     def prolong(tip: np.ndarray, before: np.ndarray, on: np.ndarray) -> np.ndarray:
         direction = xy[tip] - xy[before]
@@ -220,8 +222,8 @@ def sidewalk_segments(
     reach = extend_shared_ends(lines, np.maximum(reach_left, reach_right), roads.geometry.values, road_row)
     bands = np.concatenate(
         [
-            shapely.buffer(reach, reach_left, single_sided=True, quad_segs=2),
-            shapely.buffer(reach, -reach_right, single_sided=True, quad_segs=2),
+            side_buffers(reach, reach_left),
+            side_buffers(reach, -reach_right),
         ]
     )
     side = np.repeat(["left", "right"], len(lines))

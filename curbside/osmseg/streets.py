@@ -33,15 +33,54 @@ _PARKING_VALUES = {"lane": "lane", "half_on_kerb": "half"}
 _PARKING_KEYS = ("parking:lane:both", "parking:lane:left", "parking:lane:right",
                  "parking:both", "parking:left", "parking:right")  # fmt: skip
 _NO = ("no", "none")
+#: ``junction`` values of roundabouts, whose inner side is the central island.
+ROUNDABOUTS = ("roundabout", "circular")
 
 
 def sidewalk_sides(roads: pd.DataFrame) -> tuple[np.ndarray, np.ndarray]:
-    """Whether each road has a sidewalk on its left and right (absent tags: both sides)."""
+    """Whether each road has a sidewalk on its left and right (absent tags: both sides).
+
+    A roundabout (``junction=roundabout|circular``) has none on the side of its central island
+    (:func:`island_sides`), whatever its tags say of the outer side. Finding that side needs the
+    ways' geometry (``roads`` a GeoDataFrame) only when the table holds a roundabout.
+    """
     main = column(roads, "sidewalk")
     both = column(roads, "sidewalk:both")
     left = ~(is_in(main, [*_NO, "right"]) | is_in(both, _NO) | is_in(column(roads, "sidewalk:left"), _NO))
     right = ~(is_in(main, [*_NO, "left"]) | is_in(both, _NO) | is_in(column(roads, "sidewalk:right"), _NO))
+    roundabout = is_in(column(roads, "junction"), ROUNDABOUTS)
+    if roundabout.any():
+        rows = np.flatnonzero(roundabout)
+        island = island_sides(roads.geometry.values[roundabout])
+        left[rows[island > 0]] = False
+        right[rows[island < 0]] = False
     return left, right
+
+
+def island_sides(arcs: np.ndarray) -> np.ndarray:
+    """Which side of each roundabout way its central island lies on: 1 left, -1 right, 0 unknown.
+
+    A roundabout is often several ways (one between each pair of entries, some of them straight
+    two-node pieces), drawn anticlockwise where traffic keeps right and clockwise where it keeps
+    left. The island's centre is taken as the centroid of the convex hull of the connected ways
+    (each way's own hull when it meets no other), and its side is the side of the way, at its middle,
+    that the centre lies on. A lone straight way, whose centre lies on it, gets 0.
+    """
+    arcs = np.asarray(arcs, dtype=object)
+    pieces = shapely.get_parts(shapely.union_all(shapely.buffer(arcs, 0.5, quad_segs=1)))
+    arc_i, piece_i = shapely.STRtree(pieces).query(arcs, predicate="intersects")
+    component = np.zeros(len(arcs), dtype=int)
+    component[arc_i] = piece_i
+    hulls = shapely.convex_hull(pieces)
+    centre = shapely.get_coordinates(shapely.centroid(hulls))[component]
+    length = shapely.length(arcs)
+    mid = shapely.get_coordinates(shapely.line_interpolate_point(arcs, length / 2))
+    ahead = shapely.get_coordinates(shapely.line_interpolate_point(arcs, np.minimum(length / 2 + 1, length)))
+    behind = shapely.get_coordinates(shapely.line_interpolate_point(arcs, np.maximum(length / 2 - 1, 0)))
+    tangent, away = ahead - behind, centre - mid
+    cross = tangent[:, 0] * away[:, 1] - tangent[:, 1] * away[:, 0]
+    scale = np.hypot(*tangent.T) * np.hypot(*away.T)
+    return np.where(np.abs(cross) > 0.05 * scale, np.sign(cross), 0).astype(int)
 
 
 def ground_level(ways: pd.DataFrame) -> np.ndarray:
@@ -325,8 +364,8 @@ def carriageways(
     roads = roads.assign(
         half_left_m=half[:, 0], half_right_m=half[:, 1], mapped_left=mapped[:, 0], mapped_right=mapped[:, 1]
     )
-    left = shapely.buffer(lines, half[:, 0], single_sided=True, quad_segs=2)
-    right = shapely.buffer(lines, -half[:, 1], single_sided=True, quad_segs=2)
+    left = side_buffers(lines, half[:, 0])
+    right = side_buffers(lines, -half[:, 1])
     radius = half.min(axis=1)
     minor_road = is_in(column(roads, "service"), MINOR_SERVICES)
     through = ~minor_road
@@ -344,6 +383,44 @@ def carriageways(
     polygon = shapely.get_type_id(parts) == 3
     is_minor = tile[polygon] >= len(major_tiles)
     return Carriageways(roads, parts[polygon], is_minor, sidewalks)
+
+
+def side_buffers(lines: np.ndarray, distance_m: np.ndarray | float) -> np.ndarray:
+    """The band on one side of each line: left of its drawing direction for a positive distance.
+
+    A single-sided buffer with flat ends, as ``shapely.buffer(..., single_sided=True)``, except for
+    closed lines (roundabouts, loop roads): GEOS buffers those as the polygon they enclose, giving
+    that polygon shrunk by the distance on the left and the whole enclosed polygon on the right,
+    not a band. Their band is the two-sided buffer cut by the enclosed polygon: its inside for the
+    side the ring turns towards (left when drawn anticlockwise), its outside for the other.
+
+    Parameters
+    ----------
+    lines
+        LineStrings in a metric CRS.
+    distance_m
+        Width of the band per line (or one for all); positive: left, negative: right.
+
+    Returns
+    -------
+    numpy.ndarray
+        One polygon per line.
+    """
+    lines = np.asarray(lines, dtype=object)
+    distance_m = np.broadcast_to(np.asarray(distance_m, dtype=float), lines.shape)
+    out = shapely.buffer(lines, distance_m, single_sided=True, quad_segs=2)
+    closed = np.flatnonzero(shapely.is_closed(lines) & (shapely.get_num_coordinates(lines) >= 4))
+    if len(closed) == 0:
+        return out
+    xy, idx = shapely.get_coordinates(lines[closed], return_index=True)
+    enclosed = shapely.make_valid(shapely.polygons(shapely.linearrings(xy, indices=idx)))
+    # A ring that encloses nothing (drawn there and back along itself) keeps GEOS's buffer.
+    closed, enclosed = closed[shapely.area(enclosed) > 0], enclosed[shapely.area(enclosed) > 0]
+    rings, width = lines[closed], distance_m[closed]
+    band = shapely.buffer(rings, np.abs(width), cap_style="flat", quad_segs=2)
+    inside = (width > 0) == shapely.is_ccw(rings)
+    out[closed] = np.where(inside, shapely.intersection(band, enclosed), shapely.difference(band, enclosed))
+    return out
 
 
 def node_keys(xy: np.ndarray) -> np.ndarray:
