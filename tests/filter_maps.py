@@ -5,10 +5,20 @@ from __future__ import annotations
 import geopandas as gpd
 import shapely
 
+from curbside.localize.filter import MotionConfig
 from curbside.osmseg.mapio import MapLayers
 
 UTM10 = 32610
 X0, Y0 = 551000.0, 4182000.0  # downtown San Francisco in EPSG:32610
+#: A motion model without noise: its cloud does not widen between fixes (as a cloud the map's walls cut
+#: at corners does not, while the walker's error grows).
+QUIET_MOTION = MotionConfig(
+    step_noise_fraction=0.0,
+    step_noise_floor_m=0.0,
+    heading_noise_deg=0.0,
+    scale_noise_per_step=0.0,
+    scale_init_sigma=0.0,
+)
 
 
 def box(x0: float, y0: float, x1: float, y1: float) -> shapely.Polygon:

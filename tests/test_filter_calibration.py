@@ -6,7 +6,7 @@ import math
 
 import numpy as np
 import pytest
-from filter_maps import X0, Y0, two_sidewalk_map
+from filter_maps import QUIET_MOTION, X0, Y0, two_sidewalk_map
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
@@ -15,7 +15,6 @@ from curbside.localize.filter import (
     CalibrationConfig,
     FilterConfig,
     GnssFix,
-    MotionConfig,
     SegmentCalibration,
     Tracker,
 )
@@ -134,13 +133,7 @@ def test_fused_calibrates_with_fixes_the_paper_and_the_inertial_filter_do_not():
 
 
 def test_the_tracker_reports_the_tempered_mass_and_reads_the_fixes_innovations():
-    quiet = MotionConfig(
-        step_noise_fraction=0.0,
-        step_noise_floor_m=0.0,
-        heading_noise_deg=0.0,
-        scale_noise_per_step=0.0,
-        scale_init_sigma=0.0,
-    )
+    quiet = QUIET_MOTION
     raw = Tracker.from_config(
         two_sidewalk_map(),
         FilterConfig(

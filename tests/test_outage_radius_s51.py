@@ -6,31 +6,20 @@ import math
 
 import numpy as np
 import pytest
-from filter_maps import X0, Y0, two_sidewalk_map
+from filter_maps import QUIET_MOTION, X0, Y0, two_sidewalk_map
 
-from curbside import settings as curbside_settings
 from curbside.localize.filter import CalibrationConfig, FilterConfig, GnssFix, MotionConfig, Tracker
 from curbside.localize.runconfig import RunConfig
 
 FLOOR_M_PER_S = CalibrationConfig().radius_floor_m_per_s
-#: A motion model without noise: its cloud does not widen between fixes, as a cloud the map's walls cut
-#: at corners does not, while the walker's error grows.
-QUIET = MotionConfig(
-    step_noise_fraction=0.0,
-    step_noise_floor_m=0.0,
-    heading_noise_deg=0.0,
-    scale_noise_per_step=0.0,
-    scale_init_sigma=0.0,
-)
 OUTAGE_S = (20.0, 110.0)
 
-
-@pytest.fixture(autouse=True)
-def _cache_in_tmp(tmp_path, monkeypatch):
-    monkeypatch.setattr(curbside_settings, "cache_dir", tmp_path / "cache")
+pytestmark = pytest.mark.usefixtures("cache_in_tmp")
 
 
-def tracker(floor_m_per_s: float | None = None, motion: MotionConfig = QUIET, seed: int = 0) -> Tracker:
+def tracker(
+    floor_m_per_s: float | None = None, motion: MotionConfig = QUIET_MOTION, seed: int = 0
+) -> Tracker:
     calibration = {} if floor_m_per_s is None else {
         "calibration": CalibrationConfig(radius_floor_m_per_s=floor_m_per_s)
     }
