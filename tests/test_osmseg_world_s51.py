@@ -113,3 +113,16 @@ def test_roundabout_island_gets_no_sidewalk():
     assert shapely.area(shapely.intersection(sidewalk, outside)) > 1000.0
     names = set(layers.gdf["street"].dropna())
     assert "St James' Barton" in names
+
+
+def test_a_road_with_a_number_and_no_name_is_called_by_its_number(tmp_path):
+    # St James' Barton is also the A38; without its name its sidewalks were "unnamed street".
+    text = BRISTOL.read_text(encoding="utf-8")
+    numbered = tmp_path / "numbered.osm"
+    numbered.write_text(text.replace('<tag k="name" v="St James\' Barton"/>', ""), encoding="utf-8")
+    named = build_map(osm_file=BRISTOL).gdf
+    streets = build_map(osm_file=numbered).gdf["street"]
+    was_barton = (named["street"] == "St James' Barton").to_numpy()
+    assert was_barton.any()
+    assert (streets[was_barton] == "A38").all()
+    assert (streets[~was_barton].fillna("") == named["street"][~was_barton].fillna("")).all()

@@ -42,7 +42,7 @@ _CUT_SHORT = ("bzip2 error", "gzip error", "unexpected EOF", "unclosed token", "
 
 #: Tags the derivation reads; every table has one column per key (None where absent).
 TAG_KEYS: tuple[str, ...] = (
-    "highway", "footway", "crossing", "crossing:markings", "name", "service", "area", "junction",
+    "highway", "footway", "crossing", "crossing:markings", "name", "ref", "service", "area", "junction",
     "building", "building:part", "building:levels", "height", "location", "layer", "level",
     "tunnel", "bridge", "covered", "indoor",
     "width", "est_width", "lanes", "lanes:forward", "lanes:backward", "lanes:both_ways", "oneway",

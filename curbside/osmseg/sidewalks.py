@@ -243,7 +243,8 @@ def sidewalk_segments(
     segment_id = _segment_ids(
         pd.DataFrame({"osm_id": osm_id, "row": way_row, "side": side[part_of], "k": k, "along": along})
     )
-    names = column(carrying, "name").to_numpy()[way_row]
+    # A road with a number but no name (A38, B 19) is called by its number, as its signs say.
+    names = column(carrying, "name").fillna(column(carrying, "ref")).to_numpy()[way_row]
     facing = facing_bearings_deg(parts, lines[piece], side[part_of])
     return gpd.GeoDataFrame(
         {"segment_id": segment_id, "street": names, "side": side[part_of], "facing_deg": facing,
