@@ -264,3 +264,14 @@ def test_an_ipin_dataset_is_named_by_its_own_columns_and_rows(tmp_path, capsys):
     message = _refused(capsys, tmp_path, src)
     assert message == f"cut.h5::{trial}/gyro: 'y' = 60.0 at row 5 is outside -35..35 rad/s: rotation rates " \
                       "must be in rad/s (deg/s?)"
+
+
+@pytest.mark.parametrize(("fixture", "file", "column", "value"), [
+    ("sensorlogger-android", "Gyroscope.csv", "z", "inf"),
+    ("sensorlogger-ios.zip", "Location.csv", "horizontalAccuracy", "-inf"),
+])
+def test_an_infinite_value_is_refused_not_dropped_with_the_blank_rows(tmp_path, capsys, fixture, file, column,
+                                                                      value):
+    src, name = _source(tmp_path, fixture, file, lambda p: _set(p, column, 4, value))
+    message = _refused(capsys, tmp_path, src)
+    assert message == f"{name}: {column!r} = {value} at data row 4 is not a finite number"

@@ -97,6 +97,18 @@ def _check_limits(table: pd.DataFrame, out: pd.DataFrame, source: str | PathLike
                                  f"{_LIMITS[column][1]}")
 
 
+def _refuse_infinite(table: pd.DataFrame, out: pd.DataFrame, source: str | PathLike[str],
+                     names: Mapping[str, str], rows: str) -> None:
+    """Raise at the first infinite value (a sensor or a tool wrote ``inf``), named as the source names it."""
+    infinite = np.isinf(out.to_numpy())
+    if infinite.any():
+        position, k = np.argwhere(infinite)[0]
+        column, index = out.columns[k], out.index[position]
+        own = names.get(column, column)
+        raise CurbsideInputError(source, f"{own!r} = {_cell(table, out, column, index, own)} at {rows} "
+                                 f"{index + 1} is not a finite number")
+
+
 def _refuse_conflicts(table: pd.DataFrame, out: pd.DataFrame, source: str | PathLike[str],
                       names: Mapping[str, str], rows: str) -> None:
     """Raise when two rows share a timestamp with different values (``out``: sorted, no exact duplicates)."""
@@ -146,9 +158,9 @@ def tidy_table(
     Raises
     ------
     CurbsideInputError
-        A required column is missing or holds text, no row survives, two rows share a timestamp with
-        different values, or a latitude, longitude or rotation rate lies beyond its range (a rate above
-        35 rad/s: deg/s); each named as the source names it.
+        A required column is missing or holds text or an infinite value, no row survives, two rows share
+        a timestamp with different values, or a latitude, longitude or rotation rate lies beyond its range
+        (a rate above 35 rad/s: deg/s); each named as the source names it.
     """
     names = dict(names or {})
     if not (table.index.is_unique and pd.api.types.is_integer_dtype(table.index)):
@@ -160,14 +172,15 @@ def tidy_table(
     out = table[list(required)].apply(pd.to_numeric, errors="raise").astype(float)
     n_in = len(out)
     strict = [c for c in required if c not in nullable]
+    _refuse_infinite(table, out, source, names, rows)
     finite = np.isfinite(out[strict].to_numpy()).all(axis=1)
     if not finite.all():
-        logger.info("%s: dropped %d row(s) holding NaN/inf", source, int((~finite).sum()))
+        logger.info("%s: dropped %d row(s) holding a blank or NaN", source, int((~finite).sum()))
         out = out[finite]
     if len(out) == 0:
         blanks = ", ".join(repr(names.get(c, c)) for c in strict)
-        raise CurbsideInputError(source, f"no usable rows (read {n_in}; each has a blank, NaN or infinite "
-                                 f"cell in {blanks})" if n_in else f"no usable rows (read {n_in})")
+        raise CurbsideInputError(source, f"no usable rows (read {n_in}; each has a blank or NaN cell in "
+                                 f"{blanks})" if n_in else f"no usable rows (read {n_in})")
     _check_limits(table, out, source, names, rows)
     if not out["t"].is_monotonic_increasing:
         logger.info("%s: rows were out of time order; sorted", source)
