@@ -225,3 +225,22 @@ def test_estimate_places_refuse_an_estimate_in_another_frame():
     estimate = other.start_at(0.0, lat=49.45, lon=11.08)._replace(segment_id="N")  # UTM 32, not 10
     with pytest.raises(CurbsideValueError, match="^estimate: its frame is not the map's CRS"):
         EstimatePlaces(layers).describe(estimate)
+
+
+def test_a_clock_in_milliseconds_since_the_app_started_is_warned_about_once(caplog):
+    # 20 "s" apart at every step: a 50 Hz app handing milliseconds since it started (stop 51).
+    tracker = started()
+    with caplog.at_level("WARNING", logger="curbside.localize.filter.tracker"):
+        for k in range(1, 8):
+            tracker.step(20.0 * k, displacement_en=(0.0, 0.03))
+    warned = [r.getMessage() for r in caplog.records if "milliseconds" in r.getMessage()]
+    assert len(warned) == 1
+    assert "is t in milliseconds" in warned[0] and "20 s" in warned[0]
+
+
+def test_one_gap_after_the_app_slept_is_not_warned_about(caplog):
+    tracker = started()
+    with caplog.at_level("WARNING", logger="curbside.localize.filter.tracker"):
+        for t in (1.0, 2.0, 300.0, 301.0, 302.0, 330.0, 331.0):
+            tracker.step(t, displacement_en=(0.0, 0.5))
+    assert not [r for r in caplog.records if "milliseconds" in r.getMessage()]

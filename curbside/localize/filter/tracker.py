@@ -159,6 +159,7 @@ class Tracker:
         self.last_fix: GnssFix | None = None
         self.last_fix_t: float | None = None
         self._warned_outside = False
+        self._gaps_in_a_row = 0
         # The 68 % radius's floor counts from the later of the last agreeing fix and the last start; the
         # agreement test reads the cloud's radius, without the floor (which would let a drifted cloud
         # agree with the first fix back and drop the floor while it is still far off).
@@ -442,6 +443,7 @@ class Tracker:
                 "t", f"{t!r} is not after the previous update's {last.t!r} (time must increase)"
             )
         dx, dy = step_displacement(velocity_en, dt, displacement_en, dt_s)
+        self._note_gap(dt_s)
         if gnss_fix is not None:
             check_fix(gnss_fix, "gnss_fix")
             if 0.0 < gnss_fix.accuracy_m < self.min_accuracy_m:
@@ -486,6 +488,18 @@ class Tracker:
             )
             self._warned_outside = True
         return False
+
+    def _note_gap(self, dt_s: float) -> None:
+        """Warn once when three updates in a row come a gap apart: a clock in milliseconds, most likely
+        (each such update is read as time without motion and widens the cloud)."""
+        gap_s = getattr(getattr(self.predictor, "config", None), "gap_s", math.inf)  # custom: no gap rule
+        self._gaps_in_a_row = self._gaps_in_a_row + 1 if dt_s > gap_s else 0
+        if self._gaps_in_a_row == 3:
+            logger.warning(
+                "three updates in a row came %.4g s or more apart (the last %.4g s): is t in milliseconds? "
+                "step() takes seconds; an update more than filter.motion.gap_s (%g s) after the previous "
+                "one is read as a gap and widens the cloud", gap_s, dt_s, gap_s,
+            )
 
     def _floored(self, fix: GnssFix) -> GnssFix:
         """``fix`` with its accuracy raised to :attr:`min_accuracy_m` when it reports less (not 0:
