@@ -62,7 +62,7 @@ def _source(tmp_path: Path, fixture: str, file: str, edit) -> tuple[Path, str]:
     edit(folder / file)
     if fixture.endswith(".zip"):
         src = _rezip(folder, tmp_path)
-        return src, f"{src}/{file}"
+        return src, f"{src}/{(folder / file).relative_to(tmp_path / 'unpacked').as_posix()}"
     return folder, str(folder / file)
 
 
@@ -275,3 +275,16 @@ def test_an_infinite_value_is_refused_not_dropped_with_the_blank_rows(tmp_path, 
     src, name = _source(tmp_path, fixture, file, lambda p: _set(p, column, 4, value))
     message = _refused(capsys, tmp_path, src)
     assert message == f"{name}: {column!r} = {value} at data row 4 is not a finite number"
+
+
+def test_a_file_inside_a_zip_is_named_by_its_whole_path_there(tmp_path, capsys):
+    # Sensor Logger zips its files in a folder named by the time; the user finds them there.
+    folder = _export(tmp_path, "sensorlogger-android")
+    _set(folder / "Gyroscope.csv", "y", 3, "abc")
+    src = tmp_path / "export.zip"
+    with zipfile.ZipFile(src, "w") as zf:
+        for p in sorted(folder.iterdir()):
+            zf.write(p, f"2023-11-14_22-13-20/{p.name}")
+    message = _refused(capsys, tmp_path, src)
+    member = "2023-11-14_22-13-20/Gyroscope.csv"
+    assert message == f"{src}/{member}: non-numeric value 'abc' in column 'y' at data row 3"

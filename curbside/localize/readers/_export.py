@@ -238,6 +238,14 @@ class Export:
         """Whether the recording has the file ``name`` (case-insensitive)."""
         return name.lower() in self._files
 
+    def source(self, name: str) -> str:
+        """How messages name the recording's file ``name``: as the user finds it, its path on disk or
+        inside the zip (``export.zip/2023-11-14_22-13-20/Gyroscope.csv``)."""
+        handle = self._files.get(name.lower())
+        if handle is None:
+            return f"{self.label}/{name}"
+        return str(handle) if isinstance(handle, Path) else f"{self.src}/{handle}"
+
     def _bytes(self, name: str) -> bytes:
         handle = self._files[name.lower()]
         if isinstance(handle, Path):
@@ -255,7 +263,7 @@ class Export:
         """
         if not self.has(name):
             return None
-        source = f"{self.label}/{name}"
+        source = self.source(name)
         data = self._bytes(name)
         if _looks_like_phyphox(data[:200].decode("utf-8", errors="replace")):
             raise CurbsideInputError(source, "is a phyphox export ('Time (s)' columns), not Sensor Logger's")

@@ -67,7 +67,7 @@ from curbside.localize.readers._clock import (
     clock_column,
     refuse_clock_text,
 )
-from curbside.localize.readers._export import check_same_clock, find_recordings, open_export
+from curbside.localize.readers._export import Export, check_same_clock, find_recordings, open_export
 from curbside.localize.readers._platform import (
     NORTH_TOLERANCE_DEG,
     Device,
@@ -120,7 +120,7 @@ def _read_streams(export) -> dict[str, pd.DataFrame]:
             continue
         if table.empty:
             level = logging.INFO if name == "Annotation.csv" else logging.WARNING
-            logger.log(level, "%s/%s: no rows (empty file); ignored", export.label, name)
+            logger.log(level, "%s: no rows (empty file); ignored", export.source(name))
             continue
         streams[name] = table
     return streams
@@ -131,12 +131,12 @@ def _one_clock(streams: dict[str, pd.DataFrame], export, metadata: pd.DataFrame 
     preferred = (*_ACCELEROMETERS, *_GYROSCOPES, "Location.csv")
     reference = next((n for n in preferred if n in streams), next(iter(streams)))
     for name, table in streams.items():
-        refuse_clock_text(table, f"{export.label}/{name}")
-        check_time_unit(table, f"{export.label}/{name}")
+        refuse_clock_text(table, export.source(name))
+        check_time_unit(table, export.source(name))
     check_same_clock(streams, reference, export.label)
     ref = streams[reference]
     for name, table in streams.items():
-        check_elapsed(table, f"{export.label}/{name}")
+        check_elapsed(table, export.source(name))
     t0_ns = None
     if "time" in ref.columns and "seconds_elapsed" in ref.columns:
         offsets = _numbers(pd.to_numeric(ref["time"], errors="coerce") - 1e9 * pd.to_numeric(
@@ -147,9 +147,9 @@ def _one_clock(streams: dict[str, pd.DataFrame], export, metadata: pd.DataFrame 
     elif len(_numbers(ref.get("time", pd.Series()))):
         t0_ns = float(_numbers(ref["time"]).min())
     for name, table in streams.items():
-        table["t"] = _time_s(table, t0_ns, f"{export.label}/{name}")
+        table["t"] = _time_s(table, t0_ns, export.source(name))
         if name != "Annotation.csv":  # taps: no sampling interval to judge a step by
-            check_clock_steps(table, f"{export.label}/{name}", warn_only=name == "Location.csv")
+            check_clock_steps(table, export.source(name), warn_only=name == "Location.csv")
     if t0_ns is not None:
         meta["t0_unix_s"] = t0_ns / 1e9
 
@@ -180,12 +180,12 @@ def _xyz(table: pd.DataFrame, source: str, cols: tuple[str, str, str]) -> pd.Dat
     return tidy_table(table, source, ["t", *cols], names=names)
 
 
-def _orientation(streams, label: str) -> pd.DataFrame | None:
+def _orientation(streams, export: Export) -> pd.DataFrame | None:
     """The quaternions as exported (normalised); the iOS world frame is turned later, in :func:`_imu`."""
     table = streams.get("Orientation.csv")
     if table is None:
         return None
-    source = f"{label}/Orientation.csv"
+    source = export.source("Orientation.csv")
     quat = tidy_table(table, source, ["t", *_QUAT], names={"t": clock_column(table)})
     norm = np.linalg.norm(quat[_QUAT].to_numpy(), axis=1)
     if np.abs(norm - 1.0).max() > 0.05:
@@ -205,23 +205,23 @@ def _includes_gravity(acce: pd.DataFrame, source: str) -> bool:
     return True
 
 
-def _specific_force(streams, label: str) -> tuple[pd.DataFrame, bool]:
+def _specific_force(streams, export: Export) -> tuple[pd.DataFrame, bool]:
     """The accelerometer, and whether it includes gravity (else gravity is still to be restored)."""
     for name in ("TotalAcceleration.csv", "AccelerometerUncalibrated.csv"):
         if name in streams:  # both include gravity; the raw one is read only when the others are absent
-            return _xyz(streams[name], f"{label}/{name}", _ACC), True
-    source = f"{label}/Accelerometer.csv"
+            return _xyz(streams[name], export.source(name), _ACC), True
+    source = export.source("Accelerometer.csv")
     user = _xyz(streams["Accelerometer.csv"], source, _ACC)
     t = user["t"].to_numpy()
     if "Gravity.csv" in streams:
-        gravity = _xyz(streams["Gravity.csv"], f"{label}/Gravity.csv", _ACC)
+        gravity = _xyz(streams["Gravity.csv"], export.source("Gravity.csv"), _ACC)
         g_t = gravity["t"].to_numpy()
-        report_gaps(g_t, f"{label}/Gravity.csv", "filled by interpolation in imu.csv")
+        report_gaps(g_t, export.source("Gravity.csv"), "filled by interpolation in imu.csv")
         inside = (t >= g_t[0]) & (t <= g_t[-1])  # gravity is not extrapolated: the phone may have turned
         lost_s = float(max(g_t[0] - t[0], 0.0) + max(t[-1] - g_t[-1], 0.0))
         if lost_s > MAX_SILENT_CUT_S:
             logger.warning("%s/Gravity.csv covers t=%.1f-%.1f s of the accelerometer's %.1f-%.1f s: imu.csv "
-                           "cut to it (%.1f s lost)", label, g_t[0], g_t[-1], t[0], t[-1], lost_s)
+                           "cut to it (%.1f s lost)", export.label, g_t[0], g_t[-1], t[0], t[-1], lost_s)
         user = user[inside].reset_index(drop=True)
         for col in _ACC:
             user[col] = user[col] + np.interp(t[inside], g_t, gravity[col].to_numpy())
@@ -232,7 +232,7 @@ def _specific_force(streams, label: str) -> tuple[pd.DataFrame, bool]:
 def _raw_convention(export, quat: pd.DataFrame, meta: dict) -> tuple[float, bool] | None:
     """:func:`_gravity_convention` of ``AccelerometerUncalibrated.csv`` (gravity included), read beside a
     gravity-free Accelerometer.csv only to measure the export's sign; ``None`` when it cannot tell."""
-    source = f"{export.label}/AccelerometerUncalibrated.csv"
+    source = export.source("AccelerometerUncalibrated.csv")
     t0_s = meta.get("t0_unix_s")
     try:
         table = export.read("AccelerometerUncalibrated.csv")
@@ -354,19 +354,19 @@ def _imu(streams, export, device: Device, meta: dict) -> pd.DataFrame | None:
                            label, ", ".join(present))
         return None
     _report_uncalibrated(streams, label)
-    quat = _orientation(streams, label)
+    quat = _orientation(streams, export)
     mag = None
     if quat is not None and "Magnetometer.csv" in streams:  # of use only against an orientation
-        mag = _xyz(streams["Magnetometer.csv"], f"{label}/Magnetometer.csv", ("mx", "my", "mz"))
-    acce, with_gravity = _specific_force(streams, label)
+        mag = _xyz(streams["Magnetometer.csv"], export.source("Magnetometer.csv"), ("mx", "my", "mz"))
+    acce, with_gravity = _specific_force(streams, export)
     if not with_gravity:
         if quat is None:
-            raise CurbsideInputError(f"{label}/Accelerometer.csv", "acceleration without gravity, and no "
-                                     "TotalAcceleration.csv, Gravity.csv or Orientation.csv to restore it")
+            raise CurbsideInputError(export.source("Accelerometer.csv"), "acceleration without gravity, and "
+                                     "no TotalAcceleration.csv, Gravity.csv or Orientation.csv to restore it")
         acce, quat, device = _gravity_from_orientation(acce, quat, streams, export, device, mag, meta)
-    acce = accelerometer_ms2(acce, f"{label}/{acc_name}")
-    gyro = _xyz(streams[gyro_name], f"{label}/{gyro_name}", ("gx", "gy", "gz"))
-    names = (f"{label}/{acc_name}", f"{label}/{gyro_name}", f"{label}/Orientation.csv")
+    acce = accelerometer_ms2(acce, export.source(acc_name))
+    gyro = _xyz(streams[gyro_name], export.source(gyro_name), ("gx", "gy", "gz"))
+    names = (export.source(acc_name), export.source(gyro_name), export.source("Orientation.csv"))
     imu = merge_imu(acce, gyro, quat, label, names)
     sign = None
     if quat is not None and with_gravity:
@@ -390,11 +390,11 @@ def _imu(streams, export, device: Device, meta: dict) -> pd.DataFrame | None:
     return imu
 
 
-def _gnss(streams, label: str) -> pd.DataFrame | None:
+def _gnss(streams, export: Export) -> pd.DataFrame | None:
     table = streams.get("Location.csv")
     if table is None:
         return None
-    source = f"{label}/Location.csv"
+    source = export.source("Location.csv")
     missing = [c for c in ("latitude", "longitude") if c not in table.columns]
     if missing:
         raise CurbsideInputError(source, f"missing column(s) {missing}")
@@ -438,7 +438,7 @@ def _route_waypoints(taps: pd.DataFrame, route: Path, gnss: pd.DataFrame | None)
     return drop_far_waypoints(table, gnss, route, "point(s)", "GNSS fix")
 
 
-def _waypoints(streams, label: str, route: str | Path | None, meta: dict,
+def _waypoints(streams, export: Export, route: str | Path | None, meta: dict,
                gnss: pd.DataFrame | None) -> pd.DataFrame | None:
     taps = streams.get("Annotation.csv")
     if taps is None:
@@ -458,7 +458,7 @@ def _waypoints(streams, label: str, route: str | Path | None, meta: dict,
     if far.any():
         listed = ", ".join(f"{s!r} at t={t:.1f} s" for s, t in zip(text[far], taps["t"][far], strict=True))
         logger.warning("%s/Annotation.csv: %d tap(s) read as 'lat,lon' lie more than %.0f km from every GNSS "
-                       "fix (%s): not waypoints, kept in meta['annotations']", label, int(far.sum()),
+                       "fix (%s): not waypoints, kept in meta['annotations']", export.label, int(far.sum()),
                        MAX_WAYPOINT_DISTANCE_M / 1000, listed)
         located = located & ~far
     others = taps.loc[~located]
@@ -467,12 +467,12 @@ def _waypoints(streams, label: str, route: str | Path | None, meta: dict,
             {"t": float(t), "text": s} for t, s in zip(others["t"], text[~located], strict=True)
         ]
         logger.info("%s: %d tap(s) without 'lat,lon' text kept in meta['annotations'] (use a route file)",
-                    label, len(others))
+                    export.label, len(others))
     if not located.any():
         return None
     table = pd.DataFrame({"t": taps.loc[located, "t"], "lat": lat[located], "lon": lon[located]})
     names = {"t": clock_column(taps), "lat": "text", "lon": "text"}
-    return tidy_table(table, f"{label}/Annotation.csv", ["t", "lat", "lon"], names=names)
+    return tidy_table(table, export.source("Annotation.csv"), ["t", "lat", "lon"], names=names)
 
 
 def read_sensorlogger(
@@ -528,8 +528,8 @@ def read_sensorlogger(
         raise CurbsideInputError(label, "export has no data: every motion and location file is empty")
     _one_clock(streams, export, metadata, meta)
     imu = _imu(streams, export, device, meta)
-    gnss = _gnss(streams, label)
-    waypoints = _waypoints(streams, label, route, meta, gnss)
+    gnss = _gnss(streams, export)
+    waypoints = _waypoints(streams, export, route, meta, gnss)
     if imu is None and gnss is None:
         raise CurbsideInputError(label, "export has neither a usable IMU (accelerometer + gyroscope) "
                                  "nor Location.csv fixes")
