@@ -11,12 +11,14 @@ import re
 from pathlib import Path
 
 import numpy as np
+import pandas as pd
 import pytest
 import shapely
 
 from curbside.osmseg.build import build_map
+from curbside.osmseg.config import SegmentationConfig
 from curbside.osmseg.reader import read_osm_file
-from curbside.osmseg.streets import island_sides, side_buffers
+from curbside.osmseg.streets import carriageway_width, island_sides, side_buffers
 
 WORLD = Path(__file__).parent / "data" / "osm" / "world"
 ATLANTA = WORLD / "atlanta-roundabout.osm"
@@ -126,3 +128,21 @@ def test_a_road_with_a_number_and_no_name_is_called_by_its_number(tmp_path):
     assert was_barton.any()
     assert (streets[was_barton] == "A38").all()
     assert (streets[~was_barton].fillna("") == named["street"][~was_barton].fillna("")).all()
+
+
+def test_a_width_no_carriageway_has_is_ignored_with_a_warning(caplog):
+    # width="0.5 km" (a unit slip) drew a 500 m carriageway over the whole neighbourhood.
+    ways = pd.DataFrame([
+        {"osm_id": 7, "highway": "residential", "width": "0.5 km", "lanes": "2"},
+        {"osm_id": 8, "highway": "residential", "est_width": "1 mi"},
+        {"osm_id": 9, "highway": "primary", "width": "40"},
+    ])
+    config = SegmentationConfig()
+    with caplog.at_level("WARNING", logger="curbside.osmseg.streets"):
+        width, tagged = carriageway_width(ways, config)
+    lane, parking = config.lane_width_m, config.assumed_parking_width_m
+    assert width[0] == pytest.approx(2 * lane + 2 * parking)
+    assert width[1] == config.default_carriageway_width_m["residential"]
+    assert width[2] == 40.0
+    assert tagged.tolist() == [False, False, True]
+    assert "2 road way(s) tagged wider than 60 m (way 7: 500 m)" in caplog.text

@@ -55,6 +55,10 @@ class SegmentationConfig:
         that has no ``parking*`` tag (downtown streets mostly have curbside parking or loading lanes).
     min_carriageway_half_width_m
         Narrowest half carriageway after mapped sidewalks and building lines have capped it.
+    max_tagged_carriageway_width_m
+        A road's ``width`` or ``est_width`` above this is taken for a tagging error (a unit slip such as
+        ``width=0.5 km``, or a right-of-way width) and ignored with a warning: the width then comes from
+        ``lanes`` or the class default. Boulevards wider than this are mapped as several ways.
     cycle_lane_width_m
         Width of one painted cycle lane (``cycleway*=lane``).
     sidewalk_highways
@@ -90,6 +94,7 @@ class SegmentationConfig:
     parking_width_m: dict[str, float] = field(default_factory=_default_parking_widths)
     assumed_parking_width_m: float = 2.2
     min_carriageway_half_width_m: float = 1.5
+    max_tagged_carriageway_width_m: float = 60.0
     cycle_lane_width_m: float = 1.5
     sidewalk_highways: tuple[str, ...] = (
         "trunk", "trunk_link", "primary", "primary_link", "secondary", "secondary_link",
@@ -116,7 +121,7 @@ class SegmentationConfig:
         check("lane" in self.parking_width_m, "parking_width_m needs a 'lane' width")
         positive(self, "lane_width_m", "cycle_lane_width_m", "sidewalk_depth_m", "mapped_sidewalk_width_m",
                  "mapped_sidewalk_search_m", "crosswalk_width_m", "passage_width_m",
-                 "min_carriageway_half_width_m")
+                 "min_carriageway_half_width_m", "max_tagged_carriageway_width_m")
         non_negative(self, "assumed_parking_width_m", "min_sidewalk_width_m", "crosswalk_overlap_m",
                      "passage_island_area_m2", "passage_island_thickness_m", "min_polygon_area_m2")
         highways = self.sidewalk_highways

@@ -11,6 +11,7 @@ carriageway never swallows a mapped sidewalk.
 
 from __future__ import annotations
 
+import logging
 from dataclasses import dataclass
 
 import geopandas as gpd
@@ -21,6 +22,8 @@ import shapely
 from curbside.osmseg.config import SegmentationConfig
 from curbside.osmseg.overlay import polygons_only, quadtree_split, subtract
 from curbside.osmseg.tags import column, first_number, is_in, metres
+
+logger = logging.getLogger(__name__)
 
 #: ``service`` values of roads whose carriageway gives way to the sidewalks it crosses.
 MINOR_SERVICES = ("driveway", "parking_aisle", "drive-through")
@@ -173,6 +176,15 @@ def carriageway_width(
     tagged_width = metres(column(ways, "width"))
     est = metres(column(ways, "est_width"))
     tagged_width = np.where(np.isnan(tagged_width), est, tagged_width)
+    absurd = tagged_width > config.max_tagged_carriageway_width_m
+    if absurd.any():
+        first = np.flatnonzero(absurd)[0]
+        logger.warning(
+            "%d road way(s) tagged wider than %g m (way %s: %.0f m), taken for a tagging error: their "
+            "width comes from lanes or their class", int(absurd.sum()), config.max_tagged_carriageway_width_m,
+            column(ways, "osm_id").iloc[first], tagged_width[first],
+        )
+        tagged_width[absurd] = np.nan
     from_lanes = (
         _lanes(ways) * config.lane_width_m
         + _parking_width(ways, config)
