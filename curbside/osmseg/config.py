@@ -68,6 +68,10 @@ class SegmentationConfig:
         Depth of a derived sidewalk, curb to building line, where no building is closer.
     min_sidewalk_width_m
         Least sidewalk kept between a derived curb and the building line where no sidewalk is mapped.
+    max_median_width_m
+        Widest median (curb to curb) between the two one-way halves of a dual carriageway: the sides
+        of a divided road that face each other across it get no sidewalk
+        (:func:`curbside.osmseg.medians.median_sides`); 0 turns the rule off.
     mapped_sidewalk_width_m
         Width of a separately mapped sidewalk (``footway=sidewalk``) without a ``width`` tag.
     mapped_sidewalk_search_m
@@ -102,6 +106,7 @@ class SegmentationConfig:
     )  # fmt: skip
     sidewalk_depth_m: float = 5.0
     min_sidewalk_width_m: float = 2.5
+    max_median_width_m: float = 20.0
     mapped_sidewalk_width_m: float = 2.0
     mapped_sidewalk_search_m: float = 25.0
     crosswalk_width_m: float = 3.0
@@ -122,8 +127,9 @@ class SegmentationConfig:
         positive(self, "lane_width_m", "cycle_lane_width_m", "sidewalk_depth_m", "mapped_sidewalk_width_m",
                  "mapped_sidewalk_search_m", "crosswalk_width_m", "passage_width_m",
                  "min_carriageway_half_width_m", "max_tagged_carriageway_width_m")
-        non_negative(self, "assumed_parking_width_m", "min_sidewalk_width_m", "crosswalk_overlap_m",
-                     "passage_island_area_m2", "passage_island_thickness_m", "min_polygon_area_m2")
+        non_negative(self, "assumed_parking_width_m", "min_sidewalk_width_m", "max_median_width_m",
+                     "crosswalk_overlap_m", "passage_island_area_m2", "passage_island_thickness_m",
+                     "min_polygon_area_m2")
         highways = self.sidewalk_highways
         check(
             not isinstance(highways, str) and all(isinstance(h, str) for h in highways),

@@ -24,6 +24,7 @@ import pandas as pd
 import shapely
 
 from curbside.osmseg.config import SegmentationConfig
+from curbside.osmseg.medians import median_sides
 from curbside.osmseg.overlay import subtract
 from curbside.osmseg.streets import MINOR_SERVICES, node_keys, side_buffers, sidewalk_sides
 from curbside.osmseg.tags import column, is_in
@@ -228,7 +229,8 @@ def sidewalk_segments(
     )
     side = np.repeat(["left", "right"], len(lines))
     piece_of = np.tile(np.arange(len(lines)), 2)
-    present = np.concatenate([has_left[road], has_right[road]])
+    median_left, median_right = median_sides(lines, road, carrying, config.max_median_width_m)
+    present = np.concatenate([has_left[road] & ~median_left, has_right[road] & ~median_right])
     bands = shapely.intersection(bands[present], own[piece_of[present]])
     side, piece_of = side[present], piece_of[present]
     bands = subtract(bands, obstacles)
