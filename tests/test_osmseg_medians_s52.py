@@ -38,12 +38,15 @@ def divided_road(
     west: dict[str, str] | None = None,
     east_northward: bool = True,
     west_northward: bool = False,
+    building_between: bool = False,
 ) -> Path:
-    """Two one-way halves at x = +-gap_m / 2 (centrelines), cross streets at y = +-100 m."""
+    """Two one-way halves at x = +-gap_m / 2 (centrelines), cross streets at y = +-100 m; optionally
+    a building 6 m wide and 120 m long between them."""
     x = gap_m / 2
     corners = {1: (-x, -HALF_LENGTH_M), 2: (-x, HALF_LENGTH_M), 3: (x, -HALF_LENGTH_M), 4: (x, HALF_LENGTH_M),
                5: (-x - 120, -HALF_LENGTH_M), 6: (x + 120, -HALF_LENGTH_M), 7: (-x - 120, HALF_LENGTH_M),
-               8: (x + 120, HALF_LENGTH_M)}  # fmt: skip
+               8: (x + 120, HALF_LENGTH_M), 20: (-3, -60), 21: (3, -60), 22: (3, 60),
+               23: (-3, 60)}  # fmt: skip
     nodes = "".join(
         f'<node id="{i}" version="1" lat="{lat:.8f}" lon="{lon:.8f}"/>'
         for i, (lon, lat) in ((i, _lonlat(*xy)) for i, xy in corners.items())
@@ -61,6 +64,8 @@ def divided_road(
         way(12, [5, 1, 3, 6], cross),
         way(13, [7, 2, 4, 8], cross),
     ]
+    if building_between:
+        ways.append(way(14, [20, 21, 22, 23, 20], {"building": "yes"}))
     path.write_text(f'<?xml version="1.0"?><osm version="0.6">{nodes}{"".join(ways)}</osm>')
     return path
 
@@ -106,6 +111,13 @@ def test_the_median_of_a_divided_road_has_no_sidewalk(tmp_path, east_northward, 
     assert east > 0.9 * 160 * 5 and west_side > 0.9 * 160 * 5
     off = build_map(osm_file=path, config=SegmentationConfig(max_median_width_m=0.0))
     assert median_and_outside_m2(off, 20.0)[0] > 0.9 * 2 * 160 * 5  # the rule off: both bands back
+
+
+def test_a_street_split_round_a_row_of_buildings_keeps_its_inner_sidewalks(tmp_path):
+    path = divided_road(tmp_path / "split.osm", building_between=True)
+    median, _, _ = median_and_outside_m2(build_map(osm_file=path), 20.0)
+    # 3.5 m of sidewalk between each curb and the building, along its 120 m.
+    assert median > 0.8 * 2 * 120 * 3.5
 
 
 @pytest.mark.parametrize(

@@ -155,7 +155,9 @@ def derive_layers(osm: OsmData, config: SegmentationConfig | None = None) -> gpd
         walks = derive_crosswalks(osm.ways, osm.nodes, cways, config)
         walks = polygons_only(subtract(walks, blds), min_area)
         through = cways.surface[~cways.minor]
-        segments = sidewalk_segments(cways.roads, np.concatenate([through, blds, walks]), config=config)
+        segments = sidewalk_segments(
+            cways.roads, np.concatenate([through, blds, walks]), config=config, buildings=blds
+        )
         stages.update()
         # Sidewalks run on across driveways and parking-aisle mouths.
         minor = subtract(cways.surface[cways.minor], segments.geometry.values)

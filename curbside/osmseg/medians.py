@@ -48,14 +48,19 @@ def tagged_sides(roads: pd.DataFrame) -> tuple[np.ndarray, np.ndarray]:
 
 
 def median_sides(
-    lines: np.ndarray, road: np.ndarray, roads: pd.DataFrame, max_median_m: float
+    lines: np.ndarray,
+    road: np.ndarray,
+    roads: pd.DataFrame,
+    max_median_m: float,
+    buildings: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Which side of each piece of road faces the other half of its dual carriageway.
 
     At the middle of each piece of a one-way road, a line is drawn square to it on each side. That
     side is a median when the first road the line meets is one-way, has the same name (or ``ref``
-    when unnamed), carries traffic the opposite way (at least :data:`MIN_OPPOSITE_ANGLE_DEG` apart)
-    and its carriageway edge lies within ``max_median_m`` of this piece's. A side whose own tags
+    when unnamed), carries traffic the opposite way (at least :data:`MIN_OPPOSITE_ANGLE_DEG` apart),
+    its carriageway edge lies within ``max_median_m`` of this piece's, and no building stands between
+    the two (a street split round a row of buildings keeps its sidewalks there). A side whose own tags
     say it has a sidewalk (``sidewalk=both|left|right``, ``sidewalk:<side>=yes|separate``) is never
     a median. Left- and right-hand traffic need no setting: both sides are looked at.
 
@@ -70,6 +75,8 @@ def median_sides(
     max_median_m
         Widest median (m, curb to curb) still taken for one; South Park's oval (26 m of park between
         its two halves) is wider and keeps its inner sidewalk.
+    buildings
+        Building footprints (same CRS), or None.
 
     Returns
     -------
@@ -116,6 +123,10 @@ def median_sides(
         curb_gap = centre_gap - half[own_road[probe_i], column_index] - half[other].min(axis=1)
         median = is_oneway[other] & (names[other] == names[own_road[probe_i]]) & opposite
         median &= curb_gap <= max_median_m
+        if buildings is not None and len(buildings):
+            across = shapely.shortest_line(shapely.points(mid[probe_i]), lines[hit])
+            blocked = np.unique(shapely.STRtree(buildings).query(across, predicate="intersects")[0])
+            median[blocked] = False
         medians[candidates[probe_i[median]], column_index] = True
     tagged = np.column_stack([tag_left, tag_right])[road]
     medians &= ~tagged

@@ -180,6 +180,7 @@ def sidewalk_segments(
     obstacles: np.ndarray,
     min_area_m2: float = 2.0,
     config: SegmentationConfig | None = None,
+    buildings: np.ndarray | None = None,
 ) -> gpd.GeoDataFrame:
     """Sidewalk segments along the roads that carry sidewalks.
 
@@ -193,6 +194,8 @@ def sidewalk_segments(
         Smaller leftovers (corner slivers) are dropped.
     config
         Which streets carry sidewalks, how deep (default :class:`~curbside.osmseg.config.SegmentationConfig`).
+    buildings
+        Building footprints: a median (:func:`~curbside.osmseg.medians.median_sides`) has none.
 
     Returns
     -------
@@ -229,7 +232,7 @@ def sidewalk_segments(
     )
     side = np.repeat(["left", "right"], len(lines))
     piece_of = np.tile(np.arange(len(lines)), 2)
-    median_left, median_right = median_sides(lines, road, carrying, config.max_median_width_m)
+    median_left, median_right = median_sides(lines, road, carrying, config.max_median_width_m, buildings)
     present = np.concatenate([has_left[road] & ~median_left, has_right[road] & ~median_right])
     bands = shapely.intersection(bands[present], own[piece_of[present]])
     side, piece_of = side[present], piece_of[present]
