@@ -17,6 +17,7 @@ from curbside.osmseg.build import build_map
 from curbside.osmseg.config import SegmentationConfig
 from curbside.osmseg.mapio import MapLayers
 
+WORLD = Path(__file__).parent / "data" / "osm" / "world"
 LON0, LAT0 = -122.4000, 37.7900
 M_PER_DEG_LAT = 111_320.0
 M_PER_DEG_LON = 111_320.0 * np.cos(np.radians(LAT0))
@@ -137,25 +138,50 @@ def test_a_side_that_is_not_a_median_keeps_its_sidewalk(tmp_path, gap_m, east, w
     assert median > 0.9 * 160 * 5
 
 
+def removed_by_the_rule(**source) -> tuple[gpd.GeoDataFrame, gpd.GeoDataFrame]:
+    """The sidewalk segments built, and those the median rule removed (built with it off)."""
+    built = build_map(**source).gdf
+    off = build_map(**source, config=SegmentationConfig(max_median_width_m=0.0)).gdf
+    sidewalks = built[built["class"] == "sidewalk"]
+    off_sidewalks = off[off["class"] == "sidewalk"]
+    # The rule only removes: every segment built is one built without it, unchanged.
+    same = off_sidewalks.set_index("segment_id").geometry
+    for seg_id, polygon in zip(sidewalks["segment_id"], sidewalks.geometry.values, strict=True):
+        assert polygon.equals(same[seg_id])
+    return built, off_sidewalks[~off_sidewalks["segment_id"].isin(sidewalks["segment_id"])]
+
+
+def assert_on_the_median_side(built: gpd.GeoDataFrame, removed: gpd.GeoDataFrame, median_side: str) -> None:
+    """Every removed piece is on the side where the median lies for the traffic's hand (left where
+    traffic keeps right), and its way keeps the sidewalk on the other side."""
+    assert set(removed["side"]) == {median_side}
+    kept_ways = {seg_id.split("-")[0] for seg_id in built["segment_id"].dropna()}
+    assert {seg_id.split("-")[0] for seg_id in removed["segment_id"]} <= kept_ways
+
+
 def test_the_embarcadero_median_in_the_bundled_extract_has_no_sidewalk():
     # North of the Ferry Building the Embarcadero is two one-way ways with the F-line's tracks between them.
-    bbox = (-122.4000, 37.7955, -122.3950, 37.8015)
-    layers = build_map(bbox=bbox)
-    gdf = layers.gdf
-    sidewalks = gdf[gdf["class"] == "sidewalk"]
-    embarcadero = sidewalks[sidewalks["street"] == "The Embarcadero"]
-    assert len(embarcadero) >= 4
-    off = build_map(bbox=bbox, config=SegmentationConfig(max_median_width_m=0.0)).gdf
-    off_embarcadero = off[(off["class"] == "sidewalk") & (off["street"] == "The Embarcadero")]
-    # The rule removes the sidewalks that lay between the two halves, and only those.
-    gone = off_embarcadero[~off_embarcadero["segment_id"].isin(embarcadero["segment_id"])]
-    assert len(gone) >= 2
-    kept_ids = set(embarcadero["segment_id"])
-    assert kept_ids <= set(off_embarcadero["segment_id"])
-    roads = gdf.geometry.values[gdf["class"].to_numpy() == "street"]
-    for polygon in gone.geometry.values:
-        # Each removed piece has carriageway on both sides within a few metres: the median.
-        probe = shapely.buffer(polygon, 4.0)
-        assert shapely.area(shapely.intersection(probe, shapely.union_all(roads))) > 0.3 * shapely.area(
-            shapely.difference(probe, polygon)
-        )
+    built, removed = removed_by_the_rule(bbox=(-122.4000, 37.7955, -122.3950, 37.8015))
+    assert set(removed["street"]) == {"The Embarcadero"} and len(removed) >= 2
+    assert (built["street"] == "The Embarcadero").sum() >= 4  # its outer sides keep theirs
+    assert_on_the_median_side(built, removed, "left")
+
+
+def test_dual_carriageways_where_traffic_keeps_left():
+    # Bristol, round St James' Barton: one-way trunk and primary pairs (real OSM, tests/data/osm/world).
+    built, removed = removed_by_the_rule(osm_file=WORLD / "bristol-st-james-barton.osm")
+    assert set(removed["street"]) == {"Bond Street", "The Haymarket", "North Street", "Marlborough Street"}
+    assert len(removed) >= 8
+    assert_on_the_median_side(built, removed, "right")
+    # The roundabout, whose island sides were already bare, keeps every other sidewalk.
+    assert (built["street"] == "St James' Barton").sum() > 0
+
+
+def test_a_piece_whose_halves_part_near_one_end_keeps_its_outer_sidewalk():
+    # Braunschweig, Celler Straße (real OSM): the northbound half w501406799 runs on for 120 m
+    # alone; only near its south end does a square line meet the southbound half. Two of the three
+    # lines must meet it, so its west sidewalk stays (one line would have removed 600 m^2).
+    built, removed = removed_by_the_rule(osm_file=WORLD / "braunschweig-celler-strasse.osm")
+    assert "w501406799-0-L" in set(built["segment_id"])
+    assert set(removed["street"]) == {"Celler Straße"} and len(removed) == 3
+    assert_on_the_median_side(built, removed, "left")

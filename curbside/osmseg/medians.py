@@ -11,6 +11,8 @@ then free space, like a traffic island.
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 import pandas as pd
 import shapely
@@ -22,6 +24,11 @@ ONEWAY_FORWARD = ("yes", "1", "true")
 ONEWAY_BACKWARD = ("-1", "reverse")
 #: Least angle (deg) between two ways' directions of travel for them to count as opposite halves.
 MIN_OPPOSITE_ANGLE_DEG = 150.0
+#: Where along each piece (fractions of its length) the square lines are drawn, and how many of them
+#: must meet the other half: two of three, so that a piece whose halves meet or part near one end
+#: (the wedge of a splitter island) is judged on the rest of it.
+PROBE_FRACTIONS = (0.25, 0.5, 0.75)
+MIN_PROBES_ACROSS = 2
 #: Tag values that say a side has a sidewalk of its own (then the mapper's word is kept).
 _HAS_SIDEWALK = ("yes", "separate")
 
@@ -56,12 +63,12 @@ def median_sides(
 ) -> tuple[np.ndarray, np.ndarray]:
     """Which side of each piece of road faces the other half of its dual carriageway.
 
-    At the middle of each piece of a one-way road, a line is drawn square to it on each side. That
-    side is a median when the first road the line meets is one-way, has the same name (or ``ref``
-    when unnamed), carries traffic the opposite way (at least :data:`MIN_OPPOSITE_ANGLE_DEG` apart),
-    its carriageway edge lies within ``max_median_m`` of this piece's, and no building stands between
-    the two (a street split round a row of buildings keeps its sidewalks there). A side whose own tags
-    say it has a sidewalk (``sidewalk=both|left|right``, ``sidewalk:<side>=yes|separate``) is never
+    At a quarter, half and three quarters of the way along each piece of a one-way road, a line is
+    drawn square to it on each side. That side is a median when, for two of the three, the first
+    road the line meets is one-way, has the same name (or ``ref`` when unnamed), carries traffic the
+    opposite way (at least :data:`MIN_OPPOSITE_ANGLE_DEG` apart), its carriageway edge lies within
+    ``max_median_m`` of this piece's, and no building stands between the two (a street split round a
+    row of buildings keeps its sidewalks there). A side whose own tags say it has a sidewalk (``sidewalk=both|left|right``, ``sidewalk:<side>=yes|separate``) is never
     a median. Left- and right-hand traffic need no setting: both sides are looked at.
 
     Parameters
@@ -84,50 +91,78 @@ def median_sides(
         Boolean masks over the pieces: left side is a median, right side is a median.
     """
     oneway = column(roads, "oneway")
-    travel = np.where(is_in(oneway, ONEWAY_BACKWARD), -1.0, 1.0)
-    is_oneway = is_in(oneway, ONEWAY_FORWARD + ONEWAY_BACKWARD)
-    names = column(roads, "name").fillna(column(roads, "ref")).to_numpy()
-    half = roads[["half_left_m", "half_right_m"]].to_numpy()
-    tag_left, tag_right = tagged_sides(roads)
+    facts = _RoadFacts(
+        lines=lines,
+        road=road,
+        travel=np.where(is_in(oneway, ONEWAY_BACKWARD), -1.0, 1.0),
+        is_oneway=is_in(oneway, ONEWAY_FORWARD + ONEWAY_BACKWARD),
+        names=column(roads, "name").fillna(column(roads, "ref")).to_numpy(),
+        half=roads[["half_left_m", "half_right_m"]].to_numpy(),
+        tree=shapely.STRtree(lines),
+        buildings=None if buildings is None or not len(buildings) else shapely.STRtree(buildings),
+    )
     medians = np.zeros((len(lines), 2), dtype=bool)
-    candidates = np.flatnonzero(is_oneway[road] & pd.notna(names[road]))
-    if len(candidates) == 0 or max_median_m <= 0:
-        return medians[:, 0], medians[:, 1]
-    cand_lines = lines[candidates]
-    mid_m = shapely.length(cand_lines) / 2
-    mid = shapely.get_coordinates(shapely.line_interpolate_point(cand_lines, mid_m))
-    tangent = _directions(cand_lines, mid_m)
-    left_normal = np.column_stack([-tangent[:, 1], tangent[:, 0]])
-    own_road = road[candidates]
-    tree = shapely.STRtree(lines)
-    for column_index, sign in ((0, 1.0), (1, -1.0)):
-        reach = half[own_road, column_index] + max_median_m + half.max()
-        start = mid + sign * left_normal * (half[own_road, column_index] + 0.1)[:, None]
-        end = mid + sign * left_normal * reach[:, None]
-        probes = shapely.linestrings(np.stack([start, end], axis=1))
-        probe_i, hit = tree.query(probes, predicate="intersects")
-        keep = road[hit] != own_road[probe_i]
-        probe_i, hit = probe_i[keep], hit[keep]
-        # The first road each probe meets: the nearest hit along the probe.
-        near = shapely.distance(shapely.points(start[probe_i]), lines[hit])
-        order = np.lexsort((near, probe_i))
-        probe_i, hit, near = probe_i[order], hit[order], near[order]
-        first = np.r_[True, probe_i[1:] != probe_i[:-1]][: len(probe_i)]
-        probe_i, hit = probe_i[first], hit[first]
-        other = road[hit]
-        centre_gap = shapely.distance(shapely.points(mid[probe_i]), lines[hit])
-        at = shapely.line_locate_point(lines[hit], shapely.points(mid[probe_i]))
-        their_way = _directions(lines[hit], at) * travel[other][:, None]
-        our_way = tangent[probe_i] * travel[own_road[probe_i]][:, None]
-        opposite = np.einsum("ij,ij->i", our_way, their_way) <= np.cos(np.radians(MIN_OPPOSITE_ANGLE_DEG))
-        curb_gap = centre_gap - half[own_road[probe_i], column_index] - half[other].min(axis=1)
-        median = is_oneway[other] & (names[other] == names[own_road[probe_i]]) & opposite
-        median &= curb_gap <= max_median_m
-        if buildings is not None and len(buildings):
-            across = shapely.shortest_line(shapely.points(mid[probe_i]), lines[hit])
-            blocked = np.unique(shapely.STRtree(buildings).query(across, predicate="intersects")[0])
-            median[blocked] = False
-        medians[candidates[probe_i[median]], column_index] = True
-    tagged = np.column_stack([tag_left, tag_right])[road]
-    medians &= ~tagged
+    candidates = np.flatnonzero(facts.is_oneway[road] & pd.notna(facts.names[road]))
+    if len(candidates) and max_median_m > 0:
+        piece = np.repeat(candidates, len(PROBE_FRACTIONS))
+        at_m = shapely.length(lines[piece]) * np.tile(PROBE_FRACTIONS, len(candidates))
+        for column_index in (0, 1):
+            faces = _faces_other_half(facts, piece, at_m, column_index, max_median_m)
+            votes = np.bincount(piece[faces], minlength=len(lines))
+            medians[:, column_index] = votes >= MIN_PROBES_ACROSS
+    tag_left, tag_right = tagged_sides(roads)
+    medians &= ~np.column_stack([tag_left, tag_right])[road]
     return medians[:, 0], medians[:, 1]
+
+
+@dataclass(frozen=True)
+class _RoadFacts:
+    """What the probes read: the pieces, their roads' direction of travel, names and half-widths."""
+
+    lines: np.ndarray
+    road: np.ndarray
+    travel: np.ndarray
+    is_oneway: np.ndarray
+    names: np.ndarray
+    half: np.ndarray
+    tree: shapely.STRtree
+    buildings: shapely.STRtree | None
+
+
+def _faces_other_half(
+    facts: _RoadFacts, piece: np.ndarray, at_m: np.ndarray, column_index: int, max_median_m: float
+) -> np.ndarray:
+    """For each probe (``piece``, ``at_m`` along it), whether the line square to it on the side
+    ``column_index`` (0 left, 1 right) meets the other half of its dual carriageway first."""
+    lines, road, half = facts.lines, facts.road, facts.half
+    origin = shapely.get_coordinates(shapely.line_interpolate_point(lines[piece], at_m))
+    tangent = _directions(lines[piece], at_m)
+    outward = np.column_stack([-tangent[:, 1], tangent[:, 0]]) * (1.0 if column_index == 0 else -1.0)
+    own_road = road[piece]
+    own_half = half[own_road, column_index]
+    start = origin + outward * (own_half + 0.1)[:, None]
+    end = origin + outward * (own_half + max_median_m + half.max())[:, None]
+    probes = shapely.linestrings(np.stack([start, end], axis=1))
+    probe_i, hit = facts.tree.query(probes, predicate="intersects")
+    keep = road[hit] != own_road[probe_i]
+    probe_i, hit = probe_i[keep], hit[keep]
+    # The first road each probe meets: the nearest hit along the probe.
+    order = np.lexsort((shapely.distance(shapely.points(start[probe_i]), lines[hit]), probe_i))
+    probe_i, hit = probe_i[order], hit[order]
+    first = np.r_[True, probe_i[1:] != probe_i[:-1]][: len(probe_i)]
+    probe_i, hit = probe_i[first], hit[first]
+    other, at_origin = road[hit], shapely.points(origin[probe_i])
+    their_at_m = shapely.line_locate_point(lines[hit], at_origin)
+    their_way = _directions(lines[hit], their_at_m) * facts.travel[other][:, None]
+    our_way = tangent[probe_i] * facts.travel[own_road[probe_i]][:, None]
+    opposite = np.einsum("ij,ij->i", our_way, their_way) <= np.cos(np.radians(MIN_OPPOSITE_ANGLE_DEG))
+    curb_gap = shapely.distance(at_origin, lines[hit]) - own_half[probe_i] - half[other].min(axis=1)
+    same_road = facts.is_oneway[other] & (facts.names[other] == facts.names[own_road[probe_i]])
+    faces = same_road & opposite & (curb_gap <= max_median_m)
+    if facts.buildings is not None:
+        across = shapely.shortest_line(at_origin, lines[hit])
+        blocked = facts.buildings.query(across, predicate="intersects")[0]
+        faces[np.unique(blocked)] = False
+    out = np.zeros(len(piece), dtype=bool)
+    out[probe_i[faces]] = True
+    return out
