@@ -10,7 +10,7 @@ from typing import TYPE_CHECKING
 from curbside import settings
 from curbside.cli.common import OVERWRITE_FILE_HELP, set_overrides
 from curbside.errors import CurbsideInputError
-from curbside.osmseg.config import READ_MARGIN_M, UNMARKED_CHOICES, SegmentationConfig
+from curbside.osmseg.config import LOCALISED_NAME, READ_MARGIN_M, UNMARKED_CHOICES, SegmentationConfig
 
 if TYPE_CHECKING:
     from curbside.osmseg.mapio import MapLayers
@@ -80,6 +80,12 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         help="what unmarked crossings become (default: %(default)s)",
     )
     p.add_argument(
+        "--name-tag",
+        metavar="TAG",
+        help="name streets from this OSM tag where a way has it, e.g. name:en or name:zh (a sidewalk's "
+        "street, as spoken: 'Stockton Street' or '市德頓街'); elsewhere from name, then ref",
+    )
+    p.add_argument(
         "--set",
         action="append",
         default=[],
@@ -146,9 +152,14 @@ def _checked_config(args: argparse.Namespace) -> SegmentationConfig:
 
     check_map_name(args.output)
     check_output_file(args.output, args.overwrite, inputs=(args.osm,) if args.osm else ())
-    config = with_overrides(
-        SegmentationConfig(unmarked_crossing_as=args.unmarked_as), set_overrides(args.set)
-    )
+    names = SegmentationConfig.street_name_keys
+    if args.name_tag is not None:
+        if not LOCALISED_NAME.fullmatch(args.name_tag):
+            advice = "give name:<language>, e.g. name:en or name:zh"
+            raise CurbsideInputError("--name-tag", f"{args.name_tag!r} is not a name tag: {advice}")
+        names = (args.name_tag, *names)
+    config = SegmentationConfig(unmarked_crossing_as=args.unmarked_as, street_name_keys=names)
+    config = with_overrides(config, set_overrides(args.set))
     if args.bbox:
         check_bbox(args.bbox)
     if args.osm:

@@ -7,10 +7,14 @@ stage and written whole into the map's metadata (``params``), so a map says whic
 
 from __future__ import annotations
 
+import re
 from dataclasses import dataclass, field
 
 from curbside.configio import check, non_negative, positive, require
 
+#: Street names in a language (``name:en``, ``name:zh``, ``name:zh-Hant``): the reader keeps these of
+#: highway ways too, so that a map can name its streets in the walker's language.
+LOCALISED_NAME = re.compile(r"name:[a-z]{2,3}(?:-[A-Za-z]{2,8})*")
 #: What an unmarked crossing (``crossing=unmarked``, ``crossing:markings=no``) may become.
 UNMARKED_CHOICES = ("crosswalk", "street")
 #: Elements this far (m) outside the area to build are still read, so that sidewalks, crosswalks and
@@ -20,6 +24,10 @@ READ_MARGIN_M = 60.0
 
 def _positive_number(value: object) -> bool:
     return isinstance(value, int | float) and not isinstance(value, bool) and value > 0
+
+
+def _is_name_key(key: object) -> bool:
+    return isinstance(key, str) and (key in ("name", "ref") or LOCALISED_NAME.fullmatch(key) is not None)
 
 
 def _default_carriageway_widths() -> dict[str, float]:
@@ -68,6 +76,10 @@ class SegmentationConfig:
         Depth of a derived sidewalk, curb to building line, where no building is closer.
     min_sidewalk_width_m
         Least sidewalk kept between a derived curb and the building line where no sidewalk is mapped.
+    street_name_keys
+        The tags a sidewalk segment's ``street`` is read from, in order of preference: ``name``, ``ref``
+        and ``name:<language>`` (``("name:zh", "name", "ref")`` names San Francisco's Chinatown streets
+        in Chinese where OSM has it, in English elsewhere). ``osmseg build --name-tag`` sets it.
     max_median_width_m
         Widest median (curb to curb) between the two one-way halves of a dual carriageway: the sides
         of a divided road that face each other across it get no sidewalk
@@ -107,6 +119,7 @@ class SegmentationConfig:
     sidewalk_depth_m: float = 5.0
     min_sidewalk_width_m: float = 2.5
     max_median_width_m: float = 20.0
+    street_name_keys: tuple[str, ...] = ("name", "ref")
     mapped_sidewalk_width_m: float = 2.0
     mapped_sidewalk_search_m: float = 25.0
     crosswalk_width_m: float = 3.0
@@ -134,6 +147,12 @@ class SegmentationConfig:
         check(
             not isinstance(highways, str) and all(isinstance(h, str) for h in highways),
             f"sidewalk_highways must be highway class names, got {highways!r}",
+        )
+        names = self.street_name_keys
+        check(
+            not isinstance(names, str) and len(names) > 0 and all(map(_is_name_key, names)),
+            "street_name_keys must be OSM name tags (name, ref, name:<language> such as name:en), "
+            f"got {names!r}",
         )
         check(
             self.unmarked_crossing_as in UNMARKED_CHOICES,

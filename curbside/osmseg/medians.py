@@ -68,8 +68,9 @@ def median_sides(
     road the line meets is one-way, has the same name (or ``ref`` when unnamed), carries traffic the
     opposite way (at least :data:`MIN_OPPOSITE_ANGLE_DEG` apart), its carriageway edge lies within
     ``max_median_m`` of this piece's, and no building stands between the two (a street split round a
-    row of buildings keeps its sidewalks there). A side whose own tags say it has a sidewalk (``sidewalk=both|left|right``, ``sidewalk:<side>=yes|separate``) is never
-    a median. Left- and right-hand traffic need no setting: both sides are looked at.
+    row of buildings keeps its sidewalks there). A side whose own tags say it has a sidewalk
+    (``sidewalk=both|left|right``, ``sidewalk:<side>=yes|separate``) is never a median. Left- and
+    right-hand traffic need no setting: both sides are looked at.
 
     Parameters
     ----------

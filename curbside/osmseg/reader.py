@@ -27,6 +27,7 @@ from pyproj import CRS
 from curbside.errors import CurbsideInputError
 from curbside.osmseg.areas import DroppedBuildings, Reason, multipolygon_areas
 from curbside.osmseg.clipped import ADVICE, MissingNodes, agreed_area, closed_rings
+from curbside.osmseg.config import LOCALISED_NAME
 from curbside.osmseg.inputs import check_osm_file
 from curbside.projection import LocalFrame
 
@@ -96,10 +97,12 @@ class OsmData:
 
 
 def tag_table(records: list[dict[str, str]]) -> pd.DataFrame:
-    """One column per :data:`TAG_KEYS` entry from tag dicts (missing tags are None)."""
+    """One column per :data:`TAG_KEYS` entry from tag dicts (missing tags are None), and one per
+    other key the dicts hold (the :data:`~curbside.osmseg.config.LOCALISED_NAME` tags of highways)."""
     if not records:
         return pd.DataFrame({k: pd.Series([], dtype=object) for k in TAG_KEYS})
-    df = pd.DataFrame.from_records(records, columns=list(TAG_KEYS)).astype(object)
+    others = sorted({k for record in records for k in record} - set(TAG_KEYS))
+    df = pd.DataFrame.from_records(records, columns=[*TAG_KEYS, *others]).astype(object)
     return df.where(df.notna(), None)
 
 
@@ -412,7 +415,7 @@ def _add_way(
         if "building" not in way.tags and not highway:  # else counted below
             out.missing.members += lacks_nodes
     if highway:
-        way_tags = {t.k: t.v for t in way.tags if t.k in TAG_KEYS}
+        way_tags = {t.k: t.v for t in way.tags if t.k in TAG_KEYS or LOCALISED_NAME.fullmatch(t.k)}
         out.missing.highways += lacks_nodes
         for run in _known_runs(locations):
             out.way_ids.append(way.id)

@@ -248,8 +248,7 @@ def sidewalk_segments(
     segment_id = _segment_ids(
         pd.DataFrame({"osm_id": osm_id, "row": way_row, "side": side[part_of], "k": k, "along": along})
     )
-    # A road with a number but no name (A38, B 19) is called by its number, as its signs say.
-    names = column(carrying, "name").fillna(column(carrying, "ref")).to_numpy()[way_row]
+    names = street_names(carrying, config.street_name_keys)[way_row]
     facing = facing_bearings_deg(parts, lines[piece], side[part_of])
     return gpd.GeoDataFrame(
         {"segment_id": segment_id, "street": names, "side": side[part_of], "facing_deg": facing,
@@ -257,6 +256,28 @@ def sidewalk_segments(
         geometry=shapely.make_valid(parts),
         crs=roads.crs,
     )
+
+
+def street_names(roads: pd.DataFrame, keys: tuple[str, ...] = ("name", "ref")) -> np.ndarray:
+    """Each road's name: the first of the tags ``keys`` it has (None if none).
+
+    With the default a road with a number but no name (A38, B 19) is called by its number, as its
+    signs say; ``("name:en", "name", "ref")`` prefers English where OSM has it. A value of nothing but
+    question marks (``???``: text an export step could not encode, as in the bundled extract's
+    ``name:zh``) counts as absent, with a warning.
+    """
+    names = pd.Series([None] * len(roads), index=roads.index, dtype=object)
+    for key in keys:
+        values = column(roads, key)
+        lost = values.str.fullmatch(r"[?\s]+").fillna(False).astype(bool) if values.notna().any() else None
+        if lost is not None and lost.any():
+            log.warning(
+                "%d way(s) have %s=%r and the like: text lost to an encoding step before the file was "
+                "written; read as absent", int(lost.sum()), key, values[lost].iloc[0],
+            )
+            values = values.where(~lost, None)
+        names = names.fillna(values)
+    return names.to_numpy(dtype=object)
 
 
 def facing_bearings_deg(parts: np.ndarray, centrelines: np.ndarray, sides: np.ndarray) -> np.ndarray:
