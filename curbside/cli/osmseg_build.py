@@ -82,8 +82,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument(
         "--name-tag",
         metavar="TAG",
-        help="name streets from this OSM tag where a way has it, e.g. name:en or name:zh (a sidewalk's "
-        "street, as spoken: 'Stockton Street' or '市德頓街'); elsewhere from name, then ref",
+        help="name streets from this OSM tag where a way has it, e.g. name:nl in Brussels ('Wetstraat' for "
+        "'Rue de la Loi': a sidewalk's street, as localize speaks it); elsewhere from name, then ref",
     )
     p.add_argument(
         "--set",

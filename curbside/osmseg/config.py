@@ -78,8 +78,8 @@ class SegmentationConfig:
         Least sidewalk kept between a derived curb and the building line where no sidewalk is mapped.
     street_name_keys
         The tags a sidewalk segment's ``street`` is read from, in order of preference: ``name``, ``ref``
-        and ``name:<language>`` (``("name:zh", "name", "ref")`` names San Francisco's Chinatown streets
-        in Chinese where OSM has it, in English elsewhere). ``osmseg build --name-tag`` sets it.
+        and ``name:<language>`` (``("name:nl", "name", "ref")`` names Brussels' streets in Dutch where
+        OSM has it, by their ``name`` elsewhere). ``osmseg build --name-tag`` sets it.
     max_median_width_m
         Widest median (curb to curb) between the two one-way halves of a dual carriageway: the sides
         of a divided road that face each other across it get no sidewalk

@@ -3,8 +3,8 @@
 OpenStreetMap draws a divided road as two one-way ways of the same name, one per direction, with
 the median (planted strip, transit platforms, cable-car tracks) between them. A sidewalk band on
 each side of each way would put two sidewalks in that median, where nobody walks along the street:
-in downtown San Francisco The Embarcadero, Market Street's boarding islands, Powell Street's
-cable-car tracks, Drumm, Broadway, King and Washington Streets. :func:`median_sides` finds those
+in downtown San Francisco The Embarcadero's streetcar tracks, Market Street's boarding islands and
+Drumm Street's median. :func:`median_sides` finds those
 sides so that :func:`curbside.osmseg.sidewalks.sidewalk_segments` leaves them out; the median is
 then free space, like a traffic island.
 """
