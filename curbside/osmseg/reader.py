@@ -25,7 +25,14 @@ import shapely
 from pyproj import CRS
 
 from curbside.errors import CurbsideInputError
-from curbside.osmseg.areas import DroppedBuildings, Reason, multipolygon_areas
+from curbside.osmseg.areas import (
+    DroppedBuildings,
+    Reason,
+    Surroundings,
+    multipolygon_areas,
+    open_outer_closures,
+    outside_buildings,
+)
 from curbside.osmseg.clipped import ADVICE, MissingNodes, agreed_area, closed_rings
 from curbside.osmseg.config import LOCALISED_NAME
 from curbside.osmseg.inputs import check_osm_file
@@ -262,14 +269,10 @@ def read_osm_file(
     frame = LocalFrame.around(*((every_xy.min(0) + every_xy.max(0)) / 2)) if bbox is None else frame_for(bbox)
     way_xy = np.array(elements.way_coords, dtype=float).reshape(-1, 2)
     node_xy = np.array(elements.node_coords, dtype=float).reshape(-1, 2)
+    way_lines = _rings_or_lines(way_xy, elements.way_lens, frame, closed=False)
     data = OsmData(
-        ways=make_table(
-            elements.way_ids,
-            _rings_or_lines(way_xy, elements.way_lens, frame, closed=False),
-            elements.way_tags,
-            frame.crs,
-        ),
-        areas=_area_table(elements, members, rel_tags, frame),
+        ways=make_table(elements.way_ids, way_lines, elements.way_tags, frame.crs),
+        areas=_area_table(elements, (members, rel_tags), frame, way_lines, bounds),
         nodes=make_table(
             elements.node_ids,
             shapely.points(np.column_stack(frame.to_xy(*node_xy.T))),
@@ -287,14 +290,13 @@ def read_osm_file(
 
 def _area_table(
     elements: _Elements,
-    members: dict[int, list[tuple[int, str]]],
-    rel_tags: dict[int, dict[str, str]],
+    relations: tuple[dict[int, list[tuple[int, str]]], dict[int, dict[str, str]]],
     frame: LocalFrame,
+    way_lines: np.ndarray,
+    bounds: BBox | None,
 ) -> gpd.GeoDataFrame:
-    """Building areas: whole rings, then rings cut by the bounds, then multipolygon relations."""
-    rel_ids, rel_tags, rel_polys = _assemble_relations(
-        members, rel_tags, elements.member_runs, frame, elements.dropped
-    )
+    """Building areas: whole rings, then rings cut by the bounds, then multipolygon relations
+    (``relations``: member ways' uses and relations' tags, from :func:`_building_relations`)."""
     area_xy = np.array(elements.area_coords, dtype=float).reshape(-1, 2)
     whole = _rings_or_lines(area_xy, elements.area_lens, frame, closed=True)
     closures = []
@@ -306,6 +308,12 @@ def _area_table(
     kept = ~shapely.is_empty(cut_polys)
     if not kept.all():
         elements.missing.drop("no area that both guesses agree on", int((~kept).sum()))
+    around = None
+    if bounds is not None:
+        taken = np.concatenate([whole, cut_polys[kept]])
+        streets = way_lines[outside_buildings(elements.way_tags)]
+        around = Surroundings(bbox_polygon(bounds, frame.crs), taken, streets)
+    rel_ids, rel_tags, rel_polys = _assemble_relations(*relations, elements, frame, around)
     return make_table(
         elements.area_ids + [i for i, k in zip(elements.cut_ids, kept, strict=True) if k] + rel_ids,
         np.concatenate([whole, cut_polys[kept], rel_polys]),
@@ -363,9 +371,10 @@ class _Elements:
     cut_rings: list[tuple[list[tuple[float, float]], list[tuple[float, float]]]] = field(default_factory=list)
 
     def coords(self) -> list[tuple[float, float]]:
-        """Every (lon, lat) read."""
+        """Every (lon, lat) read, building relations' member ways included."""
         cut = [c for pair in self.cut_rings for c in pair[0]]
-        return self.way_coords + self.area_coords + self.node_coords + cut
+        members = [c for runs in self.member_runs.values() for run in runs for c in run]
+        return self.way_coords + self.area_coords + self.node_coords + cut + members
 
 
 def _read_elements(
@@ -533,16 +542,20 @@ def _header_bounds(header: osmium.io.Header) -> BBox | None:
 def _assemble_relations(
     members: dict[int, list[tuple[int, str]]],
     rel_tags: dict[int, dict[str, str]],
-    member_runs: dict[int, list[list[tuple[float, float]]]],
+    elements: _Elements,
     frame: LocalFrame,
-    dropped: DroppedBuildings,
+    around: Surroundings | None,
 ) -> tuple[list[str], list[dict[str, str]], np.ndarray]:
     """Polygons of building multipolygon relations: polygonized outer ways minus inner ways.
 
-    Members the file lacks are skipped; a relation that gives no polygon (no member in the file,
-    outer ways that close no ring, inner rings that cover it all) is counted in ``dropped``.
+    Members the file lacks are skipped. Where the outer ways close no ring and the file declares
+    bounds (``around``), the part inside them that one open outer chain shows is the building
+    (:func:`~curbside.osmseg.areas.open_outer_closures`). A relation that gives no polygon (no member
+    in the file, outer ways that close no ring, inner rings that cover it all) is counted in
+    ``elements.dropped``.
     """
-    runs = [(w, run) for w in members for run in member_runs.get(w, ())]
+    dropped = elements.dropped
+    runs = [(w, run) for w in members for run in elements.member_runs.get(w, ())]
     uses = [(i, rel_id, role == "inner") for i, (w, _) in enumerate(runs) for rel_id, role in members[w]]
     used = {rel_id for _, rel_id, _ in uses}
     dropped.add(Reason.NO_MEMBERS, [f"r{r}" for r in rel_tags if r not in used])
@@ -553,6 +566,12 @@ def _assemble_relations(
     line_i, rel_of, inner = (np.array(v) for v in zip(*uses, strict=True))
     rel_ids, rel_row = np.unique(rel_of, return_inverse=True)
     outer, polys = multipolygon_areas(lines[line_i], rel_row, inner, len(rel_ids))
+    if around is not None and shapely.is_empty(outer).any():
+        extra = open_outer_closures(lines[line_i], rel_row, inner, len(rel_ids), around)
+        closed = ~shapely.is_empty(extra)
+        log.info("%d building relations closed along the file's bounds", int(closed.sum()))
+        if closed.any():
+            outer, polys = multipolygon_areas(lines[line_i], rel_row, inner, len(rel_ids), extra)
     keep = ~shapely.is_empty(polys)
     open_outer = shapely.is_empty(outer)
     for reason, lost in ((Reason.OPEN_OUTER, ~keep & open_outer), (Reason.INNER_COVERS, ~keep & ~open_outer)):

@@ -224,12 +224,7 @@ def sidewalk_segments(
     # territories then split the overlap.
     road_row = np.flatnonzero(carrying_mask)[road]
     reach = extend_shared_ends(lines, np.maximum(reach_left, reach_right), roads.geometry.values, road_row)
-    bands = np.concatenate(
-        [
-            side_buffers(reach, reach_left),
-            side_buffers(reach, -reach_right),
-        ]
-    )
+    bands = np.concatenate([side_buffers(reach, reach_left), side_buffers(reach, -reach_right)])
     side = np.repeat(["left", "right"], len(lines))
     piece_of = np.tile(np.arange(len(lines)), 2)
     median_left, median_right = median_sides(lines, road, carrying, config.max_median_width_m, buildings)
