@@ -569,8 +569,8 @@ def _assemble_relations(
     if around is not None and shapely.is_empty(outer).any():
         extra = open_outer_closures(lines[line_i], rel_row, inner, len(rel_ids), around)
         closed = ~shapely.is_empty(extra)
-        log.info("%d building relations closed along the file's bounds", int(closed.sum()))
         if closed.any():
+            log.info("%d building relations closed along the file's bounds", int(closed.sum()))
             outer, polys = multipolygon_areas(lines[line_i], rel_row, inner, len(rel_ids), extra)
     keep = ~shapely.is_empty(polys)
     open_outer = shapely.is_empty(outer)
