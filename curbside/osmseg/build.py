@@ -156,7 +156,8 @@ def derive_layers(osm: OsmData, config: SegmentationConfig | None = None) -> gpd
         walks = polygons_only(subtract(walks, blds), min_area)
         through = cways.surface[~cways.minor]
         segments = sidewalk_segments(
-            cways.roads, np.concatenate([through, blds, walks]), config=config, buildings=blds
+            cways.roads, np.concatenate([through, blds, walks]), config=config, buildings=blds,
+            mapped=cways.sidewalks,
         )
         stages.update()
         # Sidewalks run on across driveways and parking-aisle mouths.

@@ -73,7 +73,8 @@ class SegmentationConfig:
         ``highway`` classes whose sidewalks become ``sidewalk`` segments (motorways, service roads and
         busways have none).
     sidewalk_depth_m
-        Depth of a derived sidewalk, curb to building line, where no building is closer.
+        Depth of a derived sidewalk, curb to building line, where no building is closer and no
+        separately mapped sidewalk lies further out (the segment then reaches its far edge).
     min_sidewalk_width_m
         Least sidewalk kept between a derived curb and the building line where no sidewalk is mapped.
     street_name_keys
@@ -88,7 +89,7 @@ class SegmentationConfig:
         Width of a separately mapped sidewalk (``footway=sidewalk``) without a ``width`` tag.
     mapped_sidewalk_search_m
         How far from a road's centreline a mapped sidewalk (or a building) may lie and still set that
-        side's curb.
+        side's curb, or widen that side's sidewalk segment out to it.
     crosswalk_width_m
         Width of a crosswalk without a ``width`` tag (US crosswalks: 3 m / 10 ft).
     crosswalk_overlap_m

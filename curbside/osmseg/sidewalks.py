@@ -26,10 +26,13 @@ import shapely
 from curbside.osmseg.config import SegmentationConfig
 from curbside.osmseg.medians import median_sides
 from curbside.osmseg.overlay import subtract
-from curbside.osmseg.streets import MINOR_SERVICES, node_keys, side_buffers, sidewalk_sides
+from curbside.osmseg.streets import MINOR_SERVICES, node_keys, side_buffers, side_distances, sidewalk_sides
 from curbside.osmseg.tags import column, is_in
 
 log = logging.getLogger(__name__)
+
+#: A band part beyond the usual depth is kept when it shares this much (m^2) with the usual band.
+_MIN_REACH_OVERLAP_M2 = 0.1
 
 
 def split_at_junctions(roads: gpd.GeoDataFrame, block_ends: np.ndarray) -> gpd.GeoDataFrame:
@@ -175,12 +178,51 @@ def extend_shared_ends(
     return shapely.linestrings(out_xy, indices=np.repeat(np.arange(len(lines)), n + 2))
 
 
+def mapped_far_edges_m(
+    lines: np.ndarray,
+    mapped: gpd.GeoDataFrame | None,
+    search_m: float,
+    blockers: np.ndarray | None = None,
+    own_blocker: np.ndarray | None = None,
+) -> np.ndarray:
+    """How far from each block's centreline the far edge of the mapped sidewalk beside it lies.
+
+    Parameters
+    ----------
+    lines
+        Block centrelines in a metric CRS.
+    mapped
+        Separately mapped sidewalks with ``width_m``
+        (:func:`~curbside.osmseg.streets.mapped_sidewalks`), or None.
+    search_m
+        Sidewalks further than this from the centreline are not the block's.
+    blockers, own_blocker
+        Buildings and other roads: a sidewalk behind one is not the block's
+        (:func:`~curbside.osmseg.streets.side_distances`).
+
+    Returns
+    -------
+    numpy.ndarray
+        Shape (n, 2), metres to the left and right: the median over rays square to the block of the
+        distance to the nearest sidewalk running within about 25 degrees of parallel, plus half its
+        width; NaN where none is met.
+    """
+    if mapped is None or len(mapped) == 0:
+        return np.full((len(lines), 2), np.nan)
+    setback = -mapped["width_m"].to_numpy() / 2
+    return side_distances(
+        lines, mapped.geometry.values, setback, search_m, parallel_only=True, blockers=blockers,
+        own_blocker=own_blocker, min_hit_share=0.5,
+    )
+
+
 def sidewalk_segments(
     roads: gpd.GeoDataFrame,
     obstacles: np.ndarray,
     min_area_m2: float = 2.0,
     config: SegmentationConfig | None = None,
     buildings: np.ndarray | None = None,
+    mapped: gpd.GeoDataFrame | None = None,
 ) -> gpd.GeoDataFrame:
     """Sidewalk segments along the roads that carry sidewalks.
 
@@ -196,6 +238,11 @@ def sidewalk_segments(
         Which streets carry sidewalks, how deep (default :class:`~curbside.osmseg.config.SegmentationConfig`).
     buildings
         Building footprints: a median (:func:`~curbside.osmseg.medians.median_sides`) has none.
+    mapped
+        Separately mapped sidewalks (:attr:`curbside.osmseg.streets.Carriageways.sidewalks`): where
+        the one beside a block lies beyond the curb plus ``sidewalk_depth_m``, that side's band
+        reaches out to its far edge (:func:`mapped_far_edges_m`), short of buildings and other
+        carriageways.
 
     Returns
     -------
@@ -205,8 +252,7 @@ def sidewalk_segments(
         ``osm_id`` and geometry.
     """
     config = config or SegmentationConfig()
-    service = column(roads, "service")
-    block_end_mask = ~is_in(service, MINOR_SERVICES)
+    block_end_mask = ~is_in(column(roads, "service"), MINOR_SERVICES)
     carrying_mask = is_in(column(roads, "highway"), config.sidewalk_highways)
     carrying = roads[carrying_mask].reset_index(drop=True)
     if len(carrying) == 0:
@@ -216,25 +262,23 @@ def sidewalk_segments(
     lines = pieces.geometry.values
     road = pieces["road"].to_numpy()
     has_left, has_right = sidewalk_sides(carrying)
-    depth = config.sidewalk_depth_m
-    reach_left = carrying["half_left_m"].to_numpy()[road] + depth
-    reach_right = carrying["half_right_m"].to_numpy()[road] + depth
-    own = territories(lines)
-    # Bands run on past junction ends so that they also cover the outside of bends and corners; the
-    # territories then split the overlap.
+    half_m = np.column_stack([carrying["half_left_m"].to_numpy(), carrying["half_right_m"].to_numpy()])
+    base = half_m[road] + config.sidewalk_depth_m
     road_row = np.flatnonzero(carrying_mask)[road]
-    reach = extend_shared_ends(lines, np.maximum(reach_left, reach_right), roads.geometry.values, road_row)
-    bands = np.concatenate([side_buffers(reach, reach_left), side_buffers(reach, -reach_right)])
+    blockers = np.concatenate([roads.geometry.values, [] if buildings is None else buildings])
+    far = mapped_far_edges_m(lines, mapped, config.mapped_sidewalk_search_m, blockers, road_row)
+    own = territories(lines)
+    bands, centrelines = _bands(lines, base, far, roads.geometry.values, road_row)
     side = np.repeat(["left", "right"], len(lines))
     piece_of = np.tile(np.arange(len(lines)), 2)
     median_left, median_right = median_sides(lines, road, carrying, config.max_median_width_m, buildings)
     present = np.concatenate([has_left[road] & ~median_left, has_right[road] & ~median_right])
     bands = shapely.intersection(bands[present], own[piece_of[present]])
     side, piece_of = side[present], piece_of[present]
-    bands = subtract(bands, obstacles)
-    parts, part_of = shapely.get_parts(bands, return_index=True)
-    polygonal = (shapely.get_type_id(parts) == 3) & (shapely.area(parts) >= min_area_m2)
-    parts, part_of = parts[polygonal], part_of[polygonal]
+    signed_base, further = np.concatenate([base[:, 0], -base[:, 1]]), (np.fmax(base, far) > base).T.ravel()
+    parts, part_of = _band_parts(
+        subtract(bands, obstacles), min_area_m2, centrelines[present], signed_base[present], further[present]
+    )
     piece = piece_of[part_of]
     way_row = road[piece]
     osm_id = carrying["osm_id"].to_numpy()[way_row]
@@ -251,6 +295,45 @@ def sidewalk_segments(
         geometry=shapely.make_valid(parts),
         crs=roads.crs,
     )
+
+
+def _bands(
+    lines: np.ndarray, base_m: np.ndarray, far_m: np.ndarray, roads: np.ndarray, road_row: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """The band of each block side, left sides then right sides, and the centreline it was built on.
+
+    A side reaches ``base_m`` (curb plus sidewalk depth; shape (n, 2), left and right) from the
+    block's centreline, or ``far_m`` (:func:`mapped_far_edges_m`) where that is further. Bands run on
+    past junction ends (:func:`extend_shared_ends`, with ``roads`` and ``road_row``) so that they also
+    cover the outside of bends and corners; the territories then split the overlap. Each side is
+    prolonged as far as it reaches, so that a side reaching out to a mapped sidewalk leaves the band
+    on the other side as it was.
+    """
+    reach_m = np.fmax(base_m, far_m)
+    prolong_m = base_m.max(axis=1)
+    centrelines = np.concatenate(
+        [extend_shared_ends(lines, np.fmax(prolong_m, far), roads, road_row) for far in far_m.T]
+    )
+    return side_buffers(centrelines, np.concatenate([reach_m[:, 0], -reach_m[:, 1]])), centrelines
+
+
+def _band_parts(
+    bands: np.ndarray, min_area_m2: float, centrelines: np.ndarray, base_m: np.ndarray, further: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """The polygons of at least ``min_area_m2`` that make up the bands, and the band of each.
+
+    Of a band that reaches ``further`` than its ``base_m`` (signed: positive left of its centreline),
+    the parts that lie wholly beyond that depth are left out: what a building or another carriageway
+    cuts off there (the sidewalk of the courtyard or alley behind it) is not this block side's.
+    """
+    parts, part_of = shapely.get_parts(bands, return_index=True)
+    polygonal = (shapely.get_type_id(parts) == 3) & (shapely.area(parts) >= min_area_m2)
+    parts, part_of = parts[polygonal], part_of[polygonal]
+    reaching = further[part_of]
+    near = side_buffers(centrelines[part_of[reaching]], base_m[part_of[reaching]])
+    kept = ~reaching
+    kept[reaching] = shapely.area(shapely.intersection(parts[reaching], near)) >= _MIN_REACH_OVERLAP_M2
+    return parts[kept], part_of[kept]
 
 
 def street_names(roads: pd.DataFrame, keys: tuple[str, ...] = ("name", "ref")) -> np.ndarray:

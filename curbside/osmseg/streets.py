@@ -234,6 +234,9 @@ def side_distances(
     *,
     parallel_only: bool = False,
     step_m: float = 8.0,
+    blockers: np.ndarray | None = None,
+    own_blocker: np.ndarray | None = None,
+    min_hit_share: float = 0.0,
 ) -> np.ndarray:
     """Median clearance (m) from each line to the targets on its left and right, NaN if none.
 
@@ -257,6 +260,12 @@ def side_distances(
         Count only line targets within about 25 degrees of parallel to the road where hit.
     step_m
         Spacing of the rays along the line.
+    blockers, own_blocker
+        Geometries that stop a ray (buildings, other roads): a target behind the first one a ray
+        meets does not count. ``own_blocker`` gives, per line, the index in ``blockers`` of the
+        line's own road (-1: none), which does not stop its rays.
+    min_hit_share
+        A side where fewer than this share of the line's rays meet a target gets NaN.
 
     Returns
     -------
@@ -266,17 +275,8 @@ def side_distances(
     out = np.full((len(lines), 2), np.nan)
     if len(lines) == 0 or len(targets) == 0:
         return out
-    lengths = shapely.length(lines)
-    n = np.maximum(1, (lengths // step_m).astype(int))
-    line_idx = np.repeat(np.arange(len(lines)), n)
-    rank = np.arange(len(line_idx)) - np.repeat(np.cumsum(n) - n, n)
-    along = (rank + 0.5) / n[line_idx] * lengths[line_idx]
-    geoms = lines[line_idx]
-    p = shapely.get_coordinates(shapely.line_interpolate_point(geoms, along))
-    a = shapely.get_coordinates(shapely.line_interpolate_point(geoms, np.maximum(along - 0.5, 0)))
-    b = shapely.get_coordinates(shapely.line_interpolate_point(geoms, along + 0.5))
-    tangent = b - a
-    tangent /= np.maximum(np.linalg.norm(tangent, axis=1, keepdims=True), 1e-9)
+    n = np.maximum(1, (shapely.length(lines) // step_m).astype(int))
+    line_idx, p, tangent = _ray_origins(lines, n)
     left_normal = np.column_stack([-tangent[:, 1], tangent[:, 0]])
     tree = shapely.STRtree(targets)
     for side, sign in enumerate((1.0, -1.0)):
@@ -289,19 +289,59 @@ def side_distances(
         if len(ray_i) == 0:
             continue
         hits = shapely.intersection(rays[ray_i], targets[target_i])
-        curb = shapely.distance(shapely.points(p[ray_i]), hits) - setback_m[target_i]
+        hit_m = shapely.distance(shapely.points(p[ray_i]), hits)
+        curb = hit_m - setback_m[target_i]
+        if blockers is not None:
+            own = np.full(len(p), -1) if own_blocker is None else np.asarray(own_blocker)[line_idx]
+            curb = np.where(hit_m < _first_block_m(rays, p, blockers, own)[ray_i], curb, np.nan)
         if parallel_only:
             # Only targets running along the road set its curb, not a cross street's sidewalk.
-            target = targets[target_i]
-            at = shapely.line_locate_point(target, shapely.points(p[ray_i]))
-            ta = shapely.get_coordinates(shapely.line_interpolate_point(target, np.maximum(at - 1.0, 0)))
-            tb = shapely.get_coordinates(shapely.line_interpolate_point(target, at + 1.0))
-            td = (tb - ta) / np.maximum(np.linalg.norm(tb - ta, axis=1, keepdims=True), 1e-9)
-            curb = np.where(np.abs(np.sum(td * tangent[ray_i], axis=1)) >= 0.9, curb, np.nan)
+            curb = np.where(_parallel(targets[target_i], p[ray_i], tangent[ray_i]), curb, np.nan)
         per_ray = pd.Series(curb).groupby(ray_i).min().dropna()
-        per_line = per_ray.groupby(line_idx[per_ray.index.to_numpy()]).median()
-        out[per_line.index.to_numpy(), side] = per_line.to_numpy()
+        per_line = per_ray.groupby(line_idx[per_ray.index.to_numpy()]).agg(["median", "size"])
+        met = per_line["size"].to_numpy() >= min_hit_share * n[per_line.index.to_numpy()]
+        out[per_line.index.to_numpy()[met], side] = per_line["median"].to_numpy()[met]
     return out
+
+
+def _ray_origins(lines: np.ndarray, n: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``n`` evenly spaced points along each line: their line, xy and unit tangent (over 1 m)."""
+    lengths = shapely.length(lines)
+    line_idx = np.repeat(np.arange(len(lines)), n)
+    rank = np.arange(len(line_idx)) - np.repeat(np.cumsum(n) - n, n)
+    along = (rank + 0.5) / n[line_idx] * lengths[line_idx]
+    geoms = lines[line_idx]
+    p = shapely.get_coordinates(shapely.line_interpolate_point(geoms, along))
+    a = shapely.get_coordinates(shapely.line_interpolate_point(geoms, np.maximum(along - 0.5, 0)))
+    b = shapely.get_coordinates(shapely.line_interpolate_point(geoms, along + 0.5))
+    tangent = b - a
+    tangent /= np.maximum(np.linalg.norm(tangent, axis=1, keepdims=True), 1e-9)
+    return line_idx, p, tangent
+
+
+def _parallel(targets: np.ndarray, xy: np.ndarray, tangent: np.ndarray) -> np.ndarray:
+    """Whether each target line runs within about 25 degrees of ``tangent`` where it passes nearest
+    ``xy`` (its direction over 1 m either way)."""
+    at = shapely.line_locate_point(targets, shapely.points(xy))
+    ta = shapely.get_coordinates(shapely.line_interpolate_point(targets, np.maximum(at - 1.0, 0)))
+    tb = shapely.get_coordinates(shapely.line_interpolate_point(targets, at + 1.0))
+    td = (tb - ta) / np.maximum(np.linalg.norm(tb - ta, axis=1, keepdims=True), 1e-9)
+    return np.abs(np.sum(td * tangent, axis=1)) >= 0.9
+
+
+def _first_block_m(
+    rays: np.ndarray, origins: np.ndarray, blockers: np.ndarray, own: np.ndarray
+) -> np.ndarray:
+    """Per ray, the distance from its origin (xy) to the first of ``blockers`` it meets (inf: none),
+    leaving out the blocker ``own`` names per ray."""
+    first = np.full(len(rays), np.inf)
+    ray_i, block_i = shapely.STRtree(blockers).query(rays, predicate="intersects")
+    keep = block_i != own[ray_i]
+    ray_i, block_i = ray_i[keep], block_i[keep]
+    met = shapely.intersection(rays[ray_i], blockers[block_i])
+    met = shapely.distance(shapely.points(origins[ray_i]), met)
+    np.minimum.at(first, ray_i, met)
+    return first
 
 
 @dataclass
