@@ -176,11 +176,13 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "convert",
         help="write a recording (Sensor Logger, IPIN .h5, GPX, session) as a SPEC session folder",
         description="Write any supported recording (a Sensor Logger export, a trial of an IPIN 2023 "
-        ".h5, a GPX track, a session folder) as a SPEC session folder of plain CSV files; --all writes "
-        "every trial of an .h5, --steps adds detected footsteps and --pdr a PDR velocity.csv.",
+        ".h5, a GPX track, a GnssLogger .txt log, a session folder) as a SPEC session folder of plain CSV "
+        "files; --all writes every trial of an .h5, --steps adds detected footsteps and --pdr a PDR "
+        "velocity.csv.",
     )
     parser.add_argument(
-        "src", help="session folder, Sensor Logger .zip/folder[::RECORDING], FILE.h5[::TRIAL] or .gpx"
+        "src", help="session folder, Sensor Logger .zip/folder[::RECORDING], FILE.h5[::TRIAL], .gpx or "
+        "GnssLogger .txt"
     )
     parser.add_argument("dst", nargs="?", help="destination folder: new, empty or a previous curbside output")
     parser.add_argument("--all", action="store_true", help="every trial of an .h5, one folder each under DST")

@@ -378,7 +378,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument(
         "session",
         nargs="?",
-        help="session folder, Sensor Logger export, FILE.h5::TRIAL or .gpx "
+        help="session folder, Sensor Logger export, FILE.h5::TRIAL, .gpx or GnssLogger .txt "
         "(default with --config: the session it names)",
     )
     parser.add_argument("--map", help="map layers GeoJSON (osmseg build); none: no map likelihood")

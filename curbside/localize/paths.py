@@ -17,6 +17,21 @@ TRIAL_SEPARATOR = "::"
 
 _H5_SUFFIXES = (".h5", ".hdf5")
 
+#: Header lines a GnssLogger (or GPSTest) log starts with: ``# Header Description:``, ``# Fix,...``.
+_GNSSLOGGER_HEADERS = ("# Header Description", "# Raw,", "# Fix,", "# UncalAccel,", "# Accel,", "# Status,")
+
+
+def _starts_like_gnsslogger(path: Path) -> bool:
+    """Whether ``path`` begins with GnssLogger's ``#`` header lines (its first 64 KiB are read)."""
+    try:
+        with path.open("rb") as f:
+            head = f.read(65536).decode("utf-8", errors="replace")
+    except OSError:
+        return False
+    lines = [line.strip() for line in head.splitlines() if line.strip()]
+    return bool(lines) and lines[0].startswith("#") and any(
+        " ".join(line.split()).startswith(_GNSSLOGGER_HEADERS) for line in lines if line.startswith("#"))
+
 
 def split_trial(src: str | Path) -> tuple[Path, str | None]:
     """Split ``FILE.h5::TRIAL`` (or ``SRC::RECORDING``) into the path and the name (``None`` if no ``::``)."""
@@ -34,19 +49,20 @@ def check_source_path(src: str | Path) -> str | None:
     ----------
     src
         What :func:`~curbside.localize.readers.read_any` reads: a folder, ``.zip``, ``FILE.h5[::TRIAL]``,
-        ``.gpx``, ``SRC::RECORDING``.
+        ``.gpx``, a GnssLogger ``.txt``, ``SRC::RECORDING``.
 
     Returns
     -------
     str or None
-        ``ipin``, ``sensorlogger`` (a ``.zip``) or ``gpx``; ``None`` for a folder, whose files tell
+        ``ipin``, ``sensorlogger`` (a ``.zip``), ``gpx`` or ``gnsslogger`` (a ``.txt`` that starts with
+        GnssLogger's header lines); ``None`` for a folder, whose files tell
         (:func:`~curbside.localize.readers.detect_format`).
 
     Raises
     ------
     CurbsideInputError
-        ``src`` does not exist, is a single CSV or a file of no known format, or names a recording
-        (``::NAME``) inside a file that holds none.
+        ``src`` does not exist, is a single CSV, a ``.txt`` without GnssLogger's header or a file of no
+        known format, or names a recording (``::NAME``) inside a file that holds none.
     """
     path, name = split_trial(src)
     if not path.exists():
@@ -62,12 +78,18 @@ def check_source_path(src: str | Path) -> str | None:
         raise CurbsideInputError(src, f"'{TRIAL_SEPARATOR}NAME' applies to an .h5 file, a .zip or a folder")
     if suffix == ".gpx":
         return "gpx"
+    if suffix == ".txt":
+        if _starts_like_gnsslogger(path):
+            return "gnsslogger"
+        raise CurbsideInputError(path, "unknown format: a .txt that does not start with GnssLogger's header "
+                                       "lines ('# Raw,...', '# Fix,...') is not a GnssLogger or GPSTest log")
     if suffix == ".csv":
         raise CurbsideInputError(
             path, "a single CSV is not a recording: give the Sensor Logger .zip (not the 'Combined CSV' "
             "export) or its folder, or a session folder"
         )
-    raise CurbsideInputError(path, "unknown format (expected a folder, .zip, .h5[::TRIAL] or .gpx)")
+    raise CurbsideInputError(path, "unknown format (expected a folder, .zip, .h5[::TRIAL], .gpx or a "
+                                   "GnssLogger .txt)")
 
 
 def check_whole_file(path: str | Path, option: str) -> None:

@@ -8,7 +8,9 @@
   it holds several recordings: :func:`curbside.localize.readers.sensorlogger.read_sensorlogger`;
 - ``FILE.h5::TRIAL``: one IPIN/GetSensorData trial (:func:`curbside.localize.readers.ipin.read_trial`);
   ``FILE.h5`` alone when it holds a single trial;
-- a ``.gpx`` file: a GNSS-only session (:func:`curbside.localize.readers.gpx.read_gpx`).
+- a ``.gpx`` file: a GNSS-only session (:func:`curbside.localize.readers.gpx.read_gpx`);
+- a ``.txt`` that starts with GnssLogger's header lines: a Google GnssLogger or GPSTest log
+  (:func:`curbside.localize.readers.gnsslogger.read_gnsslogger`).
 
 The trial (or recording) separator is ``::`` (not ``#``: ``#`` starts a comment in shells and is legal in file
 names, while ``::`` in an HDF5 file name is vanishingly rare). ``docs/sessions.md`` has the details.
@@ -20,12 +22,12 @@ from pathlib import Path
 
 from curbside.errors import CurbsideInputError
 from curbside.localize.paths import TRIAL_SEPARATOR, check_source_path, split_trial
-from curbside.localize.readers import gpx, ipin, sensorlogger
+from curbside.localize.readers import gnsslogger, gpx, ipin, sensorlogger
 from curbside.localize.session import COLUMNS, Session, read_session, validate_table
 
 
 def detect_format(src: str | Path) -> str:
-    """Name the format of ``src``: ``spec``, ``sensorlogger``, ``ipin`` or ``gpx``.
+    """Name the format of ``src``: ``spec``, ``sensorlogger``, ``ipin``, ``gpx`` or ``gnsslogger``.
 
     A file's name tells its format (:func:`~curbside.localize.paths.check_source_path`, which also
     refuses a missing path); a folder's files tell a folder's.
@@ -55,7 +57,8 @@ def read_any(src: str | Path, *, route: str | Path | None = None, platform: str 
     ----------
     src
         A SPEC session folder, a Sensor Logger ``.zip`` or folder (``SRC::RECORDING`` to pick one of
-        several), ``FILE.h5::TRIAL`` (or a single-trial ``FILE.h5``), or a ``.gpx`` file.
+        several), ``FILE.h5::TRIAL`` (or a single-trial ``FILE.h5``), a ``.gpx`` file, or a GnssLogger
+        (GPSTest) ``.txt`` log.
     route, platform
         Sensor Logger only: see :func:`~curbside.localize.readers.sensorlogger.read_sensorlogger`.
 
@@ -81,6 +84,8 @@ def read_any(src: str | Path, *, route: str | Path | None = None, platform: str 
         session = sensorlogger.read_sensorlogger(src, route=route, platform=platform)
     elif kind == "gpx":
         session = gpx.read_gpx(src)
+    elif kind == "gnsslogger":
+        session = gnsslogger.read_gnsslogger(src)
     else:
         session = _read_h5(src)
     session.source = str(src)
