@@ -12,6 +12,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from convert_checks import assert_convert_refused
 from scipy.spatial.transform import Rotation
 
 from curbside.cli.localize import main
@@ -312,12 +313,7 @@ def test_bad_input_is_one_line_exit_2_nothing_written(tmp_path, capsys, case):
     write_log(src)
     spoil, message = BAD[case]
     spoil(src)
-    dst = tmp_path / "out"
-    assert main(["convert", str(src), str(dst)]) == 2
-    err = capsys.readouterr().err.strip()
-    assert message in err and str(src) in err, err
-    assert len(err.splitlines()) == 1 and "Traceback" not in err
-    assert not dst.exists()
+    assert_convert_refused(capsys, src, tmp_path / "out", message)
 
 
 def test_reader_refuses_a_log_without_header_lines(tmp_path):

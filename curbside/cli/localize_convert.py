@@ -174,15 +174,16 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     """Add ``convert`` to the ``localize`` sub-commands."""
     parser = subparsers.add_parser(
         "convert",
-        help="write a recording (Sensor Logger, IPIN .h5, GPX, session) as a SPEC session folder",
+        help="write a recording (Sensor Logger, IPIN .h5 or .txt, GPX, session) as a SPEC session folder",
         description="Write any supported recording (a Sensor Logger export, a trial of an IPIN 2023 "
-        ".h5, a GPX track, a GnssLogger .txt log, a session folder) as a SPEC session folder of plain CSV "
+        ".h5 or a GetSensorData .txt logfile of the IPIN competitions, a GPX track, a GnssLogger .txt log, "
+        "a session folder) as a SPEC session folder of plain CSV "
         "files; --all writes every trial of an .h5, --steps adds detected footsteps and --pdr a PDR "
         "velocity.csv.",
     )
     parser.add_argument(
-        "src", help="session folder, Sensor Logger .zip/folder[::RECORDING], FILE.h5[::TRIAL], .gpx or "
-        "GnssLogger .txt"
+        "src", help="session folder, Sensor Logger .zip/folder[::RECORDING], FILE.h5[::TRIAL], .gpx, "
+        "GnssLogger .txt or GetSensorData .txt (IPIN logfile)"
     )
     parser.add_argument("dst", nargs="?", help="destination folder: new, empty or a previous curbside output")
     parser.add_argument("--all", action="store_true", help="every trial of an .h5, one folder each under DST")

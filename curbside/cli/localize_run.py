@@ -378,8 +378,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument(
         "session",
         nargs="?",
-        help="session folder, Sensor Logger export, FILE.h5::TRIAL, .gpx or GnssLogger .txt "
-        "(default with --config: the session it names)",
+        help="session folder, Sensor Logger export, FILE.h5::TRIAL, .gpx, GnssLogger .txt or GetSensorData "
+        ".txt (default with --config: the session it names)",
     )
     parser.add_argument("--map", help="map layers GeoJSON (osmseg build); none: no map likelihood")
     add_platform_option(parser)

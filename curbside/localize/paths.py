@@ -21,16 +21,29 @@ _H5_SUFFIXES = (".h5", ".hdf5")
 _GNSSLOGGER_HEADERS = ("# Header Description", "# Raw,", "# Fix,", "# UncalAccel,", "# Accel,", "# Status,")
 
 
-def _starts_like_gnsslogger(path: Path) -> bool:
-    """Whether ``path`` begins with GnssLogger's ``#`` header lines (its first 64 KiB are read)."""
+def _head(path: Path, n_bytes: int) -> str:
+    """The first ``n_bytes`` of ``path`` as text ('' when it cannot be read)."""
     try:
         with path.open("rb") as f:
-            head = f.read(65536).decode("utf-8", errors="replace")
+            return f.read(n_bytes).decode("utf-8", errors="replace")
     except OSError:
-        return False
-    lines = [line.strip() for line in head.splitlines() if line.strip()]
+        return ""
+
+
+def _starts_like_gnsslogger(path: Path) -> bool:
+    """Whether ``path`` begins with GnssLogger's ``#`` header lines (its first 64 KiB are read)."""
+    lines = [line.strip() for line in _head(path, 65536).splitlines() if line.strip()]
     return bool(lines) and lines[0].startswith("#") and any(
         " ".join(line.split()).startswith(_GNSSLOGGER_HEADERS) for line in lines if line.startswith("#"))
+
+
+#: What a GetSensorData logfile (IPIN competitions) starts with.
+_GETSENSORDATA_HEADER = "% LogFile created by the 'GetSensorData' App"
+
+
+def _starts_like_getsensordata(path: Path) -> bool:
+    """Whether the first line of ``path`` is GetSensorData's ``% LogFile created by...`` line."""
+    return _head(path, 4096).lstrip("\ufeff \t\r\n").startswith(_GETSENSORDATA_HEADER)
 
 
 def split_trial(src: str | Path) -> tuple[Path, str | None]:
@@ -49,19 +62,20 @@ def check_source_path(src: str | Path) -> str | None:
     ----------
     src
         What :func:`~curbside.localize.readers.read_any` reads: a folder, ``.zip``, ``FILE.h5[::TRIAL]``,
-        ``.gpx``, a GnssLogger ``.txt``, ``SRC::RECORDING``.
+        ``.gpx``, a GnssLogger or GetSensorData ``.txt``, ``SRC::RECORDING``.
 
     Returns
     -------
     str or None
-        ``ipin``, ``sensorlogger`` (a ``.zip``), ``gpx`` or ``gnsslogger`` (a ``.txt`` that starts with
-        GnssLogger's header lines); ``None`` for a folder, whose files tell
+        ``ipin``, ``sensorlogger`` (a ``.zip``), ``gpx``, ``gnsslogger`` (a ``.txt`` that starts with
+        GnssLogger's header lines) or ``getsensordata`` (a ``.txt`` that starts with GetSensorData's
+        ``% LogFile created by...`` line); ``None`` for a folder, whose files tell
         (:func:`~curbside.localize.readers.detect_format`).
 
     Raises
     ------
     CurbsideInputError
-        ``src`` does not exist, is a single CSV, a ``.txt`` without GnssLogger's header or a file of no
+        ``src`` does not exist, is a single CSV, a ``.txt`` of neither log or a file of no
         known format, or names a recording (``::NAME``) inside a file that holds none.
     """
     path, name = split_trial(src)
@@ -81,15 +95,18 @@ def check_source_path(src: str | Path) -> str | None:
     if suffix == ".txt":
         if _starts_like_gnsslogger(path):
             return "gnsslogger"
+        if _starts_like_getsensordata(path):
+            return "getsensordata"
         raise CurbsideInputError(path, "unknown format: a .txt that does not start with GnssLogger's header "
-                                       "lines ('# Raw,...', '# Fix,...') is not a GnssLogger or GPSTest log")
+                                       "lines ('# Raw,...', '# Fix,...': GnssLogger, GPSTest) nor with "
+                                       f"\"{_GETSENSORDATA_HEADER}\" (GetSensorData, IPIN logfiles)")
     if suffix == ".csv":
         raise CurbsideInputError(
             path, "a single CSV is not a recording: give the Sensor Logger .zip (not the 'Combined CSV' "
             "export) or its folder, or a session folder"
         )
     raise CurbsideInputError(path, "unknown format (expected a folder, .zip, .h5[::TRIAL], .gpx or a "
-                                   "GnssLogger .txt)")
+                                   "GnssLogger or GetSensorData .txt)")
 
 
 def check_whole_file(path: str | Path, option: str) -> None:

@@ -10,7 +10,9 @@
   ``FILE.h5`` alone when it holds a single trial;
 - a ``.gpx`` file: a GNSS-only session (:func:`curbside.localize.readers.gpx.read_gpx`);
 - a ``.txt`` that starts with GnssLogger's header lines: a Google GnssLogger or GPSTest log
-  (:func:`curbside.localize.readers.gnsslogger.read_gnsslogger`).
+  (:func:`curbside.localize.readers.gnsslogger.read_gnsslogger`);
+- a ``.txt`` that starts with ``% LogFile created by the 'GetSensorData' App``: a GetSensorData logfile of
+  the IPIN competitions (:func:`curbside.localize.readers.getsensordata.read_getsensordata`).
 
 The trial (or recording) separator is ``::`` (not ``#``: ``#`` starts a comment in shells and is legal in file
 names, while ``::`` in an HDF5 file name is vanishingly rare). ``docs/sessions.md`` has the details.
@@ -22,12 +24,13 @@ from pathlib import Path
 
 from curbside.errors import CurbsideInputError
 from curbside.localize.paths import TRIAL_SEPARATOR, check_source_path, split_trial
-from curbside.localize.readers import gnsslogger, gpx, ipin, sensorlogger
+from curbside.localize.readers import getsensordata, gnsslogger, gpx, ipin, sensorlogger
 from curbside.localize.session import COLUMNS, Session, read_session, validate_table
 
 
 def detect_format(src: str | Path) -> str:
-    """Name the format of ``src``: ``spec``, ``sensorlogger``, ``ipin``, ``gpx`` or ``gnsslogger``.
+    """Name the format of ``src``: ``spec``, ``sensorlogger``, ``ipin``, ``gpx``, ``gnsslogger`` or
+    ``getsensordata``.
 
     A file's name tells its format (:func:`~curbside.localize.paths.check_source_path`, which also
     refuses a missing path); a folder's files tell a folder's.
@@ -57,8 +60,8 @@ def read_any(src: str | Path, *, route: str | Path | None = None, platform: str 
     ----------
     src
         A SPEC session folder, a Sensor Logger ``.zip`` or folder (``SRC::RECORDING`` to pick one of
-        several), ``FILE.h5::TRIAL`` (or a single-trial ``FILE.h5``), a ``.gpx`` file, or a GnssLogger
-        (GPSTest) ``.txt`` log.
+        several), ``FILE.h5::TRIAL`` (or a single-trial ``FILE.h5``), a ``.gpx`` file, a GnssLogger
+        (GPSTest) ``.txt`` log, or a GetSensorData ``.txt`` logfile (IPIN competitions).
     route, platform
         Sensor Logger only: see :func:`~curbside.localize.readers.sensorlogger.read_sensorlogger`.
 
@@ -86,6 +89,8 @@ def read_any(src: str | Path, *, route: str | Path | None = None, platform: str 
         session = gpx.read_gpx(src)
     elif kind == "gnsslogger":
         session = gnsslogger.read_gnsslogger(src)
+    elif kind == "getsensordata":
+        session = getsensordata.read_getsensordata(src)
     else:
         session = _read_h5(src)
     session.source = str(src)

@@ -29,6 +29,8 @@ from __future__ import annotations
 
 import logging
 import shlex
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import h5py
@@ -127,14 +129,6 @@ def _table(g: h5py.Group, name: str, columns: list[str], source: str) -> pd.Data
     return pd.DataFrame(data[:, : len(columns)], columns=columns)
 
 
-def _tidy(table: pd.DataFrame, source: str, dataset: str, columns: list[str] | None = None,
-          nullable: tuple[str, ...] = ()) -> pd.DataFrame:
-    """:func:`~._tidy.tidy_table` of one dataset (all its columns by default); errors name its rows and
-    columns as the file does (``gyro``'s ``y`` at row 5)."""
-    return tidy_table(table, f"{source}/{dataset}", list(table.columns) if columns is None else columns,
-                      nullable, names=_OWN_NAMES[dataset], rows="row")
-
-
 def read_trial(path: str | Path, trial: str) -> Session:
     """Read one IPIN trial as a session.
 
@@ -171,22 +165,101 @@ def read_trial(path: str | Path, trial: str) -> Session:
         posi = _table(g, "posi", ["t", "lat", "lon", "floor"], source)
         attrs = dict(g.attrs)
 
-    acce = accelerometer_ms2(_tidy(acce, source, "acce"), f"{source}/acce")
-    gyro = _tidy(gyro, source, "gyro")
-    quat = _tidy(quat, source, "rotvec")
-    names = (f"{source}/acce", f"{source}/gyro", f"{source}/rotvec")
-    imu = merge_imu(acce, gyro, quat, source, names)
-    gnss = _fixes(gnss, source)
-    posi = _surveyed(posi, source)
-
-    floors = attrs.get("floors", [] if posi is None else posi["floor"].unique())
+    floors = attrs.get("floors")
     meta: dict = {
         "source": {"format": "ipin2023-h5", "file": Path(path).name, "trial": name},
         "device": f"{attrs.get('device_manufacturer', '')} {attrs.get('device_model', '')}".strip(),
-        "floors": [int(x) for x in np.atleast_1d(floors)],
     }
+    tables = {"acce": acce, "gyro": gyro, "rotvec": quat, "gnss": gnss, "posi": posi}
+    return build_session(name.removeprefix("IPIN2023_T3_"), tables, meta, Layout(source), floors)
+
+
+@dataclass(frozen=True)
+class Layout:
+    """How messages name a source of IPIN/GetSensorData streams (an HDF5 trial or a text logfile).
+
+    Attributes
+    ----------
+    source
+        The source as messages name it (``FILE.h5::TRIAL``, ``LOG.txt``).
+    streams
+        What each stream (``acce``, ``gyro``, ``rotvec``, ``gnss``, ``posi``) is called in errors;
+        ``SOURCE/acce`` (the dataset) by default.
+    kinds
+        What warnings call a stream when it is missing or empty (``'gnss' dataset`` by default).
+    names
+        The source's own name of each session column, per stream.
+    rows
+        What the source's rows are called (``row`` of a dataset, ``line`` of a text file).
+    """
+
+    source: str
+    streams: Mapping[str, str] | None = None
+    kinds: Mapping[str, str] | None = None
+    names: Mapping[str, Mapping[str, str]] = field(default_factory=lambda: _OWN_NAMES)
+    rows: str = "row"
+
+    def stream(self, dataset: str) -> str:
+        """What errors call ``dataset``."""
+        return (self.streams or {}).get(dataset, f"{self.source}/{dataset}")
+
+    def kind(self, dataset: str) -> str:
+        """What warnings call ``dataset``."""
+        return (self.kinds or {}).get(dataset, f"{dataset!r} dataset")
+
+    def tidy(self, table: pd.DataFrame, dataset: str, columns: list[str] | None = None,
+             nullable: tuple[str, ...] = ()) -> pd.DataFrame:
+        """:func:`~._tidy.tidy_table` of one stream (all its columns by default); errors name its rows and
+        columns as the source does (``gyro``'s ``y`` at row 5)."""
+        return tidy_table(table, self.stream(dataset), list(table.columns) if columns is None else columns,
+                          nullable, names=self.names[dataset], rows=self.rows)
+
+
+def build_session(name: str, tables: Mapping[str, pd.DataFrame | None], meta: dict, layout: Layout,
+                  floors: Sequence[int] | np.ndarray | None = None) -> Session:
+    """Make a session of IPIN/GetSensorData streams, as read from an HDF5 trial or a text logfile.
+
+    Parameters
+    ----------
+    name
+        The session's name.
+    tables
+        ``acce`` (``t,ax,ay,az``), ``gyro`` (``t,gx,gy,gz``), ``rotvec`` (``t,qx,qy,qz,qw``), ``gnss``
+        (``t,lat,lon,alt,bearing,accuracy_m``, duplicates already merged) and ``posi`` (``t,lat,lon,floor``)
+        as numbers, their index numbering the source's rows from 0; any may be ``None`` (missing). Without
+        ``acce`` and ``gyro`` the session has no ``imu``; without ``rotvec`` its ``imu`` has no quaternion.
+    meta
+        ``source`` and ``device``; ``floors``, ``waypoint_floors`` and ``start`` are added.
+    layout
+        How messages name the source, its streams, columns and rows.
+    floors
+        The floors visited; the POSI floors when ``None``.
+
+    Returns
+    -------
+    Session
+        ``imu``, ``gnss`` (satellite fixes: the network ones, ``alt == 0``, dropped), ``waypoints`` and
+        ``meta`` (start pose = the first POSI, heading towards the second).
+
+    Raises
+    ------
+    CurbsideInputError
+        A stream with no usable rows, text or conflicting rows (see :func:`~._tidy.tidy_table`).
+    """
+    imu = None
+    if tables.get("acce") is not None and tables.get("gyro") is not None:
+        acce = accelerometer_ms2(layout.tidy(tables["acce"], "acce"), layout.stream("acce"))
+        gyro = layout.tidy(tables["gyro"], "gyro")
+        quat = None if tables.get("rotvec") is None else layout.tidy(tables["rotvec"], "rotvec")
+        imu = merge_imu(acce, gyro, quat, layout.source, tuple(layout.stream(k) for k in _REQUIRED))
+    gnss = _fixes(tables.get("gnss"), layout)
+    posi = _surveyed(tables.get("posi"), layout)
+
+    if floors is None:
+        floors = [] if posi is None else posi["floor"].unique()
+    meta["floors"] = [int(x) for x in np.atleast_1d(floors)]
     if posi is None:
-        return Session(name=name.removeprefix("IPIN2023_T3_"), imu=imu, gnss=gnss, meta=meta)
+        return Session(name=name, imu=imu, gnss=gnss, meta=meta)
     meta["waypoint_floors"] = [int(x) for x in posi["floor"]]
     if len(posi) >= 2:
         lon, lat = posi["lon"].to_numpy(), posi["lat"].to_numpy()
@@ -197,14 +270,14 @@ def read_trial(path: str | Path, trial: str) -> Session:
             "heading_deg": float(heading % 360.0),
             "t": float(posi["t"].iat[0]),
         }
-    waypoints = posi[["t", "lat", "lon"]]
-    return Session(name=name.removeprefix("IPIN2023_T3_"), imu=imu, gnss=gnss, waypoints=waypoints, meta=meta)
+    return Session(name=name, imu=imu, gnss=gnss, waypoints=posi[["t", "lat", "lon"]], meta=meta)
 
 
-def _fixes(gnss: pd.DataFrame | None, source: str) -> pd.DataFrame | None:
-    """The satellite fixes of the ``gnss`` dataset, or ``None`` (with a warning) when there are none."""
+def _fixes(gnss: pd.DataFrame | None, layout: Layout) -> pd.DataFrame | None:
+    """The satellite fixes of the ``gnss`` stream, or ``None`` (with a warning) when there are none."""
+    source = layout.source
     if gnss is None or gnss.empty:
-        logger.warning("%s: no GNSS fixes ('gnss' dataset %s); the session has no gnss.csv", source,
+        logger.warning("%s: no GNSS fixes (%s %s); the session has no gnss.csv", source, layout.kind("gnss"),
                        "missing" if gnss is None else "empty")
         return None
     network = gnss["alt"] == 0
@@ -215,13 +288,13 @@ def _fixes(gnss: pd.DataFrame | None, source: str) -> pd.DataFrame | None:
     if network.any():
         logger.info("%s: dropped %d network (alt == 0) fix(es)", source, int(network.sum()))
     columns = ["t", "lat", "lon", "accuracy_m"]
-    return _tidy(gnss[~network], source, "gnss", columns, nullable=("accuracy_m",))
+    return layout.tidy(gnss[~network], "gnss", columns, nullable=("accuracy_m",))
 
 
-def _surveyed(posi: pd.DataFrame | None, source: str) -> pd.DataFrame | None:
-    """The surveyed points (``posi``), or ``None`` (with a warning) when the trial has none."""
+def _surveyed(posi: pd.DataFrame | None, layout: Layout) -> pd.DataFrame | None:
+    """The surveyed points (``posi``), or ``None`` (with a warning) when the source has none."""
     if posi is None or posi.empty:
-        logger.warning("%s: no surveyed waypoints ('posi' dataset %s); the session has no waypoints.csv "
-                       "and no start pose", source, "missing" if posi is None else "empty")
+        logger.warning("%s: no surveyed waypoints (%s %s); the session has no waypoints.csv and no start "
+                       "pose", layout.source, layout.kind("posi"), "missing" if posi is None else "empty")
         return None
-    return _tidy(posi, source, "posi", ["t", "lat", "lon", "floor"])
+    return layout.tidy(posi, "posi", ["t", "lat", "lon", "floor"])
