@@ -94,6 +94,40 @@ def test_real_head_equals_the_hdf5_trial_on_its_rows():
     np.testing.assert_allclose(head.to_numpy(), trial.to_numpy(), rtol=0, atol=1e-6)
 
 
+#: Real rows of the same logfile from 61.41 s on (characters 973,000-989,000 of it, verbatim): the trial's
+#: first surveyed point and its next GNSS fix, written twice (a UNIX fix time in the SensorTimeStamp field).
+REAL_LATER_ROWS = """\
+ACCE;61.4111;65154.9565;0.23463;7.51300;6.64870;3
+AHRS;61.4114;65154.9565;48.293636;1.134247;-173.737732;0.03136169;-0.40795216;-0.91087222;3
+GYRO;61.4147;65154.9654;-0.13683;-0.02810;-0.09468;3
+POSI;61.4235;1;49.461316433032;11.110964442580;0;100
+GYRO;61.9196;65155.4674;-0.07880;0.02566;-0.07391;3
+GNSS;61.9264;1686729739.0000;49.461260;11.111010;346.000;0.000;7.0;0.0;23;19
+MAGN;61.9363;65155.4720;-0.60000;-25.14000;-2.52000;3
+GYRO;61.9368;65155.4773;-0.07880;-0.03482;-0.07880;3
+ACCE;61.9384;65155.4783;-0.08859;7.76440;4.88178;3
+AHRS;61.9389;65155.4783;48.399555;0.738756;-178.637100;0.01075501;-0.40981203;-0.91200680;3
+GNSS;61.9426;1686729739.0000;49.461260;11.111010;346.000;0.000;7.0;0.0;23;19
+"""
+
+
+def test_real_posi_and_gnss_rows_read_as_the_hdf5_has_them(tmp_path):
+    log = tmp_path / "IPIN2023_T3_TrainingTrial01_repetition01.txt"
+    log.write_text(REAL.read_text() + REAL_LATER_ROWS)
+    session = read_any(log)
+    assert session.waypoints[["t", "lat", "lon"]].to_numpy().tolist() == [[61.4235, 49.461316433032,
+                                                                           11.11096444258]]
+    assert session.meta["waypoint_floors"] == [0]
+    assert session.gnss[["t", "lat", "lon", "accuracy_m"]].to_numpy().tolist()[-1] == [61.9264, 49.46126,
+                                                                                      11.11101, 7.0]
+    assert len(session.gnss) == 2  # each fix written twice is one
+    if H5.is_file():
+        trial = read_any(f"{H5}::TrainingTrial01_repetition01")
+        np.testing.assert_allclose(session.waypoints.iloc[0][["t", "lat", "lon"]].to_numpy(dtype=float),
+                                   trial.waypoints.iloc[0][["t", "lat", "lon"]].to_numpy(dtype=float),
+                                   rtol=0, atol=1e-6)
+
+
 # --- synthetic logs: what becomes of each row type -------------------------------------------------------
 
 def test_synthetic_log_makes_the_ipin_session(tmp_path, caplog):
