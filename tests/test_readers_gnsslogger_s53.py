@@ -357,3 +357,11 @@ def test_a_real_walk_rendered_as_gnsslogger_reads_back(tmp_path):
     np.testing.assert_allclose(back.gnss["t"], ipin.gnss["t"] - t0, atol=1e-9)
     fix = ["lat", "lon", "accuracy_m"]
     np.testing.assert_array_equal(back.gnss[fix], ipin.gnss[fix])
+
+
+def test_pdr_without_orientation_rows_says_what_the_log_lacks(tmp_path, capsys):
+    write_log(tmp_path / "log.txt", sensors=("Accel", "Gyro"))
+    assert main(["convert", str(tmp_path / "log.txt"), str(tmp_path / "out"), "--pdr"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.endswith("this source has none (a GnssLogger or GPSTest log needs OrientationDeg rows)"), err
+    assert not (tmp_path / "out").exists()

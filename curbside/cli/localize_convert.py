@@ -28,6 +28,13 @@ from curbside.localize.platforms import PLATFORM_OPTIONS
 if TYPE_CHECKING:
     from curbside.localize.session import Session
 
+#: What a recording of each format needs for the orientation quaternion, said when ``--pdr`` has none.
+_ORIENTATION_HINTS = {
+    "sensorlogger": " (a Sensor Logger export needs Orientation.csv)",
+    "gnsslogger": " (a GnssLogger or GPSTest log needs OrientationDeg rows)",
+    "getsensordata-txt": " (a GetSensorData logfile needs AHRS rows)",
+}
+
 
 def add_derived(session: Session, steps: bool, pdr: bool) -> Session:
     """Add ``steps`` (detected footsteps) and/or ``velocity`` (PDR) tables computed from ``imu``.
@@ -56,7 +63,7 @@ def add_derived(session: Session, steps: bool, pdr: bool) -> Session:
         raise CurbsideInputError(source, "--steps/--pdr need IMU data, and this source has none")
     if pdr and not {"qx", "qy", "qz", "qw"} <= set(session.imu.columns):
         kind = session.meta.get("source", {}).get("format")
-        hint = " (a Sensor Logger export needs Orientation.csv)" if kind == "sensorlogger" else ""
+        hint = _ORIENTATION_HINTS.get(kind, "")
         raise CurbsideInputError(
             source, f"--pdr needs the orientation quaternion (qx,qy,qz,qw); this source has none{hint}"
         )
