@@ -20,7 +20,7 @@ from curbside.osmseg.build import build_map
 from curbside.osmseg.config import SegmentationConfig
 from curbside.osmseg.mapio import CLASSES, MapLayers, read_map, write_map
 from curbside.osmseg.reader import read_osm_file
-from curbside.osmseg.streets import mapped_sidewalks, sidewalk_length_in_buildings
+from curbside.osmseg.streets import mapped_sidewalks, share_of_length_inside
 
 OSM_DATA = Path(__file__).parent / "data" / "osm"
 
@@ -157,12 +157,12 @@ def test_mapped_sidewalks_are_not_inside_street(scenes):
     assert covered > 0.9 * shapely.length(lines).sum() - 4 * 12.0
 
 
-def test_sidewalk_length_in_buildings_is_the_share_inside_walls():
+def test_share_of_length_inside_is_the_share_inside_walls():
     lines = np.array([shapely.LineString([(0, 0), (100, 0)]), shapely.LineString([(0, 10), (100, 10)])])
     buildings = np.array([shapely.box(10, -1, 30, 1), shapely.box(60, 9, 65, 20), shapely.box(0, 50, 9, 60)])
-    assert sidewalk_length_in_buildings(lines, buildings) == pytest.approx((20 + 5) / 200)
-    assert sidewalk_length_in_buildings(lines[:0], buildings) == 0.0
-    assert sidewalk_length_in_buildings(lines, buildings[:0]) == 0.0
+    assert share_of_length_inside(lines, buildings) == pytest.approx((20 + 5) / 200)
+    assert share_of_length_inside(lines[:0], buildings) == 0.0
+    assert share_of_length_inside(lines, buildings[:0]) == 0.0
 
 
 def test_buildings_misaligned_with_mapped_sidewalks_soften_the_walls(scenes, monkeypatch, tmp_path, capsys):

@@ -148,3 +148,20 @@ def test_a_sidewalk_beyond_another_road_is_not_reached(tmp_path):
     path.write_text(text.replace("<way ", extra + "<way ", 1).replace("</osm>", sidewalk + "</osm>"))
     layers = build_map(osm_file=path)
     assert beyond_m2(layers, 9.5) < 1.0
+
+
+def test_the_map_and_osmseg_build_say_how_much_of_the_mapped_sidewalks_the_segments_cover(
+    monkeypatch, tmp_path, capsys
+):
+    from curbside.cli.osmseg import main
+
+    assert main(["build", "--osm", str(TRUDA), "-o", str(tmp_path / "map.geojson")]) == 0
+    said = capsys.readouterr().out
+    layers = build_map(osm_file=TRUDA)
+    share, km = layers.meta["sidewalk_ways_in_segments"], layers.meta["sidewalk_ways_km"]
+    assert share > 0.99 and km == pytest.approx(0.14, abs=0.01)
+    assert f"{100 * share:.1f} % of the {km:g} km of mapped sidewalks (footway=sidewalk) lie in " in said
+    assert "lie in sidewalk segments\n" in said
+    # With the usual band alone the east sidewalk's 53 m are free space, and the share says so.
+    monkeypatch.setattr(sidewalks, "mapped_far_edges_m", lambda lines, *_: np.full((len(lines), 2), np.nan))
+    assert build_map(osm_file=TRUDA).meta["sidewalk_ways_in_segments"] < share - 0.3

@@ -188,6 +188,10 @@ def run(args: argparse.Namespace) -> int:
     out.write(f"wrote {path} ({layers.meta['source']}; {settings.osm_attribution})\n")
     for line in summary_lines(layers):
         out.write(line + "\n")
+    mapped_km = layers.meta.get("sidewalk_ways_km", 0.0)
+    if mapped_km > 0:
+        out.write(f"{100 * layers.meta['sidewalk_ways_in_segments']:.1f} % of the {mapped_km:g} km of mapped "
+                  "sidewalks (footway=sidewalk) lie in sidewalk segments\n")
     inside = layers.meta.get("sidewalk_ways_in_buildings", 0.0)
     if inside > 0 and inside >= _conflict_share_min():
         out.write(

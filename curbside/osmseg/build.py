@@ -34,7 +34,7 @@ from curbside.osmseg.mapio import MapLayers
 from curbside.osmseg.overlay import polygons_only, subtract
 from curbside.osmseg.reader import OsmData, bbox_polygon, clip_to_bbox, declared_bounds, read_osm_file
 from curbside.osmseg.sidewalks import sidewalk_segments
-from curbside.osmseg.streets import carriageways, mapped_sidewalks, sidewalk_length_in_buildings
+from curbside.osmseg.streets import carriageways, mapped_sidewalks, share_of_length_inside
 from curbside.projection import LocalFrame
 
 log = logging.getLogger(__name__)
@@ -227,8 +227,10 @@ def build_map(
         Polygons in local UTM; ``meta`` holds ``source``, ``bbox`` (the area the map covers: with a
         file, the bbox asked for clipped to the bounds the file declares, and then ``bbox_asked``
         too), ``osm_timestamp``, ``generator``, ``attribution``, ``buildings_source`` (``"osm"``),
-        ``params`` (``config`` as a dict) and ``sidewalk_ways_in_buildings``
-        (:func:`~curbside.osmseg.streets.sidewalk_length_in_buildings`). A map without buildings
+        ``params`` (``config`` as a dict), ``sidewalk_ways_km`` (the length of the separately mapped
+        sidewalks inside the map) and the shares of it inside buildings and inside sidewalk segments,
+        ``sidewalk_ways_in_buildings`` and ``sidewalk_ways_in_segments``
+        (:func:`~curbside.osmseg.streets.share_of_length_inside`). A map without buildings
         is built with a WARNING: the filter's building likelihood does nothing on it.
 
     Raises
@@ -271,8 +273,12 @@ def build_map(
         "buildings_source": "osm",
         "params": to_dict(config),
         "sidewalk_ways_in_buildings": round(
-            sidewalk_length_in_buildings(sidewalk_lines, gdf.geometry.values[gdf["class"] == "building"]), 4
+            share_of_length_inside(sidewalk_lines, gdf.geometry.values[gdf["class"] == "building"]), 4
         ),
+        "sidewalk_ways_in_segments": round(
+            share_of_length_inside(sidewalk_lines, gdf.geometry.values[gdf["class"] == "sidewalk"]), 4
+        ),
+        "sidewalk_ways_km": round(float(shapely.length(sidewalk_lines).sum()) / 1000, 2),
     }
     counts = gdf["class"].value_counts().to_dict()
     log.info("built %s", ", ".join(f"{k}: {v}" for k, v in counts.items()))

@@ -208,21 +208,22 @@ def mapped_sidewalks(ways: gpd.GeoDataFrame, config: SegmentationConfig | None =
     return out.assign(width_m=np.where(np.isnan(width), config.mapped_sidewalk_width_m, width))
 
 
-def sidewalk_length_in_buildings(sidewalk_lines: np.ndarray, buildings: np.ndarray) -> float:
-    """Share of the mapped sidewalks' length that lies inside a building (0 without mapped sidewalks).
+def share_of_length_inside(lines: np.ndarray, polygons: np.ndarray) -> float:
+    """Share of the lines' length that lies inside the polygons (0 without lines).
 
-    A building layer drawn where its city's sidewalks are mapped (misaligned imagery, an import offset
-    from hand-traced footways) puts walls across them; an aligned one leaves this at 0. ``buildings``
-    must not overlap each other (as :func:`curbside.osmseg.buildings.buildings` leaves them), so the
-    pieces inside them add up.
+    With the mapped sidewalks (``footway=sidewalk``) as ``lines``: inside buildings, it is 0 for a
+    building layer aligned with them and grows for one drawn across them (misaligned imagery, an import
+    offset from hand-traced footways); inside sidewalk segments, it says how much of the city's own
+    sidewalk map the segments cover. ``polygons`` must not overlap each other (as the map's buildings
+    and segments do not), so the pieces inside them add up.
     """
-    lines = np.asarray(sidewalk_lines, dtype=object)
+    lines = np.asarray(lines, dtype=object)
     total = float(shapely.length(lines).sum()) if len(lines) else 0.0
-    if total <= 0 or len(buildings) == 0:
+    if total <= 0 or len(polygons) == 0:
         return 0.0
-    buildings = np.asarray(buildings, dtype=object)
-    line_idx, building_idx = shapely.STRtree(buildings).query(lines, predicate="intersects")
-    inside = shapely.length(shapely.intersection(lines[line_idx], buildings[building_idx]))
+    polygons = np.asarray(polygons, dtype=object)
+    line_idx, polygon_idx = shapely.STRtree(polygons).query(lines, predicate="intersects")
+    inside = shapely.length(shapely.intersection(lines[line_idx], polygons[polygon_idx]))
     return float(inside.sum()) / total
 
 
