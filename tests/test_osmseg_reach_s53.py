@@ -165,3 +165,11 @@ def test_the_map_and_osmseg_build_say_how_much_of_the_mapped_sidewalks_the_segme
     # With the usual band alone the east sidewalk's 53 m are free space, and the share says so.
     monkeypatch.setattr(sidewalks, "mapped_far_edges_m", lambda lines, *_: np.full((len(lines), 2), np.nan))
     assert build_map(osm_file=TRUDA).meta["sidewalk_ways_in_segments"] < share - 0.3
+
+
+def test_the_share_counts_only_the_mapped_sidewalk_inside_a_map_without_declared_bounds(tmp_path):
+    # The 220 m sidewalk runs 10 m past each end of the 200 m street, so past the map's polygons.
+    sidewalk = {"highway": "footway", "footway": "sidewalk"}
+    layers = build_map(osm_file=street_with(tmp_path / "s.osm", sidewalk, 14))
+    assert layers.meta["sidewalk_ways_km"] < 0.215
+    assert layers.meta["sidewalk_ways_in_segments"] > 0.95

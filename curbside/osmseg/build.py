@@ -261,6 +261,8 @@ def build_map(
         log.warning(NO_BUILDINGS, source, where)
     if clip_bbox is None:
         clip_bbox = _extent(gdf)
+        # The sidewalk ways of a file without bounds run on past the map's polygons.
+        sidewalk_lines = shapely.intersection(sidewalk_lines, shapely.box(*gdf.total_bounds))
     asked = None if bbox is None else check_bbox(bbox)
     meta = {
         "source": osm.source,
