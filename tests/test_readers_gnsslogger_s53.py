@@ -12,7 +12,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from convert_checks import assert_convert_refused
+from convert_checks import assert_spoiled_log_refused
 from scipy.spatial.transform import Rotation
 
 from curbside.cli.localize import main
@@ -309,11 +309,7 @@ BAD = {
 
 @pytest.mark.parametrize("case", list(BAD))
 def test_bad_input_is_one_line_exit_2_nothing_written(tmp_path, capsys, case):
-    src = tmp_path / "log.txt"
-    write_log(src)
-    spoil, message = BAD[case]
-    spoil(src)
-    assert_convert_refused(capsys, src, tmp_path / "out", message)
+    assert_spoiled_log_refused(tmp_path, capsys, write_log, *BAD[case])
 
 
 def test_reader_refuses_a_log_without_header_lines(tmp_path):
