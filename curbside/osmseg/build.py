@@ -162,7 +162,8 @@ def derive_layers(osm: OsmData, config: SegmentationConfig | None = None) -> gpd
         stages.update()
         # Sidewalks run on across driveways and parking-aisle mouths.
         minor = subtract(cways.surface[cways.minor], segments.geometry.values)
-        street = subtract(np.concatenate([through, minor]), np.concatenate([blds, walks]))
+        # An opened median (refuge) is free space; where a crosswalk crosses it, crosswalk.
+        street = subtract(np.concatenate([through, minor]), np.concatenate([blds, walks, cways.refuges]))
         stages.update()
     frames = [
         _layer("building", blds, osm.crs, min_area),

@@ -85,6 +85,12 @@ class SegmentationConfig:
         Widest median (curb to curb) between the two one-way halves of a dual carriageway: the sides
         of a divided road that face each other across it get no sidewalk
         (:func:`curbside.osmseg.medians.median_sides`); 0 turns the rule off.
+    min_refuge_width_m
+        Narrowest median (curb to curb) that a dual carriageway opens by taking the parking assumed
+        on a half (``assumed_parking_width_m``) off the side that faces the other half: that parking
+        is taken off only along the stretches where the median it opens is at least this wide (the
+        usual least depth of a pedestrian refuge island, 1.8 m / 6 ft). A value wider than any median
+        (e.g. 99) keeps the parking on every side.
     mapped_sidewalk_width_m
         Width of a separately mapped sidewalk (``footway=sidewalk``) without a ``width`` tag.
     mapped_sidewalk_search_m
@@ -120,6 +126,7 @@ class SegmentationConfig:
     sidewalk_depth_m: float = 5.0
     min_sidewalk_width_m: float = 2.5
     max_median_width_m: float = 20.0
+    min_refuge_width_m: float = 1.8
     street_name_keys: tuple[str, ...] = ("name", "ref")
     mapped_sidewalk_width_m: float = 2.0
     mapped_sidewalk_search_m: float = 25.0
@@ -142,8 +149,8 @@ class SegmentationConfig:
                  "mapped_sidewalk_search_m", "crosswalk_width_m", "passage_width_m",
                  "min_carriageway_half_width_m", "max_tagged_carriageway_width_m")
         non_negative(self, "assumed_parking_width_m", "min_sidewalk_width_m", "max_median_width_m",
-                     "crosswalk_overlap_m", "passage_island_area_m2", "passage_island_thickness_m",
-                     "min_polygon_area_m2")
+                     "min_refuge_width_m", "crosswalk_overlap_m", "passage_island_area_m2",
+                     "passage_island_thickness_m", "min_polygon_area_m2")
         highways = self.sidewalk_highways
         check(
             not isinstance(highways, str) and all(isinstance(h, str) for h in highways),

@@ -6,13 +6,16 @@ each side of each way would put two sidewalks in that median, where nobody walks
 in downtown San Francisco The Embarcadero's streetcar tracks, Market Street's boarding islands and
 Drumm Street's median. :func:`median_sides` finds those
 sides so that :func:`curbside.osmseg.sidewalks.sidewalk_segments` leaves them out; the median is
-then free space, like a traffic island.
+then free space, like a traffic island. :func:`refuge_stretches` finds, with the same probes, where
+the halves may give up the parking assumed on those sides because the median would then open to a
+real refuge (:func:`curbside.osmseg.streets.open_refuges`).
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
 
+import geopandas as gpd
 import numpy as np
 import pandas as pd
 import shapely
@@ -29,6 +32,8 @@ MIN_OPPOSITE_ANGLE_DEG = 150.0
 #: (the wedge of a splitter island) is judged on the rest of it.
 PROBE_FRACTIONS = (0.25, 0.5, 0.75)
 MIN_PROBES_ACROSS = 2
+#: Spacing (m) of the probes that look for where a median opens (:func:`refuge_stretches`).
+REFUGE_PROBE_STEP_M = 4.0
 #: Tag values that say a side has a sidewalk of its own (then the mapper's word is kept).
 _HAS_SIDEWALK = ("yes", "separate")
 
@@ -91,17 +96,7 @@ def median_sides(
     (numpy.ndarray, numpy.ndarray)
         Boolean masks over the pieces: left side is a median, right side is a median.
     """
-    oneway = column(roads, "oneway")
-    facts = _RoadFacts(
-        lines=lines,
-        road=road,
-        travel=np.where(is_in(oneway, ONEWAY_BACKWARD), -1.0, 1.0),
-        is_oneway=is_in(oneway, ONEWAY_FORWARD + ONEWAY_BACKWARD),
-        names=column(roads, "name").fillna(column(roads, "ref")).to_numpy(),
-        half=roads[["half_left_m", "half_right_m"]].to_numpy(),
-        tree=shapely.STRtree(lines),
-        buildings=None if buildings is None or not len(buildings) else shapely.STRtree(buildings),
-    )
+    facts = _facts(lines, road, roads, buildings)
     medians = np.zeros((len(lines), 2), dtype=bool)
     candidates = np.flatnonzero(facts.is_oneway[road] & pd.notna(facts.names[road]))
     if len(candidates) and max_median_m > 0:
@@ -114,6 +109,93 @@ def median_sides(
     tag_left, tag_right = tagged_sides(roads)
     medians &= ~np.column_stack([tag_left, tag_right])[road]
     return medians[:, 0], medians[:, 1]
+
+
+def _facts(
+    lines: np.ndarray, road: np.ndarray, roads: pd.DataFrame, buildings: np.ndarray | None
+) -> _RoadFacts:
+    oneway = column(roads, "oneway")
+    return _RoadFacts(
+        lines=lines,
+        road=road,
+        travel=np.where(is_in(oneway, ONEWAY_BACKWARD), -1.0, 1.0),
+        is_oneway=is_in(oneway, ONEWAY_FORWARD + ONEWAY_BACKWARD),
+        names=column(roads, "name").fillna(column(roads, "ref")).to_numpy(),
+        half=roads[["half_left_m", "half_right_m"]].to_numpy(),
+        tree=shapely.STRtree(lines),
+        buildings=None if buildings is None or not len(buildings) else shapely.STRtree(buildings),
+    )
+
+
+def refuge_stretches(
+    roads: gpd.GeoDataFrame,
+    narrower_half_m: np.ndarray,
+    min_refuge_m: float,
+    max_median_m: float,
+    buildings: np.ndarray | None = None,
+    step_m: float = REFUGE_PROBE_STEP_M,
+) -> pd.DataFrame:
+    """Where a median would open at least ``min_refuge_m`` wide if its halves gave up some width there.
+
+    Every ``step_m`` along each road, on each side whose half-width could narrow, a line is drawn
+    square to it as in :func:`median_sides`. Where it meets the other half of the dual carriageway
+    (same name, travel opposite, no building between, curbs at most ``max_median_m`` apart), the
+    median that would open is the distance between the two centrelines less the narrower half-width
+    of each side that faces it. The probes where that is at least ``min_refuge_m`` are joined into
+    stretches (each probe stands for ``step_m`` of road around it).
+
+    Parameters
+    ----------
+    roads
+        Road ways (metric CRS) with ``half_left_m`` / ``half_right_m`` and their tags.
+    narrower_half_m
+        Shape (n, 2): each side's half-width without what it could give up (equal to its half-width
+        where it gives up nothing; such sides are not probed).
+    min_refuge_m
+        Narrowest median that opens (m, curb to curb).
+    max_median_m
+        Widest median still taken for one (as in :func:`median_sides`).
+    buildings
+        Building footprints (same CRS), or None.
+    step_m
+        Spacing of the probes along a road.
+
+    Returns
+    -------
+    pandas.DataFrame
+        One row per stretch: ``road`` (row of ``roads``), ``side`` (0 left, 1 right), ``start_m`` and
+        ``end_m`` along the way.
+    """
+    lines = roads.geometry.values
+    facts = _facts(lines, np.arange(len(roads)), roads, buildings)
+    length = shapely.length(lines)
+    n = np.maximum(1, length // step_m).astype(int)
+    probe_road = np.repeat(np.arange(len(roads)), n)
+    rank = np.arange(len(probe_road)) - np.repeat(np.cumsum(n) - n, n)
+    spacing = length[probe_road] / n[probe_road]
+    at_m = (rank + 0.5) * spacing
+    frames = [pd.DataFrame({"road": [], "side": [], "start_m": [], "end_m": []}, dtype=float)]
+    for side in (0, 1):
+        narrows = (narrower_half_m[:, side] < facts.half[:, side]) & (length > 0)
+        probed = np.flatnonzero((narrows & facts.is_oneway & pd.notna(facts.names))[probe_road])
+        if len(probed) == 0:
+            continue
+        probe_i, hit, centre_m, facing = _across(facts, probe_road[probed], at_m[probed], side, max_median_m)
+        own = probe_road[probed[probe_i]]
+        curb_gap = centre_m - facts.half[own, side] - facts.half[hit].min(axis=1)
+        opened_m = centre_m - narrower_half_m[own, side] - narrower_half_m[hit, facing]
+        opens = np.zeros(len(probe_road), dtype=bool)
+        opens[probed[probe_i[(curb_gap <= max_median_m) & (opened_m >= min_refuge_m)]]] = True
+        # Runs of consecutive opening probes along one road make one stretch.
+        starts = opens & ~np.r_[False, opens[:-1] & (probe_road[1:] == probe_road[:-1])]
+        run = np.cumsum(starts)[opens]
+        first_at = pd.Series(at_m[opens] - spacing[opens] / 2).groupby(run).min()
+        last_at = pd.Series(at_m[opens] + spacing[opens] / 2).groupby(run).max()
+        frames.append(pd.DataFrame({
+            "road": probe_road[starts], "side": side,
+            "start_m": first_at.to_numpy(), "end_m": last_at.to_numpy(),
+        }))  # fmt: skip
+    return pd.concat(frames, ignore_index=True).astype({"road": int, "side": int})
 
 
 @dataclass(frozen=True)
@@ -130,11 +212,19 @@ class _RoadFacts:
     buildings: shapely.STRtree | None
 
 
-def _faces_other_half(
+def _across(
     facts: _RoadFacts, piece: np.ndarray, at_m: np.ndarray, column_index: int, max_median_m: float
-) -> np.ndarray:
-    """For each probe (``piece``, ``at_m`` along it), whether the line square to it on the side
-    ``column_index`` (0 left, 1 right) meets the other half of its dual carriageway first."""
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The probes (``piece``, ``at_m`` along it) whose line square to the side ``column_index``
+    (0 left, 1 right) meets the other half of its dual carriageway first (same name, one-way, travel
+    opposite, no building between).
+
+    Returns
+    -------
+    (probe, hit, centre_m, facing)
+        Per such probe: its index, the piece it meets, the distance between the two centrelines (m)
+        and which side of the piece met faces the probe (0 left, 1 right).
+    """
     lines, road, half = facts.lines, facts.road, facts.half
     origin = shapely.get_coordinates(shapely.line_interpolate_point(lines[piece], at_m))
     tangent = _directions(lines[piece], at_m)
@@ -154,16 +244,31 @@ def _faces_other_half(
     probe_i, hit = probe_i[first], hit[first]
     other, at_origin = road[hit], shapely.points(origin[probe_i])
     their_at_m = shapely.line_locate_point(lines[hit], at_origin)
-    their_way = _directions(lines[hit], their_at_m) * facts.travel[other][:, None]
+    their_drawn = _directions(lines[hit], their_at_m)
+    their_way = their_drawn * facts.travel[other][:, None]
     our_way = tangent[probe_i] * facts.travel[own_road[probe_i]][:, None]
     opposite = np.einsum("ij,ij->i", our_way, their_way) <= np.cos(np.radians(MIN_OPPOSITE_ANGLE_DEG))
-    curb_gap = shapely.distance(at_origin, lines[hit]) - own_half[probe_i] - half[other].min(axis=1)
     same_road = facts.is_oneway[other] & (facts.names[other] == facts.names[own_road[probe_i]])
-    faces = same_road & opposite & (curb_gap <= max_median_m)
+    faces = same_road & opposite
     if facts.buildings is not None:
         across = shapely.shortest_line(at_origin, lines[hit])
         blocked = facts.buildings.query(across, predicate="intersects")[0]
         faces[np.unique(blocked)] = False
+    away = origin[probe_i] - shapely.get_coordinates(shapely.line_interpolate_point(lines[hit], their_at_m))
+    facing = np.where(their_drawn[:, 0] * away[:, 1] - their_drawn[:, 1] * away[:, 0] > 0, 0, 1)
+    centre_m = shapely.distance(at_origin, lines[hit])
+    return probe_i[faces], hit[faces], centre_m[faces], facing[faces]
+
+
+def _faces_other_half(
+    facts: _RoadFacts, piece: np.ndarray, at_m: np.ndarray, column_index: int, max_median_m: float
+) -> np.ndarray:
+    """For each probe (``piece``, ``at_m`` along it), whether the line square to it on the side
+    ``column_index`` (0 left, 1 right) meets the other half of its dual carriageway first, with
+    carriageway edges at most ``max_median_m`` apart."""
+    probe_i, hit, centre_m, _ = _across(facts, piece, at_m, column_index, max_median_m)
+    own_half = facts.half[facts.road[piece[probe_i]], column_index]
+    curb_gap = centre_m - own_half - facts.half[facts.road[hit]].min(axis=1)
     out = np.zeros(len(piece), dtype=bool)
-    out[probe_i[faces]] = True
+    out[probe_i[curb_gap <= max_median_m]] = True
     return out

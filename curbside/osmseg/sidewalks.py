@@ -26,6 +26,7 @@ import shapely
 from curbside.osmseg.config import SegmentationConfig
 from curbside.osmseg.medians import median_sides
 from curbside.osmseg.overlay import subtract
+from curbside.osmseg.reach import RAY_STEP_M, ray_stretches, reach_polygons
 from curbside.osmseg.streets import MINOR_SERVICES, node_keys, side_buffers, side_distances, sidewalk_sides
 from curbside.osmseg.tags import column, is_in
 
@@ -33,6 +34,9 @@ log = logging.getLogger(__name__)
 
 #: A band part beyond the usual depth is kept when it shares this much (m^2) with the usual band.
 _MIN_REACH_OVERLAP_M2 = 0.1
+#: A block side reaches out as far as the median of its rays where at least this share of them meet
+#: the mapped sidewalk.
+_MIN_HIT_SHARE = 0.5
 
 
 def split_at_junctions(roads: gpd.GeoDataFrame, block_ends: np.ndarray) -> gpd.GeoDataFrame:
@@ -190,7 +194,8 @@ def mapped_far_edges_m(
     Parameters
     ----------
     lines
-        Block centrelines in a metric CRS.
+        Block centrelines in a metric CRS, or the stretches of them that their rays stand for
+        (:func:`~curbside.osmseg.reach.ray_stretches`): then each gets one ray, and its own far edge.
     mapped
         Separately mapped sidewalks with ``width_m``
         (:func:`~curbside.osmseg.streets.mapped_sidewalks`), or None.
@@ -203,16 +208,16 @@ def mapped_far_edges_m(
     Returns
     -------
     numpy.ndarray
-        Shape (n, 2), metres to the left and right: the median over rays square to the block of the
-        distance to the nearest sidewalk running within about 25 degrees of parallel, plus half its
-        width; NaN where none is met.
+        Shape (n, 2), metres to the left and right: the median over rays square to the line, every
+        ``RAY_STEP_M``, of the distance to the nearest sidewalk running within about 25 degrees of
+        parallel, plus half its width; NaN where fewer than half the rays meet one.
     """
     if mapped is None or len(mapped) == 0:
         return np.full((len(lines), 2), np.nan)
     setback = -mapped["width_m"].to_numpy() / 2
     return side_distances(
-        lines, mapped.geometry.values, setback, search_m, parallel_only=True, blockers=blockers,
-        own_blocker=own_blocker, min_hit_share=0.5,
+        lines, mapped.geometry.values, setback, search_m, parallel_only=True, step_m=RAY_STEP_M,
+        blockers=blockers, own_blocker=own_blocker, min_hit_share=_MIN_HIT_SHARE,
     )
 
 
@@ -241,8 +246,9 @@ def sidewalk_segments(
     mapped
         Separately mapped sidewalks (:attr:`curbside.osmseg.streets.Carriageways.sidewalks`): where
         the one beside a block lies beyond the curb plus ``sidewalk_depth_m``, that side's band
-        reaches out to its far edge (:func:`mapped_far_edges_m`), short of buildings and other
-        carriageways.
+        reaches out to its far edge (:func:`mapped_far_edges_m`): the median over the block, and ray
+        by ray along a long enough run of rays that meet it (:func:`~curbside.osmseg.reach.reach_polygons`),
+        short of buildings and other carriageways.
 
     Returns
     -------
@@ -265,19 +271,18 @@ def sidewalk_segments(
     half_m = np.column_stack([carrying["half_left_m"].to_numpy(), carrying["half_right_m"].to_numpy()])
     base = half_m[road] + config.sidewalk_depth_m
     road_row = np.flatnonzero(carrying_mask)[road]
-    blockers = np.concatenate([roads.geometry.values, [] if buildings is None else buildings])
-    far = mapped_far_edges_m(lines, mapped, config.mapped_sidewalk_search_m, blockers, road_row)
-    own = territories(lines)
-    bands, centrelines = _bands(lines, base, far, roads.geometry.values, road_row)
-    side = np.repeat(["left", "right"], len(lines))
-    piece_of = np.tile(np.arange(len(lines)), 2)
+    bands, centrelines, further = _reaching_bands(
+        lines, base, mapped, config.mapped_sidewalk_search_m, roads.geometry.values, road_row, buildings,
+        own := territories(lines),
+    )
+    side, piece_of = np.repeat(["left", "right"], len(lines)), np.tile(np.arange(len(lines)), 2)
     median_left, median_right = median_sides(lines, road, carrying, config.max_median_width_m, buildings)
     present = np.concatenate([has_left[road] & ~median_left, has_right[road] & ~median_right])
     bands = shapely.intersection(bands[present], own[piece_of[present]])
     side, piece_of = side[present], piece_of[present]
-    signed_base, further = np.concatenate([base[:, 0], -base[:, 1]]), (np.fmax(base, far) > base).T.ravel()
+    signed_base = np.concatenate([base[:, 0], -base[:, 1]])[present]
     parts, part_of = _band_parts(
-        subtract(bands, obstacles), min_area_m2, centrelines[present], signed_base[present], further[present]
+        subtract(bands, obstacles), min_area_m2, centrelines[present], signed_base, further[present]
     )
     piece = piece_of[part_of]
     way_row = road[piece]
@@ -295,6 +300,65 @@ def sidewalk_segments(
         geometry=shapely.make_valid(parts),
         crs=roads.crs,
     )
+
+
+def _reaching_bands(
+    lines: np.ndarray,
+    base_m: np.ndarray,
+    mapped: gpd.GeoDataFrame | None,
+    search_m: float,
+    roads: np.ndarray,
+    road_row: np.ndarray,
+    buildings: np.ndarray | None,
+    own: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The band of each block side (:func:`_bands`), out to the mapped sidewalk stretch by stretch.
+
+    Returns the bands and their centrelines (left sides, then right sides) and whether each band
+    reaches beyond ``base_m``. The rays of :func:`mapped_far_edges_m`, one per stretch of
+    :func:`~curbside.osmseg.reach.ray_stretches`, give both the side's median reach (:func:`_bands`)
+    and, where a long enough run of them meets the sidewalk inside the block's territory (``own``),
+    the outline that follows it (:func:`~curbside.osmseg.reach.reach_polygons`).
+    """
+    blockers = np.concatenate([roads, [] if buildings is None else buildings])
+    stretches, stretch_of = ray_stretches(lines)
+    far_ray = mapped_far_edges_m(stretches, mapped, search_m, blockers, road_row[stretch_of])
+    far = _median_far_m(far_ray, stretch_of, len(lines))
+    bands, centrelines = _bands(lines, base_m, far, roads, road_row)
+    reach, band_of = reach_polygons(stretches, stretch_of, far_ray, base_m, own)
+    further = (np.fmax(base_m, far) > base_m).T.ravel()
+    further[band_of] = True
+    return _union_per_row(bands, reach, band_of), centrelines, further
+
+
+def _median_far_m(far_ray: np.ndarray, stretch_of: np.ndarray, n_lines: int) -> np.ndarray:
+    """Per line and side (shape (n_lines, 2)), the median of its rays' ``far_ray``; NaN where fewer
+    than half its rays meet a sidewalk."""
+    out = np.full((n_lines, 2), np.nan)
+    n_rays = np.bincount(stretch_of, minlength=n_lines)
+    for side in range(2):
+        met = ~np.isnan(far_ray[:, side])
+        per_line = pd.Series(far_ray[met, side]).groupby(stretch_of[met]).agg(["median", "size"])
+        line = per_line.index.to_numpy()
+        enough = per_line["size"].to_numpy() >= _MIN_HIT_SHARE * n_rays[line]
+        out[line[enough], side] = per_line["median"].to_numpy()[enough]
+    return out
+
+
+def _union_per_row(geoms: np.ndarray, extra: np.ndarray, row: np.ndarray) -> np.ndarray:
+    """``geoms`` with each of ``extra`` unioned into ``geoms[row]``."""
+    if len(extra) == 0:
+        return geoms
+    order = np.argsort(row, kind="stable")
+    row, extra = row[order], extra[order]
+    rows, first = np.unique(row, return_index=True)
+    rank = np.arange(len(row)) - first[np.searchsorted(rows, row)]
+    table = np.full((len(rows), int(rank.max()) + 2), None, dtype=object)
+    table[:, 0] = geoms[rows]
+    table[np.searchsorted(rows, row), rank + 1] = extra
+    out = geoms.copy()
+    out[rows] = shapely.union_all(table, axis=1)
+    return out
 
 
 def _bands(

@@ -6,21 +6,24 @@ crossings close, and everything is unioned. Widths come from ``width``, else ``l
 and cycle lanes, else the ``highway`` class's default width (all widths: fields of
 :class:`~curbside.osmseg.config.SegmentationConfig`). Where a sidewalk is mapped separately
 (``footway=sidewalk``) the curb on that side is put half a sidewalk width short of it, so the
-carriageway never swallows a mapped sidewalk.
+carriageway never swallows a mapped sidewalk. A dual carriageway's half gives up the parking assumed
+on its median side where the median then opens to a real refuge (:func:`open_refuges`).
 """
 
 from __future__ import annotations
 
 import logging
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import geopandas as gpd
 import numpy as np
 import pandas as pd
 import shapely
+from shapely.ops import substring
 
 from curbside.osmseg.config import SegmentationConfig
-from curbside.osmseg.overlay import polygons_only, quadtree_split, subtract
+from curbside.osmseg.medians import refuge_stretches
+from curbside.osmseg.overlay import polygons_only, quadtree_split, subtract, subtract_each
 from curbside.osmseg.tags import column, first_number, is_in, metres
 
 logger = logging.getLogger(__name__)
@@ -135,12 +138,16 @@ def _parking_width(ways: pd.DataFrame, config: SegmentationConfig) -> np.ndarray
     both = side("parking:lane:both", "parking:both")
     left = side("parking:lane:left", "parking:left")
     right = side("parking:lane:right", "parking:right")
+    return np.where(both > 0, 2 * both, left + right) + 2 * _assumed_parking_m(ways, config)
+
+
+def _assumed_parking_m(ways: pd.DataFrame, config: SegmentationConfig) -> np.ndarray:
+    """Parking assumed on each side (m): streets with sidewalks and no ``parking*`` tag."""
     tagged = np.zeros(len(ways), dtype=bool)
     for key in _PARKING_KEYS:
         tagged |= column(ways, key).notna().to_numpy()
     urban = is_in(column(ways, "highway"), config.sidewalk_highways)
-    assumed = np.where(urban & ~tagged, 2 * config.assumed_parking_width_m, 0.0)
-    return np.where(both > 0, 2 * both, left + right) + assumed
+    return np.where(urban & ~tagged, config.assumed_parking_width_m, 0.0)
 
 
 def _cycle_lanes(ways: pd.DataFrame) -> np.ndarray:
@@ -277,7 +284,7 @@ def side_distances(
     if len(lines) == 0 or len(targets) == 0:
         return out
     n = np.maximum(1, (shapely.length(lines) // step_m).astype(int))
-    line_idx, p, tangent = _ray_origins(lines, n)
+    line_idx, p, tangent = ray_origins(lines, n)
     left_normal = np.column_stack([-tangent[:, 1], tangent[:, 0]])
     tree = shapely.STRtree(targets)
     for side, sign in enumerate((1.0, -1.0)):
@@ -305,8 +312,25 @@ def side_distances(
     return out
 
 
-def _ray_origins(lines: np.ndarray, n: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """``n`` evenly spaced points along each line: their line, xy and unit tangent (over 1 m)."""
+def ray_origins(lines: np.ndarray, n: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Where :func:`side_distances` casts its rays: ``n`` evenly spaced points along each line.
+
+    Parameters
+    ----------
+    lines
+        LineStrings in a metric CRS.
+    n
+        Per line, how many points: the k-th lies (k + 1/2) / n of the way along.
+
+    Returns
+    -------
+    line_idx : numpy.ndarray
+        The line of each point.
+    xy : numpy.ndarray
+        Shape (sum(n), 2).
+    tangent : numpy.ndarray
+        Unit tangent of the line at each point (its direction over 1 m).
+    """
     lengths = shapely.length(lines)
     line_idx = np.repeat(np.arange(len(lines)), n)
     rank = np.arange(len(line_idx)) - np.repeat(np.cumsum(n) - n, n)
@@ -356,19 +380,24 @@ class Carriageways:
         (left and right of the OSM way direction) and ``mapped_left`` / ``mapped_right`` (a mapped
         sidewalk narrowed that side).
     surface
-        The carriageway as disjoint polygons (quadtree tiles of the union), before buildings and
-        crosswalks are cut out.
+        The carriageway as disjoint polygons (quadtree tiles of the union), before buildings,
+        crosswalks and ``refuges`` are cut out.
     minor
         Per ``surface`` polygon: it belongs only to driveways, parking aisles or drive-throughs
         (:data:`MINOR_SERVICES`), which sidewalks cross.
     sidewalks
         The mapped sidewalks used (``footway=sidewalk`` ways with ``width_m``).
+    refuges
+        Medians opened by taking the assumed parking off the sides of a dual carriageway that face
+        them (:func:`open_refuges`): free space, not street. ``roads``' half-widths and ``surface``
+        still include that parking, so crosswalks span a refuge whole and sidewalks keep out of it.
     """
 
     roads: gpd.GeoDataFrame
     surface: np.ndarray
     minor: np.ndarray
     sidewalks: gpd.GeoDataFrame
+    refuges: np.ndarray = field(default_factory=lambda: np.array([], dtype=object))
 
 
 def carriageways(
@@ -417,8 +446,12 @@ def carriageways(
     roads = roads.assign(
         half_left_m=half[:, 0], half_right_m=half[:, 1], mapped_left=mapped[:, 0], mapped_right=mapped[:, 1]
     )
+    parking_m = np.where(tagged | np.isnan(_lanes(roads)), 0.0, _assumed_parking_m(roads, config))
+    narrower = np.fmin(half, (width / 2 - parking_m)[:, None])
+    narrower = np.maximum(narrower, config.min_carriageway_half_width_m)
     left = side_buffers(lines, half[:, 0])
     right = side_buffers(lines, -half[:, 1])
+    refuges = open_refuges(roads, np.concatenate([left, right]), narrower, buildings, config)
     radius = half.min(axis=1)
     minor_road = is_in(column(roads, "service"), MINOR_SERVICES)
     through = ~minor_road
@@ -435,7 +468,62 @@ def carriageways(
     parts, tile = shapely.get_parts(surface, return_index=True)
     polygon = shapely.get_type_id(parts) == 3
     is_minor = tile[polygon] >= len(major_tiles)
-    return Carriageways(roads, parts[polygon], is_minor, sidewalks)
+    return Carriageways(roads, parts[polygon], is_minor, sidewalks, refuges)
+
+
+def open_refuges(
+    roads: gpd.GeoDataFrame,
+    bands: np.ndarray,
+    narrower_half_m: np.ndarray,
+    buildings: np.ndarray | None,
+    config: SegmentationConfig,
+) -> np.ndarray:
+    """The median a dual carriageway opens where it gives up the parking assumed on the sides that
+    face it.
+
+    A side facing the other half of its dual carriageway narrows to ``narrower_half_m`` along the
+    stretches where the median would then be at least ``config.min_refuge_width_m`` wide
+    (:func:`~curbside.osmseg.medians.refuge_stretches`); what it gives up there and no other road's
+    band covers (a cross street through the median keeps its carriageway) is the refuge.
+
+    Parameters
+    ----------
+    roads
+        Road ways (metric CRS) with ``half_left_m`` / ``half_right_m`` and their tags.
+    bands
+        Each road's left bands, then its right bands (:func:`side_buffers`).
+    narrower_half_m
+        Shape (n, 2): each side's half-width without the parking assumed on it.
+    buildings
+        Building footprints (a median with a building in it is no median), or None.
+    config
+        ``min_refuge_width_m``, ``max_median_width_m`` and ``min_polygon_area_m2``.
+
+    Returns
+    -------
+    numpy.ndarray
+        The refuges: disjoint polygons.
+    """
+    stretches = refuge_stretches(
+        roads, narrower_half_m, config.min_refuge_width_m, config.max_median_width_m, buildings
+    )
+    if len(stretches) == 0:
+        return np.array([], dtype=object)
+    lines, half = roads.geometry.values, roads[["half_left_m", "half_right_m"]].to_numpy()
+    road, side = stretches["road"].to_numpy(), stretches["side"].to_numpy()
+    ends = zip(road, stretches["start_m"], stretches["end_m"], strict=True)
+    pieces = np.array([substring(lines[r], a, b) for r, a, b in ends], dtype=object)
+    sign = np.where(side == 0, 1.0, -1.0)
+    outer = side_buffers(pieces, sign * half[road, side])
+    strips = shapely.difference(outer, side_buffers(pieces, sign * narrower_half_m[road, side]))
+    slot = side * len(roads) + road
+    kept = subtract_each(bands, np.arange(len(bands)), slot, strips)
+    opened = shapely.union_all(subtract(strips, kept))
+    # The strips' flat ends leave zero-width spikes along the centreline: an opening by 1 cm drops them.
+    opened = shapely.buffer(shapely.buffer(opened, -0.01, join_style="mitre"), 0.01, join_style="mitre")
+    refuges = polygons_only(opened, config.min_polygon_area_m2)
+    logger.info("%d median stretch(es) open %.0f m^2 of refuge", len(stretches), shapely.area(refuges).sum())
+    return refuges
 
 
 def side_buffers(lines: np.ndarray, distance_m: np.ndarray | float) -> np.ndarray:
