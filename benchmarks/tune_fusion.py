@@ -137,6 +137,7 @@ def main(argv: list[str] | None = None) -> int:
                         help="GNSS error model of the tune sessions (default canyon, the benchmark's; "
                              "persistent: errors that last as long as real phones')")
     parser.add_argument("--workers", type=int, default=2)
+    parser.add_argument("--runs-csv", metavar="FILE", help="also write each run's figures to this CSV")
     parser.add_argument("--no-map-likelihood", action="store_true",
                         help="run the filters without the map (as on the IPIN trials); the map still scores")
     args = parser.parse_args(argv)
@@ -159,6 +160,8 @@ def main(argv: list[str] | None = None) -> int:
     wide = pooled.pivot(index="variant", columns="subset").loc[list(dict.fromkeys(pooled["variant"]))]
     print(wide.round(3).to_string())
     print(gnss_ratios(runs).round(2).to_string(index=False))
+    if args.runs_csv:
+        runs.to_csv(args.runs_csv, index=False)
     if len(gains):
         print("paired 95 % session-bootstrap intervals, each variant minus the first "
               "(share of resamples better):")
