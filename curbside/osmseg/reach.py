@@ -13,6 +13,7 @@ from __future__ import annotations
 import numpy as np
 import shapely
 
+from curbside.osmseg.overlay import substrings
 from curbside.osmseg.streets import ray_origins
 
 #: Spacing (m) of the rays along a block that look for the mapped sidewalk beside it.
@@ -36,40 +37,6 @@ def ray_stretches(lines: np.ndarray, step_m: float = RAY_STEP_M) -> tuple[np.nda
     rank = np.arange(len(line_of)) - np.repeat(np.cumsum(n) - n, n)
     stretch_m = lengths[line_of] / n[line_of]
     return substrings(lines, line_of, rank * stretch_m, (rank + 1) * stretch_m), line_of
-
-
-def substrings(lines: np.ndarray, line_of: np.ndarray, start_m: np.ndarray, end_m: np.ndarray) -> np.ndarray:
-    """The part of ``lines[line_of[k]]`` from ``start_m[k]`` to ``end_m[k]`` along it, for each k.
-
-    Parameters
-    ----------
-    lines
-        LineStrings.
-    line_of, start_m, end_m
-        Per part: its line, and where it starts and ends (0 <= start < end <= the line's length).
-
-    Returns
-    -------
-    numpy.ndarray
-        LineStrings: the two ends and the line's vertices between them.
-    """
-    xy, idx = shapely.get_coordinates(lines, return_index=True)
-    step = np.linalg.norm(np.diff(xy, axis=0), axis=1)
-    # A 1 m gap between lines keeps one line's vertices off the next one's stretch of running distance.
-    step[idx[1:] != idx[:-1]] = 1.0
-    run_m = np.r_[0.0, np.cumsum(step)]
-    line_start_m = run_m[np.searchsorted(idx, np.arange(len(lines)))][line_of]
-    lo = np.searchsorted(run_m, line_start_m + start_m, side="right")
-    inner = np.maximum(np.searchsorted(run_m, line_start_m + end_m, side="left") - lo, 0)
-    counts = inner + 2
-    first = np.cumsum(counts) - counts
-    out = np.empty((int(counts.sum()), 2))
-    out[first] = shapely.get_coordinates(shapely.line_interpolate_point(lines[line_of], start_m))
-    out[first + counts - 1] = shapely.get_coordinates(shapely.line_interpolate_point(lines[line_of], end_m))
-    part = np.repeat(np.arange(len(line_of)), inner)
-    rank = np.arange(len(part)) - np.repeat(np.cumsum(inner) - inner, inner)
-    out[first[part] + 1 + rank] = xy[lo[part] + rank]
-    return shapely.linestrings(out, indices=np.repeat(np.arange(len(line_of)), counts))
 
 
 def reach_polygons(

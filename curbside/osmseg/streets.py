@@ -19,11 +19,10 @@ import geopandas as gpd
 import numpy as np
 import pandas as pd
 import shapely
-from shapely.ops import substring
 
 from curbside.osmseg.config import SegmentationConfig
 from curbside.osmseg.medians import refuge_stretches
-from curbside.osmseg.overlay import polygons_only, quadtree_split, subtract, subtract_each
+from curbside.osmseg.overlay import polygons_only, quadtree_split, substrings, subtract, subtract_each
 from curbside.osmseg.tags import column, first_number, is_in, metres
 
 logger = logging.getLogger(__name__)
@@ -511,8 +510,7 @@ def open_refuges(
         return np.array([], dtype=object)
     lines, half = roads.geometry.values, roads[["half_left_m", "half_right_m"]].to_numpy()
     road, side = stretches["road"].to_numpy(), stretches["side"].to_numpy()
-    ends = zip(road, stretches["start_m"], stretches["end_m"], strict=True)
-    pieces = np.array([substring(lines[r], a, b) for r, a, b in ends], dtype=object)
+    pieces = substrings(lines, road, stretches["start_m"].to_numpy(), stretches["end_m"].to_numpy())
     sign = np.where(side == 0, 1.0, -1.0)
     outer = side_buffers(pieces, sign * half[road, side])
     strips = shapely.difference(outer, side_buffers(pieces, sign * narrower_half_m[road, side]))
