@@ -127,3 +127,18 @@ def test_celler_strasse_opens_no_median():
     layers, off = build_map(osm_file=path), build_map(osm_file=path, config=RULE_OFF)
     for cls in ("street", "crosswalk", "sidewalk"):
         assert shapely.area(_geoms(layers, cls)).sum() == pytest.approx(shapely.area(_geoms(off, cls)).sum())
+
+
+def test_the_embarcadero_in_the_bundled_extract_opens_its_median_and_nothing_else_moves():
+    # By Mission and Howard Streets the Embarcadero's halves run either side of the streetcar median.
+    bbox = (-122.3935, 37.7925, -122.3905, 37.7945)
+    on, off = build_map(bbox=bbox).gdf, build_map(bbox=bbox, config=RULE_OFF).gdf
+    for cls in ("crosswalk", "sidewalk", "building"):
+        a, b = on[on["class"] == cls].geometry.values, off[off["class"] == cls].geometry.values
+        assert len(a) == len(b) and shapely.union_all(a).equals(shapely.union_all(b))
+    opened = shapely.difference(
+        shapely.union_all(off[off["class"] == "street"].geometry.values),
+        shapely.union_all(on[on["class"] == "street"].geometry.values),
+    )
+    assert opened.area > 300.0  # m^2 of median become free space, and nothing else:
+    assert shapely.intersection(opened, shapely.union_all(on.geometry.values)).area < 0.01
